@@ -1,0 +1,64 @@
+"""Errors raised by osmseg.
+
+As in rasterio, there is one root, :class:`OsmsegError`, and each subclass also
+inherits the builtin exception it resembles, so callers may catch either.  Every
+message is one line that says what to change.  The CLI turns these into a one-line
+message on stderr and exit status 1 (2 for usage errors).
+"""
+
+from __future__ import annotations
+
+
+class OsmsegError(Exception):
+    """Root of all osmseg errors."""
+
+
+class ConfigError(OsmsegError, ValueError):
+    """A setting, option or data-manifest entry is invalid."""
+
+
+class UnknownPlaceError(ConfigError, KeyError):
+    """A city/area name that is not among the presets."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+class ClassTableError(ConfigError):
+    """A class table (data_manifests/classes*.toml) is malformed."""
+
+
+class NetworkError(OsmsegError, IOError):
+    """A remote service could not be reached or kept failing after retries."""
+
+
+class HTTPStatusError(NetworkError):
+    """A remote service answered with an HTTP error status."""
+
+    def __init__(self, message: str, status: int | None = None) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+class AuthError(HTTPStatusError):
+    """A key or token was refused (HTTP 401/403 or a provider's own refusal)."""
+
+
+class OfflineCacheMiss(NetworkError):
+    """``--offline`` was given and the request is not in the cache."""
+
+
+class ImageryError(OsmsegError, IOError):
+    """Imagery could not be read, decoded or reprojected."""
+
+
+class OSMDataError(OsmsegError, ValueError):
+    """OpenStreetMap data is malformed or could not be read."""
+
+
+class OSMLimitError(OSMDataError):
+    """A service refused a box as too large (area or node limit): split it."""
+
+
+class DatasetError(OsmsegError, IOError):
+    """An output or input dataset folder is inconsistent."""

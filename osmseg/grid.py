@@ -1,0 +1,157 @@
+"""The pixel grid of one sample: a square block of Web Mercator tiles.
+
+A sample is ``size x size`` tiles (5 x 5 in the dissertation) of 256 px around the
+tile that holds its centre point, merged into one ``1280 x 1280`` image.  Everything
+downstream (imagery, OSM rasterisation, GeoTIFF output) shares this grid, so masks
+and images line up by construction.
+
+Pure functions over :mod:`mercantile`, returning small immutable values.
+
+>>> g = sample_grid(13.4050, 52.5200, zoom=18)
+>>> g.width, g.height, len(g.tiles)
+(1280, 1280, 25)
+>>> g.tiles[12] == mercantile.tile(13.4050, 52.5200, 18)
+True
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import mercantile
+from affine import Affine
+
+TILE_SIZE = 256
+EARTH_CIRCUMFERENCE = 2 * math.pi * 6378137.0
+
+
+class LngLatBBox(NamedTuple):
+    """A WGS84 bounding box: west, south, east, north in degrees."""
+
+    west: float
+    south: float
+    east: float
+    north: float
+
+
+class XYBounds(NamedTuple):
+    """A Web Mercator (EPSG:3857) box in metres: left, bottom, right, top."""
+
+    left: float
+    bottom: float
+    right: float
+    top: float
+
+
+@dataclass(frozen=True)
+class SampleGrid:
+    """The tiles and pixel grid of one sample.
+
+    Attributes:
+        lon, lat: the sampled centre point (degrees).
+        zoom: the tile zoom level.
+        tiles: ``size * size`` tiles in row-major order (north-west first).
+        size: tiles per side.
+    """
+
+    lon: float
+    lat: float
+    zoom: int
+    tiles: tuple[mercantile.Tile, ...]
+    size: int = 5
+
+    @property
+    def width(self) -> int:
+        """Image width in pixels."""
+        return self.size * TILE_SIZE
+
+    @property
+    def height(self) -> int:
+        """Image height in pixels."""
+        return self.size * TILE_SIZE
+
+    @property
+    def xy_bounds(self) -> XYBounds:
+        """Outer bounds of the tile block in EPSG:3857 metres."""
+        nw = mercantile.xy_bounds(self.tiles[0])
+        se = mercantile.xy_bounds(self.tiles[-1])
+        return XYBounds(nw.left, se.bottom, se.right, nw.top)
+
+    @property
+    def bbox(self) -> LngLatBBox:
+        """Outer bounds of the tile block in WGS84 degrees."""
+        nw = mercantile.bounds(self.tiles[0])
+        se = mercantile.bounds(self.tiles[-1])
+        return LngLatBBox(nw.west, se.south, se.east, nw.north)
+
+    @property
+    def transform(self) -> Affine:
+        """Affine transform from (col, row) pixel to EPSG:3857 (x, y)."""
+        b = self.xy_bounds
+        res = (b.right - b.left) / self.width
+        return Affine(res, 0.0, b.left, 0.0, -res, b.top)
+
+    @property
+    def pixel_size(self) -> float:
+        """Pixel side in Web Mercator metres (not ground metres; see ground_resolution)."""
+        return EARTH_CIRCUMFERENCE / (TILE_SIZE * 2**self.zoom)
+
+    @property
+    def ground_resolution(self) -> float:
+        """Pixel side on the ground in metres at the centre latitude."""
+        return ground_resolution(self.lat, self.zoom)
+
+    def tile_offset(self, index: int) -> tuple[int, int]:
+        """Pixel (col, row) of the top-left corner of ``tiles[index]`` in the merged image."""
+        row, col = divmod(index, self.size)
+        return col * TILE_SIZE, row * TILE_SIZE
+
+
+def sample_grid(lon: float, lat: float, zoom: int, size: int = 5) -> SampleGrid:
+    """The ``size x size`` tile block centred on the tile holding (lon, lat).
+
+    ``size`` must be odd so that the centre tile is in the middle.
+
+    >>> g = sample_grid(0.0, 0.0, zoom=1, size=1)
+    >>> g.tiles
+    (Tile(x=1, y=1, z=1),)
+    """
+    if size < 1 or size % 2 == 0:
+        raise ValueError(f"grid size must be a positive odd number, got {size}")
+    centre = mercantile.tile(lon, lat, zoom)
+    half = size // 2
+    n = 2**zoom
+    tiles = tuple(
+        mercantile.Tile((centre.x + dx) % n, centre.y + dy, zoom)
+        for dy in range(-half, half + 1)
+        for dx in range(-half, half + 1)
+    )
+    if any(not 0 <= t.y < n for t in tiles):
+        raise ValueError(f"latitude {lat} is too close to a pole for a {size}x{size} grid at zoom {zoom}")
+    return SampleGrid(lon=lon, lat=lat, zoom=zoom, tiles=tiles, size=size)
+
+
+def ground_resolution(lat: float, zoom: int) -> float:
+    """Metres on the ground per pixel of a 256 px tile at ``zoom`` and latitude ``lat``.
+
+    >>> round(ground_resolution(0.0, 18), 3)
+    0.597
+    >>> round(ground_resolution(52.52, 18), 3)
+    0.363
+    """
+    return math.cos(math.radians(lat)) * EARTH_CIRCUMFERENCE / (TILE_SIZE * 2**zoom)
+
+
+def pad_bbox(bbox: LngLatBBox, metres: float) -> LngLatBBox:
+    """``bbox`` grown by about ``metres`` on every side (for fetching OSM data that crosses the edge).
+
+    >>> b = pad_bbox(LngLatBBox(0.0, 0.0, 0.001, 0.001), 111.32)
+    >>> round(b.west, 4), round(b.north, 4)
+    (-0.001, 0.002)
+    """
+    dlat = metres / 111_320.0
+    mid = math.radians((bbox.south + bbox.north) / 2)
+    dlon = metres / (111_320.0 * max(math.cos(mid), 1e-6))
+    return LngLatBBox(bbox.west - dlon, max(bbox.south - dlat, -85.0511), bbox.east + dlon, min(bbox.north + dlat, 85.0511))

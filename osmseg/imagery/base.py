@@ -1,0 +1,51 @@
+"""The imagery provider interface: give a sample grid, get back a 1280x1280 RGB image.
+
+Providers (``bing``, ``xyz:TEMPLATE``, ``geotiff:PATH``) differ only in where pixels come
+from; every one returns an :class:`Imagery` on exactly the sample's Web Mercator grid
+(:class:`osmseg.grid.SampleGrid`), so OSM masks line up with it by construction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from osmseg.grid import SampleGrid
+
+
+@dataclass
+class Imagery:
+    """Pixels of one sample plus what is needed to report where they came from.
+
+    Attributes:
+        rgb: ``(H, W, 3)`` uint8 image on the sample grid.
+        valid: ``(H, W)`` bool, False where the provider had no imagery (Bing "no tile"
+            placeholders, transparent/empty tiles, outside a GeoTIFF's footprint).
+        placeholder_tiles: number of tiles the provider marked as "no imagery here".
+        info: JSON-able provenance for the manifest (provider, tile URLs with keys removed,
+            capture dates when known). Never holds an API key.
+    """
+
+    rgb: np.ndarray
+    valid: np.ndarray
+    placeholder_tiles: int = 0
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class ImageryProvider(Protocol):
+    """What the builder needs from an imagery source."""
+
+    #: short name recorded in the manifest, e.g. "bing", "xyz", "geotiff"
+    name: str
+    #: attribution line required by the provider's terms
+    attribution: str
+
+    def fetch(self, grid: SampleGrid) -> Imagery:
+        """Pixels for ``grid``. Raises :class:`osmseg.errors.ImageryError` or ``NetworkError``."""
+        ...
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-able description (no keys) for the manifest and the datasheet."""
+        ...

@@ -1,0 +1,123 @@
+"""Where to sample: city presets, a point, or a box, and seeded random centres in them.
+
+>>> find_preset("sao paulo").name
+'São Paulo'
+>>> find_preset("  BERLIN ").lat
+52.52
+"""
+
+from __future__ import annotations
+
+import math
+import unicodedata
+from dataclasses import dataclass
+
+import numpy as np
+
+from osmseg.errors import ConfigError, UnknownPlaceError
+from osmseg.grid import LngLatBBox
+from osmseg.manifests import load_toml
+
+EARTH_RADIUS_M = 6371008.8
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named sampling area from ``data_manifests/cities.toml``."""
+
+    name: str
+    lat: float
+    lon: float
+    radius_km: float
+    kind: str
+    source: str
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Area:
+    """Where sample centres are drawn: a disc (centre + radius) or a box."""
+
+    name: str
+    lat: float
+    lon: float
+    radius_km: float | None = None
+    bbox: LngLatBBox | None = None
+
+    def random_centres(self, rng: np.random.Generator, n: int) -> list[tuple[float, float]]:
+        """``n`` (lon, lat) centres drawn uniformly over the disc (by area) or the box."""
+        out: list[tuple[float, float]] = []
+        for _ in range(n):
+            if self.bbox is not None:
+                b = self.bbox
+                lon = float(rng.uniform(b.west, b.east))
+                # uniform by area on the sphere: uniform in sin(lat)
+                s = rng.uniform(math.sin(math.radians(b.south)), math.sin(math.radians(b.north)))
+                lat = math.degrees(math.asin(float(s)))
+            else:
+                assert self.radius_km is not None
+                r = self.radius_km * 1000.0 * math.sqrt(float(rng.uniform()))
+                theta = float(rng.uniform(0.0, 2 * math.pi))
+                lon, lat = destination(self.lon, self.lat, r, theta)
+            out.append((lon, lat))
+        return out
+
+
+def normalise_name(name: str) -> str:
+    """Case- and accent-insensitive key for a place name.
+
+    >>> normalise_name("  São  Paulo ")
+    'sao paulo'
+    """
+    decomposed = unicodedata.normalize("NFKD", name)
+    stripped = "".join(c for c in decomposed if not unicodedata.combining(c))
+    return " ".join(stripped.casefold().replace("-", " ").replace("_", " ").split())
+
+
+def load_presets(manifest: str = "cities.toml") -> dict[str, Preset]:
+    """All presets, keyed by their display name."""
+    table = load_toml(manifest)
+    presets = {}
+    for name, entry in table.items():
+        try:
+            presets[name] = Preset(name=name, **entry)
+        except TypeError as exc:
+            raise ConfigError(f"{manifest}: preset {name!r} is malformed ({exc})") from None
+    return presets
+
+
+def find_preset(name: str, manifest: str = "cities.toml") -> Preset:
+    """The preset whose name matches ``name`` regardless of case, accents and spacing."""
+    presets = load_presets(manifest)
+    wanted = normalise_name(name)
+    for preset in presets.values():
+        if normalise_name(preset.name) == wanted:
+            return preset
+    known = ", ".join(sorted(presets))
+    raise UnknownPlaceError(f"unknown city {name!r}; use one of: {known}; or give --lat/--lon or --bbox")
+
+
+def parse_bbox(text: str) -> LngLatBBox:
+    """Parse ``W,S,E,N`` in degrees.
+
+    >>> parse_bbox("13.3,52.4,13.5,52.6")
+    LngLatBBox(west=13.3, south=52.4, east=13.5, north=52.6)
+    """
+    try:
+        w, s, e, n = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--bbox {text!r}: expected four numbers W,S,E,N in degrees") from None
+    if not (-180 <= w < e <= 180 and -85.06 <= s < n <= 85.06):
+        raise ConfigError(f"--bbox {text!r}: need W<E within ±180 and S<N within ±85.06 (Web Mercator)")
+    return LngLatBBox(w, s, e, n)
+
+
+def destination(lon: float, lat: float, distance_m: float, bearing_rad: float) -> tuple[float, float]:
+    """The point ``distance_m`` from (lon, lat) along ``bearing_rad`` on a sphere."""
+    phi1, lam1 = math.radians(lat), math.radians(lon)
+    d = distance_m / EARTH_RADIUS_M
+    phi2 = math.asin(math.sin(phi1) * math.cos(d) + math.cos(phi1) * math.sin(d) * math.cos(bearing_rad))
+    lam2 = lam1 + math.atan2(
+        math.sin(bearing_rad) * math.sin(d) * math.cos(phi1), math.cos(d) - math.sin(phi1) * math.sin(phi2)
+    )
+    return (math.degrees(lam2) + 540.0) % 360.0 - 180.0, math.degrees(phi2)
