@@ -112,24 +112,26 @@ class SampleGrid:
 def sample_grid(lon: float, lat: float, zoom: int, size: int = 5) -> SampleGrid:
     """The ``size x size`` tile block centred on the tile holding (lon, lat).
 
-    ``size`` must be odd so that the centre tile is in the middle.
+    ``size`` must be odd so that the centre tile is in the middle. At the edges of the Web
+    Mercator world (the antimeridian, +-85.05 degrees) the block is shifted inward so it
+    never wraps; the centre tile is then off-middle but still inside the block.
 
     >>> g = sample_grid(0.0, 0.0, zoom=1, size=1)
     >>> g.tiles
     (Tile(x=1, y=1, z=1),)
+    >>> sample_grid(179.9999, 0.0, zoom=3, size=3).tiles[0]
+    Tile(x=5, y=3, z=3)
     """
     if size < 1 or size % 2 == 0:
         raise ValueError(f"grid size must be a positive odd number, got {size}")
+    n = 2**zoom
+    if size > n:
+        raise ValueError(f"a {size}x{size} grid does not fit in the world at zoom {zoom}")
     centre = mercantile.tile(lon, lat, zoom)
     half = size // 2
-    n = 2**zoom
-    tiles = tuple(
-        mercantile.Tile((centre.x + dx) % n, centre.y + dy, zoom)
-        for dy in range(-half, half + 1)
-        for dx in range(-half, half + 1)
-    )
-    if any(not 0 <= t.y < n for t in tiles):
-        raise ValueError(f"latitude {lat} is too close to a pole for a {size}x{size} grid at zoom {zoom}")
+    x0 = min(max(centre.x - half, 0), n - size)
+    y0 = min(max(centre.y - half, 0), n - size)
+    tiles = tuple(mercantile.Tile(x0 + dx, y0 + dy, zoom) for dy in range(size) for dx in range(size))
     return SampleGrid(lon=lon, lat=lat, zoom=zoom, tiles=tiles, size=size)
 
 

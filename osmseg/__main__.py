@@ -1,0 +1,5 @@
+"""``python -m osmseg`` (and ``torchrun -m osmseg``) runs the command line."""
+
+from osmseg.cli.main import cli
+
+cli()

@@ -1,0 +1,321 @@
+"""``osmseg build``: sample centres, fetch imagery and OSM, rasterise, filter, write.
+
+The pipeline for one attempt (see :func:`run_attempt`):
+
+    centre --grid--> SampleGrid --imagery--> RGB 1280x1280
+                             \\--osm-------> OSM file --features--> polygons --rasterize--> labels
+    (RGB, labels) --filters--> accepted: images/, segmented/, labels/, geo/   |  rejected: reason
+
+:func:`build` runs the attempts slot by slot (see :mod:`osmseg.state` for why slots make a
+build resumable and shardable), then writes the dataset-level files: ``manifest.json``,
+``DATASHEET.md``, ``ATTRIBUTION.md``, pictures and, if asked, a zip.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from osmseg import __version__
+from osmseg.classes import ClassTable, load_class_table
+from osmseg.errors import ConfigError
+from osmseg.filters import FilterConfig, check_sample
+from osmseg.grid import SampleGrid, ground_resolution, pad_bbox, sample_grid
+from osmseg.imagery import make_provider
+from osmseg.imagery.base import ImageryProvider
+from osmseg.net.http import HttpClient, HttpConfig
+from osmseg.osm.base import OsmSource
+from osmseg.osm.features import read_features
+from osmseg.osm.sources import make_osm_source
+from osmseg.output import (
+    make_zip,
+    sample_entry,
+    write_attribution,
+    write_datasheet,
+    write_manifest,
+    write_overview,
+    write_sample,
+)
+from osmseg.places import Area, normalise_name
+from osmseg.rasterize import rasterize
+from osmseg.state import BuildState
+
+logger = logging.getLogger(__name__)
+
+#: Zoom 18: ~0.6 m/px at the equator, ~0.37 m/px in Berlin; a 5x5 sample spans ~470 m there.
+#: Fine enough that footways, single trees and small buildings are several pixels wide, coarse
+#: enough that Bing/Esri cover every preset area at this level.
+DEFAULT_ZOOM = 18
+
+#: Known per-host request limits (the OSM API asks for at most 2 concurrent connections).
+HOST_LIMITS = {"api.openstreetmap.org": 2, "overpass-api.de": 2, "dev.virtualearth.net": 2}
+
+
+@dataclass(frozen=True)
+class Shard:
+    """``--shard K/N``: this process builds slots ``i`` with ``i % N == K - 1``."""
+
+    index: int  # 1-based K
+    count: int  # N
+
+    @classmethod
+    def parse(cls, text: str) -> "Shard":
+        """Parse ``K/N``.
+
+        >>> Shard.parse("2/8")
+        Shard(index=2, count=8)
+        """
+        try:
+            k, n = (int(v) for v in text.split("/"))
+        except ValueError:
+            raise ConfigError(f"--shard {text!r}: expected K/N, e.g. 1/4") from None
+        if not 1 <= k <= n:
+            raise ConfigError(f"--shard {text!r}: need 1 <= K <= N")
+        return cls(k, n)
+
+    def owns(self, slot: int) -> bool:
+        return slot % self.count == self.index - 1
+
+
+@dataclass(frozen=True)
+class BuildConfig:
+    """Everything that decides a build. Passed explicitly; no global settings."""
+
+    out_dir: Path
+    area: Area
+    imagery: str
+    osm: str = "api"
+    samples: int = 30
+    seed: int = 0
+    zoom: int = DEFAULT_ZOOM
+    grid_size: int = 5
+    classes: str = "classes13.toml"
+    image_format: str = "png"
+    filters: FilterConfig = field(default_factory=FilterConfig)
+    max_tries: int = 10
+    osm_padding_m: float = 60.0
+    cache_dir: Path | None = None
+    offline: bool = False
+    shard: Shard | None = None
+    zip: bool = False
+    name_prefix: str | None = None
+
+    def identity(self) -> dict[str, Any]:
+        """What decides the dataset's content; recorded in the state and the manifest."""
+        return {
+            "area": {k: v for k, v in asdict(self.area).items() if v is not None},
+            "imagery": self.imagery,
+            "osm": self.osm,
+            "samples": self.samples,
+            "seed": self.seed,
+            "zoom": self.zoom,
+            "grid_size": self.grid_size,
+            "classes": self.classes,
+            "image_format": self.image_format,
+            "filters": self.filters.to_dict(),
+            "max_tries": self.max_tries,
+            "osm_padding_m": self.osm_padding_m,
+        }
+
+    @property
+    def prefix(self) -> str:
+        return self.name_prefix or normalise_name(self.area.name).replace(" ", "-") or "sample"
+
+
+@dataclass
+class BuildSummary:
+    """What a build did, for the closing summary."""
+
+    out_dir: Path
+    accepted: int = 0
+    rejected: Counter = field(default_factory=Counter)
+    gave_up: int = 0
+    pending_other_shards: int = 0
+    seconds: float = 0.0
+    finalized: bool = False
+
+    def lines(self) -> list[str]:
+        reasons = ", ".join(f"{n} {r}" for r, n in sorted(self.rejected.items())) or "none"
+        out = [
+            f"accepted {self.accepted} samples; rejected {sum(self.rejected.values())} attempts ({reasons})",
+            f"time {self.seconds:.1f} s",
+        ]
+        if self.gave_up:
+            out.append(f"{self.gave_up} slots hit --max-tries without an accepted sample")
+        if self.pending_other_shards:
+            out.append(f"{self.pending_other_shards} slots belong to other shards and are not built yet")
+        return out
+
+
+def attempt_rng(seed: int, slot: int, attempt: int) -> np.random.Generator:
+    """The random generator of one attempt: depends only on (seed, slot, attempt)."""
+    return np.random.default_rng([seed, slot, attempt])
+
+
+def attempt_centre(config: BuildConfig, slot: int, attempt: int) -> tuple[float, float]:
+    """Seeded (lon, lat) centre of attempt ``attempt`` of slot ``slot``."""
+    return config.area.random_centres(attempt_rng(config.seed, slot, attempt), 1)[0]
+
+
+@dataclass
+class Pipeline:
+    """The sources and tables one build uses."""
+
+    imagery: ImageryProvider
+    osm: OsmSource
+    table: ClassTable  # the output table (classes13 or a mapped one such as classes6)
+    rules: ClassTable  # the table whose tag rules are rasterised (the base of a mapped table)
+
+
+def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) -> dict[str, Any]:
+    """Run one attempt; write the sample if it is accepted. Returns the attempt's record."""
+    lon, lat = attempt_centre(config, slot, attempt)
+    grid = sample_grid(lon, lat, config.zoom, config.grid_size)
+    record: dict[str, Any] = {"slot": slot, "attempt": attempt, "center": [round(lon, 7), round(lat, 7)]}
+    imagery = pipe.imagery.fetch(grid)
+    extract = pipe.osm.fetch(pad_bbox(grid.bbox, config.osm_padding_m))
+    labels = rasterize(read_features(extract.paths, grid, pipe.rules), grid, pipe.rules)
+    if pipe.table is not pipe.rules:
+        labels = pipe.table.lookup_from_base()[labels]
+    rejection = check_sample(imagery.rgb, imagery.valid, labels, imagery.placeholder_tiles, config.filters)
+    if rejection is not None:
+        record.update(status="rejected", reason=rejection.reason, detail=rejection.detail)
+        return record
+    name = f"{config.prefix}_{slot:05d}"
+    written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format)
+    record.update(
+        status="accepted",
+        sample=sample_entry(name, grid, imagery, extract, written),
+    )
+    return record
+
+
+def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int) -> dict[str, Any]:
+    """Try centres for one slot until one is accepted or ``max_tries`` runs out."""
+    rejections = []
+    for attempt in range(config.max_tries):
+        record = state.attempt(slot, attempt)
+        if record is None:
+            record = run_attempt(config, pipe, slot, attempt)
+            state.record_attempt(slot, attempt, record)
+        if record["status"] == "accepted":
+            outcome = {"slot": slot, "status": "accepted", "sample": record["sample"], "rejected": rejections}
+            break
+        rejections.append({k: record[k] for k in ("attempt", "center", "reason", "detail")})
+    else:
+        outcome = {"slot": slot, "status": "gave_up", "rejected": rejections}
+    state.record_slot(slot, outcome)
+    return outcome
+
+
+def open_pipeline(config: BuildConfig, client: HttpClient, env: dict[str, str]) -> Pipeline:
+    """Create the imagery provider, OSM source and class tables a config names."""
+    table = load_class_table(config.classes)
+    rules = table.base or table
+    workdir = (config.cache_dir or config.out_dir / ".osmseg-build") / "osm"
+    imagery = make_provider(config.imagery, client, env)
+    osm = make_osm_source(config.osm, client, workdir, rules)
+    return Pipeline(imagery=imagery, osm=osm, table=table, rules=rules)
+
+
+def build(
+    config: BuildConfig,
+    env: dict[str, str] | None = None,
+    progress: Callable[[int, dict[str, Any]], None] | None = None,
+    command_line: str = "",
+) -> BuildSummary:
+    """Build (or resume) the dataset described by ``config`` in ``config.out_dir``.
+
+    ``progress(slot, outcome)`` is called after each finished slot (the CLI draws its bar
+    with it). ``command_line`` is recorded in the manifest; pass it without secrets.
+    """
+    env = dict(os.environ if env is None else env)
+    start = time.monotonic()
+    if config.samples < 1:
+        raise ConfigError("--samples must be at least 1")
+    ground_resolution(config.area.lat, config.zoom)  # validates lat
+    config.out_dir.mkdir(parents=True, exist_ok=True)
+    state = BuildState(config.out_dir)
+    state.check_config(config.identity())
+    summary = BuildSummary(out_dir=config.out_dir)
+    http = HttpConfig(cache_dir=config.cache_dir, offline=config.offline, host_limits=HOST_LIMITS)
+    with HttpClient(http) as client:
+        pipe = open_pipeline(config, client, env)
+        mine = [s for s in range(config.samples) if config.shard is None or config.shard.owns(s)]
+        todo = [s for s in mine if state.slot(s) is None]
+        prepare = getattr(pipe.osm, "prepare", None)
+        if todo and callable(prepare):
+            # one pass over a big local file for every first-try box
+            prepare([pad_bbox(_grid(config, s, 0).bbox, config.osm_padding_m) for s in todo])
+        for slot in mine:
+            outcome = state.slot(slot) or run_slot(config, pipe, state, slot)
+            _count(summary, outcome)
+            if progress is not None:
+                progress(slot, outcome)
+        imagery_info, osm_info = pipe.imagery.describe(), pipe.osm.describe()
+    outcomes = [state.slot(s) for s in range(config.samples)]
+    summary.pending_other_shards = sum(o is None for o in outcomes)
+    if summary.pending_other_shards == 0:
+        finalize(config, pipe.table, [o for o in outcomes if o], imagery_info, osm_info, command_line)
+        summary.finalized = True
+    summary.seconds = time.monotonic() - start
+    return summary
+
+
+def _grid(config: BuildConfig, slot: int, attempt: int) -> SampleGrid:
+    lon, lat = attempt_centre(config, slot, attempt)
+    return sample_grid(lon, lat, config.zoom, config.grid_size)
+
+
+def _count(summary: BuildSummary, outcome: dict[str, Any]) -> None:
+    if outcome["status"] == "accepted":
+        summary.accepted += 1
+    else:
+        summary.gave_up += 1
+    summary.rejected.update(r["reason"] for r in outcome["rejected"])
+
+
+def finalize(
+    config: BuildConfig,
+    table: ClassTable,
+    outcomes: list[dict[str, Any]],
+    imagery_info: dict[str, Any],
+    osm_info: dict[str, Any],
+    command_line: str,
+) -> dict[str, Any]:
+    """Write manifest, datasheet, attribution, pictures (and zip) from the finished slots."""
+    samples = [o["sample"] for o in outcomes if o["status"] == "accepted"]
+    rejected = [dict(r, slot=o["slot"]) for o in outcomes for r in o["rejected"]]
+    reasons = Counter(r["reason"] for r in rejected)
+    manifest = {
+        "tool": {"name": "osmseg", "version": __version__},
+        "command": command_line,
+        "config": config.identity(),
+        "ground_resolution_m": round(ground_resolution(config.area.lat, config.zoom), 4),
+        "classes": table.to_dict(),
+        "imagery": imagery_info,
+        "osm": osm_info,
+        "samples": samples,
+        "rejected": rejected,
+        "summary": {
+            "requested": config.samples,
+            "accepted": len(samples),
+            "rejected": len(rejected),
+            "rejected_by_reason": dict(sorted(reasons.items())),
+            "slots_without_sample": sum(o["status"] == "gave_up" for o in outcomes),
+        },
+    }
+    write_manifest(config.out_dir, manifest)
+    write_datasheet(config.out_dir, manifest)
+    write_attribution(config.out_dir, manifest)
+    write_overview(config.out_dir, manifest, table)
+    if config.zip:
+        make_zip(config.out_dir, config.out_dir.with_suffix(".zip"))
+    return manifest

@@ -1,0 +1,157 @@
+"""``osmseg build``: make a segmentation dataset from OpenStreetMap and aerial imagery."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from pathlib import Path
+from typing import Any, Iterator
+
+import click
+from tqdm import tqdm
+
+from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
+from osmseg.errors import ConfigError
+from osmseg.filters import FilterConfig
+from osmseg.cli.main import report_errors
+from osmseg.places import Area, find_preset, parse_bbox
+
+
+def default_cache_dir() -> Path:
+    """Shared HTTP/OSM cache: $OSMSEG_CACHE_DIR, else $XDG_CACHE_HOME/osmseg, else ~/.cache/osmseg."""
+    if "OSMSEG_CACHE_DIR" in os.environ:
+        return Path(os.environ["OSMSEG_CACHE_DIR"])
+    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+    return base / "osmseg"
+
+
+def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: str | None, radius_km: float | None) -> Area:
+    """The sampling area from exactly one of --city, --lat/--lon, --bbox."""
+    given = sum(x is not None for x in (city, bbox)) + (lat is not None or lon is not None)
+    if given != 1:
+        raise ConfigError("give exactly one of --city NAME, --lat/--lon, or --bbox W,S,E,N")
+    if city is not None:
+        p = find_preset(city)
+        return Area(name=p.name, lat=p.lat, lon=p.lon, radius_km=radius_km or p.radius_km)
+    if bbox is not None:
+        b = parse_bbox(bbox)
+        return Area(name="bbox", lat=(b.south + b.north) / 2, lon=(b.west + b.east) / 2, bbox=b)
+    if lat is None or lon is None:
+        raise ConfigError("--lat and --lon go together")
+    if not (-85.05 <= lat <= 85.05 and -180 <= lon <= 180):
+        raise ConfigError(f"--lat {lat} --lon {lon}: out of range for Web Mercator (|lat| <= 85.05, |lon| <= 180)")
+    return Area(name=f"{lat:.4f},{lon:.4f}", lat=lat, lon=lon, radius_km=radius_km or 2.0)
+
+
+def redact_argv(argv: list[str]) -> str:
+    """The command line for the manifest, with secret query parameters removed."""
+    from osmseg.net.http import redact
+
+    return " ".join(redact(a) if "://" in a or "?" in a else a for a in argv)
+
+
+@contextlib.contextmanager
+def http_recording(record: Path | None, replay: Path | None) -> Iterator[None]:
+    """Record the build's HTTP traffic to a cassette, or replay one (no network)."""
+    if record and replay:
+        raise ConfigError("--record and --replay exclude each other")
+    if record or replay:
+        from osmseg.net.replay import cassette
+
+        with cassette(record or replay, "record" if record else "replay"):  # type: ignore[arg-type]
+            yield
+    else:
+        yield
+
+
+class ProgressBar:
+    """A tqdm bar over slots, showing accepted and rejected counts."""
+
+    def __init__(self, total: int, enabled: bool) -> None:
+        self.bar = tqdm(total=total, unit="sample", disable=not enabled, file=sys.stderr, dynamic_ncols=True)
+        self.accepted = 0
+        self.rejected = 0
+
+    def __call__(self, slot: int, outcome: dict[str, Any]) -> None:
+        self.accepted += outcome["status"] == "accepted"
+        self.rejected += len(outcome["rejected"])
+        self.bar.set_postfix(accepted=self.accepted, rejected=self.rejected, refresh=False)
+        self.bar.update(1)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def run_build(config: BuildConfig, verbosity: int, record: Path | None = None, replay: Path | None = None,
+              env: dict[str, str] | None = None) -> BuildSummary:
+    """Run a build with a progress bar and print the summary (stderr) and output path (stdout)."""
+    total = sum(1 for s in range(config.samples) if config.shard is None or config.shard.owns(s))
+    bar = ProgressBar(total, enabled=verbosity >= 0)
+    try:
+        with http_recording(record, replay):
+            summary = build(config, env=env, progress=bar, command_line=redact_argv(["osmseg", *sys.argv[1:]]))
+    finally:
+        bar.close()
+    if verbosity >= 0:
+        for line in summary.lines():
+            click.echo(line, err=True)
+        if not summary.finalized:
+            click.echo("manifest not written yet: it is written when every shard has finished", err=True)
+    click.echo(str(config.out_dir / "manifest.json") if summary.finalized else str(config.out_dir))
+    return summary
+
+
+@click.command("build")
+@click.option("--city", help="A preset area (data_manifests/cities.toml), e.g. Berlin, 'São Paulo'; any case/accents.")
+@click.option("--lat", type=float, help="Centre latitude (with --lon) for an area anywhere.")
+@click.option("--lon", type=float, help="Centre longitude (with --lat).")
+@click.option("--radius-km", type=float, help="Sampling radius around the centre [preset's, or 2 km].")
+@click.option("--bbox", help="Sample uniformly inside W,S,E,N (degrees) instead of a disc.")
+@click.option("--samples", "-n", type=int, default=30, show_default=True, help="Accepted samples wanted.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed for every random choice (recorded).")
+@click.option("--zoom", type=click.IntRange(1, 23), default=DEFAULT_ZOOM, show_default=True,
+              help="Tile zoom. 18 = ~0.6 m/px at the equator, ~0.37 m/px at 52°N (see docs).")
+@click.option("--imagery", help="bing (needs BING_MAPS_KEY) | xyz:TEMPLATE | geotiff:PATH [bing if BING_MAPS_KEY is set].")
+@click.option("--osm", default="api", show_default=True, help="api | overpass | PATH.osm(.pbf) | geojson:PATH (see docs/osm.md).")
+@click.option("--classes", default="classes13.toml", show_default=True, help="Class table: classes13.toml or classes6.toml or a path.")
+@click.option("--image-format", type=click.Choice(["png", "jpg"]), default="png", show_default=True)
+@click.option("--max-unlabeled", type=click.FloatRange(0, 1), default=0.70, show_default=True, help="Reject samples with at least this unlabeled share.")
+@click.option("--min-classes", type=int, default=2, show_default=True, help="Reject samples with fewer classes.")
+@click.option("--min-contrast", type=float, default=None, help="Reject images whose grey-level std is below this [filters default].")
+@click.option("--max-tries", type=int, default=10, show_default=True, help="Centres tried per sample before giving up on it.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="Output folder (rerun to resume).")
+@click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="HTTP/OSM cache [~/.cache/osmseg].")
+@click.option("--offline", is_flag=True, help="Use only the cache; fail on anything not cached.")
+@click.option("--shard", help="K/N: build only this process's share of the samples (array jobs).")
+@click.option("--zip", "make_zip", is_flag=True, help="Also write OUT.zip.")
+@click.option("--record", type=click.Path(dir_okay=False, path_type=Path), help="Record all HTTP traffic to a cassette (keys removed).")
+@click.option("--replay", type=click.Path(dir_okay=False, exists=True, path_type=Path), help="Serve all HTTP from a recorded cassette.")
+@click.pass_context
+@report_errors
+def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: float | None, radius_km: float | None,
+                  bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, osm: str, classes: str,
+                  image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float | None,
+                  max_tries: int, out_dir: Path, cache_dir: Path | None, offline: bool, shard: str | None,
+                  make_zip: bool, record: Path | None, replay: Path | None) -> None:
+    """Build a segmentation dataset: aerial images + OSM label masks + manifest.
+
+    \b
+    Examples:
+      osmseg build --city Berlin --samples 30 --out data/berlin
+      osmseg build --lat 0.35 --lon 32.59 --zoom 21 --imagery 'xyz:file:///data/tiles/{z}/{x}/{y}.png' \\
+                   --osm buildings.osm.pbf --out data/kampala
+    """
+    from osmseg.imagery import default_imagery_spec
+
+    area = resolve_area(city, lat, lon, bbox, radius_km)
+    filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes)
+    if min_contrast is not None:
+        filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes, min_contrast=min_contrast)
+    config = BuildConfig(
+        out_dir=out_dir, area=area, imagery=imagery or default_imagery_spec(os.environ), osm=osm,
+        samples=samples, seed=seed, zoom=zoom, classes=classes, image_format=image_format, filters=filters,
+        max_tries=max_tries, cache_dir=cache_dir or default_cache_dir(), offline=offline,
+        shard=Shard.parse(shard) if shard else None, zip=make_zip,
+    )
+    run_build(config, ctx.obj["verbosity"], record=record, replay=replay)
