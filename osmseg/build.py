@@ -26,7 +26,7 @@ import numpy as np
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError
-from osmseg.filters import FilterConfig, check_sample
+from osmseg.filters import FilterConfig, check_imagery, check_labels
 from osmseg.grid import SampleGrid, ground_resolution, pad_bbox, sample_grid
 from osmseg.imagery import make_provider
 from osmseg.imagery.base import ImageryProvider
@@ -35,14 +35,19 @@ from osmseg.osm.base import OsmSource
 from osmseg.osm.features import read_features
 from osmseg.osm.sources import make_osm_source
 from osmseg.output import (
+    class_totals,
     make_zip,
+    rejection_entry,
     sample_entry,
+    summary_entry,
     write_attribution,
+    write_class_histogram,
     write_datasheet,
     write_manifest,
     write_overview,
     write_sample,
 )
+from osmseg.output.manifest import FORMAT, FORMAT_VERSION
 from osmseg.places import Area, normalise_name
 from osmseg.rasterize import rasterize
 from osmseg.state import BuildState
@@ -175,26 +180,29 @@ class Pipeline:
 
 
 def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) -> dict[str, Any]:
-    """Run one attempt; write the sample if it is accepted. Returns the attempt's record."""
+    """Run one attempt; write the sample if it is accepted. Returns the attempt's record.
+
+    OSM comes first: a sample whose mask fails the label checks is rejected before any of
+    its 25 tiles is downloaded.
+    """
     lon, lat = attempt_centre(config, slot, attempt)
     grid = sample_grid(lon, lat, config.zoom, config.grid_size)
-    record: dict[str, Any] = {"slot": slot, "attempt": attempt, "center": [round(lon, 7), round(lat, 7)]}
-    imagery = pipe.imagery.fetch(grid)
     extract = pipe.osm.fetch(pad_bbox(grid.bbox, config.osm_padding_m))
     labels = rasterize(read_features(extract.paths, grid, pipe.rules), grid, pipe.rules)
     if pipe.table is not pipe.rules:
         labels = pipe.table.lookup_from_base()[labels]
-    rejection = check_sample(imagery.rgb, imagery.valid, labels, imagery.placeholder_tiles, config.filters)
-    if rejection is not None:
-        record.update(status="rejected", reason=rejection.reason, detail=rejection.detail)
-        return record
+    rejection = check_labels(labels, config.filters)
+    imagery = None
+    if rejection is None:
+        imagery = pipe.imagery.fetch(grid)
+        rejection = check_imagery(imagery.rgb, imagery.valid, imagery.placeholder_tiles, config.filters)
+    if rejection is not None or imagery is None:
+        assert rejection is not None
+        return {"status": "rejected", **rejection_entry(lon, lat, rejection, attempt=attempt)}
     name = f"{config.prefix}_{slot:05d}"
     written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format)
-    record.update(
-        status="accepted",
-        sample=sample_entry(name, grid, imagery, extract, written),
-    )
-    return record
+    entry = sample_entry(name, grid, written, imagery=imagery.info, osm=extract.info, osm_timestamp=extract.timestamp)
+    return {"status": "accepted", "sample": entry}
 
 
 def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int) -> dict[str, Any]:
@@ -208,7 +216,7 @@ def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int) 
         if record["status"] == "accepted":
             outcome = {"slot": slot, "status": "accepted", "sample": record["sample"], "rejected": rejections}
             break
-        rejections.append({k: record[k] for k in ("attempt", "center", "reason", "detail")})
+        rejections.append({k: v for k, v in record.items() if k != "status"})
     else:
         outcome = {"slot": slot, "status": "gave_up", "rejected": rejections}
     state.record_slot(slot, outcome)
@@ -293,29 +301,33 @@ def finalize(
     """Write manifest, datasheet, attribution, pictures (and zip) from the finished slots."""
     samples = [o["sample"] for o in outcomes if o["status"] == "accepted"]
     rejected = [dict(r, slot=o["slot"]) for o in outcomes for r in o["rejected"]]
-    reasons = Counter(r["reason"] for r in rejected)
+    area = config.area
     manifest = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
         "tool": {"name": "osmseg", "version": __version__},
         "command": command_line,
+        "seed": config.seed,
+        "area": {"name": area.name, "kind": area.kind, "lat": area.lat, "lon": area.lon, "radius_km": area.radius_km,
+                 "bbox": list(area.bbox) if area.bbox else None},
+        "zoom": config.zoom,
+        "grid_size": config.grid_size,
+        "image_format": config.image_format,
         "config": config.identity(),
-        "ground_resolution_m": round(ground_resolution(config.area.lat, config.zoom), 4),
         "classes": table.to_dict(),
+        "filters": config.filters.to_dict(),
         "imagery": imagery_info,
         "osm": osm_info,
         "samples": samples,
         "rejected": rejected,
-        "summary": {
-            "requested": config.samples,
-            "accepted": len(samples),
-            "rejected": len(rejected),
-            "rejected_by_reason": dict(sorted(reasons.items())),
-            "slots_without_sample": sum(o["status"] == "gave_up" for o in outcomes),
-        },
+        "summary": summary_entry(samples, rejected, requested=config.samples,
+                                 max_attempts=config.samples * config.max_tries),
     }
     write_manifest(config.out_dir, manifest)
     write_datasheet(config.out_dir, manifest)
     write_attribution(config.out_dir, manifest)
-    write_overview(config.out_dir, manifest, table)
+    write_overview(config.out_dir, samples, table)
+    write_class_histogram(config.out_dir, class_totals(samples), table)
     if config.zip:
         make_zip(config.out_dir, config.out_dir.with_suffix(".zip"))
     return manifest

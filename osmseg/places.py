@@ -43,6 +43,7 @@ class Area:
     lon: float
     radius_km: float | None = None
     bbox: LngLatBBox | None = None
+    kind: str = "custom"  # urban | rural for presets
 
     def random_centres(self, rng: np.random.Generator, n: int) -> list[tuple[float, float]]:
         """``n`` (lon, lat) centres drawn uniformly over the disc (by area) or the box."""

@@ -14,6 +14,7 @@ from tqdm import tqdm
 from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
 from osmseg.errors import ConfigError
 from osmseg.filters import FilterConfig
+from osmseg.output import command_line
 from osmseg.cli.main import report_errors
 from osmseg.places import Area, find_preset, parse_bbox
 
@@ -33,7 +34,7 @@ def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: s
         raise ConfigError("give exactly one of --city NAME, --lat/--lon, or --bbox W,S,E,N")
     if city is not None:
         p = find_preset(city)
-        return Area(name=p.name, lat=p.lat, lon=p.lon, radius_km=radius_km or p.radius_km)
+        return Area(name=p.name, lat=p.lat, lon=p.lon, radius_km=radius_km or p.radius_km, kind=p.kind)
     if bbox is not None:
         b = parse_bbox(bbox)
         return Area(name="bbox", lat=(b.south + b.north) / 2, lon=(b.west + b.east) / 2, bbox=b)
@@ -42,13 +43,6 @@ def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: s
     if not (-85.05 <= lat <= 85.05 and -180 <= lon <= 180):
         raise ConfigError(f"--lat {lat} --lon {lon}: out of range for Web Mercator (|lat| <= 85.05, |lon| <= 180)")
     return Area(name=f"{lat:.4f},{lon:.4f}", lat=lat, lon=lon, radius_km=radius_km or 2.0)
-
-
-def redact_argv(argv: list[str]) -> str:
-    """The command line for the manifest, with secret query parameters removed."""
-    from osmseg.net.http import redact
-
-    return " ".join(redact(a) if "://" in a or "?" in a else a for a in argv)
 
 
 @contextlib.contextmanager
@@ -90,7 +84,7 @@ def run_build(config: BuildConfig, verbosity: int, record: Path | None = None, r
     bar = ProgressBar(total, enabled=verbosity >= 0)
     try:
         with http_recording(record, replay):
-            summary = build(config, env=env, progress=bar, command_line=redact_argv(["osmseg", *sys.argv[1:]]))
+            summary = build(config, env=env, progress=bar, command_line=command_line(["osmseg", *sys.argv[1:]]))
     finally:
         bar.close()
     if verbosity >= 0:
@@ -118,7 +112,8 @@ def run_build(config: BuildConfig, verbosity: int, record: Path | None = None, r
 @click.option("--image-format", type=click.Choice(["png", "jpg"]), default="png", show_default=True)
 @click.option("--max-unlabeled", type=click.FloatRange(0, 1), default=0.70, show_default=True, help="Reject samples with at least this unlabeled share.")
 @click.option("--min-classes", type=int, default=2, show_default=True, help="Reject samples with fewer classes.")
-@click.option("--min-contrast", type=float, default=None, help="Reject images whose grey-level std is below this [filters default].")
+@click.option("--min-contrast", type=float, default=FilterConfig.min_contrast, show_default=True,
+              help="Reject images whose grey-level standard deviation (0-255) is below this.")
 @click.option("--max-tries", type=int, default=10, show_default=True, help="Centres tried per sample before giving up on it.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="Output folder (rerun to resume).")
 @click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="HTTP/OSM cache [~/.cache/osmseg].")
@@ -131,7 +126,7 @@ def run_build(config: BuildConfig, verbosity: int, record: Path | None = None, r
 @report_errors
 def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: float | None, radius_km: float | None,
                   bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, osm: str, classes: str,
-                  image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float | None,
+                  image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float,
                   max_tries: int, out_dir: Path, cache_dir: Path | None, offline: bool, shard: str | None,
                   make_zip: bool, record: Path | None, replay: Path | None) -> None:
     """Build a segmentation dataset: aerial images + OSM label masks + manifest.
@@ -145,9 +140,7 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
     from osmseg.imagery import default_imagery_spec
 
     area = resolve_area(city, lat, lon, bbox, radius_km)
-    filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes)
-    if min_contrast is not None:
-        filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes, min_contrast=min_contrast)
+    filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes, min_contrast=min_contrast)
     config = BuildConfig(
         out_dir=out_dir, area=area, imagery=imagery or default_imagery_spec(os.environ), osm=osm,
         samples=samples, seed=seed, zoom=zoom, classes=classes, image_format=image_format, filters=filters,

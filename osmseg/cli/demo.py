@@ -27,7 +27,7 @@ def demo_config(out_dir: Path) -> BuildConfig:
     """
     p = find_preset("Helsinki")
     return BuildConfig(
-        out_dir=out_dir, area=Area(name=p.name, lat=p.lat, lon=p.lon, radius_km=p.radius_km),
+        out_dir=out_dir, area=Area(name=p.name, lat=p.lat, lon=p.lon, radius_km=p.radius_km, kind=p.kind),
         imagery="bing", osm="api", samples=DEMO_SAMPLES, seed=0, zoom=18,
         cache_dir=out_dir / ".cache", offline=False,
     )

@@ -1,0 +1,97 @@
+"""ATTRIBUTION.md: the licences and attribution a dataset's users must keep.
+
+Two sources, two sets of terms:
+
+* the labels (``segmented/``, ``labels/``, ``geo/``) are made from OpenStreetMap data,
+  © OpenStreetMap contributors, under the Open Database License (ODbL) 1.0;
+* the images (``images/``) stay under the imagery provider's own terms, whose attribution
+  line comes from the provider's ``describe()`` (recorded in the manifest).
+
+The text explains what the ODbL asks of someone who shares the dataset, following the OSMF's
+community guidelines (Produced Work guideline, 2014; Horizontal Layers guideline). It is
+guidance, not legal advice.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from osmseg.output.atomic import atomic_write_text
+
+ATTRIBUTION_NAME = "ATTRIBUTION.md"
+OSM_NOTICE = "© OpenStreetMap contributors"
+ODBL_URL = "https://opendatacommons.org/licenses/odbl/1-0/"
+OSM_COPYRIGHT_URL = "https://www.openstreetmap.org/copyright"
+
+_TERMS_KEYS = ("copyright", "terms", "terms_url", "terms_of_use", "license", "licence", "license_url", "brand_logo_uri")
+
+
+def _imagery_lines(imagery: dict[str, Any]) -> list[str]:
+    """What the manifest says about the imagery provider's terms."""
+    name = imagery.get("name") or imagery.get("provider") or "the imagery provider"
+    lines = [f"- Provider: **{name}**"]
+    attribution = imagery.get("attribution")
+    lines.append(f"- Attribution: {attribution}" if attribution else
+                 "- Attribution: *(the provider gave none; look up its terms before sharing the images)*")
+    for key in _TERMS_KEYS:
+        if imagery.get(key):
+            lines.append(f"- {key.replace('_', ' ').capitalize()}: {imagery[key]}")
+    if imagery.get("brand_logo_uri"):
+        lines.append("- Bing Maps terms ask that the logo above is shown with the imagery.")
+    return lines
+
+
+def render_attribution(manifest: dict[str, Any]) -> str:
+    """The ATTRIBUTION.md text for ``manifest`` (pure function of the manifest)."""
+    imagery = manifest.get("imagery") or {}
+    osm = manifest.get("osm") or {}
+    osm_extra = osm.get("attribution")
+    out = [
+        "# Attribution and licences",
+        "",
+        "This dataset combines two sources under different terms. Keep this file with any copy.",
+        "",
+        "## Labels: OpenStreetMap data, ODbL 1.0",
+        "",
+        f"`segmented/`, `labels/` and `geo/` are made from OpenStreetMap data, **{OSM_NOTICE}**,",
+        f"available under the Open Database License (ODbL) 1.0: {ODBL_URL}",
+        f"(details: {OSM_COPYRIGHT_URL}).",
+    ]
+    if osm_extra and osm_extra != OSM_NOTICE:
+        out.append(f"Source attribution as reported: {osm_extra}")
+    out += [
+        "",
+        "What this means when you share the dataset (guidance, not legal advice):",
+        "",
+        "- **Attribution is always required.** Wherever the labels, or anything made from them, are",
+        f'  shown or shared, say "{OSM_NOTICE}" and that the data is available under the ODbL.',
+        "- **The label files are best treated as a Derivative Database.** The ODbL calls a work",
+        "  made from the data (a map image, a chart) a *Produced Work*, which you may license as you",
+        "  like with the notice above. But the OSMF guideline says something made for extracting",
+        "  the original data is a database, not a Produced Work, and per-pixel class masks are",
+        "  shipped precisely to be read back as data. So if you publicly share the label files,",
+        "  share them under the ODbL 1.0 (share-alike), keep this notice, and offer the data or",
+        "  the means to recreate it: `manifest.json` (tiles, OSM source and timestamp per sample)",
+        "  and the osmseg command line in it serve as that machine-readable recipe.",
+        "- **Produced Works** made from the dataset (figures, rendered maps, a published model's",
+        "  predictions shown as images) need only the notice.",
+        "- **The images are a separate layer.** Combining OSM labels with imagery does not put the",
+        "  imagery under the ODbL (OSMF Horizontal Layers guideline), nor the labels under the",
+        "  imagery's terms: each keeps its own licence.",
+        "",
+        "## Images: imagery provider's terms",
+        "",
+        "`images/` come from the provider below and remain under its terms of use, which may",
+        "restrict redistribution (commercial providers often allow only the use their API key",
+        "was issued for). Check them before you publish the images.",
+        "",
+        *_imagery_lines(imagery),
+        "",
+    ]
+    return "\n".join(out)
+
+
+def write_attribution(out_dir: Path, manifest: dict[str, Any]) -> Path:
+    """Write ``OUT/ATTRIBUTION.md`` atomically and return its path."""
+    return atomic_write_text(Path(out_dir) / ATTRIBUTION_NAME, render_attribution(manifest))

@@ -1,0 +1,268 @@
+"""The dataset manifest (``manifest.json``): what was built, from what, and the hash of every file.
+
+The builder assembles the manifest dict (schema in ``docs/dataset-format.md``); this module
+gives it the per-sample and per-rejection entries, writes it deterministically (sorted keys,
+2-space indent, UTF-8, trailing newline, atomic), checks its shape and re-verifies a dataset
+folder against it, so a user can tell that a copy is complete and unmodified.
+
+>>> print(command_line(["osmseg", "build", "--imagery", "xyz:https://t.example/{z}/{x}/{y}?key=SECRET"]))
+osmseg build --imagery 'xyz:https://t.example/{z}/{x}/{y}?key=REDACTED'
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+from collections import Counter
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import mercantile
+
+from osmseg.errors import DatasetError
+from osmseg.filters import REASONS, Rejection
+from osmseg.grid import SampleGrid
+from osmseg.net.http import redact
+from osmseg.output.atomic import atomic_write_text, sha256_file
+
+MANIFEST_NAME = "manifest.json"
+FORMAT = "osmseg-dataset"
+FORMAT_VERSION = 1
+#: Folders holding per-sample files (each file listed in the manifest).
+SAMPLE_DIRS = ("images", "segmented", "labels", "geo")
+#: Keys every manifest has (see docs/dataset-format.md).
+REQUIRED_KEYS = (
+    "format", "format_version", "tool", "command", "seed", "area", "zoom", "grid_size", "classes",
+    "filters", "imagery", "osm", "samples", "rejected", "summary",
+)
+#: Keys every entry of ``samples`` has.
+SAMPLE_KEYS = (
+    "name", "center", "bbox_wgs84", "bounds_3857", "zoom", "ground_resolution_m", "tiles",
+    "imagery", "osm", "class_histogram", "files",
+)
+
+_SECRET_OPTION = re.compile(r"(?i)^--?[\w-]*(key|token|secret|password)[\w-]*$")
+
+
+def command_line(argv: Sequence[str]) -> str:
+    """The command that made the dataset, shell-quoted, with secrets removed.
+
+    Values of options named like ``--*key*``/``--*token*``/``--*secret*``/``--*password*``
+    become ``REDACTED``, and every other argument goes through :func:`osmseg.net.http.redact`
+    (secret URL parameters such as ``key=``/``access_token=``, passwords in URLs).
+
+    >>> command_line(["osmseg", "build", "--bing-key", "abc", "--api-token=xyz", "--seed", "3"])
+    'osmseg build --bing-key REDACTED --api-token=REDACTED --seed 3'
+    """
+    out: list[str] = []
+    hide_next = False
+    for arg in argv:
+        if hide_next:
+            out.append("REDACTED")
+            hide_next = False
+            continue
+        option, eq, _ = arg.partition("=")
+        if _SECRET_OPTION.match(option):
+            if eq:
+                out.append(f"{option}=REDACTED")
+            else:
+                out.append(arg)
+                hide_next = True
+            continue
+        out.append(redact(arg))
+    return shlex.join(out)
+
+
+def tile_entry(tile: mercantile.Tile) -> dict[str, Any]:
+    """A tile as ``{"z", "x", "y", "quadkey"}``.
+
+    >>> tile_entry(mercantile.Tile(3, 5, 3))
+    {'z': 3, 'x': 3, 'y': 5, 'quadkey': '213'}
+    """
+    return {"z": tile.z, "x": tile.x, "y": tile.y, "quadkey": mercantile.quadkey(tile)}
+
+
+def sample_entry(
+    name: str,
+    grid: SampleGrid,
+    written: dict[str, Any],
+    *,
+    imagery: dict[str, Any],
+    osm: dict[str, Any],
+    osm_timestamp: str | None,
+) -> dict[str, Any]:
+    """The manifest entry of one accepted sample.
+
+    Args:
+        name: sample name (file stem).
+        grid: the sample's grid (centre, tiles, bounds).
+        written: what :func:`osmseg.output.writer.write_sample` returned.
+        imagery: ``Imagery.info`` (provider provenance, no keys).
+        osm: ``OsmExtract.info`` (source provenance, no keys).
+        osm_timestamp: ``OsmExtract.timestamp`` (ISO 8601) or None when unknown.
+    """
+    return {
+        "name": name,
+        "center": {"lon": grid.lon, "lat": grid.lat},
+        "bbox_wgs84": list(grid.bbox),
+        "bounds_3857": list(grid.xy_bounds),
+        "zoom": grid.zoom,
+        "ground_resolution_m": grid.ground_resolution,
+        "tiles": [tile_entry(t) for t in grid.tiles],
+        "imagery": imagery,
+        "osm": {**osm, "timestamp": osm_timestamp},
+        "class_histogram": dict(written["class_histogram"]),
+        "files": dict(written["files"]),
+    }
+
+
+def rejection_entry(lon: float, lat: float, rejection: Rejection, attempt: int | None = None) -> dict[str, Any]:
+    """The manifest entry of one rejected attempt: centre, reason, detail (and attempt number).
+
+    >>> rejection_entry(1.5, 2.0, Rejection("unlabeled", "80.0% unlabeled >= 70.0%"), attempt=4)["reason"]
+    'unlabeled'
+    """
+    entry: dict[str, Any] = {"center": {"lon": lon, "lat": lat}, **rejection.to_dict()}
+    if attempt is not None:
+        entry["attempt"] = attempt
+    return entry
+
+
+def summary_entry(
+    samples: Sequence[dict[str, Any]],
+    rejected: Sequence[dict[str, Any]],
+    *,
+    requested: int,
+    max_attempts: int,
+) -> dict[str, Any]:
+    """Counts for the manifest's ``summary``: accepted, rejected (total and by reason), attempts.
+
+    >>> summary_entry([{}], [{"reason": "unlabeled"}] * 2, requested=3, max_attempts=10)["rejected_by_reason"]
+    {'unlabeled': 2}
+    """
+    by_reason = Counter(r["reason"] for r in rejected)
+    return {
+        "requested": requested,
+        "accepted": len(samples),
+        "rejected": len(rejected),
+        "attempts": len(samples) + len(rejected),
+        "max_attempts": max_attempts,
+        "rejected_by_reason": {k: by_reason[k] for k in sorted(by_reason, key=_reason_order)},
+        "complete": len(samples) >= requested,
+    }
+
+
+def _reason_order(reason: str) -> tuple[int, str]:
+    return (REASONS.index(reason) if reason in REASONS else len(REASONS), reason)
+
+
+def class_totals(samples: Iterable[dict[str, Any]]) -> dict[str, int]:
+    """Pixel count per class name summed over samples.
+
+    >>> class_totals([{"class_histogram": {"a": 1, "b": 2}}, {"class_histogram": {"a": 3}}])
+    {'a': 4, 'b': 2}
+    """
+    totals: Counter[str] = Counter()
+    for s in samples:
+        totals.update(s["class_histogram"])
+    return dict(totals)
+
+
+def manifest_text(manifest: dict[str, Any]) -> str:
+    """The manifest as deterministic JSON text (sorted keys, indent 2, UTF-8, trailing newline)."""
+    try:
+        return json.dumps(manifest, sort_keys=True, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+    except (TypeError, ValueError) as exc:
+        raise DatasetError(f"manifest is not JSON-serialisable ({exc}); pass plain str/int/float/list/dict values") from None
+
+
+def write_manifest(out_dir: Path, manifest: dict[str, Any]) -> Path:
+    """Write ``OUT/manifest.json`` atomically and return its path."""
+    return atomic_write_text(Path(out_dir) / MANIFEST_NAME, manifest_text(manifest))
+
+
+def manifest_path(path: Path) -> Path:
+    """``path`` itself if it is a file, else ``path/manifest.json``."""
+    path = Path(path)
+    return path / MANIFEST_NAME if path.is_dir() else path
+
+
+def read_manifest(path: Path) -> dict[str, Any]:
+    """Read and validate a manifest (a dataset folder or the manifest file itself)."""
+    file = manifest_path(path)
+    try:
+        manifest = json.loads(file.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DatasetError(f"{file} not found; give a dataset folder made by 'osmseg build'") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{file} is not valid JSON ({exc}); rebuild the dataset or restore the file") from None
+    validate_manifest(manifest, where=str(file))
+    return manifest
+
+
+def validate_manifest(manifest: Any, where: str = "manifest") -> None:
+    """Raise :class:`DatasetError` (one line) if ``manifest`` does not have the documented shape."""
+    if not isinstance(manifest, dict):
+        raise DatasetError(f"{where}: top level must be a JSON object")
+    if manifest.get("format") != FORMAT:
+        raise DatasetError(f"{where}: format is {manifest.get('format')!r}, expected {FORMAT!r}")
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise DatasetError(
+            f"{where}: format_version {manifest.get('format_version')!r} is not {FORMAT_VERSION}; use a matching osmseg"
+        )
+    missing = [k for k in REQUIRED_KEYS if k not in manifest]
+    if missing:
+        raise DatasetError(f"{where}: missing keys {missing}")
+    if not isinstance(manifest["samples"], list) or not isinstance(manifest["rejected"], list):
+        raise DatasetError(f"{where}: samples and rejected must be lists")
+    names: set[str] = set()
+    for i, sample in enumerate(manifest["samples"]):
+        if not isinstance(sample, dict):
+            raise DatasetError(f"{where}: samples[{i}] must be an object")
+        lacking = [k for k in SAMPLE_KEYS if k not in sample]
+        if lacking:
+            raise DatasetError(f"{where}: samples[{i}] ({sample.get('name', '?')}) is missing {lacking}")
+        if sample["name"] in names:
+            raise DatasetError(f"{where}: sample name {sample['name']!r} appears twice")
+        names.add(sample["name"])
+        for rel in sample["files"]:
+            if Path(rel).is_absolute() or ".." in Path(rel).parts:
+                raise DatasetError(f"{where}: sample {sample['name']} lists a path outside the dataset: {rel!r}")
+    for i, rej in enumerate(manifest["rejected"]):
+        if not isinstance(rej, dict) or not {"center", "reason", "detail"} <= rej.keys():
+            raise DatasetError(f"{where}: rejected[{i}] must have center, reason and detail")
+
+
+def verify(out_dir: Path) -> list[str]:
+    """Re-check a dataset folder against its manifest; returns the problems found (empty = OK).
+
+    Every file listed for every sample must exist with the recorded SHA-256, and the sample
+    folders must hold no file the manifest does not list (hidden ``.*`` temp files excepted).
+    Raises :class:`DatasetError` when the manifest itself is missing or malformed.
+    """
+    out_dir = Path(out_dir)
+    manifest = read_manifest(out_dir)
+    problems: list[str] = []
+    listed: set[str] = set()
+    for sample in manifest["samples"]:
+        for rel, digest in sorted(sample["files"].items()):
+            listed.add(rel)
+            path = out_dir / rel
+            if not path.is_file():
+                problems.append(f"{rel}: missing")
+            elif sha256_file(path) != digest:
+                problems.append(f"{rel}: modified (sha256 differs from the manifest)")
+    for folder in SAMPLE_DIRS:
+        root = out_dir / folder
+        if not root.is_dir():
+            continue
+        for path in sorted(root.rglob("*")):
+            rel = path.relative_to(out_dir).as_posix()
+            if path.is_file() and not path.name.startswith(".") and rel not in listed:
+                problems.append(f"{rel}: not listed in the manifest")
+    summary = manifest["summary"]
+    if isinstance(summary, dict) and summary.get("accepted", len(manifest["samples"])) != len(manifest["samples"]):
+        problems.append(f"summary says {summary.get('accepted')} accepted samples, the manifest lists {len(manifest['samples'])}")
+    return problems

@@ -1,0 +1,145 @@
+"""Pictures of a dataset: a contact sheet of samples and a class-distribution bar chart.
+
+``overview.png`` shows up to ``max_samples`` samples as rows of image | colour mask |
+50 % overlay, with a legend of class colours and names, so a user sees at a glance whether
+masks line up with the imagery. ``class_histogram.png`` shows each class's share of all
+pixels as bars in the class colours. Both are drawn with Pillow only, with fixed sizes and
+Pillow's built-in font, and written like every other output file (atomic, deterministic).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+from osmseg.classes import ClassTable
+from osmseg.errors import DatasetError
+from osmseg.output.atomic import atomic_write_bytes
+from osmseg.output.writer import encode_png
+
+OVERVIEW_NAME = "overview.png"
+HISTOGRAM_NAME = "class_histogram.png"
+MARGIN = 8
+LINE = 14  # text line height of the default font, in pixels
+SWATCH = 12
+WHITE = (255, 255, 255)
+INK = (30, 30, 30)
+EDGE = (128, 128, 128)
+
+
+def _font() -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
+    return ImageFont.load_default()
+
+
+def _file(out_dir: Path, sample: Mapping[str, Any], folder: str) -> Path:
+    """The sample's file under ``folder/`` as listed in its manifest entry."""
+    for rel in sorted(sample["files"]):
+        if rel.startswith(folder + "/"):
+            path = out_dir / rel
+            if not path.is_file():
+                raise DatasetError(f"{path} is missing; rebuild the dataset (the manifest lists it)")
+            return path
+    raise DatasetError(f"sample {sample.get('name', '?')} lists no file under {folder}/; rebuild it")
+
+
+def _legend(draw: ImageDraw.ImageDraw, table: ClassTable, x0: int, y0: int, width: int) -> int:
+    """Draw class swatches and names in columns from (x0, y0); returns the y below the legend."""
+    font = _font()
+    entries = [(c.name, c.color) for c in sorted((table.unlabeled, *table.classes), key=lambda c: c.id)]
+    col_w = SWATCH + 6 + max(int(draw.textlength(name, font=font)) for name, _ in entries) + 12
+    per_row = max(1, (width - x0) // col_w)
+    for i, (name, color) in enumerate(entries):
+        row, col = divmod(i, per_row)
+        x, y = x0 + col * col_w, y0 + row * (LINE + 4)
+        draw.rectangle([x, y + 1, x + SWATCH, y + 1 + SWATCH], fill=tuple(color), outline=EDGE)
+        draw.text((x + SWATCH + 6, y), name, fill=INK, font=font)
+    rows = -(-len(entries) // per_row)
+    return y0 + rows * (LINE + 4)
+
+
+def legend_height(table: ClassTable, width: int) -> int:
+    """Pixel height of the legend block drawn by :func:`overview_image` for an image ``width`` wide."""
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    return _legend(probe, table, MARGIN, 0, width - MARGIN) + MARGIN
+
+
+def overview_image(
+    out_dir: Path, samples: Sequence[Mapping[str, Any]], table: ClassTable, *, max_samples: int = 8, thumb: int = 256
+) -> Image.Image:
+    """The contact sheet of the first ``max_samples`` samples (manifest entries) as a Pillow image."""
+    out_dir = Path(out_dir)
+    shown = list(samples)[:max_samples]
+    width = 3 * thumb + 4 * MARGIN
+    row_h = LINE + thumb + MARGIN
+    top = MARGIN + LINE + 4
+    height = top + len(shown) * row_h + LINE + 4 + legend_height(table, width)
+    sheet = Image.new("RGB", (width, height), WHITE)
+    draw = ImageDraw.Draw(sheet)
+    font = _font()
+    for col, title in enumerate(("image", "labels", "overlay 50%")):
+        draw.text((MARGIN + col * (thumb + MARGIN), MARGIN), title, fill=INK, font=font)
+    for row, sample in enumerate(shown):
+        with Image.open(_file(out_dir, sample, "images")) as im:
+            image = im.convert("RGB").resize((thumb, thumb), Image.Resampling.BOX)
+        with Image.open(_file(out_dir, sample, "labels")) as im:
+            labels = np.asarray(im.resize((thumb, thumb), Image.Resampling.NEAREST))
+        mask = Image.fromarray(table.colorize(labels))
+        overlay = Image.blend(image, mask, 0.5)
+        y = top + row * row_h
+        draw.text((MARGIN, y), str(sample.get("name", "")), fill=INK, font=font)
+        for col, picture in enumerate((image, mask, overlay)):
+            sheet.paste(picture, (MARGIN + col * (thumb + MARGIN), y + LINE))
+    legend_top = top + len(shown) * row_h
+    draw.text((MARGIN, legend_top), f"classes ({table.name})", fill=INK, font=font)
+    _legend(draw, table, MARGIN, legend_top + LINE + 4, width - MARGIN)
+    return sheet
+
+
+def write_overview(
+    out_dir: Path, samples: Sequence[Mapping[str, Any]], table: ClassTable, *, max_samples: int = 8, thumb: int = 256
+) -> Path:
+    """Write ``OUT/overview.png`` (see :func:`overview_image`) atomically and return its path.
+
+    ``samples`` are manifest sample entries (:func:`osmseg.output.manifest.sample_entry`);
+    their files must already be in ``out_dir``.
+    """
+    sheet = overview_image(out_dir, samples, table, max_samples=max_samples, thumb=thumb)
+    return atomic_write_bytes(Path(out_dir) / OVERVIEW_NAME, encode_png(np.asarray(sheet)))
+
+
+def histogram_image(totals: Mapping[str, int], table: ClassTable, *, bar_width: int = 360) -> Image.Image:
+    """Horizontal bar chart of each class's share of ``totals`` (class name -> pixels), in class colours."""
+    font = _font()
+    classes = sorted((table.unlabeled, *table.classes), key=lambda c: c.id)
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    label_w = max(int(probe.textlength(c.name, font=font)) for c in classes) + 10
+    all_pixels = sum(totals.get(c.name, 0) for c in classes)
+    shares = [totals.get(c.name, 0) / all_pixels if all_pixels else 0.0 for c in classes]
+    longest = max(shares) or 1.0
+    row = LINE + 6
+    width = MARGIN + label_w + bar_width + 70
+    height = MARGIN + LINE + 8 + len(classes) * row + MARGIN
+    chart = Image.new("RGB", (width, height), WHITE)
+    draw = ImageDraw.Draw(chart)
+    draw.text((MARGIN, MARGIN), f"share of pixels per class ({table.name}, {all_pixels:,} px)", fill=INK, font=font)
+    for i, (c, share) in enumerate(zip(classes, shares)):
+        y = MARGIN + LINE + 8 + i * row
+        draw.text((MARGIN, y), c.name, fill=INK, font=font)
+        x0 = MARGIN + label_w
+        length = round(bar_width * share / longest)
+        draw.rectangle([x0, y + 1, x0 + max(length, 1), y + LINE - 1], fill=tuple(c.color), outline=EDGE)
+        draw.text((x0 + length + 6, y), f"{100 * share:.1f}%", fill=INK, font=font)
+    return chart
+
+
+def write_class_histogram(out_dir: Path, totals: Mapping[str, int], table: ClassTable) -> Path:
+    """Write ``OUT/class_histogram.png`` atomically and return its path.
+
+    ``totals`` is pixels per class name, e.g. :func:`osmseg.output.manifest.class_totals`.
+    """
+    chart = histogram_image(totals, table)
+    return atomic_write_bytes(Path(out_dir) / HISTOGRAM_NAME, encode_png(np.asarray(chart)))

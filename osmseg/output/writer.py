@@ -1,0 +1,188 @@
+"""Write one accepted sample: image, colour mask, class-index mask and a georeferenced GeoTIFF.
+
+For a sample called ``NAME`` in dataset folder ``OUT``::
+
+    OUT/images/NAME.png      the aerial image, RGB (or NAME.jpg with --image-format jpg)
+    OUT/segmented/NAME.png   the labels in class colours, RGB (the dissertation's layout)
+    OUT/labels/NAME.png      the class ids, 8-bit greyscale (0 = unlabeled)
+    OUT/geo/NAME.tif         the class ids as a GeoTIFF in EPSG:3857 with a colour table
+
+Every file is encoded in memory with fixed options and no timestamps, hashed, and written
+atomically, so the same inputs give byte-identical files and the manifest's SHA-256 is the
+hash of exactly the bytes on disk.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rasterio
+from PIL import Image
+from rasterio.io import MemoryFile
+
+from osmseg.classes import ClassTable
+from osmseg.errors import ConfigError, DatasetError
+from osmseg.grid import TILE_SIZE, SampleGrid
+from osmseg.output.atomic import atomic_write_bytes, sha256_bytes
+
+IMAGE_FORMATS = ("png", "jpg")
+#: zlib level for PNG and the GeoTIFF's DEFLATE: fixed, so output bytes never depend on defaults.
+COMPRESS_LEVEL = 6
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+
+
+def check_name(name: str) -> str:
+    """``name`` if it is a safe sample file stem (letters, digits, ``_ . -``; no leading dot).
+
+    >>> check_name("berlin_0007")
+    'berlin_0007'
+    """
+    if not _NAME.fullmatch(name):
+        raise ConfigError(f"sample name {name!r} must be letters, digits, '_', '.', '-' and not start with '.'")
+    return name
+
+
+def sample_paths(name: str, image_format: str = "png") -> dict[str, str]:
+    """Relative (POSIX) paths of a sample's files, keyed by kind.
+
+    >>> sample_paths("a_1", "jpg")["image"]
+    'images/a_1.jpg'
+    """
+    if image_format not in IMAGE_FORMATS:
+        raise ConfigError(f"image format must be one of {', '.join(IMAGE_FORMATS)}, got {image_format!r}")
+    check_name(name)
+    return {
+        "image": f"images/{name}.{image_format}",
+        "segmented": f"segmented/{name}.png",
+        "labels": f"labels/{name}.png",
+        "geo": f"geo/{name}.tif",
+    }
+
+
+def encode_png(array: np.ndarray) -> bytes:
+    """PNG bytes of an ``(H, W)`` (greyscale) or ``(H, W, 3)`` (RGB) uint8 array; no metadata chunks.
+
+    >>> encode_png(np.zeros((2, 2), np.uint8))[:8] == b"\\x89PNG\\r\\n\\x1a\\n"
+    True
+    """
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(array, dtype=np.uint8)).save(
+        buf, format="PNG", compress_level=COMPRESS_LEVEL, optimize=False
+    )
+    return buf.getvalue()
+
+
+def encode_jpeg(rgb: np.ndarray, quality: int = 95) -> bytes:
+    """Baseline JPEG bytes, 4:4:4 chroma (keeps thin roads' colour edges), no EXIF/JFIF density."""
+    if not 1 <= quality <= 100:
+        raise ConfigError(f"JPEG quality must be 1..100, got {quality}")
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8)).save(
+        buf, format="JPEG", quality=quality, subsampling=0, optimize=False, progressive=False
+    )
+    return buf.getvalue()
+
+
+def encode_label_geotiff(labels: np.ndarray, table: ClassTable, grid: SampleGrid) -> bytes:
+    """GeoTIFF bytes of the class ids on ``grid`` (EPSG:3857), with the class colours as colour table.
+
+    Tiled 256x256, DEFLATE-compressed uint8, one band described as the class id. No nodata
+    value: 0 (unlabeled) is a real label. Class names are band metadata ``CLASS_<id>``.
+    GDAL writes no date/time tag unless asked, so the bytes depend only on the inputs.
+    """
+    height, width = labels.shape
+    profile = {
+        "driver": "GTiff",
+        "width": width,
+        "height": height,
+        "count": 1,
+        "dtype": "uint8",
+        "crs": "EPSG:3857",
+        "transform": grid.transform,
+        "tiled": True,
+        "blockxsize": TILE_SIZE,
+        "blockysize": TILE_SIZE,
+        "compress": "deflate",
+        "zlevel": COMPRESS_LEVEL,
+        "interleave": "band",
+    }
+    palette = table.palette()
+    colormap = {i: (int(r), int(g), int(b), 255) for i, (r, g, b) in enumerate(palette)}
+    with MemoryFile() as mem:
+        with mem.open(**profile) as dst:
+            dst.write(np.ascontiguousarray(labels, dtype=np.uint8), 1)
+            dst.write_colormap(1, colormap)
+            dst.set_band_description(1, f"class id ({table.name}); 0 = unlabeled")
+            dst.update_tags(1, **{f"CLASS_{c.id}": c.name for c in (table.unlabeled, *table.classes)})
+            dst.update_tags(CLASS_TABLE=table.name, AREA_OR_POINT="Area")
+        return bytes(mem.read())
+
+
+def class_histogram(labels: np.ndarray, table: ClassTable) -> dict[str, int]:
+    """Pixel count per class name (every class of ``table``, zeros included).
+
+    >>> from osmseg.classes import load_class_table
+    >>> h = class_histogram(np.array([[0, 1], [1, 1]], np.uint8), load_class_table())
+    >>> h["unlabeled"], h["building"], h["water"]
+    (1, 3, 0)
+    """
+    counts = np.bincount(labels.ravel(), minlength=256)
+    known = table.by_id
+    stray = [int(i) for i in np.flatnonzero(counts) if int(i) not in known]
+    if stray:
+        raise DatasetError(f"labels hold class ids {stray} that class table {table.name!r} does not define")
+    return {c.name: int(counts[c.id]) for c in sorted(known.values(), key=lambda c: c.id)}
+
+
+def write_sample(
+    out_dir: Path,
+    name: str,
+    rgb: np.ndarray,
+    labels: np.ndarray,
+    table: ClassTable,
+    grid: SampleGrid,
+    image_format: str = "png",
+    jpeg_quality: int = 95,
+) -> dict[str, Any]:
+    """Write the four files of one sample atomically.
+
+    Returns ``{"files": {relative path: sha256}, "class_histogram": {class name: pixels}}``
+    for the manifest (see :func:`osmseg.output.manifest.sample_entry`).
+    """
+    paths = sample_paths(name, image_format)
+    shape = (grid.height, grid.width)
+    if rgb.shape != (*shape, 3) or labels.shape != shape:
+        raise DatasetError(
+            f"sample {name}: image {rgb.shape} and labels {labels.shape} must be {shape + (3,)} and {shape} (the grid)"
+        )
+    if rgb.dtype != np.uint8 or labels.dtype != np.uint8:
+        raise DatasetError(f"sample {name}: image and labels must be uint8, got {rgb.dtype} and {labels.dtype}")
+    histogram = class_histogram(labels, table)
+    encoded = {
+        paths["image"]: encode_png(rgb) if image_format == "png" else encode_jpeg(rgb, jpeg_quality),
+        paths["segmented"]: encode_png(table.colorize(labels)),
+        paths["labels"]: encode_png(labels),
+        paths["geo"]: encode_label_geotiff(labels, table, grid),
+    }
+    out_dir = Path(out_dir)
+    files = {}
+    for rel, data in encoded.items():
+        atomic_write_bytes(out_dir / rel, data)
+        files[rel] = sha256_bytes(data)
+    return {"files": files, "class_histogram": histogram}
+
+
+def read_labels(path: Path) -> np.ndarray:
+    """Class ids from a ``labels/*.png`` or ``geo/*.tif`` file."""
+    path = Path(path)
+    if path.suffix.lower() in (".tif", ".tiff"):
+        with rasterio.open(path) as src:
+            return src.read(1)
+    with Image.open(path) as im:
+        if im.mode != "L":
+            raise DatasetError(f"{path}: label PNGs are 8-bit greyscale (mode L), this one is {im.mode}")
+        return np.asarray(im)
