@@ -78,7 +78,7 @@ def test_grid_is_5x5_tiles_around_the_centre_and_georeferenced() -> None:
     centre = mercantile.tile(13.405, 52.52, 18)
     assert g.tiles[12] == centre and g.tiles[0] == mercantile.Tile(centre.x - 2, centre.y - 2, 18)
     # the centre point falls inside the middle tile's pixels
-    col, row = ~g.transform * mercantile.xy(13.405, 52.52)
+    col, row = ~g.transform @ mercantile.xy(13.405, 52.52)
     assert 512 <= col < 768 and 512 <= row < 768
     # pixel size equals Web Mercator tile resolution, ground size shrinks with cos(lat)
     assert g.transform.a == pytest.approx(g.pixel_size) and g.transform.e == pytest.approx(-g.pixel_size)

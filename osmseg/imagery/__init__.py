@@ -1,0 +1,91 @@
+"""Imagery providers behind one interface, chosen by an ``--imagery`` spec.
+
+========================  ==============================================================
+``bing`` / ``bing:SET``   Bing Maps (key from ``BING_MAPS_KEY``), imagery set ``Aerial``
+``xyz:TEMPLATE``          any ``{z}/{x}/{y}`` / ``{q}`` tile URL, or a ``file://`` folder
+``geotiff:PATH``          a local GeoTIFF/COG in any CRS (a bare ``*.tif`` path works too)
+========================  ==============================================================
+
+>>> make_provider("geotiff:/no/such/file.tif", None)
+Traceback (most recent call last):
+osmseg.errors.ImageryError: GeoTIFF /no/such/file.tif does not exist: check the geotiff:PATH
+>>> make_provider("bing", None, env={})
+Traceback (most recent call last):
+osmseg.errors.ConfigError: --imagery bing needs a Bing Maps key: set BING_MAPS_KEY or use --imagery xyz:... / geotiff:...
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+
+from osmseg.errors import ConfigError
+from osmseg.imagery.base import Imagery, ImageryProvider
+from osmseg.imagery.bing import BingProvider
+from osmseg.imagery.geotiff import GeoTiffProvider
+from osmseg.imagery.xyz import XYZProvider
+from osmseg.net.http import HttpClient
+
+__all__ = [
+    "BingProvider",
+    "GeoTiffProvider",
+    "Imagery",
+    "ImageryProvider",
+    "XYZProvider",
+    "default_imagery_spec",
+    "make_provider",
+]
+
+BING_KEY_ENV = "BING_MAPS_KEY"
+RASTER_SUFFIXES = (".tif", ".tiff", ".vrt")
+CHOICES = "bing (with BING_MAPS_KEY), xyz:TEMPLATE or geotiff:PATH"
+
+
+def default_imagery_spec(env: Mapping[str, str] = os.environ) -> str:
+    """``"bing"`` when ``BING_MAPS_KEY`` is set, else a :class:`ConfigError` listing the choices.
+
+    >>> default_imagery_spec({"BING_MAPS_KEY": "k"})
+    'bing'
+    >>> default_imagery_spec({})
+    Traceback (most recent call last):
+    osmseg.errors.ConfigError: no imagery chosen and BING_MAPS_KEY is not set: use --imagery bing (with BING_MAPS_KEY), xyz:TEMPLATE or geotiff:PATH
+    """
+    if env.get(BING_KEY_ENV):
+        return "bing"
+    raise ConfigError(f"no imagery chosen and {BING_KEY_ENV} is not set: use --imagery {CHOICES}")
+
+
+def make_provider(
+    spec: str, client: HttpClient | None, env: Mapping[str, str] = os.environ
+) -> ImageryProvider:
+    """The provider an ``--imagery`` spec names.
+
+    ``client`` is the build's shared HTTP client (None is enough for ``geotiff:`` and
+    ``xyz:file://``).  ``env`` supplies ``BING_MAPS_KEY`` and ``{env:NAME}`` template keys.
+    """
+    spec = spec.strip()
+    kind, _, arg = spec.partition(":")
+    kind = kind.lower()
+    if kind == "bing":
+        key = env.get(BING_KEY_ENV, "")
+        if not key:
+            raise ConfigError(
+                f"--imagery bing needs a Bing Maps key: set {BING_KEY_ENV}"
+                " or use --imagery xyz:... / geotiff:..."
+            )
+        if client is None:
+            raise ConfigError("--imagery bing needs an HTTP client")
+        return BingProvider(client, key, imagery_set=arg or "Aerial")
+    if kind == "xyz":
+        if not arg:
+            raise ConfigError(
+                "--imagery xyz: needs a template, e.g. xyz:https://host/{z}/{x}/{y}.png"
+            )
+        return XYZProvider(arg, client, env=env)
+    if kind == "geotiff":
+        if not arg:
+            raise ConfigError("--imagery geotiff: needs a path, e.g. geotiff:ortho.tif")
+        return GeoTiffProvider(arg)
+    if spec.lower().endswith(RASTER_SUFFIXES):
+        return GeoTiffProvider(spec)
+    raise ConfigError(f"unknown imagery {spec!r}: use {CHOICES}")

@@ -1,0 +1,285 @@
+"""``xyz:TEMPLATE``: imagery from any slippy-map tile server or a local tile folder.
+
+A template is a URL with placeholders, filled in per tile:
+
+``{z}`` ``{x}`` ``{y}``  the tile's zoom, column and row (XYZ / Google / OSM scheme)
+``{-y}``                 the row counted from the south (TMS scheme): ``2**z - 1 - y``
+``{q}``                  the tile's Bing-style quadkey
+``{env:NAME}``           the value of environment variable ``NAME`` (for API keys)
+
+Templates start with ``https://``, ``http://`` or ``file://`` (a local folder, read straight
+from disk; ``file://`` followed by an absolute or relative path).  Keys come only through
+``{env:NAME}``: the expanded value lives in memory, while messages, logs and the manifest
+show the template with ``{env:NAME}`` left in.  ``{env:NAME}`` is accepted only as the
+value of a query parameter the HTTP client redacts and keeps out of its cache
+(:data:`osmseg.net.http.SECRET_PARAMS`: ``key``, ``access_token``, ``subscription-key``,
+``api_key``, ``apikey``, ``token``), which is where Mapbox, Azure Maps and Esri take keys.
+
+Transparent tile pixels and tiles the server does not have (HTTP 404/204, empty body, a
+missing file) are invalid areas, not errors; bytes that are not an image are an
+:class:`~osmseg.errors.ImageryError` naming the tile.
+
+>>> p = XYZProvider("file:///data/tiles/{z}/{x}/{-y}.png")
+>>> p.tile_location(mercantile.Tile(x=5, y=2, z=3))
+'file:///data/tiles/3/5/5.png'
+>>> fill_template("https://t.example/{q}.jpeg", mercantile.Tile(x=5, y=2, z=3))
+'https://t.example/121.jpeg'
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import urllib.parse
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import mercantile
+
+from osmseg.errors import ConfigError, HTTPStatusError, ImageryError, NetworkError
+from osmseg.grid import SampleGrid
+from osmseg.imagery.base import Imagery
+from osmseg.imagery.mosaic import (
+    NO_IMAGERY,
+    TilePixels,
+    assemble,
+    decode_tile,
+    fetch_tiles,
+    tile_name,
+)
+from osmseg.net.http import SECRET_PARAMS, HttpClient
+
+logger = logging.getLogger(__name__)
+
+_PLACEHOLDER = re.compile(r"\{([^{}]*)\}")
+# a key written literally into a template (not as {env:NAME}), and user:password@ in a URL
+_LITERAL_SECRET = re.compile(
+    r"([?&;](?:" + "|".join(re.escape(p) for p in SECRET_PARAMS) + r")=)"
+    r"(?!\{env:[A-Za-z_][A-Za-z0-9_]*\}(?:[&#]|$))[^&#\s]*",
+    re.IGNORECASE,
+)
+_USERINFO = re.compile(r"(://[^/@\s:]+):[^/@\s]+@")
+_TILE_KEYS = {"z", "x", "y", "-y", "q"}
+_SCHEMES = ("https://", "http://", "file://")
+
+#: attribution lines for well-known imagery hosts (the provider's terms require them)
+KNOWN_ATTRIBUTIONS: dict[str, str] = {
+    "arcgisonline.com": "Source: Esri, Maxar, Earthstar Geographics, and the GIS User Community",
+    "arcgis.com": "Source: Esri, Maxar, Earthstar Geographics, and the GIS User Community",
+    "atlas.microsoft.com": "Imagery © Microsoft (Azure Maps) and its suppliers",
+    "mapbox.com": "© Mapbox © Maxar",
+    "openaerialmap.org": "Imagery: OpenAerialMap contributors (CC-BY 4.0)",
+}
+
+
+def default_attribution(template: str) -> str:
+    """The attribution line for a template's host, or a reminder to find it.
+
+    >>> default_attribution("https://api.mapbox.com/v4/mapbox.satellite/{z}/{x}/{y}.jpg")
+    '© Mapbox © Maxar'
+    >>> default_attribution("file:///data/tiles/{z}/{x}/{y}.png")
+    'Imagery from local tiles (file:///data/tiles/{z}/{x}/{y}.png): credit the imagery owner as their terms require'
+    """
+    if template.startswith("file://"):
+        return f"Imagery from local tiles ({template}): credit the imagery owner as their terms require"
+    host = urllib.parse.urlsplit(template).hostname or ""
+    for suffix, line in KNOWN_ATTRIBUTIONS.items():
+        if host == suffix or host.endswith("." + suffix):
+            return line
+    return f"Imagery from {host}: see the provider's terms for the required attribution"
+
+
+def safe_text(template: str) -> str:
+    """A template or URL fit to show: literal keys redacted, ``{env:NAME}`` kept as a hint.
+
+    >>> safe_text("https://h/{z}/{x}/{y}.jpg?access_token={env:MAPBOX_TOKEN}&style=a")
+    'https://h/{z}/{x}/{y}.jpg?access_token={env:MAPBOX_TOKEN}&style=a'
+    >>> safe_text("https://h/{z}/{x}/{y}.jpg?access_token=pk.literal&style=a")
+    'https://h/{z}/{x}/{y}.jpg?access_token=REDACTED&style=a'
+    """
+    return _USERINFO.sub(r"\1:REDACTED@", _LITERAL_SECRET.sub(r"\1REDACTED", template))
+
+
+def parse_template(template: str, env: Mapping[str, str]) -> dict[str, str]:
+    """Check a template and return the values of its ``{env:NAME}`` placeholders.
+
+    Raises :class:`ConfigError` for an unknown scheme or placeholder, a template that
+    cannot address a tile, or an unset environment variable.
+
+    >>> parse_template("https://a.example/{z}/{x}/{y}.png?access_token={env:TOKEN}", {"TOKEN": "s3cret"})
+    {'TOKEN': 's3cret'}
+    >>> parse_template("https://a.example/{z}/{x}.png", {})
+    Traceback (most recent call last):
+    osmseg.errors.ConfigError: xyz template https://a.example/{z}/{x}.png needs {z}, {x} and {y} (or {-y}), or {q}
+    """
+    if not template.startswith(_SCHEMES):
+        raise ConfigError(f"xyz template {template} must start with https://, http:// or file://")
+    keys = _PLACEHOLDER.findall(template)
+    secrets: dict[str, str] = {}
+    for key in keys:
+        if key.startswith("env:"):
+            name = key[4:]
+            if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+                raise ConfigError(
+                    f"xyz template placeholder {{{key}}} is not a valid environment variable name"
+                )
+            if not env.get(name):
+                raise ConfigError(
+                    f"xyz template needs environment variable {name}: set it (export {name}=...)"
+                )
+            secrets[name] = env[name]
+        elif key not in _TILE_KEYS:
+            raise ConfigError(
+                f"unknown placeholder {{{key}}} in xyz template;"
+                " use {z} {x} {y} {-y} {q} {env:NAME}"
+            )
+    if secrets and not template.startswith("file://"):
+        in_params = {
+            match
+            for name, value in urllib.parse.parse_qsl(urllib.parse.urlsplit(template).query)
+            if name in SECRET_PARAMS
+            for match in re.findall(r"\{env:([^{}]*)\}", value)
+        }
+        for name in secrets.keys() - in_params:
+            raise ConfigError(
+                f"put {{env:{name}}} only in a key query parameter ({', '.join(SECRET_PARAMS)})"
+                " of the xyz template, so the key never reaches logs or the cache"
+            )
+    found = set(keys)
+    if not ({"z", "x"} <= found and found & {"y", "-y"}) and "q" not in found:
+        raise ConfigError(
+            f"xyz template {template} needs {{z}}, {{x}} and {{y}} (or {{-y}}), or {{q}}"
+        )
+    return secrets
+
+
+def fill_template(
+    template: str, tile: mercantile.Tile, env: Mapping[str, str] | None = None
+) -> str:
+    """The template with ``tile``'s numbers filled in; ``{env:NAME}`` only when ``env`` is given.
+
+    >>> fill_template("https://h/{z}/{x}/{-y}?k={env:K}", mercantile.Tile(1, 0, 1))
+    'https://h/1/1/1?k={env:K}'
+    >>> fill_template("https://h/{z}/{x}/{y}?k={env:K}", mercantile.Tile(1, 0, 1), {"K": "v"})
+    'https://h/1/1/0?k=v'
+    """
+    values = {
+        "z": str(tile.z),
+        "x": str(tile.x),
+        "y": str(tile.y),
+        "-y": str(2**tile.z - 1 - tile.y),
+        "q": str(mercantile.quadkey(tile)),
+    }
+
+    def replace(match: re.Match[str]) -> str:
+        key = match.group(1)
+        if key.startswith("env:"):
+            return env[key[4:]] if env is not None else match.group(0)
+        return values[key]
+
+    return _PLACEHOLDER.sub(replace, template)
+
+
+class XYZProvider:
+    """Tiles from a ``{z}/{x}/{y}`` or ``{q}`` URL template, or a ``file://`` tile folder.
+
+    Args:
+        template: the URL template (see the module docstring).
+        client: the shared HTTP client; may be None only for ``file://`` templates.
+        env: where ``{env:NAME}`` values come from (default: ``os.environ``).
+        attribution: the provider's required attribution (default: from the host).
+        workers: tiles fetched at once (the client's per-host limit applies too).
+    """
+
+    name = "xyz"
+
+    def __init__(
+        self,
+        template: str,
+        client: HttpClient | None = None,
+        *,
+        env: Mapping[str, str] | None = None,
+        attribution: str | None = None,
+        workers: int = 4,
+    ) -> None:
+        self._secrets = parse_template(template, os.environ if env is None else env)
+        self.template = template
+        self.is_local = template.startswith("file://")
+        if not self.is_local and safe_text(template) != template:
+            logger.warning(
+                "the xyz template has a key written out: use {env:NAME} to keep it out of shell history"
+            )
+        if not self.is_local and client is None:
+            raise ConfigError(f"xyz template {self.display_template} needs an HTTP client")
+        self._client = client
+        self.attribution = attribution or default_attribution(self.display_template)
+        self.workers = workers
+
+    @property
+    def display_template(self) -> str:
+        """The template as shown to people: ``{env:NAME}`` kept, literal keys hidden."""
+        return self.template if self.is_local else safe_text(self.template)
+
+    def __repr__(self) -> str:
+        return f"XYZProvider({self.display_template!r})"
+
+    def tile_location(self, tile: mercantile.Tile) -> str:
+        """Where ``tile`` is, as shown to people (``{env:NAME}`` not expanded)."""
+        url = fill_template(self.template, tile)
+        return url if self.is_local else safe_text(url)
+
+    def _scrub(self, text: str) -> str:
+        """``text`` with every expanded secret replaced by its ``{env:NAME}`` placeholder."""
+        for name, value in self._secrets.items():
+            text = text.replace(value, f"{{env:{name}}}")
+        return text
+
+    def fetch_tile(self, tile: mercantile.Tile) -> TilePixels:
+        """Pixels of one tile (:data:`NO_IMAGERY` when the server or folder has none)."""
+        what = f"tile {tile_name(tile)} ({self.tile_location(tile)})"
+        if self.is_local:
+            path = Path(urllib.parse.unquote(fill_template(self.template, tile)[len("file://") :]))
+            try:
+                data = path.read_bytes()
+            except FileNotFoundError:
+                logger.debug("no local tile %s", path)
+                return NO_IMAGERY
+            except OSError as exc:
+                raise ImageryError(f"cannot read {what}: {exc.strerror or exc}") from None
+        else:
+            assert self._client is not None
+            url = fill_template(self.template, tile, self._secrets)
+            try:
+                response = self._client.get(url, ok_statuses=(204, 404))
+            except HTTPStatusError as exc:
+                raise type(exc)(self._scrub(str(exc)), exc.status) from None
+            except NetworkError as exc:
+                raise type(exc)(self._scrub(str(exc))) from None
+            if response.status_code in (204, 404) or not response.content:
+                logger.debug("server has no %s (HTTP %s)", what, response.status_code)
+                return NO_IMAGERY
+            data = response.content
+        return decode_tile(data, what)
+
+    def fetch(self, grid: SampleGrid) -> Imagery:
+        """The sample's tiles merged into one image on ``grid``."""
+        parts = fetch_tiles(grid.tiles, self.fetch_tile, self.workers)
+        rgb, valid, placeholders = assemble(grid, parts)
+        missing = [tile_name(t) for t, p in zip(grid.tiles, parts, strict=True) if p.placeholder]
+        info: dict[str, Any] = {
+            "provider": self.name,
+            "template": self.display_template,
+            "no_imagery_tiles": missing,
+            "attribution": self.attribution,
+        }
+        return Imagery(rgb=rgb, valid=valid, placeholder_tiles=placeholders, info=info)
+
+    def describe(self) -> dict[str, Any]:
+        """Provider, template (keys not expanded) and attribution, for the manifest."""
+        return {
+            "provider": self.name,
+            "template": self.display_template,
+            "attribution": self.attribution,
+        }

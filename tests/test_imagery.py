@@ -1,0 +1,552 @@
+"""Imagery providers: Bing, XYZ (HTTP and file://), GeoTIFF, and the --imagery spec parser.
+
+HTTP tests replay the cassettes in tests/data/imagery (made by its data.py) through the real
+HttpClient with osmseg.net.replay (vcrpy, replay only): no request leaves the machine.  Tests that need
+threads, faults or the on-disk cache use the scripted server on 127.0.0.1 (tests/servers.py)
+instead: vcrpy is not thread-safe and its replayed responses break requests-cache.  Synthetic tiles
+encode their position (red = 32 + 64 * (x % 3), green = 32 + 64 * (y % 3), blue = a diagonal
+ramp), so every check is "the pixel at tile i's offset came from tile i".
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import re
+from pathlib import Path
+
+import mercantile
+import numpy as np
+import pytest
+import rasterio
+from PIL import Image
+from pyproj import Transformer
+
+from osmseg.errors import AuthError, ConfigError, ImageryError
+from osmseg.grid import TILE_SIZE, SampleGrid, sample_grid
+from osmseg.imagery import (
+    BingProvider,
+    GeoTiffProvider,
+    XYZProvider,
+    default_imagery_spec,
+    make_provider,
+)
+from osmseg.imagery.bing import AUTH_MESSAGE
+from osmseg.net.http import HttpClient, HttpConfig
+from osmseg.net.replay import cassette
+
+from conftest import TEST_DATA, shared_path
+from servers import Reply
+
+pytest_plugins = ["servers"]  # the http_server fixture (a scripted server on 127.0.0.1)
+
+DATA = TEST_DATA / "imagery"
+LON, LAT, ZOOM = 13.4050, 52.5200, 18  # as in tests/data/imagery/data.py
+BING_KEY = "TEST-bing-key-7f3a9c"
+MAPBOX_TOKEN = "pk.TEST-mapbox-token-51e2"
+MAPBOX = (
+    "https://api.mapbox.com/v4/mapbox.satellite/{z}/{x}/{y}.png?access_token={env:MAPBOX_TOKEN}"
+)
+
+
+def replay(name: str):
+    """Replay cassette ``name`` the way ``osmseg build --replay`` does (keys filtered out).
+
+    Providers fetch one tile at a time under replay: vcrpy's connection stub briefly restores
+    the real connection classes process-wide when it is created, so a connection another
+    thread opens at that moment escapes the cassette (and tries the network).
+    """
+    return cassette(DATA / name, "replay")
+
+
+@pytest.fixture
+def grid() -> SampleGrid:
+    return sample_grid(LON, LAT, ZOOM, size=3)
+
+
+@pytest.fixture
+def client():
+    with HttpClient(HttpConfig(retries=0, timeout=5)) as http:
+        yield http
+
+
+def expected_colour(tile: mercantile.Tile, col: int, row: int) -> tuple[int, int, int]:
+    """The synthetic colour at (col, row) inside ``tile`` (see data.py)."""
+    return 32 + 64 * (tile.x % 3), 32 + 64 * (tile.y % 3), (col + row) // 2
+
+
+def assert_tile_in_place(rgb: np.ndarray, grid: SampleGrid, index: int, tol: int) -> None:
+    """Pixels at tile ``index``'s offset carry that tile's colour code and in-tile ramp."""
+    left, top = grid.tile_offset(index)
+    for col, row in [(128, 128), (10, 200), (240, 16)]:
+        got = rgb[top + row, left + col].astype(int)
+        want = expected_colour(grid.tiles[index], col, row)
+        assert np.abs(got - want).max() <= tol, (index, col, row, got, want)
+
+
+def tile_area(array: np.ndarray, grid: SampleGrid, index: int) -> np.ndarray:
+    left, top = grid.tile_offset(index)
+    return array[top : top + TILE_SIZE, left : left + TILE_SIZE]
+
+
+# -- Bing -------------------------------------------------------------------------------------
+
+
+def test_bing_tiles_land_at_their_offsets_and_placeholder_is_invalid(grid, client):
+    with replay("bing.yaml") as recorded:
+        provider = BingProvider(client, BING_KEY, workers=1)
+        imagery = provider.fetch(grid)
+        provider.describe()
+        provider.fetch(grid)
+        assert recorded.play_counts[0] == 1  # the metadata call is made once per provider
+    assert imagery.rgb.shape == (768, 768, 3) and imagery.valid.shape == (768, 768)
+    for index in range(8):
+        assert_tile_in_place(imagery.rgb, grid, index, tol=6)  # JPEG
+        assert tile_area(imagery.valid, grid, index).all()
+    # the south-east tile answered "X-VE-Tile-Info: no-tile"
+    assert imagery.placeholder_tiles == 1
+    assert imagery.info["no_imagery_tiles"] == ["18/140834/85972"]
+    assert not tile_area(imagery.valid, grid, 8).any()
+    assert not tile_area(imagery.rgb, grid, 8).any()
+
+
+def test_bing_describe_records_attribution_and_never_the_key(grid, client, caplog):
+    caplog.set_level(logging.DEBUG)
+    with replay("bing.yaml"):
+        provider = make_provider("bing", client, env={"BING_MAPS_KEY": BING_KEY})
+        provider.workers = 1
+        imagery = provider.fetch(grid)
+        described = provider.describe()
+    assert (
+        described["image_url"]
+        == "https://ecn.{subdomain}.tiles.virtualearth.net/tiles/a{quadkey}.jpeg?g=14560"
+    )
+    assert (
+        described["brand_logo_uri"] == "https://dev.virtualearth.net/Branding/logo_powered_by.png"
+    )
+    assert described["copyright"].startswith("Copyright © 2025 Microsoft")
+    assert provider.attribution == described["copyright"]
+    # suppliers whose coverage meets Berlin at z18 (not the New York-only or z<=8 ones)
+    assert imagery.info["suppliers"] == ["© 2025 Microsoft Corporation", "© 2025 Maxar"]
+    shown = " ".join([str(described), str(imagery.info), repr(provider), caplog.text])
+    assert "metadata/aerial" in caplog.text.lower()  # the metadata URL was logged, redacted
+    assert BING_KEY not in shown
+
+
+def test_bing_refused_key_is_an_auth_error_without_the_key(grid, client):
+    with replay("bing-refused.yaml"):
+        provider = BingProvider(client, BING_KEY)
+        with pytest.raises(AuthError) as refused:
+            provider.fetch(grid)
+    assert str(refused.value) == AUTH_MESSAGE
+    assert refused.value.status == 401
+    assert BING_KEY not in str(refused.value) and "\n" not in str(refused.value)
+
+
+def test_bing_zoom_outside_metadata_range_is_a_config_error(client):
+    with replay("bing.yaml"):
+        provider = BingProvider(client, BING_KEY)
+        with pytest.raises(ConfigError, match="zoom 22 is outside Bing Aerial's range 1-21"):
+            provider.fetch(sample_grid(LON, LAT, 22, size=1))
+
+
+def test_bing_needs_a_key(client):
+    with pytest.raises(
+        ConfigError, match=re.escape("set BING_MAPS_KEY or use --imagery xyz:... / geotiff:...")
+    ):
+        make_provider("bing", client, env={})
+    with pytest.raises(ConfigError, match="BING_MAPS_KEY"):
+        default_imagery_spec({})
+    assert default_imagery_spec({"BING_MAPS_KEY": BING_KEY}) == "bing"
+
+
+def synthetic_tile(tile: mercantile.Tile, fmt: str) -> bytes:
+    """The data.py tile content, encoded in the test (for the live local server)."""
+    row, col = np.mgrid[0:256, 0:256]
+    rgb = np.zeros((256, 256, 3), np.uint8)
+    rgb[..., 0], rgb[..., 1] = 32 + 64 * (tile.x % 3), 32 + 64 * (tile.y % 3)
+    rgb[..., 2] = (col + row) // 2
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, fmt)
+    return buf.getvalue()
+
+
+def test_bing_against_a_local_server_with_faults(http_server, grid):
+    """Threaded tile fetches through the real client: retries, truncation and no-tile 404s."""
+    image_url = http_server.url("/{subdomain}/a{quadkey}.jpeg?g=1&n=z&mkt={culture}")
+    meta = {
+        "authenticationResultCode": "ValidCredentials",
+        "copyright": "Copyright © Microsoft",
+        "resourceSets": [
+            {
+                "resources": [
+                    {
+                        "imageUrl": image_url,
+                        "imageUrlSubdomains": ["t0", "t1"],
+                        "zoomMin": 1,
+                        "zoomMax": 21,
+                    }
+                ]
+            }
+        ],
+        "statusCode": 200,
+    }
+    http_server.script(
+        "/REST/v1/Imagery/Metadata/Aerial",
+        Reply(200, json.dumps(meta), {"Content-Type": "application/json"}),
+    )
+    for index, tile in enumerate(grid.tiles):
+        quadkey = mercantile.quadkey(tile)
+        path = f"/t{int(quadkey, 4) % 2}/a{quadkey}.jpeg"
+        jpeg = Reply(200, synthetic_tile(tile, "JPEG"), {"Content-Type": "image/jpeg"})
+        if index == 4:
+            http_server.script(path, Reply(503, headers={"Retry-After": "0"}), jpeg)
+        elif index == 0:
+            http_server.script(path, Reply(200, jpeg.data, jpeg.headers, truncate=100), jpeg)
+        elif index == 8:  # with n=z Bing answers "no imagery" as a 404 carrying the header
+            http_server.script(path, Reply(404, b"", {"X-VE-Tile-Info": "no-tile"}))
+        else:
+            http_server.script(path, jpeg)
+    metadata_url = http_server.url("/REST/v1/Imagery/Metadata/{imagery_set}")
+    with HttpClient(HttpConfig(retries=2, backoff=0.01, timeout=5)) as http:
+        imagery = BingProvider(http, BING_KEY, metadata_url=metadata_url).fetch(grid)
+    for index in range(8):
+        assert_tile_in_place(imagery.rgb, grid, index, tol=6)
+    assert imagery.placeholder_tiles == 1 and not tile_area(imagery.valid, grid, 8).any()
+    assert http_server.count("/REST/v1/Imagery/Metadata/Aerial") == 1
+    assert all(
+        f"key={BING_KEY}" in s.query
+        for s in http_server.requests("/REST/v1/Imagery/Metadata/Aerial")
+    )
+    tile_requests = [s for s in http_server.requests() if s.path.endswith(".jpeg")]
+    assert len(tile_requests) == 11  # 9 tiles + one retry after 503 + one after the cut body
+    assert all("key=" not in s.query and "mkt=en-US" in s.query for s in tile_requests)
+
+
+def test_xyz_against_a_local_server_with_faults(http_server, grid):
+    for index, tile in enumerate(grid.tiles):
+        path = f"/t/{tile.z}/{tile.x}/{tile.y}.png"
+        png = Reply(200, synthetic_tile(tile, "PNG"), {"Content-Type": "image/png"})
+        if index == 3:
+            http_server.script(path, Reply(429, headers={"Retry-After": "0"}), png)
+        elif index == 5:
+            http_server.script(path, Reply(204))
+        else:
+            http_server.script(path, png)
+    template = http_server.url("/t/{z}/{x}/{y}.png?access_token={env:TILE_TOKEN}")
+    with HttpClient(HttpConfig(retries=2, backoff=0.01, timeout=5)) as http:
+        imagery = XYZProvider(template, http, env={"TILE_TOKEN": "TEST-live-token"}).fetch(grid)
+    for index in (0, 1, 2, 3, 4, 6, 7, 8):
+        assert_tile_in_place(imagery.rgb, grid, index, tol=0)
+    assert imagery.placeholder_tiles == 1 and not tile_area(imagery.valid, grid, 5).any()
+    assert http_server.count() == 10
+    assert all(s.query == "access_token=TEST-live-token" for s in http_server.requests())
+
+
+def test_bing_refusal_is_not_cached(http_server, grid, tmp_path):
+    """After a refused key is fixed, the HTTP cache must not replay the refusal."""
+    image_url = http_server.url("/tiles/a{quadkey}.jpeg")
+    meta = {
+        "authenticationResultCode": "ValidCredentials",
+        "resourceSets": [{"resources": [{"imageUrl": image_url, "zoomMin": 1, "zoomMax": 21}]}],
+    }
+    refused = {"authenticationResultCode": "InvalidCredentials", "statusCode": 401}
+
+    def metadata(seen):
+        if f"key={BING_KEY}" in seen.query:
+            return Reply(200, json.dumps(meta), {"Content-Type": "application/json"})
+        return Reply(401, json.dumps(refused), {"Content-Type": "application/json"})
+
+    http_server.route("/REST/v1/Imagery/Metadata/Aerial", metadata)
+    for tile in grid.tiles:
+        jpeg = synthetic_tile(tile, "JPEG")
+        http_server.script(f"/tiles/a{mercantile.quadkey(tile)}.jpeg", Reply(200, jpeg))
+    metadata_url = http_server.url("/REST/v1/Imagery/Metadata/{imagery_set}")
+    with HttpClient(HttpConfig(cache_dir=tmp_path, retries=0)) as http:
+        with pytest.raises(AuthError, match="Bing Maps refused the key"):
+            BingProvider(http, "TEST-wrong-key", metadata_url=metadata_url).fetch(grid)
+        imagery = BingProvider(http, BING_KEY, metadata_url=metadata_url).fetch(grid)
+    assert imagery.valid.all()
+    assert BING_KEY.encode() not in (tmp_path / "http.sqlite").read_bytes()
+
+
+def test_xyz_offline_rebuild_from_the_cache(http_server, grid, tmp_path):
+    """A second, offline fetch gives the same pixels, the 404 tile included, with no request."""
+    for index, tile in enumerate(grid.tiles):
+        if index != 6:  # unscripted paths answer 404
+            png = synthetic_tile(tile, "PNG")
+            http_server.script(f"/t/{tile.z}/{tile.x}/{tile.y}.png", Reply(200, png))
+    template = http_server.url("/t/{z}/{x}/{y}.png?access_token={env:TILE_TOKEN}")
+    env = {"TILE_TOKEN": "TEST-live-token"}
+    with HttpClient(HttpConfig(cache_dir=tmp_path, retries=0)) as http:
+        online = XYZProvider(template, http, env=env).fetch(grid)
+    assert http_server.count() == 9
+    with HttpClient(HttpConfig(cache_dir=tmp_path, offline=True)) as http:
+        offline = XYZProvider(template, http, env=env).fetch(grid)
+    assert http_server.count() == 9
+    assert np.array_equal(online.rgb, offline.rgb) and np.array_equal(online.valid, offline.valid)
+    assert offline.placeholder_tiles == 1
+    assert b"TEST-live-token" not in (tmp_path / "http.sqlite").read_bytes()
+
+
+# -- XYZ over HTTP ----------------------------------------------------------------------------
+
+
+def test_xyz_http_tiles_land_at_their_offsets(grid, client, caplog):
+    caplog.set_level(logging.DEBUG)
+    with replay("xyz.yaml"):
+        provider = XYZProvider(MAPBOX, client, env={"MAPBOX_TOKEN": MAPBOX_TOKEN}, workers=1)
+        imagery = provider.fetch(grid)
+    for index in (1, 2, 3, 4, 5, 7, 8):
+        assert_tile_in_place(imagery.rgb, grid, index, tol=0)  # PNG is lossless
+        assert tile_area(imagery.valid, grid, index).all()
+    # north-west tile: left half transparent
+    nw = tile_area(imagery.valid, grid, 0)
+    assert not nw[:, :128].any() and nw[:, 128:].all()
+    assert tuple(imagery.rgb[128, 200]) == expected_colour(grid.tiles[0], 200, 128)
+    # south-west tile: HTTP 404 -> no imagery, not an error
+    assert imagery.placeholder_tiles == 1
+    assert imagery.info["no_imagery_tiles"] == ["18/140832/85972"]
+    assert not tile_area(imagery.valid, grid, 6).any()
+    # the manifest shows the template with the env placeholder, never the token
+    assert provider.describe()["template"] == MAPBOX
+    assert provider.describe()["attribution"] == "© Mapbox © Maxar"
+    assert MAPBOX_TOKEN not in " ".join(
+        [str(provider.describe()), str(imagery.info), repr(provider), caplog.text]
+    )
+
+
+def test_xyz_corrupt_tile_is_an_imagery_error_naming_the_tile(client):
+    corrupt = sample_grid(*mercantile.ul(140827, 85970, ZOOM), ZOOM, size=1)
+    assert corrupt.tiles[0] == mercantile.Tile(140827, 85970, ZOOM)
+    with replay("xyz.yaml"):
+        provider = XYZProvider(MAPBOX, client, env={"MAPBOX_TOKEN": MAPBOX_TOKEN})
+        with pytest.raises(
+            ImageryError, match=r"tile 18/140827/85970 .* is not a readable image"
+        ) as bad:
+            provider.fetch(corrupt)
+    assert "\n" not in str(bad.value) and MAPBOX_TOKEN not in str(bad.value)
+
+
+def test_xyz_refused_key_is_an_auth_error_without_the_key(client):
+    refused = sample_grid(*mercantile.ul(140822, 85970, ZOOM), ZOOM, size=1)
+    template = "https://tiles.example.org/{z}/{x}/{y}.png?api_key={env:TILE_KEY}"
+    with replay("xyz.yaml"):
+        provider = XYZProvider(template, client, env={"TILE_KEY": "TEST-tile-key-99"})
+        with pytest.raises(AuthError) as exc:
+            provider.fetch(refused)
+    assert exc.value.status == 401
+    assert "TEST-tile-key-99" not in str(exc.value) and "HTTP 401" in str(exc.value)
+
+
+@pytest.mark.parametrize(
+    ("template", "message"),
+    [
+        ("https://h.example/{z}/{x}/{s}.png", r"unknown placeholder \{s\}"),
+        ("https://h.example/{z}/{x}.png", r"needs \{z\}, \{x\} and \{y\}"),
+        ("ftp://h.example/{z}/{x}/{y}.png", "must start with https://"),
+        ("https://h.example/{z}/{x}/{y}.png?access_token={env:NOT_SET_HERE}", "set it"),
+        ("https://h.example/{env:TOKEN}/{z}/{x}/{y}.png", "only in a key query parameter"),
+        ("https://h.example/{z}/{x}/{y}.png?style={env:TOKEN}", "only in a key query parameter"),
+    ],
+)
+def test_xyz_bad_templates_are_config_errors(template, message):
+    with pytest.raises(ConfigError, match=message):
+        XYZProvider(template, client=None, env={"TOKEN": "t"})
+
+
+def test_xyz_http_template_needs_a_client():
+    with pytest.raises(ConfigError, match="needs an HTTP client"):
+        XYZProvider("https://h.example/{z}/{x}/{y}.png", client=None, env={})
+
+
+# -- XYZ from a local folder ------------------------------------------------------------------
+
+
+def test_xyz_file_tiles_land_at_their_offsets(grid):
+    provider = make_provider(f"xyz:file://{DATA}/tiles/{{z}}/{{x}}/{{y}}.png", None)
+    imagery = provider.fetch(grid)  # default thread pool
+    for index in (1, 2, 3, 5, 7, 8):
+        assert_tile_in_place(imagery.rgb, grid, index, tol=0)
+        assert tile_area(imagery.valid, grid, index).all()
+    assert_tile_in_place(imagery.rgb, grid, 4, tol=2)  # 512 px tile resampled to 256
+    assert not tile_area(imagery.valid, grid, 0)[:, :128].any()  # transparent half
+    assert (
+        imagery.placeholder_tiles == 1 and not tile_area(imagery.valid, grid, 6).any()
+    )  # missing file
+
+
+def test_xyz_file_truncated_tile_is_an_imagery_error():
+    corrupt = sample_grid(*mercantile.ul(140827, 85970, ZOOM), ZOOM, size=1)
+    provider = XYZProvider(f"file://{DATA}/tiles/{{z}}/{{x}}/{{y}}.png")
+    with pytest.raises(
+        ImageryError, match=r"tile 18/140827/85970 .*85970\.png.* is not a readable image"
+    ):
+        provider.fetch(corrupt)
+
+
+def test_xyz_file_tms_rows(tmp_path, grid):
+    """``{-y}`` counts rows from the south: a TMS folder gives the same image."""
+    for tile in grid.tiles:
+        source = DATA / "tiles" / str(tile.z) / str(tile.x) / f"{tile.y}.png"
+        if source.exists():
+            target = tmp_path / str(tile.z) / str(tile.x) / f"{2**tile.z - 1 - tile.y}.png"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(source.read_bytes())
+    xyz = XYZProvider(f"file://{DATA}/tiles/{{z}}/{{x}}/{{y}}.png").fetch(grid)
+    tms = XYZProvider(f"file://{tmp_path}/{{z}}/{{x}}/{{-y}}.png").fetch(grid)
+    assert np.array_equal(xyz.rgb, tms.rgb) and np.array_equal(xyz.valid, tms.valid)
+
+
+# -- GeoTIFF ----------------------------------------------------------------------------------
+
+
+def grid_pixel_centres(
+    grid: SampleGrid, cols: np.ndarray, rows: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """EPSG:3857 coordinates of grid pixel centres."""
+    t = grid.transform
+    return t.c + (cols + 0.5) * t.a, t.f + (rows + 0.5) * t.e
+
+
+def source_positions(path: Path, grid: SampleGrid, cols: np.ndarray, rows: np.ndarray):
+    """Fractional (col, row) in the source raster of grid pixel centres, via pyproj."""
+    with rasterio.open(path) as src:
+        to_src = Transformer.from_crs("EPSG:3857", src.crs, always_xy=True)
+        x, y = to_src.transform(*grid_pixel_centres(grid, cols, rows))
+        inverse = ~src.transform
+        scol, srow = inverse @ (np.asarray(x), np.asarray(y))
+    return np.asarray(scol), np.asarray(srow)
+
+
+def test_geotiff_utm_lines_up_with_pyproj(grid):
+    """utm-rgb.tif's red/green are 2 x source column/row: each pixel says where it came from."""
+    imagery = GeoTiffProvider(DATA / "utm-rgb.tif").fetch(grid)
+    rows, cols = np.nonzero(imagery.valid)
+    scol, srow = source_positions(DATA / "utm-rgb.tif", grid, cols, rows)
+    inside = (scol > 1) & (scol < 99) & (srow > 1) & (srow < 99)  # away from the edge ramp-off
+    assert inside.mean() > 0.9
+    # pixel centres sit at col + 0.5; bilinear interpolation of a linear ramp is exact
+    got_r = imagery.rgb[rows, cols, 0][inside].astype(float)
+    got_g = imagery.rgb[rows, cols, 1][inside].astype(float)
+    assert np.abs(got_r - 2 * (scol[inside] - 0.5)).max() < 1.6
+    assert np.abs(got_g - 2 * (srow[inside] - 0.5)).max() < 1.6
+    assert (imagery.rgb[rows, cols, 2] == 200).all()
+    # outside the 200 m footprint: invalid and black; the footprint covers ~ (200 / 279 m)^2
+    assert not imagery.rgb[~imagery.valid].any()
+    assert 0.4 < imagery.valid.mean() < 0.6
+    assert imagery.info["crs"] == "EPSG:32633"
+
+
+def test_geotiff_grey_with_nodata(grid):
+    imagery = GeoTiffProvider(DATA / "wgs84-grey-nodata.tif").fetch(grid)
+    assert imagery.valid.any() and not imagery.valid.all()
+    values = imagery.rgb[imagery.valid]
+    assert (values == 150).all()  # grey replicated to R = G = B; nodata 0 never blended in
+    # the nodata third (west) is invalid: no valid pixel west of the nodata edge
+    x, _ = grid_pixel_centres(grid, np.nonzero(imagery.valid)[1], np.nonzero(imagery.valid)[0])
+    west_edge = mercantile.xy(LON - 0.0015 + 20 * 0.00005, LAT)[0]
+    assert x.min() > west_edge - grid.pixel_size
+
+
+def test_geotiff_alpha_band_masks_and_nir_is_not_alpha(grid):
+    rgba = GeoTiffProvider(DATA / "rgba.tif").fetch(grid)
+    rows, _ = np.nonzero(rgba.valid)
+    assert (rgba.rgb[rgba.valid] == (10, 120, 230)).all()
+    _, y = mercantile.xy(LON, LAT)
+    _, ys = grid_pixel_centres(grid, np.zeros_like(rows), rows)
+    assert ys.max() < y + grid.pixel_size  # only the south half (alpha 255) is valid
+    rgbn = GeoTiffProvider(DATA / "rgbn.tif").fetch(grid)
+    assert rgbn.valid.sum() > 0.9 * (80 / grid.pixel_size) ** 2  # NIR = 0 did not mask it
+    assert (rgbn.rgb[rgbn.valid] == (90, 140, 60)).all()
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        ("no-such-file.tif", "does not exist"),
+        ("not-a-raster.tif", "is not a raster GDAL can read"),
+        ("no-crs.tif", "has no CRS"),
+        ("uint16.tif", "is uint16, not 8-bit"),
+    ],
+)
+def test_geotiff_bad_inputs_are_one_line_imagery_errors(name, message):
+    with pytest.raises(ImageryError, match=message) as bad:
+        GeoTiffProvider(DATA / name)
+    assert "\n" not in str(bad.value)
+
+
+# -- the --imagery spec -----------------------------------------------------------------------
+
+
+def test_make_provider_specs():
+    assert isinstance(make_provider(f"geotiff:{DATA / 'rgba.tif'}", None), GeoTiffProvider)
+    assert isinstance(make_provider(str(DATA / "rgba.tif"), None), GeoTiffProvider)
+    assert isinstance(
+        make_provider(f"xyz:file://{DATA}/tiles/{{z}}/{{x}}/{{y}}.png", None), XYZProvider
+    )
+    with pytest.raises(ConfigError, match="unknown imagery 'google': use bing"):
+        make_provider("google", None)
+    with pytest.raises(ConfigError, match="needs a template"):
+        make_provider("xyz:", None)
+
+
+# -- real data (../shared/data) ---------------------------------------------------------------
+
+
+def test_kampala_tiles_through_file_template():
+    """A 5x5 z21 mosaic from real OpenAerialMap tiles equals the raw tiles at their offsets."""
+    tiles = shared_path("kampala-oam", "tiles")
+    west, south, east, north = mercantile.bounds(1238453, 1046531, 21)
+    grid = sample_grid((west + east) / 2, (south + north) / 2, 21)
+    assert {t.x for t in grid.tiles} <= set(range(1238448, 1238460))
+    assert {t.y for t in grid.tiles} <= set(range(1046528, 1046536))
+    imagery = make_provider(f"xyz:file://{tiles}/OAM-{{x}}-{{y}}-{{z}}.png", None).fetch(grid)
+    assert imagery.rgb.shape == (1280, 1280, 3) and imagery.placeholder_tiles == 0
+    assert imagery.valid.mean() > 0.5 and imagery.rgb[imagery.valid].std() > 20  # real content
+    for index, tile in enumerate(grid.tiles):
+        raw = np.asarray(Image.open(tiles / f"OAM-{tile.x}-{tile.y}-{tile.z}.png").convert("RGBA"))
+        opaque = raw[:, :, 3] >= 128
+        assert np.array_equal(tile_area(imagery.valid, grid, index), opaque)
+        assert np.array_equal(tile_area(imagery.rgb, grid, index)[opaque], raw[:, :, :3][opaque])
+
+
+def bilinear(array: np.ndarray, scol: np.ndarray, srow: np.ndarray) -> np.ndarray:
+    """``array`` (bands, H, W) sampled at fractional pixel positions, pixel centres at +0.5."""
+    c, r = scol - 0.5, srow - 0.5
+    c0, r0 = np.floor(c).astype(int), np.floor(r).astype(int)
+    fc, fr = c - c0, r - r0
+    a = array.astype(float)
+    top = a[:, r0, c0] * (1 - fc) + a[:, r0, c0 + 1] * fc
+    bottom = a[:, r0 + 1, c0] * (1 - fc) + a[:, r0 + 1, c0 + 1] * fc
+    return (top * (1 - fr) + bottom * fr).T
+
+
+@pytest.mark.parametrize(
+    ("parts", "zoom"),
+    [
+        (("oam-rgb", "manila.tif"), 21),  # EPSG:3395 World Mercator
+        (("inria-austin", "image.tif"), 20),  # EPSG:26914 UTM 14N
+        (("zurich-ortho", "image.tif"), 20),  # EPSG:2056 Swiss LV95
+    ],
+)
+def test_real_geotiff_warps_onto_the_grid(parts, zoom):
+    """Warped real imagery matches the source sampled where pyproj says each grid pixel lies."""
+    path = shared_path(*parts)
+    with rasterio.open(path) as src:
+        source = src.read()
+        cx, cy = (src.bounds.left + src.bounds.right) / 2, (src.bounds.bottom + src.bounds.top) / 2
+        lon, lat = Transformer.from_crs(src.crs, "EPSG:4326", always_xy=True).transform(cx, cy)
+    grid = sample_grid(lon, lat, zoom)
+    imagery = GeoTiffProvider(path).fetch(grid)
+    assert imagery.valid.mean() > 0.9
+    rng = np.random.default_rng(0)
+    rows, cols = rng.integers(0, grid.height, 400), rng.integers(0, grid.width, 400)
+    scol, srow = source_positions(path, grid, cols, rows)
+    got = imagery.rgb[rows, cols].astype(float)
+    error = np.abs(got - bilinear(source, scol, srow)).mean(axis=1)
+    assert error.max() < 1.0  # equal up to rounding to uint8
+    # the same check one source pixel off fails: the comparison can see a misalignment
+    shifted = np.abs(got - bilinear(source, scol + 1, srow)).mean(axis=1)
+    assert np.median(shifted) > 1.5
