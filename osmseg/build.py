@@ -111,6 +111,8 @@ class BuildConfig:
     shard: Shard | None = None
     zip: bool = False
     name_prefix: str | None = None
+    cassette: Path | None = None  # --record/--replay FILE
+    cassette_mode: str = "replay"
 
     def identity(self) -> dict[str, Any]:
         """What decides the dataset's content; recorded in the state and the manifest."""
@@ -128,6 +130,29 @@ class BuildConfig:
             "max_tries": self.max_tries,
             "osm_padding_m": self.osm_padding_m,
         }
+
+    def command(self) -> list[str]:
+        """The canonical ``osmseg build`` command that makes this dataset (recorded in the manifest).
+
+        Built from the config rather than copied from ``sys.argv`` so that every shard and every
+        resumed run records the same line, and options that never change the content
+        (``--shard``, ``--offline``, ``--cache-dir``, ``-q``) are left out.
+        """
+        a = self.area
+        if a.kind != "custom":
+            where = ["--city", a.name, "--radius-km", f"{a.radius_km:g}"]
+        elif a.bbox is not None:
+            where = ["--bbox", ",".join(f"{v:g}" for v in a.bbox)]
+        else:
+            where = ["--lat", f"{a.lat:g}", "--lon", f"{a.lon:g}", "--radius-km", f"{a.radius_km:g}"]
+        f = self.filters
+        return [
+            "osmseg", "build", *where, "--samples", str(self.samples), "--seed", str(self.seed),
+            "--zoom", str(self.zoom), "--imagery", self.imagery, "--osm", self.osm, "--classes", self.classes,
+            "--image-format", self.image_format, "--max-unlabeled", f"{f.max_unlabeled:g}",
+            "--min-classes", str(f.min_classes), "--min-contrast", f"{f.min_contrast:g}",
+            "--max-tries", str(self.max_tries), "--out", str(self.out_dir),
+        ]
 
     @property
     def prefix(self) -> str:
@@ -253,7 +278,13 @@ def build(
     state = BuildState(config.out_dir)
     state.check_config(config.identity())
     summary = BuildSummary(out_dir=config.out_dir)
-    http = HttpConfig(cache_dir=config.cache_dir, offline=config.offline, host_limits=HOST_LIMITS)
+    recording = config.cassette is not None and config.cassette_mode == "record"
+    http = HttpConfig(
+        # a recording must see every request, so it bypasses the cache
+        cache_dir=None if recording else config.cache_dir,
+        offline=config.offline, host_limits=HOST_LIMITS,
+        cassette=config.cassette, cassette_mode=config.cassette_mode,
+    )
     with HttpClient(http) as client:
         pipe = open_pipeline(config, client, env)
         mine = [s for s in range(config.samples) if config.shard is None or config.shard.owns(s)]

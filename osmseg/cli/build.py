@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import contextlib
 import os
+from dataclasses import replace
 import sys
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import click
 from tqdm import tqdm
@@ -15,7 +15,7 @@ from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
 from osmseg.errors import ConfigError
 from osmseg.filters import FilterConfig
 from osmseg.output import command_line
-from osmseg.cli.main import report_errors
+from osmseg.cli.common import report_errors
 from osmseg.places import Area, find_preset, parse_bbox
 
 
@@ -42,21 +42,8 @@ def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: s
         raise ConfigError("--lat and --lon go together")
     if not (-85.05 <= lat <= 85.05 and -180 <= lon <= 180):
         raise ConfigError(f"--lat {lat} --lon {lon}: out of range for Web Mercator (|lat| <= 85.05, |lon| <= 180)")
-    return Area(name=f"{lat:.4f},{lon:.4f}", lat=lat, lon=lon, radius_km=radius_km or 2.0)
-
-
-@contextlib.contextmanager
-def http_recording(record: Path | None, replay: Path | None) -> Iterator[None]:
-    """Record the build's HTTP traffic to a cassette, or replay one (no network)."""
-    if record and replay:
-        raise ConfigError("--record and --replay exclude each other")
-    if record or replay:
-        from osmseg.net.replay import cassette
-
-        with cassette(record or replay, "record" if record else "replay"):  # type: ignore[arg-type]
-            yield
-    else:
-        yield
+    name = f"{abs(lat):.4f}{'N' if lat >= 0 else 'S'}_{abs(lon):.4f}{'E' if lon >= 0 else 'W'}"
+    return Area(name=name, lat=lat, lon=lon, radius_km=radius_km or 2.0)
 
 
 class ProgressBar:
@@ -77,14 +64,12 @@ class ProgressBar:
         self.bar.close()
 
 
-def run_build(config: BuildConfig, verbosity: int, record: Path | None = None, replay: Path | None = None,
-              env: dict[str, str] | None = None) -> BuildSummary:
+def run_build(config: BuildConfig, verbosity: int, env: dict[str, str] | None = None) -> BuildSummary:
     """Run a build with a progress bar and print the summary (stderr) and output path (stdout)."""
     total = sum(1 for s in range(config.samples) if config.shard is None or config.shard.owns(s))
     bar = ProgressBar(total, enabled=verbosity >= 0)
     try:
-        with http_recording(record, replay):
-            summary = build(config, env=env, progress=bar, command_line=command_line(["osmseg", *sys.argv[1:]]))
+        summary = build(config, env=env, progress=bar, command_line=command_line(config.command()))
     finally:
         bar.close()
     if verbosity >= 0:
@@ -147,4 +132,8 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
         max_tries=max_tries, cache_dir=cache_dir or default_cache_dir(), offline=offline,
         shard=Shard.parse(shard) if shard else None, zip=make_zip,
     )
-    run_build(config, ctx.obj["verbosity"], record=record, replay=replay)
+    if record and replay:
+        raise ConfigError("--record and --replay exclude each other")
+    if record or replay:
+        config = replace(config, cassette=record or replay, cassette_mode="record" if record else "replay")
+    run_build(config, ctx.obj["verbosity"])

@@ -1,0 +1,545 @@
+"""The one HTTP client of osmseg: cache, retries, politeness and key hygiene in one place.
+
+Every remote call (Bing, XYZ tiles, the OSM API, Overpass) goes through :class:`HttpClient`:
+
+* **One session** with an identifying ``User-Agent`` and connect/read timeouts.
+* **On-disk cache** (requests-cache, SQLite at ``cache_dir/http.sqlite``): each write is one
+  SQLite transaction, so ``kill -9`` never leaves a half-written entry.  2xx answers are kept
+  forever (tiles and a fixed OSM query are stable; delete the folder to refresh); server
+  ``Cache-Control`` is ignored.  A non-2xx answer is cached only if the caller listed it in
+  ``ok_statuses``: the caller declared it valid (a tile server's 404 for "no tile here"), and
+  an ``--offline`` rebuild must see the same answer.
+* **Retries** with exponential backoff on 429/500/502/503/504, connection errors, timeouts and
+  truncated bodies, honouring ``Retry-After`` (seconds or HTTP date) up to ``max_retry_after``;
+  a ``Retry-After`` pauses the whole host.  Hand-written, not ``urllib3.util.Retry``: urllib3
+  cannot see failures after it hands the response to requests (a body cut short, a read
+  timeout mid-body), and it does not cap ``Retry-After``.
+* **Per-host concurrency limits** (a bounded semaphore per host name): the OSM API gets at most
+  two requests at a time however many threads call the client.
+* **Offline**: answers from the cache only; a miss is :class:`~osmseg.errors.OfflineCacheMiss`.
+* **Secrets** (:data:`SECRET_PARAMS`) never reach logs, error messages or the cache (its keys
+  ignore them, stored URLs say ``REDACTED``).  Use :func:`redact` before printing any URL.
+  The loggers of urllib3, requests-cache and vcrpy get a redacting filter, so ``-v`` is safe.
+
+Thread safety: share one client across a ``ThreadPoolExecutor``.  requests' connection pool is
+thread-safe; requests-cache's SQLite backend shares one connection between threads and only
+serialises writes, so every cache read and write here goes behind one lock (a read takes well
+under a millisecond; network time is not serialised).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import sys
+import threading
+import time
+from collections.abc import Collection, Mapping
+from contextlib import AbstractContextManager, nullcontext
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import requests
+from requests.adapters import HTTPAdapter
+from requests_cache import NEVER_EXPIRE, CachedSession
+from requests_cache.backends.sqlite import SQLiteCache
+from requests_cache.cache_keys import redact_response
+from requests_cache.models.response import CachedResponse
+from requests_cache.policy.settings import AUTH_HEADERS
+from urllib3.exceptions import InvalidHeader
+from urllib3.util import Retry
+
+from osmseg import __version__
+from osmseg.errors import AuthError, ConfigError, HTTPStatusError, NetworkError, OfflineCacheMiss
+
+logger = logging.getLogger(__name__)
+
+#: Query parameters that carry keys or tokens (Bing, Azure Maps, Mapbox, Esri, generic).
+SECRET_PARAMS = ("key", "access_token", "subscription-key", "api_key", "apikey", "token")
+#: Request headers that carry keys (never stored in the cache).
+SECRET_HEADERS: tuple[str, ...] = (*AUTH_HEADERS, "Ocp-Apim-Subscription-Key")
+#: Statuses worth retrying: rate limits and server-side trouble.
+RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
+#: Default per-host limits: the OSM API and Overpass ask clients for at most two slots.
+DEFAULT_HOST_LIMITS: Mapping[str, int] = {"api.openstreetmap.org": 2, "overpass-api.de": 2}
+#: Name of the cache file inside ``HttpConfig.cache_dir``.
+CACHE_FILE = "http.sqlite"
+DEFAULT_USER_AGENT = f"osmseg/{__version__} (+https://github.com/osmseg/osmseg)"
+
+_SECRET_RE = re.compile(
+    r"([?&;](?:" + "|".join(re.escape(p) for p in SECRET_PARAMS) + r")=)[^&#\s'\"<>]*",
+    re.IGNORECASE,
+)
+_USERINFO_RE = re.compile(r"(://[^/@\s:]+):[^/@\s]+@")
+# Exceptions worth another attempt.  SSL errors are ConnectionErrors too but do not heal.
+_RETRY_EXCEPTIONS = (
+    requests.exceptions.ConnectionError,  # refused, reset, DNS, and truncated bodies
+    requests.exceptions.Timeout,
+    requests.exceptions.ChunkedEncodingError,
+    requests.exceptions.ContentDecodingError,
+)
+_BAD_URL_EXCEPTIONS = (
+    requests.exceptions.MissingSchema,
+    requests.exceptions.InvalidSchema,
+    requests.exceptions.InvalidURL,
+)
+
+
+def redact(url: str) -> str:
+    """``url`` (or any text holding URLs) with key/token values replaced by ``REDACTED``.
+
+    >>> redact("https://dev.virtualearth.net/REST/v1/Imagery/Metadata/Aerial?key=s3cr3t&o=json")
+    'https://dev.virtualearth.net/REST/v1/Imagery/Metadata/Aerial?key=REDACTED&o=json'
+    >>> redact("https://a.tiles.example/1/2/3.png?style=x&access_token=pk.abc")
+    'https://a.tiles.example/1/2/3.png?style=x&access_token=REDACTED'
+    >>> redact("https://user:hunter2@example.org/tiles?monkey=1")
+    'https://user:REDACTED@example.org/tiles?monkey=1'
+    """
+    return _USERINFO_RE.sub(r"\1:REDACTED@", _SECRET_RE.sub(r"\1REDACTED", url))
+
+
+class RedactingFilter(logging.Filter):
+    """A logging filter that redacts secrets from a record's final message (never drops it)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        cleaned = redact(message)
+        if cleaned != message:
+            record.msg, record.args = cleaned, ()
+        return True
+
+
+_REDACTING_FILTER = RedactingFilter()
+_THIRD_PARTY_LOGGERS = ("urllib3", "requests", "requests_cache", "vcr")
+
+
+def install_log_redaction() -> None:
+    """Attach :class:`RedactingFilter` to this module's and third-party loggers that log URLs.
+
+    Logger filters see only records logged on that very logger, so the filter goes on every
+    already-created logger under urllib3, requests, requests-cache and vcrpy (they create
+    their loggers at import).  Idempotent; called on import and by :class:`HttpClient`.
+    This adds a filter only: handlers, levels and propagation are left to the application.
+    """
+    names = [__name__] + [
+        name
+        for name in list(logging.root.manager.loggerDict)
+        if name.split(".")[0] in _THIRD_PARTY_LOGGERS
+    ]
+    for name in names:
+        named = logging.getLogger(name)
+        if _REDACTING_FILTER not in named.filters:
+            named.addFilter(_REDACTING_FILTER)
+
+
+install_log_redaction()
+
+
+@dataclass(frozen=True)
+class HttpConfig:
+    """How :class:`HttpClient` talks to the network.
+
+    Attributes:
+        cache_dir: folder of the on-disk cache (``http.sqlite`` inside); None = no cache.
+        offline: answer only from the cache; a miss raises ``OfflineCacheMiss``.
+        timeout: seconds allowed for connecting and, separately, between bytes read.
+        retries: extra attempts after the first on 429/5xx/timeouts/truncated bodies.
+        backoff: first wait between attempts in seconds; doubles each time.
+        max_retry_after: cap in seconds for a server's ``Retry-After``.
+        host_limits: concurrent requests allowed per host name.
+        default_host_limit: concurrent requests for hosts not in ``host_limits``.
+        user_agent: sent with every request (services ask clients to identify themselves).
+        cassette: a vcrpy cassette file to replay every request from (no network), or to
+            record every request into (``cassette_mode="record"``); see osmseg.net.cassette.
+        cassette_mode: ``"replay"`` or ``"record"``.
+    """
+
+    cache_dir: Path | None = None
+    offline: bool = False
+    timeout: float = 30.0
+    retries: int = 5
+    backoff: float = 0.5
+    max_retry_after: float = 300.0
+    host_limits: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_HOST_LIMITS))
+    default_host_limit: int = 6
+    user_agent: str = DEFAULT_USER_AGENT
+    cassette: Path | None = None
+    cassette_mode: str = "replay"
+
+    def __post_init__(self) -> None:
+        if self.cassette_mode not in ("replay", "record"):
+            raise ConfigError(f"cassette_mode must be 'replay' or 'record', got {self.cassette_mode!r}")
+        if self.timeout <= 0:
+            raise ConfigError(f"HTTP timeout must be > 0 seconds, got {self.timeout}")
+        if self.retries < 0 or self.backoff < 0 or self.max_retry_after < 0:
+            raise ConfigError("HTTP retries, backoff and max_retry_after must be >= 0")
+        limits = [self.default_host_limit, *self.host_limits.values()]
+        if min(limits) < 1:
+            raise ConfigError(f"per-host HTTP limits must be >= 1, got {limits}")
+
+
+class _HostGate:
+    """Concurrency slots for one host plus a shared "not before" time set by Retry-After."""
+
+    def __init__(self, limit: int) -> None:
+        self.slots = threading.BoundedSemaphore(limit)
+        self._lock = threading.Lock()
+        self._not_before = 0.0
+
+    def pause(self, seconds: float) -> None:
+        """Ask every caller of this host to wait ``seconds`` from now before sending."""
+        with self._lock:
+            self._not_before = max(self._not_before, time.monotonic() + seconds)
+
+    def wait(self) -> None:
+        """Sleep until the host's pause (if any) is over."""
+        while True:
+            with self._lock:
+                delay = self._not_before - time.monotonic()
+            if delay <= 0:
+                return
+            time.sleep(delay)
+
+
+class _LockedSQLiteCache(SQLiteCache):
+    """requests-cache's SQLite backend with every database access behind one lock.
+
+    It also redacts secrets from redirect history, which requests-cache stores unredacted.
+    """
+
+    def __init__(self, db_path: Path, **kwargs: Any) -> None:
+        super().__init__(db_path, **kwargs)
+        self._db_lock = threading.RLock()
+
+    def get_response(self, key: str, default: Any = None) -> CachedResponse | None:
+        with self._db_lock:
+            return super().get_response(key, default)
+
+    def save_response(
+        self, response: requests.Response, cache_key: str | None = None, expires: Any = None
+    ) -> None:
+        ignored = self._settings.ignored_parameters
+        cached = redact_response(CachedResponse.from_response(response, expires=expires), ignored)
+        for hop in cached.history:
+            redact_response(hop, ignored)
+            if "Location" in hop.headers:
+                hop.headers["Location"] = redact(hop.headers["Location"])
+            hop._next = None  # the next request's URL: may hold a key, never needed again
+        with self._db_lock:
+            key = cache_key or self.create_key(response.request)
+            self.responses[key] = cached
+            for hop_response in response.history:
+                self.redirects[self.create_key(hop_response.request)] = key
+
+    def close(self) -> None:
+        with self._db_lock:
+            super().close()  # type: ignore[no-untyped-call]
+
+
+def _retry_after(response: requests.Response) -> float | None:
+    """Seconds the server asks us to wait (``Retry-After`` as seconds or HTTP date), if any."""
+    value = response.headers.get("Retry-After")
+    if not value:
+        return None
+    try:
+        return max(0.0, float(Retry().parse_retry_after(value)))
+    except InvalidHeader:
+        return None
+
+
+def _is_replay_miss(exc: BaseException) -> bool:
+    """True for vcrpy's "not in the cassette" error (vcrpy is only imported when replaying)."""
+    errors = sys.modules.get("vcr.errors")
+    return errors is not None and isinstance(exc, errors.CannotOverwriteExistingCassetteException)
+
+
+def _recording_guard() -> AbstractContextManager[object]:
+    """Serialises requests while a vcrpy cassette records (see osmseg.net.replay)."""
+    replay = sys.modules.get("osmseg.net.replay")
+    return replay.request_guard() if replay is not None else nullcontext()
+
+
+def _describe(exc: BaseException, timeout: float) -> str:
+    """A short, secret-free phrase for a transport failure."""
+    if isinstance(exc, requests.exceptions.ConnectTimeout):
+        return f"no connection within {timeout:g} s"
+    if isinstance(exc, requests.exceptions.Timeout):
+        return f"no data within {timeout:g} s"
+    if isinstance(exc, requests.exceptions.ChunkedEncodingError):
+        return "connection dropped mid-response (truncated body)"
+    if isinstance(exc, requests.exceptions.ContentDecodingError):
+        return "undecodable (corrupt compressed) body"
+    text = str(exc)
+    if "IncompleteRead" in text or "Connection broken" in text:
+        return "connection dropped mid-response (truncated body)"
+    match = re.search(r"\[Errno -?\d+\] ([^'\")\]]+)", text)
+    return f"connection failed ({match.group(1).strip()})" if match else "connection failed"
+
+
+_HINTS = {
+    401: "check the API key or token (its environment variable) and its permissions",
+    404: "check the URL or tile template",
+    429: "the service keeps rate-limiting: wait, then run the same command again",
+    500: "the service keeps failing: run the same command again later",
+}
+
+
+def _status_hint(status: int) -> str:
+    """What the user can do about an HTTP error status."""
+    key = 401 if status == 403 else min(status, 500)
+    return _HINTS.get(key, "check the request (URL, parameters, key)")
+
+
+class HttpClient:
+    """GET/POST with cache, retries, per-host limits and offline mode; see the module doc.
+
+    Use one client per build, as a context manager, shared by all threads::
+
+        with HttpClient(HttpConfig(cache_dir=out / "cache")) as http:
+            png = http.get(tile_url).content
+    """
+
+    def __init__(self, config: HttpConfig | None = None) -> None:
+        self.config = config if config is not None else HttpConfig()
+        install_log_redaction()
+        self._session = self._make_session()
+        self._gates: dict[str, _HostGate] = {}
+        self._gates_lock = threading.Lock()
+
+    # -- public API ---------------------------------------------------------------------------
+
+    @property
+    def cache_path(self) -> Path | None:
+        """The SQLite cache file, or None when caching is off."""
+        cache_dir = self.config.cache_dir
+        return None if cache_dir is None else Path(cache_dir) / CACHE_FILE
+
+    def get(
+        self,
+        url: str,
+        *,
+        params: Mapping[str, Any] | None = None,
+        headers: Mapping[str, str] | None = None,
+        ok_statuses: Collection[int] = (),
+    ) -> requests.Response:
+        """Fetch ``url``; a fully read response for 2xx and ``ok_statuses``, else an error.
+
+        Raises:
+            HTTPStatusError: another status after retries (``AuthError`` for 401/403).
+            NetworkError: no usable answer after ``retries`` more attempts.
+            OfflineCacheMiss: offline and not cached.
+            ConfigError: the URL is malformed.
+        """
+        return self._request("GET", url, params=params, headers=headers, ok_statuses=ok_statuses)
+
+    def post(
+        self,
+        url: str,
+        *,
+        data: Mapping[str, Any] | str | bytes | None = None,
+        headers: Mapping[str, str] | None = None,
+        ok_statuses: Collection[int] = (),
+    ) -> requests.Response:
+        """POST ``data`` (a form dict or a raw body) to ``url``; same contract as :meth:`get`.
+
+        POSTs are cached too, keyed by their body: an Overpass query for a box is as stable
+        as a tile.
+        """
+        return self._request("POST", url, data=data, headers=headers, ok_statuses=ok_statuses)
+
+    def close(self) -> None:
+        """Close connections and the cache database; write the cassette when recording."""
+        save = getattr(self._adapter, "save", None)
+        if save is not None:
+            save()
+        self._session.close()
+
+    def __enter__(self) -> HttpClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- internals ----------------------------------------------------------------------------
+
+    def _make_session(self) -> requests.Session:
+        cfg = self.config
+        session: requests.Session
+        if cfg.cache_dir is not None:
+            Path(cfg.cache_dir).mkdir(parents=True, exist_ok=True)
+            backend = _LockedSQLiteCache(Path(cfg.cache_dir) / CACHE_FILE, busy_timeout=30_000)
+            session = CachedSession(
+                backend=backend,
+                expire_after=NEVER_EXPIRE,
+                cache_control=False,
+                allowable_codes=tuple(range(200, 300)),
+                allowable_methods=("GET", "POST"),
+                ignored_parameters=(*SECRET_PARAMS, *SECRET_HEADERS),
+                match_headers=False,
+                only_if_cached=cfg.offline,
+            )
+        else:
+            session = requests.Session()
+        pool = max(10, cfg.default_host_limit, *cfg.host_limits.values())
+        adapter: HTTPAdapter
+        if cfg.cassette is not None:
+            from osmseg.net.cassette import RecordAdapter, ReplayAdapter
+
+            if cfg.cassette_mode == "replay":
+                adapter = ReplayAdapter(cfg.cassette)
+            else:
+                adapter = RecordAdapter(cfg.cassette, pool_connections=pool, pool_maxsize=pool, max_retries=0)
+        else:
+            adapter = HTTPAdapter(pool_connections=pool, pool_maxsize=pool, max_retries=0)
+        self._adapter = adapter
+        session.mount("http://", adapter)
+        session.mount("https://", adapter)
+        session.headers["User-Agent"] = cfg.user_agent
+        return session
+
+    def _gate(self, host: str) -> _HostGate:
+        with self._gates_lock:
+            gate = self._gates.get(host)
+            if gate is None:
+                limit = self.config.host_limits.get(host, self.config.default_host_limit)
+                gate = self._gates[host] = _HostGate(limit)
+            return gate
+
+    def _request(
+        self,
+        method: str,
+        url: str,
+        *,
+        params: Mapping[str, Any] | None = None,
+        data: Mapping[str, Any] | str | bytes | None = None,
+        headers: Mapping[str, str] | None = None,
+        ok_statuses: Collection[int] = (),
+    ) -> requests.Response:
+        cfg = self.config
+        full_url = self._full_url(url, params)
+        shown = redact(full_url)
+        if cfg.offline and cfg.cache_dir is None:
+            raise OfflineCacheMiss(
+                f"{method} {shown}: --offline needs an HTTP cache folder and none was given: "
+                "set the cache folder, or drop --offline"
+            )
+        gate = self._gate(urlsplit(full_url).hostname or "")
+        attempts = cfg.retries + 1
+        problem, last_status = "", None
+        for attempt in range(attempts):
+            gate.wait()
+            wait = min(cfg.backoff * 2**attempt, cfg.max_retry_after)
+            outcome = self._send(method, full_url, shown, gate, data=data, headers=headers)
+            if isinstance(outcome, str):
+                problem, last_status = outcome, None
+            elif self._accept(method, shown, outcome, ok_statuses):
+                return outcome
+            else:  # a status worth retrying
+                problem, last_status = f"HTTP {outcome.status_code}", outcome.status_code
+                asked = _retry_after(outcome)
+                if asked is not None:
+                    wait = min(asked, cfg.max_retry_after)
+                    gate.pause(wait)
+            if attempt + 1 < attempts:
+                logger.info(
+                    "%s %s: %s; retry %d/%d in %.1f s",
+                    *(method, shown, problem, attempt + 1, cfg.retries, wait),
+                )
+                time.sleep(wait)
+        if last_status is not None:
+            raise HTTPStatusError(
+                f"{method} {shown} failed with HTTP {last_status} after {attempts} attempts: "
+                f"{_status_hint(last_status)}",
+                last_status,
+            )
+        raise NetworkError(
+            f"{method} {shown} failed after {attempts} attempts ({problem}): check the network "
+            "connection, or run the same command again later (finished work is kept)"
+        )
+
+    def _send(
+        self,
+        method: str,
+        url: str,
+        shown: str,
+        gate: _HostGate,
+        *,
+        data: Mapping[str, Any] | str | bytes | None,
+        headers: Mapping[str, str] | None,
+    ) -> requests.Response | str:
+        """One attempt: the response, or a phrase saying why it is worth another try."""
+        timeout = self.config.timeout
+        try:
+            with gate.slots, _recording_guard():
+                return self._session.request(
+                    method,
+                    url,
+                    data=data,
+                    headers=dict(headers) if headers else None,
+                    timeout=(timeout, timeout),
+                )
+        except _BAD_URL_EXCEPTIONS:
+            raise ConfigError(f"{method} {shown}: not a valid http(s) URL") from None
+        except requests.exceptions.SSLError:
+            raise NetworkError(
+                f"{method} {shown}: TLS/certificate check failed: "
+                "check the host name and the system's CA certificates"
+            ) from None
+        except _RETRY_EXCEPTIONS as exc:
+            return _describe(exc, timeout)
+        except Exception as exc:
+            if not _is_replay_miss(exc):
+                raise
+            from osmseg.net.replay import miss_error
+
+            raise miss_error(exc) from None
+
+    def _accept(
+        self, method: str, shown: str, response: requests.Response, ok_statuses: Collection[int]
+    ) -> bool:
+        """True to hand ``response`` to the caller, False to retry; raises for the rest."""
+        from_cache = bool(getattr(response, "from_cache", False))
+        # requests-cache answers an offline miss with a made-up "504 Not Cached" that has no
+        # cache key; a real hit always has one.
+        cache_key: object = getattr(response, "cache_key", None)
+        if self.config.offline and not (from_cache and cache_key):
+            raise OfflineCacheMiss(
+                f"{method} {shown} is not in the HTTP cache ({self.cache_path}) and --offline "
+                "was given: run once online to fill the cache, or drop --offline"
+            )
+        status = response.status_code
+        logger.debug("%s %s -> %s%s", method, shown, status, " (cache)" if from_cache else "")
+        if 200 <= status < 300:
+            return True
+        if status in ok_statuses:
+            if not from_cache:
+                self._cache_declared_ok(response)
+            return True
+        if status in (401, 403):
+            raise AuthError(
+                f"{method} {shown} was refused (HTTP {status}): {_status_hint(status)}", status
+            )
+        if status not in RETRY_STATUSES:
+            reason = f" {response.reason}" if response.reason else ""
+            raise HTTPStatusError(
+                f"{method} {shown} failed with HTTP {status}{reason}: {_status_hint(status)}",
+                status,
+            )
+        return False
+
+    @staticmethod
+    def _full_url(url: str, params: Mapping[str, Any] | None) -> str:
+        """``url`` with ``params`` encoded in, as requests would send it."""
+        prepared = requests.models.PreparedRequest()
+        try:
+            prepared.prepare_url(url, dict(params) if params else None)
+        except _BAD_URL_EXCEPTIONS:
+            raise ConfigError(f"not a valid http(s) URL: {redact(url)}") from None
+        return str(prepared.url)
+
+    def _cache_declared_ok(self, response: requests.Response) -> None:
+        """Store a non-2xx answer the caller declared valid (requests-cache skips them)."""
+        if isinstance(self._session, CachedSession) and not self.config.offline:
+            self._session.cache.save_response(response)

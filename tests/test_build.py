@@ -1,0 +1,190 @@
+"""``osmseg build`` end to end through the real CLI, on local sources made by the project.
+
+The OSM data is ``tests/data/tinycity/tinycity.osm``; the imagery is a GeoTIFF rendered
+from the same OSM data (``osmseg.demo.render``) in a *different* CRS (ETRS-TM35FIN, the
+Finnish national grid), so the builder must warp it onto each sample's Web Mercator grid.
+Because the imagery was painted from the labels, a correct build puts every class on pixels
+of that class's material: that is the line-up check.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+from PIL import Image
+from rasterio.warp import calculate_default_transform, reproject
+
+from osmseg.classes import load_class_table
+from osmseg.cli.main import cli
+from osmseg.demo.render import IDS13, MATERIALS, render_aerial
+from osmseg.grid import sample_grid
+from osmseg.osm.features import read_features
+from osmseg.rasterize import rasterize
+
+from conftest import TEST_DATA
+
+TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
+LON, LAT = 24.94, 60.17
+TABLE = load_class_table("classes13.toml")
+
+
+@pytest.fixture(scope="module")
+def imagery_tif(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A GeoTIFF in EPSG:3067 painted from tinycity's labels over a 9x9-tile block."""
+    grid = sample_grid(LON, LAT, 18, size=9)
+    labels = rasterize(read_features([TINYCITY], grid, TABLE), grid, TABLE)
+    rgb = render_aerial(labels, seed=3).transpose(2, 0, 1)
+    dst_crs = "EPSG:3067"
+    transform, width, height = calculate_default_transform(
+        "EPSG:3857", dst_crs, grid.width, grid.height, *grid.xy_bounds)
+    path = tmp_path_factory.mktemp("imagery") / "tinycity-tm35fin.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=3, dtype="uint8",
+                       crs=dst_crs, transform=transform) as dst:
+        for band in range(3):
+            reproject(rgb[band], rasterio.band(dst, band + 1), src_transform=grid.transform,
+                      src_crs="EPSG:3857", dst_transform=transform, dst_crs=dst_crs)
+    return path
+
+
+def build_args(out: Path, imagery: Path, *extra: str, samples: int = 3) -> list[str]:
+    return ["build", "--lat", str(LAT), "--lon", str(LON), "--radius-km", "0.08", "--samples", str(samples),
+            "--seed", "1", "--imagery", f"geotiff:{imagery}", "--osm", str(TINYCITY), "--out", str(out),
+            "--cache-dir", str(out.parent / "cache"), *extra]
+
+
+def run_cli(*args: str) -> "click.testing.Result":  # noqa: F821
+    return CliRunner().invoke(cli, ["-q", *args], catch_exceptions=False)
+
+
+def tree_bytes(root: Path) -> dict[str, bytes]:
+    """Every file under ``root`` except the resumable-state folder, by relative path."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and ".osmseg-build" not in p.parts}
+
+
+def test_build_writes_a_dataset_whose_masks_line_up_with_the_imagery(tmp_path: Path, imagery_tif: Path) -> None:
+    out = tmp_path / "ds"
+    result = run_cli(*build_args(out, imagery_tif))
+    assert result.exit_code == 0, result.output
+    assert result.stdout.strip() == str(out / "manifest.json")
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["summary"]["accepted"] == 3 and manifest["seed"] == 1
+    for sample in manifest["samples"]:
+        name = sample["name"]
+        labels = np.asarray(Image.open(out / "labels" / f"{name}.png"))
+        image = np.asarray(Image.open(out / "images" / f"{name}.png")).astype(float)
+        colour = np.asarray(Image.open(out / "segmented" / f"{name}.png"))
+        assert labels.shape == (1280, 1280) and image.shape == (1280, 1280, 3)
+        assert (colour == TABLE.colorize(labels)).all()
+        present = [c for c in np.unique(labels) if (labels == c).sum() > 2000]
+        assert len(present) >= 4
+        # each class sits on pixels painted with that class's material, not another's
+        materials = {IDS13[n]: np.array(rgb, float) for n, rgb in MATERIALS.items()}
+        for c in present:
+            if c in (IDS13["tree"], IDS13["park"], IDS13["natural"], IDS13["grass"]):
+                continue  # vegetation materials are too alike to tell apart by mean colour
+            mean = image[labels == c].mean(axis=0)
+            nearest = min(materials, key=lambda k: np.linalg.norm(materials[k] - mean))
+            assert nearest == c, f"{name}: class {c} pixels look like class {nearest}"
+        with rasterio.open(out / "geo" / f"{name}.tif") as geo:
+            assert geo.crs.to_epsg() == 3857
+            assert (geo.read(1) == labels).all()
+    for extra in ("DATASHEET.md", "ATTRIBUTION.md", "overview.png", "class_histogram.png"):
+        assert (out / extra).stat().st_size > 0
+
+
+def test_interrupted_build_resumes_to_identical_bytes(tmp_path: Path, imagery_tif: Path) -> None:
+    """kill -9 in the middle, rerun the same command: same files as a build never interrupted."""
+    whole = tmp_path / "whole" / "ds"
+    assert run_cli(*build_args(whole, imagery_tif, samples=4)).exit_code == 0
+
+    killed = tmp_path / "killed" / "ds"
+    cmd = [sys.executable, "-m", "osmseg", "-q", *build_args(killed, imagery_tif, samples=4)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    slots = killed / ".osmseg-build" / "slots"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and len(list(slots.glob("*.json"))) < 1:
+        time.sleep(0.02)
+    assert proc.poll() is None, f"build exited early: {proc.communicate()[1].decode()[-500:]}"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (killed / "manifest.json").exists(), "the build finished before it could be killed"
+
+    result = run_cli(*build_args(killed, imagery_tif, samples=4))
+    assert result.exit_code == 0, result.output
+    assert tree_bytes(killed) == tree_bytes(whole)
+
+
+def test_shards_together_give_the_single_run_dataset(tmp_path: Path, imagery_tif: Path) -> None:
+    single = tmp_path / "single" / "ds"
+    sharded = tmp_path / "sharded" / "ds"
+    assert run_cli(*build_args(single, imagery_tif, samples=4)).exit_code == 0
+    first = run_cli(*build_args(sharded, imagery_tif, "--shard", "1/2", samples=4))
+    assert first.exit_code == 0 and not (sharded / "manifest.json").exists()
+    second = run_cli(*build_args(sharded, imagery_tif, "--shard", "2/2", samples=4))
+    assert second.exit_code == 0
+    assert tree_bytes(sharded) == tree_bytes(single)
+
+
+def test_classes6_build_maps_the_13_classes(tmp_path: Path, imagery_tif: Path) -> None:
+    out = tmp_path / "ds6"
+    assert run_cli(*build_args(out, imagery_tif, "--classes", "classes6.toml", samples=1)).exit_code == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    labels = np.asarray(Image.open(out / "labels" / f"{manifest['samples'][0]['name']}.png"))
+    assert set(np.unique(labels)) <= set(range(7))
+    assert [c["name"] for c in manifest["classes"]["classes"]][1:] == [
+        "building", "highway", "natural", "water", "footway", "dirt road"]
+
+
+def test_rerun_into_a_folder_of_another_build_is_refused(tmp_path: Path, imagery_tif: Path) -> None:
+    out = tmp_path / "ds"
+    assert run_cli(*build_args(out, imagery_tif, samples=1)).exit_code == 0
+    before = tree_bytes(out)
+    result = CliRunner().invoke(cli, ["-q", *build_args(out, imagery_tif, "--zoom", "17", samples=1)])
+    assert result.exit_code == 1
+    assert "different build" in result.output and "zoom" in result.output
+    assert tree_bytes(out) == before
+
+
+@pytest.mark.parametrize(
+    ("args", "code", "says"),
+    [
+        (["build", "--city", "Atlantis", "--out", "x"], 2, "Berlin"),
+        (["build", "--city", "Berlin", "--lat", "1", "--out", "x"], 2, "exactly one"),
+        (["build", "--bbox", "1,2,3", "--out", "x", "--imagery", "xyz:file:///t/{z}/{x}/{y}.png"], 2, "W,S,E,N"),
+        (["build", "--city", "Berlin", "--out", "x", "--osm", "/no/such/file.osm.pbf",
+          "--imagery", "xyz:file:///t/{z}/{x}/{y}.png"], 2, "not found"),
+        (["build", "--city", "Berlin", "--out", "x", "--imagery", "bing"], 2, "BING_MAPS_KEY"),
+        (["build", "--city", "Berlin", "--out", "x", "--imagery", "carrier-pigeon"], 2, "imagery"),
+    ],
+)
+def test_bad_input_gives_one_line_and_a_usage_exit(tmp_path: Path, args: list[str], code: int, says: str,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("BING_MAPS_KEY", raising=False)
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == code, result.output
+    assert says in result.output
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "x" / "manifest.json").exists()
+
+
+def test_malformed_osm_file_fails_with_one_line(tmp_path: Path, imagery_tif: Path) -> None:
+    broken = tmp_path / "broken.osm"
+    broken.write_bytes(TINYCITY.read_bytes()[:5000])
+    args = build_args(tmp_path / "ds", imagery_tif, samples=1)
+    args[args.index(str(TINYCITY))] = str(broken)
+    result = CliRunner().invoke(cli, ["-q", *args])
+    assert result.exit_code == 1
+    message = result.output.strip()
+    assert message.startswith("Error:") and "\n" not in message and "broken" in message
