@@ -10,6 +10,8 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
 TEST_DATA = Path(__file__).resolve().parent / "data"
 
+pytest_plugins = ["servers"]  # the http_server fixture: a scripted HTTP server on 127.0.0.1
+
 
 def shared_path(*parts: str) -> Path:
     """Path inside ../shared/data, skipping the calling test when it is absent."""

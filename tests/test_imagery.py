@@ -1,14 +1,17 @@
 """Imagery providers: Bing, XYZ (HTTP and file://), GeoTIFF, and the --imagery spec parser.
 
-HTTP tests replay the cassettes in tests/data/imagery (made by its data.py) through the real
-HttpClient with osmseg.net.replay (vcrpy, replay only): no request leaves the machine.  Tests that need
-threads, faults or the on-disk cache use the scripted server on 127.0.0.1 (tests/servers.py)
-instead: vcrpy is not thread-safe and its replayed responses break requests-cache.  Synthetic tiles
+HTTP tests replay the vcrpy cassettes in tests/data/imagery (made by its data.py) through the real
+HttpClient's replay adapter (osmseg.net.cassette, as ``osmseg build --replay``): no request leaves
+the machine.  Tests of faults and the on-disk cache use the scripted server on 127.0.0.1
+(tests/servers.py).  Synthetic tiles
 encode their position (red = 32 + 64 * (x % 3), green = 32 + 64 * (y % 3), blue = a diagonal
 ramp), so every check is "the pixel at tile i's offset came from tile i".
 """
 
 from __future__ import annotations
+
+from contextlib import contextmanager
+from collections.abc import Iterator
 
 import io
 import json
@@ -34,12 +37,9 @@ from osmseg.imagery import (
 )
 from osmseg.imagery.bing import AUTH_MESSAGE
 from osmseg.net.http import HttpClient, HttpConfig
-from osmseg.net.replay import cassette
 
 from conftest import TEST_DATA, shared_path
 from servers import Reply
-
-pytest_plugins = ["servers"]  # the http_server fixture (a scripted server on 127.0.0.1)
 
 DATA = TEST_DATA / "imagery"
 LON, LAT, ZOOM = 13.4050, 52.5200, 18  # as in tests/data/imagery/data.py
@@ -50,14 +50,11 @@ MAPBOX = (
 )
 
 
-def replay(name: str):
-    """Replay cassette ``name`` the way ``osmseg build --replay`` does (keys filtered out).
-
-    Providers fetch one tile at a time under replay: vcrpy's connection stub briefly restores
-    the real connection classes process-wide when it is created, so a connection another
-    thread opens at that moment escapes the cassette (and tries the network).
-    """
-    return cassette(DATA / name, "replay")
+@contextmanager
+def replay(name: str) -> Iterator[HttpClient]:
+    """A client answering from cassette ``name`` as ``osmseg build --replay`` does (keys filtered out)."""
+    with HttpClient(HttpConfig(retries=0, timeout=5, cassette=DATA / name)) as http:
+        yield http
 
 
 @pytest.fixture
@@ -94,12 +91,13 @@ def tile_area(array: np.ndarray, grid: SampleGrid, index: int) -> np.ndarray:
 
 
 def test_bing_tiles_land_at_their_offsets_and_placeholder_is_invalid(grid, client):
-    with replay("bing.yaml") as recorded:
+    with replay("bing.yaml") as client:
         provider = BingProvider(client, BING_KEY, workers=1)
         imagery = provider.fetch(grid)
         provider.describe()
         provider.fetch(grid)
-        assert recorded.play_counts[0] == 1  # the metadata call is made once per provider
+        metadata = [n for url, n in client._adapter.plays.items() if "Imagery/Metadata" in url]
+        assert metadata == [1]  # the metadata call is made once per provider
     assert imagery.rgb.shape == (768, 768, 3) and imagery.valid.shape == (768, 768)
     for index in range(8):
         assert_tile_in_place(imagery.rgb, grid, index, tol=6)  # JPEG
@@ -113,7 +111,7 @@ def test_bing_tiles_land_at_their_offsets_and_placeholder_is_invalid(grid, clien
 
 def test_bing_describe_records_attribution_and_never_the_key(grid, client, caplog):
     caplog.set_level(logging.DEBUG)
-    with replay("bing.yaml"):
+    with replay("bing.yaml") as client:
         provider = make_provider("bing", client, env={"BING_MAPS_KEY": BING_KEY})
         provider.workers = 1
         imagery = provider.fetch(grid)
@@ -135,7 +133,7 @@ def test_bing_describe_records_attribution_and_never_the_key(grid, client, caplo
 
 
 def test_bing_refused_key_is_an_auth_error_without_the_key(grid, client):
-    with replay("bing-refused.yaml"):
+    with replay("bing-refused.yaml") as client:
         provider = BingProvider(client, BING_KEY)
         with pytest.raises(AuthError) as refused:
             provider.fetch(grid)
@@ -145,7 +143,7 @@ def test_bing_refused_key_is_an_auth_error_without_the_key(grid, client):
 
 
 def test_bing_zoom_outside_metadata_range_is_a_config_error(client):
-    with replay("bing.yaml"):
+    with replay("bing.yaml") as client:
         provider = BingProvider(client, BING_KEY)
         with pytest.raises(ConfigError, match="zoom 22 is outside Bing Aerial's range 1-21"):
             provider.fetch(sample_grid(LON, LAT, 22, size=1))
@@ -295,7 +293,7 @@ def test_xyz_offline_rebuild_from_the_cache(http_server, grid, tmp_path):
 
 def test_xyz_http_tiles_land_at_their_offsets(grid, client, caplog):
     caplog.set_level(logging.DEBUG)
-    with replay("xyz.yaml"):
+    with replay("xyz.yaml") as client:
         provider = XYZProvider(MAPBOX, client, env={"MAPBOX_TOKEN": MAPBOX_TOKEN}, workers=1)
         imagery = provider.fetch(grid)
     for index in (1, 2, 3, 4, 5, 7, 8):
@@ -320,7 +318,7 @@ def test_xyz_http_tiles_land_at_their_offsets(grid, client, caplog):
 def test_xyz_corrupt_tile_is_an_imagery_error_naming_the_tile(client):
     corrupt = sample_grid(*mercantile.ul(140827, 85970, ZOOM), ZOOM, size=1)
     assert corrupt.tiles[0] == mercantile.Tile(140827, 85970, ZOOM)
-    with replay("xyz.yaml"):
+    with replay("xyz.yaml") as client:
         provider = XYZProvider(MAPBOX, client, env={"MAPBOX_TOKEN": MAPBOX_TOKEN})
         with pytest.raises(
             ImageryError, match=r"tile 18/140827/85970 .* is not a readable image"
@@ -332,7 +330,7 @@ def test_xyz_corrupt_tile_is_an_imagery_error_naming_the_tile(client):
 def test_xyz_refused_key_is_an_auth_error_without_the_key(client):
     refused = sample_grid(*mercantile.ul(140822, 85970, ZOOM), ZOOM, size=1)
     template = "https://tiles.example.org/{z}/{x}/{y}.png?api_key={env:TILE_KEY}"
-    with replay("xyz.yaml"):
+    with replay("xyz.yaml") as client:
         provider = XYZProvider(template, client, env={"TILE_KEY": "TEST-tile-key-99"})
         with pytest.raises(AuthError) as exc:
             provider.fetch(refused)

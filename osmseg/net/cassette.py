@@ -25,6 +25,7 @@ from __future__ import annotations
 import gzip
 import io
 import threading
+from collections import Counter
 from pathlib import Path
 from typing import Any, Literal
 from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
@@ -94,6 +95,24 @@ def match_key(method: str, url: str, body: bytes | str | None) -> tuple[str, str
     return (method.upper(), parts.scheme, parts.hostname or "", parts.path, query, clean_body(body))
 
 
+def recorded_response(adapter: HTTPAdapter, request: requests.PreparedRequest, recorded: dict[str, Any]) -> requests.Response:
+    """A real requests/urllib3 response carrying a recorded answer (so requests-cache can store it)."""
+    body = recorded["body"]["string"]
+    body = body.encode() if isinstance(body, str) else (body or b"")
+    headers = HTTPHeaderDict()
+    for name, values in recorded.get("headers", {}).items():
+        if name.lower() not in ("content-encoding", "transfer-encoding", "content-length"):
+            for value in values:
+                headers.add(name, value)
+    headers["Content-Length"] = str(len(body))
+    raw = HTTPResponse(
+        body=io.BytesIO(body), headers=headers, status=int(recorded["status"]["code"]),
+        reason=recorded["status"].get("message"), preload_content=False, decode_content=False,
+        request_url=request.url, request_method=request.method,
+    )
+    return adapter.build_response(request, raw)
+
+
 class ReplayAdapter(HTTPAdapter):
     """Answers every request from a cassette; never opens a connection."""
 
@@ -107,6 +126,8 @@ class ReplayAdapter(HTTPAdapter):
         except Exception as exc:  # vcrpy raises ValueError/yaml errors/KeyError on bad files
             raise ConfigError(f"{self.path} is not a vcrpy cassette ({type(exc).__name__}); record it again") from None
         requests_, responses = loaded[0], loaded[1]
+        #: how many times each recorded URL (secrets removed) was answered
+        self.plays: Counter[str] = Counter()
         self._answers: dict[tuple[Any, ...], dict[str, Any]] = {}
         for req, resp in zip(requests_, responses):
             self._answers.setdefault(match_key(req.method, req.uri, req.body), resp)
@@ -119,27 +140,16 @@ class ReplayAdapter(HTTPAdapter):
                 f"{request.method} {redact(request.url)} is not in the replay cassette {self.path}: "
                 f"record it with --record {self.path} (needs the network), or drop --replay"
             )
-        body = recorded["body"]["string"]
-        body = body.encode() if isinstance(body, str) else body
-        headers = HTTPHeaderDict()
-        for name, values in recorded.get("headers", {}).items():
-            if name.lower() not in ("content-encoding", "transfer-encoding", "content-length"):
-                for value in values:
-                    headers.add(name, value)
-        headers["Content-Length"] = str(len(body))
-        raw = HTTPResponse(
-            body=io.BytesIO(body), headers=headers, status=int(recorded["status"]["code"]),
-            reason=recorded["status"].get("message"), preload_content=False, decode_content=False,
-            request_url=request.url, request_method=request.method,
-        )
-        return self.build_response(request, raw)
+        self.plays[clean_url(request.url)] += 1
+        return recorded_response(self, request, recorded)
 
 
 class RecordAdapter(HTTPAdapter):
     """Sends requests for real and keeps what came back; :meth:`save` writes the cassette.
 
-    An existing cassette is extended (its answers are kept), so an interrupted recording
-    can be resumed.
+    A request already recorded is answered from the recording (as vcrpy's ``new_episodes``
+    mode does), and an existing cassette is extended, so an interrupted recording can be
+    resumed without asking the network twice.
     """
 
     def __init__(self, path: Path, **kwargs: Any) -> None:
@@ -148,7 +158,7 @@ class RecordAdapter(HTTPAdapter):
         self._lock = threading.Lock()
         self._requests: list[VcrRequest] = []
         self._responses: list[dict[str, Any]] = []
-        self._seen: set[tuple[Any, ...]] = set()
+        self._seen: dict[tuple[Any, ...], dict[str, Any]] = {}
         if self.path.is_file() and read_cassette_text(self.path).strip():
             loaded = deserialize(read_cassette_text(self.path), yamlserializer)
             for req, resp in zip(loaded[0], loaded[1]):
@@ -158,15 +168,19 @@ class RecordAdapter(HTTPAdapter):
         key = match_key(req.method, req.uri, req.body)
         with self._lock:
             if key not in self._seen:
-                self._seen.add(key)
+                self._seen[key] = resp
                 self._requests.append(req)
                 self._responses.append(resp)
 
     def send(self, request: requests.PreparedRequest, **kwargs: Any) -> requests.Response:  # type: ignore[override]
+        assert request.method is not None and request.url is not None
+        with self._lock:
+            known = self._seen.get(match_key(request.method, request.url, request.body))
+        if known is not None:
+            return recorded_response(self, request, known)
         response = super().send(request, **kwargs)
         body = response.content  # read it all: a truncated body raises here, and is retried
         if response.status_code not in RETRY_STATUSES:
-            assert request.method is not None and request.url is not None
             headers = {k: [v] for k, v in request.headers.items() if k.lower() not in _DROP_HEADERS}
             req = VcrRequest(request.method, clean_url(request.url), clean_body(request.body) or None, headers)
             resp_headers = {k: [redact(v) if k.lower() == "location" else v]
