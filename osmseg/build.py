@@ -136,7 +136,8 @@ class BuildConfig:
 
         Built from the config rather than copied from ``sys.argv`` so that every shard and every
         resumed run records the same line, and options that never change the content
-        (``--shard``, ``--offline``, ``--cache-dir``, ``-q``) are left out.
+        (``--shard``, ``--offline``, ``--cache-dir``, ``-q``) are left out, and so is ``--out``:
+        the same dataset built in another folder has the same manifest.
         """
         a = self.area
         if a.kind != "custom":
@@ -151,7 +152,7 @@ class BuildConfig:
             "--zoom", str(self.zoom), "--imagery", self.imagery, "--osm", self.osm, "--classes", self.classes,
             "--image-format", self.image_format, "--max-unlabeled", f"{f.max_unlabeled:g}",
             "--min-classes", str(f.min_classes), "--min-contrast", f"{f.min_contrast:g}",
-            "--max-tries", str(self.max_tries), "--out", str(self.out_dir),
+            "--max-tries", str(self.max_tries),
         ]
 
     @property

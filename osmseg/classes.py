@@ -13,6 +13,8 @@ Tables are data files in ``data_manifests/`` (``classes13.toml`` for the 13 OSM 
 
 from __future__ import annotations
 
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,6 +24,55 @@ from osmseg.errors import ClassTableError
 from osmseg.manifests import load_toml
 
 RGB = tuple[int, int, int]
+
+#: Widths outside (0, MAX_WIDTH] metres are tagging errors ("width=300" on a footway): ignored.
+MAX_WIDTH = 200.0
+
+_LENGTH = re.compile(
+    r"""^\s*(?:(?P<num>\d+(?:[.,]\d+)?)\s*(?P<unit>m|metres?|meters?|cm|km|ft|feet|mi)?"""
+    r"""|(?P<feet>\d+(?:\.\d+)?)\s*'\s*(?:(?P<inches>\d+(?:\.\d+)?)\s*(?:"|''))?)\s*$""",
+    re.IGNORECASE,
+)
+_UNIT_METRES = {"m": 1.0, "metre": 1.0, "metres": 1.0, "meter": 1.0, "meters": 1.0, "cm": 0.01,
+                "km": 1000.0, "ft": 0.3048, "feet": 0.3048, "mi": 1609.344}
+
+
+def parse_length(text: str | None) -> float | None:
+    r"""Metres from an OSM length value (``width=*``, ``diameter_crown=*``); None if unreadable.
+
+    OSM's default unit is the metre; feet and inches are written ``12'6"``.
+
+    >>> parse_length("7.5"), parse_length("7,5 m"), parse_length("30 cm")
+    (7.5, 7.5, 0.3)
+    >>> parse_length("12'"), round(parse_length("12'6\"") or 0, 3), parse_length("10 ft")
+    (3.6576, 3.81, 3.048)
+    >>> parse_length("narrow"), parse_length(None), parse_length("0"), parse_length("2;3")
+    (None, None, None, None)
+    """
+    if not text:
+        return None
+    m = _LENGTH.match(text)
+    if m is None:
+        return None
+    if m.group("num") is not None:
+        value = float(m.group("num").replace(",", ".")) * _UNIT_METRES[(m.group("unit") or "m").lower()]
+    else:
+        value = float(m.group("feet")) * 0.3048 + float(m.group("inches") or 0) * 0.0254
+    value = round(value, 6)
+    return value if 0 < value <= MAX_WIDTH else None
+
+
+def parse_lanes(text: str | None) -> int | None:
+    """Number of lanes from ``lanes=*`` (the first number of "2;3"); None if unreadable.
+
+    >>> parse_lanes("2"), parse_lanes("2;3"), parse_lanes("two"), parse_lanes("0")
+    (2, 2, None, None)
+    """
+    m = re.match(r"\s*(\d+)", text or "")
+    if m is None:
+        return None
+    lanes = int(m.group(1))
+    return lanes if 0 < lanes <= 20 else None
 
 
 @dataclass(frozen=True)
@@ -73,6 +124,33 @@ class ClassDef:
     coastline: bool = False
     sources: tuple[str, ...] = ()  # for mapped tables: names of base classes mapped here
 
+    def matches(self, tags: Any, geometry: str) -> bool:
+        """True if one of this class's rules for ``geometry`` ("area", "line", "point") matches."""
+        return any(r.geometry == geometry and r.matches(tags) for r in self.rules)
+
+    def width_for(self, tags: Mapping[str, str], geometry: str = "line") -> float | None:
+        """Ground width in metres to buffer a line (or the diameter of a point) of this class.
+
+        First readable wins: the ``width`` tag (``diameter_crown`` for points), ``lanes`` times
+        ``lane_width``, ``widths[value of width_key]``, ``default_width``.  None when the class
+        gives no width at all (areas).
+
+        >>> road = load_class_table().by_name["highway"]
+        >>> road.width_for({"highway": "primary", "width": "12"}), road.width_for({"highway": "residential", "lanes": "2"})
+        (12.0, 7.0)
+        >>> road.width_for({"highway": "primary"}), road.width_for({"highway": "road", "width": "wide"})
+        (10.0, 6.0)
+        """
+        tagged = parse_length(tags.get("diameter_crown" if geometry == "point" else "width"))
+        if tagged is not None:
+            return tagged
+        lanes = parse_lanes(tags.get("lanes")) if self.lane_width and geometry == "line" else None
+        if lanes is not None and self.lane_width:
+            return lanes * float(self.lane_width)
+        if self.width_key is not None and tags.get(self.width_key) in self.widths:
+            return float(self.widths[tags[self.width_key]])
+        return float(self.default_width) if self.default_width is not None else None
+
 
 @dataclass(frozen=True)
 class ClassTable:
@@ -83,6 +161,7 @@ class ClassTable:
     unlabeled: ClassDef
     description: str = ""
     base: "ClassTable | None" = None  # for mapped tables (classes6): the table rules come from
+    hidden: tuple[Rule, ...] = ()  # features not visible from above (tunnels...): never drawn
 
     @property
     def num_classes(self) -> int:
@@ -96,6 +175,43 @@ class ClassTable:
     @property
     def by_id(self) -> dict[int, ClassDef]:
         return {c.id: c for c in (self.unlabeled, *self.classes)}
+
+    def classify(self, tags: Any, geometry: str) -> ClassDef | None:
+        """The first class (in file order) with a rule for ``geometry`` that ``tags`` match.
+
+        >>> t = load_class_table()
+        >>> t.classify({"highway": "residential", "surface": "gravel"}, "line").name
+        'dirt road'
+        >>> t.classify({"highway": "residential"}, "line").name, t.classify({"highway": "residential"}, "area")
+        ('highway', None)
+        """
+        for c in self.classes:
+            if c.matches(tags, geometry):
+                return c
+        return None
+
+    def is_hidden(self, tags: Any) -> bool:
+        """True if ``tags`` mark a feature that cannot be seen from above (``hidden`` rules).
+
+        >>> t = load_class_table()
+        >>> t.is_hidden({"highway": "primary", "tunnel": "yes"}), t.is_hidden({"highway": "primary", "tunnel": "no"})
+        (True, False)
+        """
+        return any(r.matches(tags) for r in self.hidden)
+
+    def rule_keys(self, *geometries: str) -> frozenset[str]:
+        """Tag keys that some rule for one of ``geometries`` requires (for pre-filtering OSM data).
+
+        >>> sorted(load_class_table().rule_keys("point"))
+        ['natural']
+        """
+        return frozenset(k for c in self.classes for r in c.rules if r.geometry in geometries
+                         for k in r.tags if not k.startswith("!"))
+
+    @property
+    def coastline_class(self) -> ClassDef | None:
+        """The class that sea built from ``natural=coastline`` is drawn as (None: no sea)."""
+        return next((c for c in self.classes if c.coastline), None)
 
     def palette(self) -> np.ndarray:
         """``(256, 3)`` uint8 colour lookup table indexed by class id (unused ids black)."""
@@ -149,6 +265,8 @@ def load_class_table(name: str = "classes13.toml") -> ClassTable:
             for r in rules:
                 if r.geometry not in ("area", "line", "point"):
                     raise ClassTableError(f"{where}: geometry must be area, line or point, got {r.geometry!r}")
+            if any(r.geometry != "area" for r in rules) and entry.get("default_width") is None:
+                raise ClassTableError(f"{where}: has line or point rules, so it needs a default_width (metres)")
             sources = tuple(entry.get("from", ()))
             if base is not None:
                 unknown = [s for s in sources if s not in base.by_name]
@@ -176,5 +294,9 @@ def load_class_table(name: str = "classes13.toml") -> ClassTable:
     ids = [c.id for c in classes]
     if len(set(ids)) != len(ids) or 0 in ids or not all(0 < i < 256 for i in ids):
         raise ClassTableError(f"{name}: class ids must be unique and in 1..255, got {ids}")
+    try:
+        hidden = tuple(Rule(geometry="any", tags=dict(tags)) for tags in raw.get("hidden", ()))
+    except (TypeError, ValueError):
+        raise ClassTableError(f"{name}: hidden must be a list of tag tables like {{ tunnel = \"*\" }}") from None
     return ClassTable(name=raw.get("name", name), description=raw.get("description", ""),
-                      classes=tuple(classes), unlabeled=unlabeled, base=base)
+                      classes=tuple(classes), unlabeled=unlabeled, base=base, hidden=hidden)

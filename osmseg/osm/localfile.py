@@ -1,0 +1,466 @@
+"""Local OSM files (``.osm``, ``.osm.pbf``, ``.osm.bz2``) cut into small per-box extracts.
+
+A local file is the way that scales to whole countries: no rate limits, no network, and a
+Geofabrik country ``.osm.pbf`` carries its replication timestamp.  The file is read with
+osmium in streaming passes (memory holds id sets, never the data), and for each box an
+extract with the content :mod:`osmseg.osm.base` promises is written into the work folder as
+``.osm.pbf``:
+
+1. nodes in the box, and the locations of nodes within ``reach`` (1 km) around it;
+2. ways with a node in the box, or with a segment crossing the box between two nodes
+   within reach (a long straight road or coastline segment can cross a sample without a
+   node in it: Overpass finds such ways, the API's map call does not);
+3. ``type=multipolygon`` relations with one of those ways as member, with all their member
+   ways and nodes;
+4. all nodes of the ways kept;
+5. everything kept, copied in file order.
+
+The id sets are Python sets, sized by the extract.  ``osmium.IdTracker`` (and ``IdFilter``)
+would run passes 2, 4 and 5 in C++, but their dense id sets allocate 512 KB per 4 million
+ids of range: real node ids span ten billion, so even a city extract costs ~0.7 GB of RAM
+and a second of page zeroing (measured on the Helsinki extract).  The node pass is Python
+either way and dominates (~4 µs per node): a country file takes minutes, once, with
+:meth:`LocalFileSource.prepare`.
+
+Passes over the input are the same whatever the number of boxes: :meth:`LocalFileSource.prepare`
+runs them once for all boxes of a build (or the sampling area as one box) and writes a
+*region* file (small); every later :meth:`~LocalFileSource.fetch` of a box inside a prepared
+box cuts from that region file instead of the country file.  The region is closed under
+these rules (a box inside it gets the same extract from the region as from the country),
+so preparing changes speed, never output.
+
+Timestamp: the replication timestamp of the file header (``osmosis_replication_timestamp``:
+Geofabrik, planet and ``osmium extract`` files have it); failing that the file's
+modification time, recorded as such in ``info["timestamp_from"]``.
+
+What no box-based source can see (API, Overpass or this): an area whose outline lies
+entirely outside the padded box while the box lies inside it (a sample in the middle of a
+huge forest or lake).  Callers pad boxes (``osmseg.grid.pad_bbox``) to make that rare.
+
+The module also holds the small helpers the network sources share: deterministic file names
+for a box, validating and storing downloaded OSM XML, and the JSON "done" marker written
+after an extract's files (atomically, last), which is what makes a rerun reuse them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import osmium
+
+from osmseg.errors import ConfigError, OSMDataError
+from osmseg.grid import LngLatBBox, pad_bbox
+from osmseg.osm.base import OsmExtract
+from osmseg.output.atomic import atomic_write_text, temp_path_for
+
+logger = logging.getLogger(__name__)
+
+#: Endings of the OSM files osmium reads (and that ``--osm PATH`` accepts).
+OSM_SUFFIXES: tuple[str, ...] = (".osm.pbf", ".pbf", ".osm", ".osm.bz2", ".osm.gz", ".xml", ".osm.xml")
+#: Metres around a box within which both ends of a way's segment must lie for the segment to
+#: be found crossing the box without a node in it (longer segments are missed, as by the API).
+DEFAULT_REACH = 1000.0
+#: Attribution required by the ODbL for any OSM-derived data.
+OSM_ATTRIBUTION = "© OpenStreetMap contributors, ODbL 1.0 (https://www.openstreetmap.org/copyright)"
+
+
+# -- shared helpers -------------------------------------------------------------------------------
+
+
+def bbox_label(bbox: LngLatBBox) -> str:
+    """Deterministic, file-name-safe text for a box (7 decimals, OSM's coordinate precision).
+
+    >>> bbox_label(LngLatBBox(13.4, 52.5, 13.41, -0.5))
+    '13.4000000_52.5000000_13.4100000_-0.5000000'
+    """
+    return "_".join(f"{v:.7f}" for v in bbox)
+
+
+def cache_name(kind: str, bbox: LngLatBBox, *identity: str) -> str:
+    """File stem for ``kind``'s data for ``bbox`` from a source identified by ``identity``.
+
+    The digest keeps two sources (another URL, another query, another input file) that share
+    a work folder apart; the readable box keeps the folder browsable.
+
+    >>> cache_name("api", LngLatBBox(0, 0, 1, 1), "https://api.openstreetmap.org/api/0.6")[:42]
+    'api_0.0000000_0.0000000_1.0000000_1.000000'
+    """
+    digest = hashlib.sha256("\n".join((kind, bbox_label(bbox), *identity)).encode()).hexdigest()[:10]
+    return f"{kind}_{bbox_label(bbox)}_{digest}"
+
+
+def bbox_contains(outer: LngLatBBox, inner: LngLatBBox) -> bool:
+    """True if ``inner`` lies within ``outer`` (edges included).
+
+    >>> bbox_contains(LngLatBBox(0, 0, 2, 2), LngLatBBox(0, 0.5, 1, 2)), bbox_contains(LngLatBBox(0, 0, 1, 1), LngLatBBox(0, 0, 2, 1))
+    (True, False)
+    """
+    return outer.west <= inner.west and outer.south <= inner.south and inner.east <= outer.east and inner.north <= outer.north
+
+
+def check_bbox(bbox: LngLatBBox) -> LngLatBBox:
+    """``bbox`` as a LngLatBBox of floats, or ConfigError if it is empty or off the globe."""
+    try:
+        box = LngLatBBox(*(float(v) for v in bbox))
+    except (TypeError, ValueError):
+        raise ConfigError(f"bounding box must be four numbers west,south,east,north, got {bbox!r}") from None
+    if not (-180 <= box.west < box.east <= 180 and -90 <= box.south < box.north <= 90):
+        raise ConfigError(f"bounding box {tuple(box)} must have -180 <= west < east <= 180 and -90 <= south < north <= 90")
+    return box
+
+
+def iso_utc(moment: datetime) -> str:
+    """ISO 8601 UTC with a ``Z`` and whole seconds, as OSM writes timestamps.
+
+    >>> iso_utc(datetime(2024, 5, 1, 12, 0, 30, 999, tzinfo=timezone.utc))
+    '2024-05-01T12:00:30Z'
+    """
+    return moment.astimezone(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+@dataclass
+class OsmScan:
+    """What one pass over an OSM file found (used to validate downloads and find relations).
+
+    Attributes:
+        counts: number of nodes, ways, relations.
+        way_ids: ids of the ways in the file.
+        multipolygons: for each ``type=multipolygon`` relation, the ids of its member ways.
+        newest: the newest element timestamp (ISO 8601), None when the file has none.
+    """
+
+    counts: dict[str, int] = field(default_factory=lambda: {"n": 0, "w": 0, "r": 0})
+    way_ids: set[int] = field(default_factory=set)
+    multipolygons: dict[int, tuple[int, ...]] = field(default_factory=dict)
+    newest: str | None = None
+
+
+def scan_osm(path: Path, origin: str, advice: str, fmt: str = "") -> OsmScan:
+    """Read ``path`` with osmium once, or raise a one-line OSMDataError if it is not OSM data.
+
+    The message reads "``origin`` is not valid OSM data (osmium's reason); ``advice``", e.g.
+    origin "the OSM API answer to map?bbox=..." and advice "run the same command again".
+    ``fmt`` is osmium's format name ("osm", "pbf") when the file name does not say it.
+    """
+    scan = OsmScan()
+    newest = None
+    try:
+        for obj in osmium.FileProcessor(osmium.io.File(str(path), fmt)):
+            kind = obj.type_str()
+            scan.counts[kind] += 1
+            ts = obj.timestamp
+            if ts.year > 1970 and (newest is None or ts > newest):
+                newest = ts
+            if kind == "w":
+                scan.way_ids.add(obj.id)
+            elif kind == "r" and obj.tags.get("type") == "multipolygon":
+                scan.multipolygons[obj.id] = tuple(m.ref for m in obj.members if m.type == "w")
+    except RuntimeError as exc:
+        raise OSMDataError(f"{origin} is not valid OSM data ({_first_line(exc)}); {advice}") from None
+    scan.newest = iso_utc(newest) if newest is not None else None
+    return scan
+
+
+def store_osm_xml(data: bytes, path: Path, origin: str, advice: str) -> OsmScan:
+    """Write downloaded OSM XML to ``path`` only if osmium reads it (temp file, then os.replace).
+
+    Raises the one-line OSMDataError of :func:`scan_osm` (and writes nothing) otherwise.
+    """
+    tmp = temp_path_for(path)
+    try:
+        tmp.write_bytes(data)
+        scan = scan_osm(tmp, origin, advice, fmt="osm")
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return scan
+
+
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+
+
+def read_done(marker: Path) -> OsmExtract | None:
+    """The extract recorded by a done-marker JSON, if it and all its files exist."""
+    try:
+        raw = json.loads(marker.read_text(encoding="utf-8"))
+        paths = tuple(marker.parent / p for p in raw["paths"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not all(p.exists() for p in paths):
+        return None
+    return OsmExtract(paths=paths, timestamp=raw.get("timestamp"), info=raw.get("info", {}))
+
+
+def write_done(marker: Path, extract: OsmExtract) -> OsmExtract:
+    """Record ``extract`` in ``marker`` (atomically, after its files): a rerun reuses it."""
+    record = {
+        "paths": [str(p.relative_to(marker.parent)) for p in extract.paths],
+        "timestamp": extract.timestamp,
+        "info": extract.info,
+    }
+    atomic_write_text(marker, json.dumps(record, indent=1, sort_keys=True) + "\n")
+    return extract
+
+
+def osm_file_timestamp(path: Path) -> tuple[str | None, str]:
+    """The data timestamp of an OSM file and where it came from.
+
+    The replication timestamp in the file header (``osmosis_replication_timestamp``, set by
+    Geofabrik, planet and osmium extracts) is the state of OSM the file reflects. Files
+    without one (hand-made or old extracts) get their modification time, marked as such:
+    the data is at least that old.
+    """
+    try:
+        with osmium.io.Reader(str(path), osmium.osm.NOTHING) as reader:
+            header = reader.header()
+            stamp = header.get("osmosis_replication_timestamp", "") or header.get("timestamp", "")
+    except RuntimeError as exc:
+        raise OSMDataError(f"--osm {path}: cannot read the file header ({_first_line(exc)}); is it an OSM file?") from None
+    if stamp:
+        return stamp, "file header"
+    return iso_utc(datetime.fromtimestamp(path.stat().st_mtime, tz=timezone.utc)), "file modification time"
+
+
+# -- extracting ------------------------------------------------------------------------------------
+
+
+def _in_any(lon: float, lat: float, boxes: Sequence[LngLatBBox]) -> bool:
+    for b in boxes:
+        if b.west <= lon <= b.east and b.south <= lat <= b.north:
+            return True
+    return False
+
+
+def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: float = DEFAULT_REACH) -> dict[str, int]:
+    """Write to ``out`` (``.osm.pbf``, atomically) the contract's content for the union of ``boxes``.
+
+    Besides ways with a node in a box, ways with a *segment* crossing a box keep too when
+    both ends of the segment lie within ``reach`` metres of it (see the module doc).
+    Streams ``src`` five times whatever the number of boxes; memory holds ids, and the
+    locations of the nodes within ``reach`` around the boxes.  The output keeps ``src``'s
+    replication timestamp and object order.  Returns the numbers of nodes, ways and
+    relations written.
+    """
+    if not boxes:
+        raise ValueError("write_extract needs at least one box")
+    src_name = str(src)
+    envelope = union_boxes(boxes)
+    try:
+        keep_nodes, around = _nodes_near(src_name, boxes, reach)
+        keep_ways: set[int] = set()
+        for way in osmium.FileProcessor(src_name, osmium.osm.WAY):
+            refs = [nd.ref for nd in way.nodes]
+            if not keep_nodes.isdisjoint(refs) or (not around.keys().isdisjoint(refs) and _crosses(refs, around, boxes)):
+                keep_ways.add(way.id)
+        keep_relations: set[int] = set()
+        member_ways: set[int] = set()
+        for rel in osmium.FileProcessor(src_name, osmium.osm.RELATION):
+            if rel.tags.get("type") != "multipolygon":
+                continue
+            members = [(m.type, m.ref) for m in rel.members]
+            if any(t == "w" and ref in keep_ways for t, ref in members):
+                keep_relations.add(rel.id)
+                member_ways.update(ref for t, ref in members if t == "w")
+                keep_nodes.update(ref for t, ref in members if t == "n")
+        keep_ways |= member_ways
+        for way in osmium.FileProcessor(src_name, osmium.osm.WAY):
+            if way.id in keep_ways:
+                keep_nodes.update(nd.ref for nd in way.nodes)
+        keep = {"n": keep_nodes, "w": keep_ways, "r": keep_relations}
+        header = _extract_header(src_name, envelope)
+        tmp = temp_path_for(out)
+        try:
+            counts = {"n": 0, "w": 0, "r": 0}
+            with osmium.SimpleWriter(osmium.io.File(str(tmp), "pbf"), header=header, overwrite=True) as writer:
+                for obj in osmium.FileProcessor(src_name):
+                    kind = obj.type_str()
+                    if obj.id in keep[kind]:
+                        writer.add(obj)
+                        counts[kind] += 1
+            os.chmod(tmp, 0o644)
+            os.replace(tmp, out)
+        finally:
+            tmp.unlink(missing_ok=True)
+    except RuntimeError as exc:
+        raise OSMDataError(f"--osm {src}: cannot read it as OSM data ({_first_line(exc)}); "
+                           "give a valid .osm/.osm.pbf/.osm.bz2 file") from None
+    return counts
+
+
+def _nodes_near(src: str, boxes: Sequence[LngLatBBox], reach: float) -> tuple[set[int], dict[int, tuple[float, float]]]:
+    """Ids of the nodes inside one of ``boxes``, and locations of those outside but within ``reach`` m."""
+    grown = [pad_bbox(b, reach) for b in boxes]
+    w, s, e, n = union_boxes(grown)
+    single = len(boxes) == 1
+    inside: set[int] = set()
+    around: dict[int, tuple[float, float]] = {}
+    for node in osmium.FileProcessor(src, osmium.osm.NODE):
+        loc = node.location
+        if not loc.valid():
+            continue
+        lon, lat = loc.lon, loc.lat
+        if not (w <= lon <= e and s <= lat <= n):
+            continue
+        if _in_any(lon, lat, boxes):
+            inside.add(node.id)
+        elif single or _in_any(lon, lat, grown):
+            around[node.id] = (lon, lat)
+    return inside, around
+
+
+def _crosses(refs: list[int], around: dict[int, tuple[float, float]], boxes: Sequence[LngLatBBox]) -> bool:
+    """True if a segment between two consecutive located nodes of a way crosses one of ``boxes``."""
+    for a, b in zip(refs, refs[1:]):
+        p, q = around.get(a), around.get(b)
+        if p is not None and q is not None and any(segment_hits_box(p, q, box) for box in boxes):
+            return True
+    return False
+
+
+def segment_hits_box(p: tuple[float, float], q: tuple[float, float], box: LngLatBBox) -> bool:
+    """True if the straight segment p-q (lon, lat) meets ``box`` (Liang-Barsky clipping).
+
+    >>> b = LngLatBBox(0, 0, 1, 1)
+    >>> segment_hits_box((-1, 0.5), (2, 0.5), b), segment_hits_box((-1, 1.9), (1.9, -1), b)
+    (True, True)
+    >>> segment_hits_box((-1, 0.5), (0.5, 2), b), segment_hits_box((-1, -1), (-0.5, 3), b)
+    (False, False)
+    """
+    (x0, y0), (x1, y1) = p, q
+    dx, dy = x1 - x0, y1 - y0
+    t0, t1 = 0.0, 1.0
+    for step, gap in ((-dx, x0 - box.west), (dx, box.east - x0), (-dy, y0 - box.south), (dy, box.north - y0)):
+        if step == 0:
+            if gap < 0:
+                return False
+            continue
+        t = gap / step
+        if step < 0:
+            t0 = max(t0, t)
+        else:
+            t1 = min(t1, t)
+        if t0 > t1:
+            return False
+    return True
+
+
+def _extract_header(src: str, envelope: LngLatBBox) -> osmium.io.Header:
+    """A header for an extract of ``src``: its replication fields, the extract's box."""
+    with osmium.io.Reader(src, osmium.osm.NOTHING) as reader:
+        old = reader.header()
+    header = osmium.io.Header()
+    header.set("generator", "osmseg")
+    for key in ("osmosis_replication_timestamp", "osmosis_replication_sequence_number",
+                "osmosis_replication_base_url", "timestamp"):
+        if old.get(key, ""):
+            header.set(key, old.get(key, ""))
+    header.add_box(osmium.osm.Box(osmium.osm.Location(envelope.west, envelope.south),
+                                  osmium.osm.Location(envelope.east, envelope.north)))
+    return header
+
+
+class LocalFileSource:
+    """OSM data cut from a local ``.osm`` / ``.osm.pbf`` / ``.osm.bz2`` file.
+
+    Args:
+        path: the OSM file (a city, a region, a whole country).
+        workdir: folder for the extracts (created); files are named by box and by the input
+            file's path, size and modification time, so a rerun reuses them and a changed
+            input file is cut again.
+        reach: metres around a box within which a way segment crossing it is found.
+    """
+
+    name = "file"
+    attribution = OSM_ATTRIBUTION
+
+    def __init__(self, path: Path, workdir: Path, reach: float = DEFAULT_REACH) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise ConfigError(f"--osm {self.path}: file not found; give an .osm/.osm.pbf path, 'api' or 'overpass'")
+        self.workdir = Path(workdir)
+        stat = self.path.stat()
+        self.reach = float(reach)
+        self._identity = (str(self.path.resolve()), str(stat.st_size), str(stat.st_mtime_ns), f"reach={self.reach:g}")
+        self._timestamp: tuple[str | None, str] | None = None
+        self._regions: list[tuple[tuple[LngLatBBox, ...], Path]] = []
+
+    def timestamp(self) -> tuple[str | None, str]:
+        """The input file's data timestamp and its origin (see :func:`osm_file_timestamp`)."""
+        if self._timestamp is None:
+            self._timestamp = osm_file_timestamp(self.path)
+        return self._timestamp
+
+    def prepare(self, bboxes: Sequence[LngLatBBox]) -> Path:
+        """Cut one region file holding everything the ``bboxes`` need, in one set of passes.
+
+        Call it with all boxes a build may fetch (or the sampling area as one box) before
+        fetching: later fetches of a box inside any of them read the small region file, not
+        the big input. Returns the region file (reused when it already exists).
+        """
+        boxes = tuple(sorted(check_bbox(b) for b in bboxes))
+        if not boxes:
+            raise ValueError("prepare needs at least one box")
+        self.timestamp()  # read the input's header now: fetches then need only the region
+        digest = hashlib.sha256("\n".join((*self._identity, *map(bbox_label, boxes))).encode()).hexdigest()[:16]
+        region = self.workdir / f"region_{len(boxes)}boxes_{digest}.osm.pbf"
+        if not region.exists():
+            self.workdir.mkdir(parents=True, exist_ok=True)
+            counts = write_extract(self.path, boxes, region, self.reach)
+            logger.info("cut %s from %s for %d boxes: %s", region.name, self.path, len(boxes), counts)
+        if all(r != region for _, r in self._regions):
+            self._regions.append((boxes, region))
+        return region
+
+    def fetch(self, bbox: LngLatBBox) -> OsmExtract:
+        """An ``.osm.pbf`` extract for ``bbox`` (see the module doc); reused when already cut."""
+        bbox = check_bbox(bbox)
+        stem = cache_name("file", bbox, *self._identity)
+        marker = self.workdir / f"{stem}.json"
+        done = read_done(marker)
+        if done is not None:
+            return done
+        source = next((region for boxes, region in self._regions
+                       if any(bbox_contains(b, bbox) for b in boxes)), self.path)
+        out = self.workdir / f"{stem}.osm.pbf"
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        counts = write_extract(source, [bbox], out, self.reach)
+        stamp, origin = self.timestamp()
+        info = {"source": "file", "path": str(self.path), "bbox": list(bbox), "timestamp_from": origin,
+                "counts": counts}
+        return write_done(marker, OsmExtract(paths=(out,), timestamp=stamp, info=info))
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-able description for the manifest."""
+        stamp, origin = self.timestamp()
+        return {"source": "file", "path": str(self.path), "timestamp": stamp, "timestamp_from": origin,
+                "attribution": self.attribution}
+
+
+def is_osm_path(text: str) -> bool:
+    """True if ``text`` ends like an OSM file osmium reads.
+
+    >>> is_osm_path("de.osm.pbf"), is_osm_path("map.OSM"), is_osm_path("x.geojson")
+    (True, True, False)
+    """
+    return text.lower().endswith(OSM_SUFFIXES)
+
+
+def union_boxes(boxes: Iterable[LngLatBBox]) -> LngLatBBox:
+    """The smallest box holding all ``boxes``.
+
+    >>> union_boxes([LngLatBBox(0, 0, 1, 1), LngLatBBox(2, -1, 3, 0)])
+    LngLatBBox(west=0, south=-1, east=3, north=1)
+    """
+    boxes = list(boxes)
+    return LngLatBBox(min(b.west for b in boxes), min(b.south for b in boxes),
+                      max(b.east for b in boxes), max(b.north for b in boxes))
