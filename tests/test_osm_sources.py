@@ -7,6 +7,8 @@ Fault tests talk to a real HTTP server on 127.0.0.1 (``tests/servers.py``).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import importlib.util
 import json
 import logging
@@ -23,7 +25,6 @@ from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError, NetworkError, OSMDataError, OSMLimitError
 from osmseg.grid import LngLatBBox, pad_bbox, sample_grid
 from osmseg.net.http import HttpClient, HttpConfig
-from osmseg.net.replay import cassette
 from osmseg.osm.api import OsmApiSource
 from osmseg.osm.features import read_features
 from osmseg.osm.geojson import GeoJsonSource
@@ -56,9 +57,9 @@ def write_pbf(src: Path, dst: Path) -> Path:
 
 def replay(name: str, make_source, tmp_path: Path):
     """``make_source(client, workdir).fetch(BOX)`` with HTTP answered by cassette ``name``."""
-    with cassette(DATA / name, "replay") as active, HttpClient(FAST) as client:
+    with HttpClient(replace(FAST, cassette=DATA / name)) as client:
         extract = make_source(client, tmp_path / name.split(".")[0]).fetch(BOX)
-        assert active.play_count == len(active.data)  # every recorded answer was asked for
+        assert client.transport.unplayed() == []  # every recorded answer was asked for
     return extract
 
 
@@ -113,9 +114,9 @@ def lonlat_pixel(lon: float, lat: float, grid=GRID) -> tuple[int, int]:
 
 def test_rerun_reuses_downloads_without_any_request(tmp_path):
     replay("api_map.yaml", lambda c, w: OsmApiSource(c, w), tmp_path)
-    with cassette(DATA / "api_map.yaml", "replay") as active, HttpClient(FAST) as client:
+    with HttpClient(replace(FAST, cassette=DATA / "api_map.yaml")) as client:
         again = OsmApiSource(client, tmp_path / "api_map").fetch(BOX)
-        assert active.play_count == 0
+        assert sum(client.transport.plays.values()) == 0
     assert all(p.is_file() for p in again.paths) and again.timestamp == "2025-03-14T09:27:31Z"
 
 

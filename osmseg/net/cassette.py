@@ -129,8 +129,15 @@ class ReplayAdapter(HTTPAdapter):
         #: how many times each recorded URL (secrets removed) was answered
         self.plays: Counter[str] = Counter()
         self._answers: dict[tuple[Any, ...], dict[str, Any]] = {}
+        self._urls: dict[tuple[Any, ...], str] = {}
         for req, resp in zip(requests_, responses):
-            self._answers.setdefault(match_key(req.method, req.uri, req.body), resp)
+            key = match_key(req.method, req.uri, req.body)
+            self._answers.setdefault(key, resp)
+            self._urls.setdefault(key, clean_url(req.uri))
+
+    def unplayed(self) -> list[str]:
+        """Recorded URLs that no request has asked for yet (tests use it to check coverage)."""
+        return sorted(url for url in set(self._urls.values()) if not self.plays[url])
 
     def send(self, request: requests.PreparedRequest, **kwargs: Any) -> requests.Response:  # type: ignore[override]
         assert request.method is not None and request.url is not None

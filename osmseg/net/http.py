@@ -31,11 +31,9 @@ from __future__ import annotations
 
 import logging
 import re
-import sys
 import threading
 import time
 from collections.abc import Collection, Mapping
-from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -249,18 +247,6 @@ def _retry_after(response: requests.Response) -> float | None:
         return None
 
 
-def _is_replay_miss(exc: BaseException) -> bool:
-    """True for vcrpy's "not in the cassette" error (vcrpy is only imported when replaying)."""
-    errors = sys.modules.get("vcr.errors")
-    return errors is not None and isinstance(exc, errors.CannotOverwriteExistingCassetteException)
-
-
-def _recording_guard() -> AbstractContextManager[object]:
-    """Serialises requests while a vcrpy cassette records (see osmseg.net.replay)."""
-    replay = sys.modules.get("osmseg.net.replay")
-    return replay.request_guard() if replay is not None else nullcontext()
-
-
 def _describe(exc: BaseException, timeout: float) -> str:
     """A short, secret-free phrase for a transport failure."""
     if isinstance(exc, requests.exceptions.ConnectTimeout):
@@ -348,6 +334,11 @@ class HttpClient:
         as a tile.
         """
         return self._request("POST", url, data=data, headers=headers, ok_statuses=ok_statuses)
+
+    @property
+    def transport(self) -> HTTPAdapter:
+        """The transport adapter every request goes through (a cassette adapter under --record/--replay)."""
+        return self._adapter
 
     def close(self) -> None:
         """Close connections and the cache database; write the cassette when recording."""
@@ -472,7 +463,7 @@ class HttpClient:
         """One attempt: the response, or a phrase saying why it is worth another try."""
         timeout = self.config.timeout
         try:
-            with gate.slots, _recording_guard():
+            with gate.slots:
                 return self._session.request(
                     method,
                     url,
@@ -489,12 +480,6 @@ class HttpClient:
             ) from None
         except _RETRY_EXCEPTIONS as exc:
             return _describe(exc, timeout)
-        except Exception as exc:
-            if not _is_replay_miss(exc):
-                raise
-            from osmseg.net.replay import miss_error
-
-            raise miss_error(exc) from None
 
     def _accept(
         self, method: str, shown: str, response: requests.Response, ok_statuses: Collection[int]

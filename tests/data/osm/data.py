@@ -40,7 +40,7 @@ fixed ``Date``) and bodies as the services send them.  Bodies are stored identit
 (the services gzip only when asked; vcrpy stores decoded bodies anyway) so cassettes stay
 readable.  Requests are what osmseg sends (``quadrants`` and ``bbox_param`` from
 ``osmseg.osm.api``, ``overpass_query`` from ``osmseg.osm.overpass``); matching uses the
-method, host, path, query and body (``osmseg.net.replay.MATCH_ON``).
+method, host, path, query and body (as ``osmseg.net.cassette.match_key`` does).
 """
 
 from __future__ import annotations
