@@ -152,6 +152,7 @@ class BuildConfig:
             "--zoom", str(self.zoom), "--imagery", self.imagery, "--osm", self.osm, "--classes", self.classes,
             "--image-format", self.image_format, "--max-unlabeled", f"{f.max_unlabeled:g}",
             "--min-classes", str(f.min_classes), "--min-contrast", f"{f.min_contrast:g}",
+            "--max-missing-imagery", f"{f.max_invalid_imagery:g}", "--max-placeholder-tiles", str(f.max_placeholder_tiles),
             "--max-tries", str(self.max_tries),
         ]
 
@@ -168,9 +169,11 @@ class BuildSummary:
     accepted: int = 0
     rejected: Counter = field(default_factory=Counter)
     gave_up: int = 0
+    osm_problems: int = 0
     pending_other_shards: int = 0
     seconds: float = 0.0
     finalized: bool = False
+    duplicates: int = 0
 
     def lines(self) -> list[str]:
         reasons = ", ".join(f"{n} {r}" for r, n in sorted(self.rejected.items())) or "none"
@@ -178,6 +181,12 @@ class BuildSummary:
             f"accepted {self.accepted} samples; rejected {sum(self.rejected.values())} attempts ({reasons})",
             f"time {self.seconds:.1f} s",
         ]
+        if self.osm_problems:
+            out.append(f"{self.osm_problems} broken OSM objects were repaired or skipped "
+                       "(listed per sample in manifest.json as osm_problems; -v prints them)")
+        if self.duplicates:
+            out.append(f"{self.duplicates} samples repeat the tiles of another (random centres in one tile): "
+                       "use a larger area, or fewer --samples")
         if self.gave_up:
             out.append(f"{self.gave_up} slots hit --max-tries without an accepted sample")
         if self.pending_other_shards:
@@ -214,7 +223,8 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) ->
     lon, lat = attempt_centre(config, slot, attempt)
     grid = sample_grid(lon, lat, config.zoom, config.grid_size)
     extract = pipe.osm.fetch(pad_bbox(grid.bbox, config.osm_padding_m))
-    labels = rasterize(read_features(extract.paths, grid, pipe.rules), grid, pipe.rules)
+    features = read_features(extract.paths, grid, pipe.rules)
+    labels = rasterize(features, grid, pipe.rules)
     if pipe.table is not pipe.rules:
         labels = pipe.table.lookup_from_base()[labels]
     rejection = check_labels(labels, config.filters)
@@ -228,6 +238,8 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) ->
     name = f"{config.prefix}_{slot:05d}"
     written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format)
     entry = sample_entry(name, grid, written, imagery=imagery.info, osm=extract.info, osm_timestamp=extract.timestamp)
+    # broken OSM objects that were repaired or skipped, for users checking a mask they doubt
+    entry["osm_problems"] = list(features.problems)
     return {"status": "accepted", "sample": entry}
 
 
@@ -303,7 +315,8 @@ def build(
     outcomes = [state.slot(s) for s in range(config.samples)]
     summary.pending_other_shards = sum(o is None for o in outcomes)
     if summary.pending_other_shards == 0:
-        finalize(config, pipe.table, [o for o in outcomes if o], imagery_info, osm_info, command_line)
+        manifest = finalize(config, pipe.table, [o for o in outcomes if o], imagery_info, osm_info, command_line)
+        summary.duplicates = manifest["summary"]["duplicate_samples"]
         summary.finalized = True
     summary.seconds = time.monotonic() - start
     return summary
@@ -317,6 +330,7 @@ def _grid(config: BuildConfig, slot: int, attempt: int) -> SampleGrid:
 def _count(summary: BuildSummary, outcome: dict[str, Any]) -> None:
     if outcome["status"] == "accepted":
         summary.accepted += 1
+        summary.osm_problems += len(outcome["sample"].get("osm_problems", ()))
     else:
         summary.gave_up += 1
     summary.rejected.update(r["reason"] for r in outcome["rejected"])
@@ -355,6 +369,9 @@ def finalize(
         "summary": summary_entry(samples, rejected, requested=config.samples,
                                  max_attempts=config.samples * config.max_tries),
     }
+    # slots draw independently (that is what makes shards exact), so two may land on one grid
+    grids = Counter(tuple(t["quadkey"] for t in s["tiles"]) for s in samples)
+    manifest["summary"]["duplicate_samples"] = sum(n - 1 for n in grids.values())
     write_manifest(config.out_dir, manifest)
     write_datasheet(config.out_dir, manifest)
     write_attribution(config.out_dir, manifest)

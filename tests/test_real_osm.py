@@ -29,6 +29,7 @@ from PIL import Image
 from osmseg.classes import load_class_table
 from osmseg.grid import SampleGrid, sample_grid
 from osmseg.osm.features import read_features
+from osmseg.quality import edge_alignment, outline
 from osmseg.rasterize import rasterize
 from conftest import shared_path
 
@@ -213,25 +214,6 @@ def mosaic(tiles_dir: Path, grid: SampleGrid) -> np.ndarray:
     return np.asarray(image)
 
 
-def sobel_magnitude(grey: np.ndarray) -> np.ndarray:
-    g = grey.astype(float)
-    gx = np.zeros_like(g)
-    gy = np.zeros_like(g)
-    gx[1:-1, 1:-1] = (g[:-2, 2:] + 2 * g[1:-1, 2:] + g[2:, 2:]) - (g[:-2, :-2] + 2 * g[1:-1, :-2] + g[2:, :-2])
-    gy[1:-1, 1:-1] = (g[2:, :-2] + 2 * g[2:, 1:-1] + g[2:, 2:]) - (g[:-2, :-2] + 2 * g[:-2, 1:-1] + g[:-2, 2:])
-    return np.hypot(gx, gy)
-
-
-def outline(mask: np.ndarray) -> np.ndarray:
-    """Mask pixels with a 4-neighbour outside the mask."""
-    core = mask.copy()
-    core[1:] &= mask[:-1]
-    core[:-1] &= mask[1:]
-    core[:, 1:] &= mask[:, :-1]
-    core[:, :-1] &= mask[:, 1:]
-    return mask & ~core
-
-
 def test_kampala_buildings_sit_on_roofs(tmp_path: Path) -> None:
     root = shared_path("kampala-oam")
     b = mercantile.bounds(KAMPALA_CENTRE_TILE)
@@ -242,21 +224,14 @@ def test_kampala_buildings_sit_on_roofs(tmp_path: Path) -> None:
     mask = labels == ID["building"]
     assert 0.05 < mask.mean() < 0.6
     rgb = mosaic(root / "tiles", grid)
-    edges = sobel_magnitude(rgb.mean(axis=2))
-    rows, cols = np.nonzero(outline(mask))
-    keep = (rows >= 8) & (rows < grid.height - 8) & (cols >= 8) & (cols < grid.width - 8)
-    rows, cols = rows[keep], cols[keep]
-    shifts = range(-6, 7)
-    score = np.array([[edges[rows + dy, cols + dx].mean() for dx in shifts] for dy in shifts])
-    best_dy, best_dx = np.unravel_index(score.argmax(), score.shape)
-    far = np.array([score[i, j] for i, dy in enumerate(shifts) for j, dx in enumerate(shifts) if max(abs(dx), abs(dy)) >= 5])
+    fit = edge_alignment(rgb, mask)
     overlay = rgb.copy()
     overlay[outline(mask)] = (255, 0, 0)
     Image.fromarray(overlay).save(tmp_path / "kampala-overlay.png")
-    print(f"edge strength along outlines: at 0 shift {score[6, 6]:.1f}, shifted 5-6 px {far.mean():.1f} "
-          f"(best shift dx={best_dx - 6}, dy={best_dy - 6}); overlay {tmp_path / 'kampala-overlay.png'}")
-    assert abs(best_dx - 6) <= 1 and abs(best_dy - 6) <= 1
-    assert score[6, 6] > 1.3 * far.mean() and score[6, 6] > far.max()
+    print(f"edge strength along outlines: at 0 shift {fit.at_zero:.1f}, shifted 5-6 px {fit.far:.1f} "
+          f"(best shift {fit.best}); overlay {tmp_path / 'kampala-overlay.png'}")
+    assert abs(fit.best[0]) <= 1 and abs(fit.best[1]) <= 1
+    assert fit.at_zero > 1.3 * fit.far
     # and the roofs inside the outlines differ from the ground just outside them
     ring = outline(~mask) & ~mask
     assert np.abs(rgb[mask].mean(axis=0) - rgb[ring].mean(axis=0)).max() > 10

@@ -99,6 +99,10 @@ def run_build(config: BuildConfig, verbosity: int, env: dict[str, str] | None = 
 @click.option("--min-classes", type=int, default=2, show_default=True, help="Reject samples with fewer classes.")
 @click.option("--min-contrast", type=float, default=FilterConfig.min_contrast, show_default=True,
               help="Reject images whose grey-level standard deviation (0-255) is below this.")
+@click.option("--max-missing-imagery", type=click.FloatRange(0, 1), default=0.0, show_default=True,
+              help="Reject samples with more than this share of pixels without imagery.")
+@click.option("--max-placeholder-tiles", type=click.IntRange(0, None), default=0, show_default=True,
+              help="Reject samples with more provider 'no imagery' tiles than this.")
 @click.option("--max-tries", type=int, default=10, show_default=True, help="Centres tried per sample before giving up on it.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="Output folder (rerun to resume).")
 @click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="HTTP/OSM cache [~/.cache/osmseg].")
@@ -111,7 +115,8 @@ def run_build(config: BuildConfig, verbosity: int, env: dict[str, str] | None = 
 @report_errors
 def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: float | None, radius_km: float | None,
                   bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, osm: str, classes: str,
-                  image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float,
+                  image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float, max_missing_imagery: float,
+                  max_placeholder_tiles: int,
                   max_tries: int, out_dir: Path, cache_dir: Path | None, offline: bool, shard: str | None,
                   make_zip: bool, record: Path | None, replay: Path | None) -> None:
     """Build a segmentation dataset: aerial images + OSM label masks + manifest.
@@ -125,7 +130,8 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
     from osmseg.imagery import default_imagery_spec
 
     area = resolve_area(city, lat, lon, bbox, radius_km)
-    filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes, min_contrast=min_contrast)
+    filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes, min_contrast=min_contrast,
+                           max_invalid_imagery=max_missing_imagery, max_placeholder_tiles=max_placeholder_tiles)
     config = BuildConfig(
         out_dir=out_dir, area=area, imagery=imagery or default_imagery_spec(os.environ), osm=osm,
         samples=samples, seed=seed, zoom=zoom, classes=classes, image_format=image_format, filters=filters,

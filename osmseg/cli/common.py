@@ -18,6 +18,9 @@ def configure_logging(verbosity: int) -> None:
     """Send log records to stderr: -q errors only, default warnings, -v info, -vv debug."""
     level = {0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG if verbosity > 1 else logging.ERROR)
     logging.basicConfig(stream=sys.stderr, level=level, format="%(levelname)s %(name)s: %(message)s")
+    # one warning per broken OSM object floods a build; the build summary counts them instead
+    for name in ("osmseg.osm.features", "osmseg.osm.coastline"):
+        logging.getLogger(name).setLevel(logging.INFO if verbosity >= 1 else logging.ERROR)
     # third-party chatter stays at WARNING unless -vv
     for name in ("urllib3", "requests_cache", "vcr", "rasterio", "PIL"):
         logging.getLogger(name).setLevel(logging.DEBUG if verbosity >= 3 else logging.WARNING)

@@ -12,6 +12,7 @@ from osmseg import __version__
 from osmseg.cli.build import build_command
 from osmseg.cli.common import configure_logging
 from osmseg.cli.demo import demo_command
+from osmseg.cli.verify import verify_command
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -28,6 +29,7 @@ def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
 
 cli.add_command(build_command)
 cli.add_command(demo_command)
+cli.add_command(verify_command)
 
 if __name__ == "__main__":  # pragma: no cover
     cli()
