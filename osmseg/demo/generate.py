@@ -74,7 +74,9 @@ def bing_metadata() -> bytes:
     return json.dumps({
         "authenticationResultCode": "ValidCredentials",
         "brandLogoUri": "https://dev.virtualearth.net/Branding/logo_powered_by.png",
-        "copyright": "Copyright © 2025 Microsoft and its suppliers. All rights reserved.",
+        # an honest notice: the demo's pixels are rendered by osmseg, not Microsoft's imagery
+        "copyright": "osmseg demo: imagery rendered from OpenStreetMap data (© OpenStreetMap contributors, "
+                     "ODbL) in Bing Maps' wire format; no Microsoft imagery",
         "resourceSets": [{"estimatedTotal": 1, "resources": [{
             "__type": "ImageryMetadata:http://schemas.microsoft.com/search/local/ws/rest/v1",
             "imageHeight": 256, "imageWidth": 256, "imageUrl": BING_TILE_TEMPLATE,
