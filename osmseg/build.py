@@ -27,7 +27,7 @@ from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError
 from osmseg.filters import FilterConfig, check_imagery, check_labels
-from osmseg.grid import SampleGrid, ground_resolution, pad_bbox, sample_grid
+from osmseg.grid import TILE_SIZE, LngLatBBox, SampleGrid, ground_resolution, pad_bbox, sample_grid
 from osmseg.imagery import make_provider
 from osmseg.imagery.base import ImageryProvider
 from osmseg.net.http import HttpClient, HttpConfig
@@ -60,6 +60,9 @@ logger = logging.getLogger(__name__)
 DEFAULT_ZOOM = 18
 
 #: Known per-host request limits (the OSM API asks for at most 2 concurrent connections).
+#: Sampling areas up to this size (square degrees) are cut from a local OSM file as one region.
+PREPARE_AREA_MAX_DEG2 = 1.0
+
 HOST_LIMITS = {"api.openstreetmap.org": 2, "overpass-api.de": 2, "dev.virtualearth.net": 2}
 
 
@@ -304,8 +307,12 @@ def build(
         todo = [s for s in mine if state.slot(s) is None]
         prepare = getattr(pipe.osm, "prepare", None)
         if todo and callable(prepare):
-            # one pass over a big local file for every first-try box
-            prepare([pad_bbox(_grid(config, s, 0).bbox, config.osm_padding_m) for s in todo])
+            # one pass over a big local file, cutting a small region every attempt reads
+            area = sampling_box(config)
+            if (area.east - area.west) * (area.north - area.south) <= PREPARE_AREA_MAX_DEG2:
+                prepare([area])
+            else:  # a country-sized area: cut just the first-try boxes
+                prepare([pad_bbox(_grid(config, s, 0).bbox, config.osm_padding_m) for s in todo])
         for slot in mine:
             outcome = state.slot(slot) or run_slot(config, pipe, state, slot)
             _count(summary, outcome)
@@ -320,6 +327,14 @@ def build(
         summary.finalized = True
     summary.seconds = time.monotonic() - start
     return summary
+
+
+def sampling_box(config: BuildConfig) -> LngLatBBox:
+    """A box holding every grid (plus OSM padding) that any attempt of the build can draw."""
+    a = config.area
+    box = a.bbox or pad_bbox(LngLatBBox(a.lon, a.lat, a.lon, a.lat), (a.radius_km or 0.0) * 1000.0)
+    tile_m = TILE_SIZE * ground_resolution(a.lat, config.zoom)
+    return pad_bbox(box, (config.grid_size / 2 + 1) * tile_m + config.osm_padding_m)
 
 
 def _grid(config: BuildConfig, slot: int, attempt: int) -> SampleGrid:
