@@ -114,6 +114,7 @@ class BuildConfig:
     shard: Shard | None = None
     zip: bool = False
     name_prefix: str | None = None
+    http_timeout: float = 30.0  # seconds to connect, and between bytes read
     cassette: Path | None = None  # --record/--replay FILE
     cassette_mode: str = "replay"
 
@@ -298,7 +299,7 @@ def build(
     http = HttpConfig(
         # a recording must see every request, so it bypasses the cache
         cache_dir=None if recording else config.cache_dir,
-        offline=config.offline, host_limits=HOST_LIMITS,
+        offline=config.offline, host_limits=HOST_LIMITS, timeout=config.http_timeout,
         cassette=config.cassette, cassette_mode=config.cassette_mode,
     )
     with HttpClient(http) as client:

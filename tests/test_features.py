@@ -178,7 +178,7 @@ def test_coast_outside_the_box_decides_the_whole_box(tmp_path: Path) -> None:
 
 
 def test_coast_with_loose_ends_is_not_guessed(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.WARNING, logger="osmseg.osm.features"):
         fs = read_features([coast_file(tmp_path, [(200, 600), (1000, 600)])], D.grid(), T13)  # stops in the box
     assert not rasterize(fs, D.grid(), T13).any()
     assert "loose ends" in caplog.text and any("loose ends" in p for p in fs.problems)

@@ -106,6 +106,8 @@ def run_build(config: BuildConfig, verbosity: int, env: dict[str, str] | None = 
 @click.option("--max-tries", type=int, default=10, show_default=True, help="Centres tried per sample before giving up on it.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="Output folder (rerun to resume).")
 @click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="HTTP/OSM cache [~/.cache/osmseg].")
+@click.option("--timeout", "http_timeout", type=click.FloatRange(min=0.1), default=30.0, show_default=True,
+              help="Seconds to wait for a server to connect or send more bytes before retrying.")
 @click.option("--offline", is_flag=True, help="Use only the cache; fail on anything not cached.")
 @click.option("--shard", help="K/N: build only this process's share of the samples (array jobs).")
 @click.option("--zip", "make_zip", is_flag=True, help="Also write OUT.zip.")
@@ -117,7 +119,7 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
                   bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, osm: str, classes: str,
                   image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float, max_missing_imagery: float,
                   max_placeholder_tiles: int,
-                  max_tries: int, out_dir: Path, cache_dir: Path | None, offline: bool, shard: str | None,
+                  max_tries: int, out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool, shard: str | None,
                   make_zip: bool, record: Path | None, replay: Path | None) -> None:
     """Build a segmentation dataset: aerial images + OSM label masks + manifest.
 
@@ -135,7 +137,7 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
     config = BuildConfig(
         out_dir=out_dir, area=area, imagery=imagery or default_imagery_spec(os.environ), osm=osm,
         samples=samples, seed=seed, zoom=zoom, classes=classes, image_format=image_format, filters=filters,
-        max_tries=max_tries, cache_dir=cache_dir or default_cache_dir(), offline=offline,
+        max_tries=max_tries, cache_dir=cache_dir or default_cache_dir(), offline=offline, http_timeout=http_timeout,
         shard=Shard.parse(shard) if shard else None, zip=make_zip,
     )
     if record and replay:

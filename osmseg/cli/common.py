@@ -14,16 +14,42 @@ from osmseg.errors import ConfigError, OsmsegError
 F = TypeVar("F", bound=Callable[..., Any])
 
 
+#: Loggers that warn once per broken OSM object: the build summary counts them instead.
+PER_OBJECT_LOGGERS = ("osmseg.osm.features", "osmseg.osm.coastline")
+#: Third-party loggers shown below WARNING only at -vvv.
+CHATTY_LOGGERS = ("urllib3", "requests_cache", "vcr", "rasterio", "PIL", "fiona")
+
+
+class _StderrFilter(logging.Filter):
+    """Drops per-object OSM warnings (below -v) and third-party debug chatter (below -vvv)."""
+
+    def __init__(self, verbosity: int) -> None:
+        super().__init__()
+        self.verbosity = verbosity
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        name = record.name
+        if self.verbosity < 1 and name.startswith(PER_OBJECT_LOGGERS) and record.levelno < logging.ERROR:
+            return False
+        if self.verbosity < 3 and name.startswith(CHATTY_LOGGERS) and record.levelno < logging.WARNING:
+            return False
+        return True
+
+
 def configure_logging(verbosity: int) -> None:
-    """Send log records to stderr: -q errors only, default warnings, -v info, -vv debug."""
-    level = {0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG if verbosity > 1 else logging.ERROR)
-    logging.basicConfig(stream=sys.stderr, level=level, format="%(levelname)s %(name)s: %(message)s")
-    # one warning per broken OSM object floods a build; the build summary counts them instead
-    for name in ("osmseg.osm.features", "osmseg.osm.coastline"):
-        logging.getLogger(name).setLevel(logging.INFO if verbosity >= 1 else logging.ERROR)
-    # third-party chatter stays at WARNING unless -vv
-    for name in ("urllib3", "requests_cache", "vcr", "rasterio", "PIL"):
-        logging.getLogger(name).setLevel(logging.DEBUG if verbosity >= 3 else logging.WARNING)
+    """Log to stderr: -q errors only, default warnings, -v info, -vv debug.
+
+    Does nothing when the process already has log handlers (an application embedding the
+    CLI, or pytest): the CLI never overrides someone else's logging set-up.
+    """
+    root = logging.getLogger()
+    if root.handlers:
+        return
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    handler.addFilter(_StderrFilter(verbosity))
+    root.addHandler(handler)
+    root.setLevel({0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG if verbosity > 1 else logging.ERROR))
 
 
 def report_errors(func: F) -> F:

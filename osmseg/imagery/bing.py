@@ -226,7 +226,8 @@ class BingProvider:
                 "Bing has no imagery for tile %s (HTTP %s)", tile_name(tile), response.status_code
             )
             return NO_IMAGERY
-        return decode_tile(response.content, f"Bing tile {tile_name(tile)} ({redact(url)})")
+        with self._client.usable(response):
+            return decode_tile(response.content, f"Bing tile {tile_name(tile)} ({redact(url)})")
 
     def fetch(self, grid: SampleGrid) -> Imagery:
         """The sample's tiles merged into one image on ``grid``."""

@@ -260,7 +260,8 @@ class XYZProvider:
             if response.status_code in (204, 404) or not response.content:
                 logger.debug("server has no %s (HTTP %s)", what, response.status_code)
                 return NO_IMAGERY
-            data = response.content
+            with self._client.usable(response):
+                return decode_tile(response.content, what)
         return decode_tile(data, what)
 
     def fetch(self, grid: SampleGrid) -> Imagery:

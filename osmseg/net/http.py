@@ -31,9 +31,10 @@ from __future__ import annotations
 
 import logging
 import re
+from contextlib import contextmanager
 import threading
 import time
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -67,7 +68,8 @@ CACHE_FILE = "http.sqlite"
 DEFAULT_USER_AGENT = f"osmseg/{__version__} (+https://github.com/osmseg/osmseg)"
 
 _SECRET_RE = re.compile(
-    r"([?&;](?:" + "|".join(re.escape(p) for p in SECRET_PARAMS) + r")=)[^&#\s'\"<>]*",
+    # the value ends at a URL delimiter, or before punctuation that ends a sentence ("...: HTTP 500")
+    r"([?&;](?:" + "|".join(re.escape(p) for p in SECRET_PARAMS) + r")=)[^&#\s'\"<>()]*?(?=[:,;.]*(?:[&#\s'\"<>()]|$))",
     re.IGNORECASE,
 )
 _USERINFO_RE = re.compile(r"(://[^/@\s:]+):[^/@\s]+@")
@@ -334,6 +336,26 @@ class HttpClient:
         as a tile.
         """
         return self._request("POST", url, data=data, headers=headers, ok_statuses=ok_statuses)
+
+    def forget(self, response: requests.Response) -> None:
+        """Drop ``response`` from the cache: a 200 the caller could not use must not be replayed.
+
+        Malformed OSM XML, an HTML error page served as a tile, an Overpass time-out remark:
+        all arrive as 200 and are cached like good answers; forgetting them makes the rerun
+        (after the server is fixed) ask again instead of failing the same way.
+        """
+        key = getattr(response, "cache_key", None)
+        if key and isinstance(self._session, CachedSession):
+            self._session.cache.delete(key)
+
+    @contextmanager
+    def usable(self, response: requests.Response) -> Iterator[None]:
+        """Wrap the caller's check of ``response``: if the check raises, forget the answer."""
+        try:
+            yield
+        except Exception:
+            self.forget(response)
+            raise
 
     @property
     def transport(self) -> HTTPAdapter:

@@ -61,7 +61,7 @@ DEFAULT_API_URL = "https://api.openstreetmap.org/api/0.6"
 MAX_AREA = 0.25
 #: Texts of the API's HTTP 400 answers that mean "this box is too big: ask for less".
 LIMIT_MESSAGES = ("too many nodes", "maximum bbox size")
-_ADVICE = ("run the same command again later (if it repeats, delete the HTTP cache folder: it keeps answers), "
+_ADVICE = ("run the same command again later, "
            "or use --osm overpass or a local .osm.pbf")
 
 
@@ -215,7 +215,8 @@ class OsmApiSource:
                 return
             raise OSMDataError(f"the OSM API refused map?bbox={bbox_param(box)} with HTTP {response.status_code} "
                                f"({_one_line(text)}): check the box, or use --osm overpass or a local .osm.pbf")
-        scan = store_osm_xml(response.content, path, f"the OSM API answer to map?bbox={bbox_param(box)}", _ADVICE)
+        with self.client.usable(response):
+            scan = store_osm_xml(response.content, path, f"the OSM API answer to map?bbox={bbox_param(box)}", _ADVICE)
         parts.append((path, scan, _date(response)))
 
     def _fetch_relation(self, rid: int, folder: Path) -> tuple[Path, OsmScan, str | None] | None:
@@ -229,7 +230,8 @@ class OsmApiSource:
         if response.status_code != 200:
             raise OSMDataError(f"the OSM API refused relation/{rid}/full with HTTP {response.status_code} "
                                f"({_one_line(response.text)}): {_ADVICE}")
-        scan = store_osm_xml(response.content, path, f"the OSM API answer to relation/{rid}/full", _ADVICE)
+        with self.client.usable(response):
+            scan = store_osm_xml(response.content, path, f"the OSM API answer to relation/{rid}/full", _ADVICE)
         return path, scan, _date(response)
 
 

@@ -258,18 +258,18 @@ class OverpassSource:
             return done
         where = f"Overpass ({self.url}) for box {','.join(f'{v:.7f}' for v in bbox)}"
         response = self.client.post(self.url, data={"data": query})
-        body = response.content
-        error = remark_error(body)
-        if error is not None:
-            if re.search(r"timed out|out of memory|run out of memory", error, re.IGNORECASE):
-                raise OSMLimitError(f"{where} gave up: {error}; use smaller boxes, a longer Overpass timeout, "
-                                    "or a local .osm.pbf (--osm PATH)")
-            raise OSMDataError(f"{where} failed: {error}; run the same command again later or use --osm api")
-        self.workdir.mkdir(parents=True, exist_ok=True)
-        path = self.workdir / f"{stem}.osm"
-        scan = store_osm_xml(body, path, f"the answer of {where}",
-                             "run the same command again later (if it repeats, delete the HTTP cache folder: "
-                             "it keeps answers), or use --osm api or a local .osm.pbf")
+        with self.client.usable(response):  # a time-out remark or bad XML must not stay cached
+            body = response.content
+            error = remark_error(body)
+            if error is not None:
+                if re.search(r"timed out|out of memory|run out of memory", error, re.IGNORECASE):
+                    raise OSMLimitError(f"{where} gave up: {error}; use smaller boxes, a longer Overpass timeout, "
+                                        "or a local .osm.pbf (--osm PATH)")
+                raise OSMDataError(f"{where} failed: {error}; run the same command again later or use --osm api")
+            self.workdir.mkdir(parents=True, exist_ok=True)
+            path = self.workdir / f"{stem}.osm"
+            scan = store_osm_xml(body, path, f"the answer of {where}",
+                                 "run the same command again later, or use --osm api or a local .osm.pbf")
         info: dict[str, Any] = {
             "source": "overpass",
             "url": self.url,
