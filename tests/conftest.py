@@ -27,3 +27,6 @@ def shared_data() -> Path:
     if not SHARED_DATA.exists():
         pytest.skip("../shared/data is absent on this machine")
     return SHARED_DATA
+
+# tests/data/*/data.py are generator scripts (run by hand), not test modules
+collect_ignore_glob = ["data/*"]
