@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -136,9 +137,13 @@ def test_shards_together_give_the_single_run_dataset(tmp_path: Path, imagery_tif
     assert tree_bytes(sharded) == tree_bytes(single)
 
 
-def test_classes6_build_maps_the_13_classes(tmp_path: Path, imagery_tif: Path) -> None:
+def test_classes6_build_maps_the_13_classes_and_zips(tmp_path: Path, imagery_tif: Path) -> None:
     out = tmp_path / "ds6"
-    assert run_cli(*build_args(out, imagery_tif, "--classes", "classes6.toml", samples=1)).exit_code == 0
+    assert run_cli(*build_args(out, imagery_tif, "--classes", "classes6.toml", "--zip", samples=1)).exit_code == 0
+    with zipfile.ZipFile(tmp_path / "ds6.zip") as zf:
+        names = zf.namelist()
+    assert "ds6/manifest.json" in names or "manifest.json" in names
+    assert any(n.endswith(".tif") for n in names) and not any(".osmseg-build" in n for n in names)
     manifest = json.loads((out / "manifest.json").read_text())
     labels = np.asarray(Image.open(out / "labels" / f"{manifest['samples'][0]['name']}.png"))
     assert set(np.unique(labels)) <= set(range(7))
