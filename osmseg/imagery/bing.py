@@ -34,7 +34,8 @@ from osmseg.imagery.mosaic import (
     fetch_tiles,
     tile_name,
 )
-from osmseg.net.http import HttpClient, redact
+from osmseg.net.http import HttpClient
+from osmseg.net.redact import redact
 
 logger = logging.getLogger(__name__)
 

@@ -39,7 +39,8 @@ from vcr.serialize import deserialize, serialize
 from vcr.serializers import yamlserializer
 
 from osmseg.errors import ConfigError, OfflineCacheMiss
-from osmseg.net.http import RETRY_STATUSES, SECRET_HEADERS, SECRET_PARAMS, redact
+from osmseg.net.http import RETRY_STATUSES
+from osmseg.net.redact import SECRET_HEADERS, SECRET_PARAMS, redact
 from osmseg.output.atomic import atomic_write_bytes
 
 Mode = Literal["record", "replay"]

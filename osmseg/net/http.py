@@ -17,9 +17,10 @@ Every remote call (Bing, XYZ tiles, the OSM API, Overpass) goes through :class:`
 * **Per-host concurrency limits** (a bounded semaphore per host name): the OSM API gets at most
   two requests at a time however many threads call the client.
 * **Offline**: answers from the cache only; a miss is :class:`~osmseg.errors.OfflineCacheMiss`.
-* **Secrets** (:data:`SECRET_PARAMS`) never reach logs, error messages or the cache (its keys
-  ignore them, stored URLs say ``REDACTED``).  Use :func:`redact` before printing any URL.
-  The loggers of urllib3, requests-cache and vcrpy get a redacting filter, so ``-v`` is safe.
+* **Secrets** (:data:`osmseg.net.redact.SECRET_PARAMS`) never reach logs, error messages or
+  the cache (its keys ignore them, stored URLs say ``REDACTED``).  Use
+  :func:`osmseg.net.redact.redact` before printing any URL.  The loggers of urllib3,
+  requests-cache and vcrpy get a redacting filter, so ``-v`` is safe.
 
 Thread safety: share one client across a ``ThreadPoolExecutor``.  requests' connection pool is
 thread-safe; requests-cache's SQLite backend shares one connection between threads and only
@@ -31,10 +32,10 @@ from __future__ import annotations
 
 import logging
 import re
-from contextlib import contextmanager
 import threading
 import time
 from collections.abc import Collection, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,19 +47,15 @@ from requests_cache import NEVER_EXPIRE, CachedSession
 from requests_cache.backends.sqlite import SQLiteCache
 from requests_cache.cache_keys import redact_response
 from requests_cache.models.response import CachedResponse
-from requests_cache.policy.settings import AUTH_HEADERS
 from urllib3.exceptions import InvalidHeader
 from urllib3.util import Retry
 
 from osmseg import __version__
 from osmseg.errors import AuthError, ConfigError, HTTPStatusError, NetworkError, OfflineCacheMiss
+from osmseg.net.redact import SECRET_HEADERS, SECRET_PARAMS, install_log_redaction, redact
 
 logger = logging.getLogger(__name__)
 
-#: Query parameters that carry keys or tokens (Bing, Azure Maps, Mapbox, Esri, generic).
-SECRET_PARAMS = ("key", "access_token", "subscription-key", "api_key", "apikey", "token")
-#: Request headers that carry keys (never stored in the cache).
-SECRET_HEADERS: tuple[str, ...] = (*AUTH_HEADERS, "Ocp-Apim-Subscription-Key")
 #: Statuses worth retrying: rate limits and server-side trouble.
 RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
 #: Default per-host limits: the OSM API and Overpass ask clients for at most two slots.
@@ -67,12 +64,6 @@ DEFAULT_HOST_LIMITS: Mapping[str, int] = {"api.openstreetmap.org": 2, "overpass-
 CACHE_FILE = "http.sqlite"
 DEFAULT_USER_AGENT = f"osmseg/{__version__} (+https://github.com/osmseg/osmseg)"
 
-_SECRET_RE = re.compile(
-    # the value ends at a URL delimiter, or before punctuation that ends a sentence ("...: HTTP 500")
-    r"([?&;](?:" + "|".join(re.escape(p) for p in SECRET_PARAMS) + r")=)[^&#\s'\"<>()]*?(?=[:,;.]*(?:[&#\s'\"<>()]|$))",
-    re.IGNORECASE,
-)
-_USERINFO_RE = re.compile(r"(://[^/@\s:]+):[^/@\s]+@")
 # Exceptions worth another attempt.  SSL errors are ConnectionErrors too but do not heal.
 _RETRY_EXCEPTIONS = (
     requests.exceptions.ConnectionError,  # refused, reset, DNS, and truncated bodies
@@ -86,55 +77,7 @@ _BAD_URL_EXCEPTIONS = (
     requests.exceptions.InvalidURL,
 )
 
-
-def redact(url: str) -> str:
-    """``url`` (or any text holding URLs) with key/token values replaced by ``REDACTED``.
-
-    >>> redact("https://dev.virtualearth.net/REST/v1/Imagery/Metadata/Aerial?key=s3cr3t&o=json")
-    'https://dev.virtualearth.net/REST/v1/Imagery/Metadata/Aerial?key=REDACTED&o=json'
-    >>> redact("https://a.tiles.example/1/2/3.png?style=x&access_token=pk.abc")
-    'https://a.tiles.example/1/2/3.png?style=x&access_token=REDACTED'
-    >>> redact("https://user:hunter2@example.org/tiles?monkey=1")
-    'https://user:REDACTED@example.org/tiles?monkey=1'
-    """
-    return _USERINFO_RE.sub(r"\1:REDACTED@", _SECRET_RE.sub(r"\1REDACTED", url))
-
-
-class RedactingFilter(logging.Filter):
-    """A logging filter that redacts secrets from a record's final message (never drops it)."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        message = record.getMessage()
-        cleaned = redact(message)
-        if cleaned != message:
-            record.msg, record.args = cleaned, ()
-        return True
-
-
-_REDACTING_FILTER = RedactingFilter()
-_THIRD_PARTY_LOGGERS = ("urllib3", "requests", "requests_cache", "vcr")
-
-
-def install_log_redaction() -> None:
-    """Attach :class:`RedactingFilter` to this module's and third-party loggers that log URLs.
-
-    Logger filters see only records logged on that very logger, so the filter goes on every
-    already-created logger under urllib3, requests, requests-cache and vcrpy (they create
-    their loggers at import).  Idempotent; called on import and by :class:`HttpClient`.
-    This adds a filter only: handlers, levels and propagation are left to the application.
-    """
-    names = [__name__] + [
-        name
-        for name in list(logging.root.manager.loggerDict)
-        if name.split(".")[0] in _THIRD_PARTY_LOGGERS
-    ]
-    for name in names:
-        named = logging.getLogger(name)
-        if _REDACTING_FILTER not in named.filters:
-            named.addFilter(_REDACTING_FILTER)
-
-
-install_log_redaction()
+install_log_redaction(__name__)
 
 
 @dataclass(frozen=True)
@@ -291,7 +234,7 @@ class HttpClient:
 
     def __init__(self, config: HttpConfig | None = None) -> None:
         self.config = config if config is not None else HttpConfig()
-        install_log_redaction()
+        install_log_redaction(__name__)
         self._session = self._make_session()
         self._gates: dict[str, _HostGate] = {}
         self._gates_lock = threading.Lock()
