@@ -10,7 +10,8 @@ BIN    := $(VENV)/bin
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	# torch/torchvision pinned to the releases this project is tested with (CPU or CUDA alike)
+	$(BIN)/pip install --quiet -e '.[test,train]' torch==2.14.1 torchvision==0.29.1
 	touch $@
 
 demo: $(VENV)/.installed

@@ -30,7 +30,8 @@ from osmseg.filters import FilterConfig, check_imagery, check_labels
 from osmseg.grid import TILE_SIZE, LngLatBBox, SampleGrid, ground_resolution, pad_bbox, sample_grid
 from osmseg.imagery import make_provider
 from osmseg.imagery.base import ImageryProvider
-from osmseg.net.http import HttpClient, HttpConfig
+from osmseg.net.http import DEFAULT_HOST_LIMITS, HttpClient, HttpConfig
+from osmseg.net.redact import redact
 from osmseg.osm.base import OsmSource
 from osmseg.osm.features import read_features
 from osmseg.osm.sources import make_osm_source
@@ -47,9 +48,9 @@ from osmseg.output import (
     write_overview,
     write_sample,
 )
-from osmseg.output.manifest import FORMAT, FORMAT_VERSION
+from osmseg.output.manifest import FORMAT, FORMAT_VERSION, SAMPLE_DIRS
 from osmseg.places import Area, normalise_name
-from osmseg.rasterize import rasterize
+from osmseg.rasterize import rasterize, to_table
 from osmseg.state import BuildState
 
 logger = logging.getLogger(__name__)
@@ -59,11 +60,11 @@ logger = logging.getLogger(__name__)
 #: enough that Bing/Esri cover every preset area at this level.
 DEFAULT_ZOOM = 18
 
-#: Known per-host request limits (the OSM API asks for at most 2 concurrent connections).
 #: Sampling areas up to this size (square degrees) are cut from a local OSM file as one region.
 PREPARE_AREA_MAX_DEG2 = 1.0
 
-HOST_LIMITS = {"api.openstreetmap.org": 2, "overpass-api.de": 2, "dev.virtualearth.net": 2}
+#: Per-host request limits: the OSM API and Overpass ask for at most 2 concurrent connections.
+HOST_LIMITS = {**DEFAULT_HOST_LIMITS, "dev.virtualearth.net": 2}
 
 
 @dataclass(frozen=True)
@@ -122,8 +123,8 @@ class BuildConfig:
         """What decides the dataset's content; recorded in the state and the manifest."""
         return {
             "area": {k: v for k, v in asdict(self.area).items() if v is not None},
-            "imagery": self.imagery,
-            "osm": self.osm,
+            "imagery": redact(self.imagery),  # a literal key in a template never reaches disk
+            "osm": redact(self.osm),
             "samples": self.samples,
             "seed": self.seed,
             "zoom": self.zoom,
@@ -135,6 +136,10 @@ class BuildConfig:
             "osm_padding_m": self.osm_padding_m,
         }
 
+    def my_slots(self) -> list[int]:
+        """The slots this process builds: all of them, or this shard's share."""
+        return [s for s in range(self.samples) if self.shard is None or self.shard.owns(s)]
+
     def command(self) -> list[str]:
         """The canonical ``osmseg build`` command that makes this dataset (recorded in the manifest).
 
@@ -145,15 +150,16 @@ class BuildConfig:
         """
         a = self.area
         if a.kind != "custom":
-            where = ["--city", a.name, "--radius-km", f"{a.radius_km:g}"]
+            where = ["--city", a.name, "--radius-km", repr(a.radius_km)]
         elif a.bbox is not None:
-            where = ["--bbox", ",".join(f"{v:g}" for v in a.bbox)]
-        else:
-            where = ["--lat", f"{a.lat:g}", "--lon", f"{a.lon:g}", "--radius-km", f"{a.radius_km:g}"]
+            where = ["--bbox", ",".join(repr(v) for v in a.bbox)]
+        else:  # repr: the shortest text that reads back as the same float
+            where = ["--lat", repr(a.lat), "--lon", repr(a.lon), "--radius-km", repr(a.radius_km)]
         f = self.filters
         return [
             "osmseg", "build", *where, "--samples", str(self.samples), "--seed", str(self.seed),
-            "--zoom", str(self.zoom), "--imagery", self.imagery, "--osm", self.osm, "--classes", self.classes,
+            "--zoom", str(self.zoom), "--imagery", redact(self.imagery), "--osm", redact(self.osm),
+            "--classes", self.classes,
             "--image-format", self.image_format, "--max-unlabeled", f"{f.max_unlabeled:g}",
             "--min-classes", str(f.min_classes), "--min-contrast", f"{f.min_contrast:g}",
             "--max-missing-imagery", f"{f.max_invalid_imagery:g}", "--max-placeholder-tiles", str(f.max_placeholder_tiles),
@@ -230,7 +236,7 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) ->
     features = read_features(extract.paths, grid, pipe.rules)
     labels = rasterize(features, grid, pipe.rules)
     if pipe.table is not pipe.rules:
-        labels = pipe.table.lookup_from_base()[labels]
+        labels = to_table(labels, pipe.rules, pipe.table)
     rejection = check_labels(labels, config.filters)
     imagery = None
     if rejection is None:
@@ -292,6 +298,7 @@ def build(
         raise ConfigError("--samples must be at least 1")
     ground_resolution(config.area.lat, config.zoom)  # validates lat
     config.out_dir.mkdir(parents=True, exist_ok=True)
+    sweep_temp_files(config.out_dir)
     state = BuildState(config.out_dir)
     state.check_config(config.identity())
     summary = BuildSummary(out_dir=config.out_dir)
@@ -304,7 +311,7 @@ def build(
     )
     with HttpClient(http) as client:
         pipe = open_pipeline(config, client, env)
-        mine = [s for s in range(config.samples) if config.shard is None or config.shard.owns(s)]
+        mine = config.my_slots()
         todo = [s for s in mine if state.slot(s) is None]
         prepare = getattr(pipe.osm, "prepare", None)
         if todo and callable(prepare):
@@ -328,6 +335,13 @@ def build(
         summary.finalized = True
     summary.seconds = time.monotonic() - start
     return summary
+
+
+def sweep_temp_files(out_dir: Path) -> None:
+    """Remove ``.NAME.*.tmp`` files a killed build left in the sample folders (never read, only litter)."""
+    for folder in SAMPLE_DIRS:
+        for tmp in (out_dir / folder).glob(".*.tmp"):
+            tmp.unlink(missing_ok=True)
 
 
 def sampling_box(config: BuildConfig) -> LngLatBBox:
@@ -394,5 +408,6 @@ def finalize(
     write_overview(config.out_dir, samples, table)
     write_class_histogram(config.out_dir, class_totals(samples), table)
     if config.zip:
-        make_zip(config.out_dir, config.out_dir.with_suffix(".zip"))
+        out = config.out_dir.resolve()
+        make_zip(config.out_dir, out.parent / f"{out.name}.zip")
     return manifest

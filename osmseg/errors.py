@@ -62,3 +62,7 @@ class OSMLimitError(OSMDataError):
 
 class DatasetError(OsmsegError, IOError):
     """An output or input dataset folder is inconsistent."""
+
+
+class CheckpointError(OsmsegError, ValueError):
+    """A checkpoint file is missing, corrupt, or not an osmseg checkpoint."""

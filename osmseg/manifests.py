@@ -18,10 +18,10 @@ MANIFEST_DIR = Path(__file__).resolve().parent.parent / "data_manifests"
 def manifest_path(name: str) -> Path:
     """Path of a data manifest: a bare file name is looked up in ``data_manifests/``."""
     path = Path(name)
-    if path.exists():
+    if path.is_file():
         return path
     candidate = MANIFEST_DIR / name
-    if candidate.exists():
+    if candidate.is_file():
         return candidate
     raise ConfigError(f"data manifest {name!r} not found (looked in {MANIFEST_DIR}); give a path to a .toml file")
 
@@ -34,3 +34,5 @@ def load_toml(name: str) -> dict[str, Any]:
             return tomllib.load(f)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc}); fix the file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read it ({exc.strerror})") from None

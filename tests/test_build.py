@@ -166,9 +166,9 @@ def test_rerun_into_a_folder_of_another_build_is_refused(tmp_path: Path, imagery
     [
         (["build", "--city", "Atlantis", "--out", "x"], 2, "Berlin"),
         (["build", "--city", "Berlin", "--lat", "1", "--out", "x"], 2, "exactly one"),
-        (["build", "--bbox", "1,2,3", "--out", "x", "--imagery", "xyz:file:///t/{z}/{x}/{y}.png"], 2, "W,S,E,N"),
+        (["build", "--bbox", "1,2,3", "--out", "x", "--imagery", "xyz:file:///tmp/{z}/{x}/{y}.png"], 2, "W,S,E,N"),
         (["build", "--city", "Berlin", "--out", "x", "--osm", "/no/such/file.osm.pbf",
-          "--imagery", "xyz:file:///t/{z}/{x}/{y}.png"], 2, "not found"),
+          "--imagery", "xyz:file:///tmp/{z}/{x}/{y}.png"], 2, "not found"),
         (["build", "--city", "Berlin", "--out", "x", "--imagery", "bing"], 2, "BING_MAPS_KEY"),
         (["build", "--city", "Berlin", "--out", "x", "--imagery", "carrier-pigeon"], 2, "imagery"),
     ],

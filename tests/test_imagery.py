@@ -463,7 +463,6 @@ def test_geotiff_alpha_band_masks_and_nir_is_not_alpha(grid):
 @pytest.mark.parametrize(
     ("name", "message"),
     [
-        ("no-such-file.tif", "does not exist"),
         ("not-a-raster.tif", "is not a raster GDAL can read"),
         ("no-crs.tif", "has no CRS"),
         ("uint16.tif", "is uint16, not 8-bit"),
@@ -472,6 +471,12 @@ def test_geotiff_alpha_band_masks_and_nir_is_not_alpha(grid):
 def test_geotiff_bad_inputs_are_one_line_imagery_errors(name, message):
     with pytest.raises(ImageryError, match=message) as bad:
         GeoTiffProvider(DATA / name)
+    assert "\n" not in str(bad.value)
+
+
+def test_geotiff_missing_path_is_a_usage_error():
+    with pytest.raises(ConfigError, match="does not exist") as bad:
+        GeoTiffProvider(DATA / "no-such-file.tif")
     assert "\n" not in str(bad.value)
 
 

@@ -12,7 +12,7 @@ import click
 from tqdm import tqdm
 
 from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
-from osmseg.errors import ConfigError
+from osmseg.errors import ConfigError, DatasetError
 from osmseg.filters import FilterConfig
 from osmseg.output import command_line
 from osmseg.cli.common import report_errors
@@ -66,8 +66,7 @@ class ProgressBar:
 
 def run_build(config: BuildConfig, verbosity: int, env: dict[str, str] | None = None) -> BuildSummary:
     """Run a build with a progress bar and print the summary (stderr) and output path (stdout)."""
-    total = sum(1 for s in range(config.samples) if config.shard is None or config.shard.owns(s))
-    bar = ProgressBar(total, enabled=verbosity >= 0)
+    bar = ProgressBar(len(config.my_slots()), enabled=verbosity >= 0)
     try:
         summary = build(config, env=env, progress=bar, command_line=command_line(config.command()))
     finally:
@@ -78,6 +77,9 @@ def run_build(config: BuildConfig, verbosity: int, env: dict[str, str] | None = 
         if not summary.finalized:
             click.echo("manifest not written yet: it is written when every shard has finished", err=True)
     click.echo(str(config.out_dir / "manifest.json") if summary.finalized else str(config.out_dir))
+    if summary.finalized and summary.accepted == 0:
+        raise DatasetError("no sample was accepted (see the rejection reasons above and in manifest.json): "
+                           "loosen the filters, raise --max-tries, or sample another area")
     return summary
 
 
@@ -85,10 +87,10 @@ def run_build(config: BuildConfig, verbosity: int, env: dict[str, str] | None = 
 @click.option("--city", help="A preset area (data_manifests/cities.toml), e.g. Berlin, 'São Paulo'; any case/accents.")
 @click.option("--lat", type=float, help="Centre latitude (with --lon) for an area anywhere.")
 @click.option("--lon", type=float, help="Centre longitude (with --lat).")
-@click.option("--radius-km", type=float, help="Sampling radius around the centre [preset's, or 2 km].")
+@click.option("--radius-km", type=click.FloatRange(min=0, min_open=True), help="Sampling radius around the centre [preset's, or 2 km].")
 @click.option("--bbox", help="Sample uniformly inside W,S,E,N (degrees) instead of a disc.")
 @click.option("--samples", "-n", type=int, default=30, show_default=True, help="Accepted samples wanted.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed for every random choice (recorded).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed for every random choice (recorded).")
 @click.option("--zoom", type=click.IntRange(1, 23), default=DEFAULT_ZOOM, show_default=True,
               help="Tile zoom. 18 = ~0.6 m/px at the equator, ~0.37 m/px at 52°N (see docs).")
 @click.option("--imagery", help="bing (needs BING_MAPS_KEY) | xyz:TEMPLATE | geotiff:PATH [bing if BING_MAPS_KEY is set].")
@@ -103,7 +105,7 @@ def run_build(config: BuildConfig, verbosity: int, env: dict[str, str] | None = 
               help="Reject samples with more than this share of pixels without imagery.")
 @click.option("--max-placeholder-tiles", type=click.IntRange(0, None), default=0, show_default=True,
               help="Reject samples with more provider 'no imagery' tiles than this.")
-@click.option("--max-tries", type=int, default=10, show_default=True, help="Centres tried per sample before giving up on it.")
+@click.option("--max-tries", type=click.IntRange(min=1), default=10, show_default=True, help="Centres tried per sample before giving up on it.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="Output folder (rerun to resume).")
 @click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="HTTP/OSM cache [~/.cache/osmseg].")
 @click.option("--timeout", "http_timeout", type=click.FloatRange(min=0.1), default=30.0, show_default=True,

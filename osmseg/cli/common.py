@@ -8,8 +8,10 @@ import sys
 from typing import Any, Callable, TypeVar
 
 import click
+from tqdm import tqdm
 
 from osmseg.errors import ConfigError, OsmsegError
+from osmseg.net.redact import RedactingFilter
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -36,6 +38,16 @@ class _StderrFilter(logging.Filter):
         return True
 
 
+class _TqdmStderrHandler(logging.Handler):
+    """Writes records to stderr through ``tqdm.write``, so they print above a progress bar."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            tqdm.write(self.format(record), file=sys.stderr)
+        except Exception:  # logging must never take the command down
+            self.handleError(record)
+
+
 def configure_logging(verbosity: int) -> None:
     """Log to stderr: -q errors only, default warnings, -v info, -vv debug.
 
@@ -45,9 +57,10 @@ def configure_logging(verbosity: int) -> None:
     root = logging.getLogger()
     if root.handlers:
         return
-    handler = logging.StreamHandler(sys.stderr)
+    handler = _TqdmStderrHandler()
     handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
     handler.addFilter(_StderrFilter(verbosity))
+    handler.addFilter(RedactingFilter())  # every record, from any logger, loses its keys here
     root.addHandler(handler)
     root.setLevel({0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG if verbosity > 1 else logging.ERROR))
 
@@ -63,8 +76,21 @@ def report_errors(func: F) -> F:
             raise click.UsageError(str(exc)) from None
         except OsmsegError as exc:
             raise click.ClickException(str(exc)) from None
+        except OSError as exc:  # a folder that cannot be created, a full disk, a permission
+            where = f"{exc.filename}: " if exc.filename else ""
+            raise click.ClickException(f"{where}{exc.strerror or exc}; check the path and its permissions") from None
         except KeyboardInterrupt:
             click.echo("interrupted: rerun the same command to resume; finished work is kept", err=True)
             sys.exit(130)
 
     return wrapper  # type: ignore[return-value]
+
+
+def require_torch() -> None:
+    """Fail with one line when the training extra (torch) is not installed."""
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        raise click.UsageError(
+            "this command needs PyTorch: pip install 'osmseg[train]' (or run `make test`, which installs it)"
+        ) from None

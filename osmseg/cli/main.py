@@ -12,6 +12,9 @@ from osmseg import __version__
 from osmseg.cli.build import build_command
 from osmseg.cli.common import configure_logging
 from osmseg.cli.demo import demo_command
+from osmseg.cli.eval import eval_command
+from osmseg.cli.predict import predict_command
+from osmseg.cli.train import train_command
 from osmseg.cli.verify import verify_command
 
 
@@ -30,6 +33,9 @@ def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
 cli.add_command(build_command)
 cli.add_command(demo_command)
 cli.add_command(verify_command)
+cli.add_command(train_command)
+cli.add_command(predict_command)
+cli.add_command(eval_command)
 
 if __name__ == "__main__":  # pragma: no cover
     cli()

@@ -37,10 +37,13 @@ def verify_command(ctx: click.Context, dataset: Path, align_class: str | None) -
         if align_class not in ids:
             raise ConfigError(f"--alignment {align_class!r}: not a class of this dataset; use one of {', '.join(ids)}")
         offsets = {}
+        broken = {p.split(":")[0] for p in problems}
         for sample in manifest["samples"]:
             files = sample["files"]
-            image = next(k for k in files if k.startswith("images/"))
-            label = next(k for k in files if k.startswith("labels/"))
+            image = next((k for k in files if k.startswith("images/")), None)
+            label = next((k for k in files if k.startswith("labels/")), None)
+            if image is None or label is None or image in broken or label in broken:
+                continue  # already reported as a problem
             rgb = np.asarray(Image.open(dataset / image).convert("RGB"))
             mask = np.asarray(Image.open(dataset / label)) == ids[align_class]
             fit = edge_alignment(rgb, mask)

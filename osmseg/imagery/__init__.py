@@ -8,7 +8,7 @@
 
 >>> make_provider("geotiff:/no/such/file.tif", None)
 Traceback (most recent call last):
-osmseg.errors.ImageryError: GeoTIFF /no/such/file.tif does not exist: check the geotiff:PATH
+osmseg.errors.ConfigError: GeoTIFF /no/such/file.tif does not exist: check the geotiff:PATH
 >>> make_provider("bing", None, env={})
 Traceback (most recent call last):
 osmseg.errors.ConfigError: --imagery bing needs a Bing Maps key: set BING_MAPS_KEY or use --imagery xyz:... / geotiff:...

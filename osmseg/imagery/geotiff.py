@@ -26,7 +26,7 @@ from rasterio.enums import ColorInterp, Resampling
 from rasterio.errors import RasterioError
 from rasterio.vrt import WarpedVRT
 
-from osmseg.errors import ImageryError
+from osmseg.errors import ConfigError, ImageryError
 from osmseg.grid import SampleGrid
 from osmseg.imagery.base import Imagery
 from osmseg.imagery.mosaic import ALPHA_VALID
@@ -72,7 +72,7 @@ class GeoTiffProvider:
             or f"Imagery from {self.path.name}: credit the imagery owner as their terms require"
         )
         if not self.path.exists():
-            raise ImageryError(f"GeoTIFF {self.path} does not exist: check the geotiff:PATH")
+            raise ConfigError(f"GeoTIFF {self.path} does not exist: check the geotiff:PATH")
         try:
             with rasterio.open(self.path) as src:
                 self.crs = src.crs
@@ -125,8 +125,11 @@ class GeoTiffProvider:
                 # the alpha band the warper filled from the footprint, nodata, alpha or mask
                 alpha = vrt.read(vrt.colorinterp.index(ColorInterp.alpha) + 1)
         except RasterioError as exc:
+            cause = exc.__cause__ or exc.__context__
+            why = str(cause or exc).splitlines()[0] if str(cause or exc) else type(exc).__name__
             raise ImageryError(
-                f"cannot warp {self.path} to the sample grid: {str(exc).splitlines()[0]}"
+                f"cannot read {self.path} while warping it to the sample grid ({why}): "
+                "the file looks truncated or corrupt; download or export it again"
             ) from None
         planes = {band: data[i] for i, band in enumerate(unique)}
         rgb = np.stack([planes[b] for b in self.bands], axis=-1).astype(np.uint8)

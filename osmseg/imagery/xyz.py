@@ -19,9 +19,9 @@ Transparent tile pixels and tiles the server does not have (HTTP 404/204, empty 
 missing file) are invalid areas, not errors; bytes that are not an image are an
 :class:`~osmseg.errors.ImageryError` naming the tile.
 
->>> p = XYZProvider("file:///data/tiles/{z}/{x}/{-y}.png")
+>>> p = XYZProvider("file:///tmp/{z}/{x}/{-y}.png")
 >>> p.tile_location(mercantile.Tile(x=5, y=2, z=3))
-'file:///data/tiles/3/5/5.png'
+'file:///tmp/3/5/5.png'
 >>> fill_template("https://t.example/{q}.jpeg", mercantile.Tile(x=5, y=2, z=3))
 'https://t.example/121.jpeg'
 """
@@ -208,6 +208,12 @@ class XYZProvider:
         self._secrets = parse_template(template, os.environ if env is None else env)
         self.template = template
         self.is_local = template.startswith("file://")
+        if self.is_local:
+            # a typo in the folder would otherwise look like "no imagery anywhere"
+            fixed = Path(urllib.parse.unquote(template[len("file://"):].split("{", 1)[0]))
+            folder = fixed if template[len("file://"):].split("{", 1)[0].endswith("/") else fixed.parent
+            if not folder.is_dir():
+                raise ConfigError(f"--imagery {template}: folder {folder} does not exist; check the file:// template")
         if not self.is_local and safe_text(template) != template:
             logger.warning(
                 "the xyz template has a key written out: use {env:NAME} to keep it out of shell history"

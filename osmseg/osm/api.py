@@ -41,6 +41,7 @@ import requests
 from osmseg.errors import HTTPStatusError, NetworkError, OSMDataError, OSMLimitError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
+from osmseg.net.redact import redact
 from osmseg.osm.base import OsmExtract
 from osmseg.osm.localfile import (
     OSM_ATTRIBUTION,
@@ -170,7 +171,7 @@ class OsmApiSource:
         newest = [s.newest for _, s, _ in parts if s.newest is not None]
         info: dict[str, Any] = {
             "source": "api",
-            "url": self.base_url,
+            "url": redact(self.base_url),
             "bbox": list(bbox),
             "map_calls": sum(1 for p, _, _ in parts if p.name.startswith("map_")),
             "relations_completed": completed,
@@ -182,7 +183,7 @@ class OsmApiSource:
 
     def describe(self) -> dict[str, Any]:
         """JSON-able description for the manifest."""
-        return {"source": "api", "url": self.base_url, "attribution": self.attribution}
+        return {"source": "api", "url": redact(self.base_url), "attribution": self.attribution}
 
     # -- internals ------------------------------------------------------------------------------
 

@@ -44,6 +44,7 @@ from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import OSMDataError, OSMLimitError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
+from osmseg.net.redact import redact
 from osmseg.osm.base import OsmExtract
 from osmseg.osm.localfile import OSM_ATTRIBUTION, cache_name, check_bbox, read_done, store_osm_xml, write_done
 
@@ -256,7 +257,7 @@ class OverpassSource:
         done = read_done(marker)
         if done is not None:
             return done
-        where = f"Overpass ({self.url}) for box {','.join(f'{v:.7f}' for v in bbox)}"
+        where = f"Overpass ({redact(self.url)}) for box {','.join(f'{v:.7f}' for v in bbox)}"
         response = self.client.post(self.url, data={"data": query})
         with self.client.usable(response):  # a time-out remark or bad XML must not stay cached
             body = response.content
@@ -272,7 +273,7 @@ class OverpassSource:
                                  "run the same command again later, or use --osm api or a local .osm.pbf")
         info: dict[str, Any] = {
             "source": "overpass",
-            "url": self.url,
+            "url": redact(self.url),
             "bbox": list(bbox),
             "timestamp_from": "osm_base of the Overpass answer",
             "counts": scan.counts,
@@ -281,5 +282,5 @@ class OverpassSource:
 
     def describe(self) -> dict[str, Any]:
         """JSON-able description for the manifest."""
-        return {"source": "overpass", "url": self.url, "timeout": self.timeout, "attribution": self.attribution,
+        return {"source": "overpass", "url": redact(self.url), "timeout": self.timeout, "attribution": self.attribution,
                 "filters": [f.ql() for f in tag_filters(self.table)]}

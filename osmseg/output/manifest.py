@@ -227,7 +227,10 @@ def validate_manifest(manifest: Any, where: str = "manifest") -> None:
         if sample["name"] in names:
             raise DatasetError(f"{where}: sample name {sample['name']!r} appears twice")
         names.add(sample["name"])
-        for rel in sample["files"]:
+        files = sample["files"]
+        if not isinstance(files, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in files.items()):
+            raise DatasetError(f"{where}: samples[{i}] files must map relative paths to sha256 strings")
+        for rel in files:
             if Path(rel).is_absolute() or ".." in Path(rel).parts:
                 raise DatasetError(f"{where}: sample {sample['name']} lists a path outside the dataset: {rel!r}")
     for i, rej in enumerate(manifest["rejected"]):

@@ -1,0 +1,40 @@
+"""``osmseg predict``: segment images of any size (PNG/JPEG/GeoTIFF) with a checkpoint."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from osmseg.cli.common import report_errors, require_torch
+
+
+@click.command("predict")
+@click.argument("checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("inputs", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder for the masks: NAME.png (class ids) or NAME.tif for GeoTIFF inputs, and NAME_color.png.")
+@click.option("--mode", type=click.Choice(["split-join", "rescale"]), default="split-join", show_default=True,
+              help="split-join: windows of the training patch size; rescale: letterbox the whole image into one.")
+@click.option("--join", type=click.Choice(["blend", "crop"]), default="blend", show_default=True,
+              help="blend overlapping windows smoothly, or keep each window's centre (the dissertation's).")
+@click.option("--tta", is_flag=True, help="Average over flips (and 90-degree turns of square inputs).")
+@click.option("--batch-size", type=int, default=4, show_default=True)
+@click.option("--device", default="cpu", show_default=True)
+@click.pass_context
+@report_errors
+def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ...], out_dir: Path, mode: str,
+                    join: str, tta: bool, batch_size: int, device: str) -> None:
+    """Write a class mask (and a colour mask) for every INPUT image."""
+    require_torch()
+    from training.checkpoint import model_from_checkpoint
+    from training.infer import predict_file
+
+    model, spec = model_from_checkpoint(checkpoint, device=device)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for src in inputs:
+        geo = src.suffix.lower() in (".tif", ".tiff")
+        dst = out_dir / (src.stem + (".tif" if geo else ".png"))
+        predict_file(model, spec, src, dst, colour_dst=out_dir / f"{src.stem}_color.png", mode=mode, join=join,
+                     tta=tta, batch_size=batch_size, device=device)
+        click.echo(str(dst))

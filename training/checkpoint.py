@@ -1,0 +1,251 @@
+"""Checkpoints: one file that holds everything needed to rebuild and use a trained model.
+
+A checkpoint is a ``torch.save`` zip of plain data only (dicts, lists, tuples, strings,
+numbers, tensors), so that :func:`load_checkpoint` can read it with
+``torch.load(weights_only=True)``: opening a checkpoint never runs code from the file.
+Beside the weights (``"model"``) it holds the :class:`ModelSpec` (architecture, width, class
+table with colours, input size, normalisation) as a plain dict under ``"spec"``, so
+``osmseg predict``/``osmseg eval`` need only the checkpoint, plus whatever the trainer adds
+(optimizer, scheduler, scaler, epoch, RNG states as tensors, config, dataset hash, class
+weights, history).  Writes are atomic: a temporary file in the same folder, then
+``os.replace``, so an interrupted save never leaves a half-written checkpoint behind.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pickle
+import uuid
+import zipfile
+from collections import OrderedDict
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from pathlib import Path, PurePath
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from osmseg.errors import CheckpointError, ConfigError
+
+if TYPE_CHECKING:
+    from training.model import SegNet
+
+#: ImageNet statistics (0..1 scale), the default input normalisation.
+IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
+IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
+
+FORMAT = "osmseg-checkpoint"
+VERSION = 1
+
+_SCALARS = (str, int, float, bool, type(None))  # exact types: weights_only refuses subclasses
+_OBJECTS = (Tensor, torch.Size, torch.dtype)
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """What a model is: enough to rebuild it and to feed it and read its output.
+
+    ``class_table`` is :meth:`osmseg.classes.ClassTable.to_dict` (``{"name", "classes":
+    [{"id", "name", "color"}]}``); output channel ``i`` is the class with id ``i``.
+    ``ignore_index`` is 0 when unlabeled pixels are ignored in loss and metrics, None when
+    unlabeled is a class of its own.  ``mean``/``std`` normalise RGB scaled to 0..1.
+
+    >>> spec = ModelSpec("segnet", "demo", 3, 0.0625,
+    ...                  {"name": "t", "classes": [{"id": 0, "name": "unlabeled", "color": [0, 0, 0]},
+    ...                                            {"id": 2, "name": "water", "color": [0, 0, 255]}]}, 0)
+    >>> ModelSpec.from_dict(asdict(spec)) == spec, spec.class_names
+    (True, ['unlabeled', 'class1', 'water'])
+    """
+
+    arch: str
+    name: str
+    num_classes: int
+    width: float
+    class_table: dict[str, Any]
+    ignore_index: int | None
+    input_size: tuple[int, int] = (360, 480)
+    mean: tuple[float, float, float] = IMAGENET_MEAN
+    std: tuple[float, float, float] = IMAGENET_STD
+
+    def __post_init__(self) -> None:
+        ids = [c.get("id") for c in self.class_table.get("classes", ())] if isinstance(self.class_table, Mapping) else None
+        checks = [
+            (self.arch == "segnet", f"arch must be 'segnet', got {self.arch!r}"),
+            (isinstance(self.num_classes, int) and self.num_classes >= 1, f"num_classes must be >= 1, got {self.num_classes!r}"),
+            (isinstance(self.width, (int, float)) and self.width > 0, f"width must be > 0, got {self.width!r}"),
+            (ids is not None and all(isinstance(i, int) and 0 <= i < self.num_classes for i in ids),
+             f"class_table ids must be integers in 0..{self.num_classes - 1}"),
+            (self.ignore_index is None or 0 <= self.ignore_index < self.num_classes,
+             f"ignore_index must be None or a class id, got {self.ignore_index!r}"),
+            (len(self.input_size) == 2 and all(int(s) >= 32 for s in self.input_size),
+             f"input_size must be (height, width) >= 32, got {self.input_size!r}"),
+            (len(self.mean) == 3 and len(self.std) == 3 and all(s > 0 for s in self.std),
+             "mean and std must be three numbers each (std > 0)"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ConfigError(f"model spec: {message}")
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> ModelSpec:
+        """Inverse of ``dataclasses.asdict``; ConfigError if a field is missing or unknown."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        required = {f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING}
+        if not isinstance(data, Mapping) or not required <= set(data) or not set(data) <= names:
+            keys = sorted(data) if isinstance(data, Mapping) else type(data).__name__
+            raise ConfigError(f"model spec must have the keys {sorted(names)}, got {keys}")
+        values = dict(data)
+        for key in ("input_size", "mean", "std"):
+            if key in values:
+                values[key] = tuple(values[key])
+        return cls(**values)
+
+    @property
+    def class_names(self) -> list[str]:
+        """Class name per output channel (``"classN"`` for ids the table does not name)."""
+        names = {c["id"]: c["name"] for c in self.class_table["classes"]}
+        return [names.get(i, f"class{i}") for i in range(self.num_classes)]
+
+    def palette(self) -> np.ndarray:
+        """``(256, 3)`` uint8 colour lookup table indexed by class id (unnamed ids black)."""
+        lut = np.zeros((256, 3), dtype=np.uint8)
+        for c in self.class_table["classes"]:
+            lut[c["id"]] = c["color"]
+        return lut
+
+
+def storable(obj: Any, where: str = "state") -> Any:
+    """``obj`` with numpy scalars made Python numbers, paths (and str subclasses) made strings.
+
+    Raises CheckpointError naming the first value ``torch.load(weights_only=True)`` would
+    refuse (numpy arrays, dataclasses, arbitrary objects).
+
+    >>> storable({"lr": np.float64(0.5), "out": Path("runs/a"), "steps": [1, (2, 3)]})
+    {'lr': 0.5, 'out': 'runs/a', 'steps': [1, (2, 3)]}
+    >>> storable({"rng": np.zeros(3)})
+    Traceback (most recent call last):
+    osmseg.errors.CheckpointError: state['rng'] is a numpy.ndarray, which checkpoints cannot hold; store a tensor or a list
+    """
+    if type(obj) in _SCALARS or isinstance(obj, _OBJECTS):
+        return obj
+    if isinstance(obj, np.generic):  # np.float64 is a float subclass
+        return obj.item()
+    if isinstance(obj, (PurePath, str)):  # str subclasses too, e.g. torch.__version__
+        return str(obj)
+    if isinstance(obj, Mapping):
+        out = {storable(k, f"{where} key"): storable(v, f"{where}[{k!r}]") for k, v in obj.items()}
+        if isinstance(obj, OrderedDict):  # a state_dict: keep its type and version metadata
+            out = OrderedDict(out)
+            if hasattr(obj, "_metadata"):
+                out._metadata = obj._metadata  # type: ignore[attr-defined]
+        return out
+    if isinstance(obj, (list, tuple)) and not hasattr(obj, "_fields"):
+        items = [storable(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+        return items if isinstance(obj, list) else tuple(items)
+    kind = f"{type(obj).__module__}.{type(obj).__qualname__}".removeprefix("builtins.")
+    raise CheckpointError(f"{where} is a {kind}, which checkpoints cannot hold; store a tensor or a list")
+
+
+def save_checkpoint(path: Path, state: Mapping[str, Any]) -> None:
+    """Write ``state`` (must hold ``"spec"`` and ``"model"``) to ``path`` atomically.
+
+    ``"spec"`` may be a :class:`ModelSpec` or its dict; it is stored as a plain dict.  The
+    format marker, version and torch version are added.  Parent folders are created.
+    """
+    path = Path(path)
+    missing = [k for k in ("spec", "model") if k not in state]
+    if missing:
+        raise CheckpointError(f"checkpoint state lacks {missing}; pass the model spec and model.state_dict()")
+    spec = state["spec"]
+    spec = ModelSpec.from_dict(asdict(spec) if isinstance(spec, ModelSpec) else spec)
+    payload = storable({**state, "spec": asdict(spec), "format": FORMAT, "version": VERSION,
+                        "torch_version": str(torch.__version__)})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")  # open() honours the umask
+    try:
+        with tmp.open("xb") as f:
+            torch.save(payload, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def load_checkpoint(path: Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Read and check a checkpoint written by :func:`save_checkpoint` (``"spec"`` stays a dict).
+
+    Raises CheckpointError (one line) if the file is missing, corrupt or truncated, holds
+    anything but plain data, or is not an osmseg checkpoint of a version this code reads.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise CheckpointError(f"checkpoint {path} not found")
+    if path.is_dir():
+        raise CheckpointError(f"{path} is a folder, not a checkpoint file; give the .pt file inside it")
+    corrupt = f"{path} is not a checkpoint (corrupt or truncated); train again or restore it"
+    try:
+        with path.open("rb") as f:  # torch.save always writes a zip; a cut one lacks its directory
+            is_zip = zipfile.is_zipfile(f)
+        if not is_zip:
+            raise CheckpointError(corrupt)
+        state = torch.load(path, map_location=map_location, weights_only=True)
+    except PermissionError as exc:
+        raise CheckpointError(f"cannot read checkpoint {path} ({exc.strerror}); check its permissions") from None
+    except pickle.UnpicklingError as exc:
+        if "weights only" in str(exc).lower():
+            raise CheckpointError(f"{path} holds Python objects, not plain data: not an osmseg checkpoint") from None
+        raise CheckpointError(corrupt) from None
+    except (RuntimeError, EOFError, ValueError, OSError, zipfile.BadZipFile, AttributeError, IndexError, KeyError):
+        raise CheckpointError(corrupt) from None
+    if not isinstance(state, dict) or state.get("format") != FORMAT:
+        raise CheckpointError(f"{path} is not an osmseg checkpoint (no format={FORMAT!r} entry); "
+                              "give a file written by osmseg train")
+    version = state.get("version")
+    if not isinstance(version, int) or version > VERSION:
+        raise CheckpointError(f"{path} is checkpoint version {version!r}, this osmseg reads up to {VERSION}; upgrade osmseg")
+    model = state.get("model")
+    if not isinstance(model, Mapping) or not all(isinstance(v, Tensor) for v in model.values()):
+        raise CheckpointError(f"{path}: 'model' is not a state dict of tensors; the checkpoint is damaged")
+    try:
+        ModelSpec.from_dict(state.get("spec"))  # type: ignore[arg-type]
+    except ConfigError as exc:
+        raise CheckpointError(f"{path}: bad {exc}") from None
+    return state
+
+
+def _strip_wrappers(weights: Mapping[str, Tensor]) -> dict[str, Tensor]:
+    """Remove the key prefixes DistributedDataParallel and torch.compile add."""
+    out = dict(weights)
+    for prefix in ("module.", "_orig_mod."):
+        if out and all(k.startswith(prefix) for k in out):
+            out = {k[len(prefix):]: v for k, v in out.items()}
+    return out
+
+
+def model_from_checkpoint(path: Path, device: str | torch.device = "cpu") -> tuple[SegNet, ModelSpec]:
+    """The checkpoint's model, with its weights, on ``device`` in eval mode, and its spec.
+
+    CheckpointError (one line) if the stored weights do not fit the stored spec.
+    """
+    from training.model import build_model  # model.py imports this module
+
+    state = load_checkpoint(path, map_location="cpu")
+    spec = ModelSpec.from_dict(state["spec"])
+    model = build_model(spec)
+    weights = _strip_wrappers(state["model"])
+    expected = model.state_dict()
+    missing = [k for k in expected if k not in weights]
+    extra = [k for k in weights if k not in expected]
+    wrong = [k for k in expected if k in weights and weights[k].shape != expected[k].shape]
+    if missing or extra or wrong:
+        first = (f"{wrong[0]} is {tuple(weights[wrong[0]].shape)}, expected {tuple(expected[wrong[0]].shape)}" if wrong
+                 else f"{len(missing)} missing, {len(extra)} unexpected, e.g. {(missing or extra)[0]}")
+        raise CheckpointError(f"{path}: weights do not fit its spec ({spec.arch}, {spec.num_classes} classes, "
+                              f"width {spec.width}): {first}; the checkpoint is inconsistent")
+    model.load_state_dict(weights)
+    return model.to(device).eval(), spec

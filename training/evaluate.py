@@ -1,0 +1,127 @@
+"""``osmseg eval``: run a checkpoint over labelled images and report what the field reports.
+
+Whole images are predicted the way ``osmseg predict`` does (split-join or rescale), compared
+with their labels in one confusion matrix, and written to an output folder:
+``metrics.json`` (pixel accuracy, per-class IoU/precision/recall/F1, mIoU over classes present
+in the ground truth, FWIoU, the matrix), ``metrics.txt`` (a table), ``confusion_matrix.png``,
+``per_class_iou.png``, ``panels.png`` (image | ground truth | prediction with a legend) and,
+when the checkpoint carries its training history, ``curves.png``.
+
+Foreign labelled data (e.g. Inria's building masks) is compared through a class mapping
+(``data_manifests/inria-buildings.toml``) that maps both the labels and the model's classes
+onto the evaluation classes.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from osmseg.errors import DatasetError
+from osmseg.output.atomic import atomic_write_bytes
+from training.checkpoint import ModelSpec, load_checkpoint, model_from_checkpoint
+from training.data import SampleFiles, dataset_class_table, discover_dataset, read_image, read_label
+from training.infer import predict_array
+from training.metrics import ConfusionMatrix, format_table, load_class_mapping
+from training.pictures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
+from training.train import dataset_fingerprint, model_classes
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """How to predict and what to compare."""
+
+    mode: str = "split-join"  # split-join | rescale
+    join: str = "blend"  # blend | crop (split-join only)
+    tta: bool = False
+    split: str = "test"  # which of the checkpoint's splits, for the dataset it was trained on
+    mapping: str | None = None  # class mapping TOML for foreign labels
+    panels: int = 4  # samples shown in panels.png
+    batch_size: int = 4
+    device: str = "cpu"
+
+
+def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequence[tuple[Path, Path]],
+                 split: str) -> tuple[list[SampleFiles], str]:
+    """The images to evaluate and a phrase saying which (recorded in metrics.json)."""
+    if pairs:
+        return [SampleFiles(name=Path(img).stem, image=Path(img), label=Path(lab)) for img, lab in pairs], "given pairs"
+    if dataset is None:
+        raise DatasetError("give a DATASET folder or --pair IMAGE LABEL")
+    files, _ = discover_dataset(dataset)
+    same = checkpoint.get("dataset_sha256") is not None and checkpoint.get("dataset_sha256") == dataset_fingerprint(dataset)
+    if same and split != "all":
+        wanted = set(checkpoint["splits"][split])
+        chosen = [f for f in files if f.name in wanted]
+        return chosen, f"the '{split}' split the model was trained with ({len(chosen)} images)"
+    return files, f"all {len(files)} images (not the dataset the model was trained on)"
+
+
+def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[SampleFiles], opts: EvalOptions,
+                    label_lut: np.ndarray | None = None,
+                    ) -> tuple[dict[str, Any], list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], dict[str, Any]]:
+    """Metrics over ``files``, the first panels' arrays, and the table they were computed in.
+
+    ``label_lut`` maps the labels' ids to the model's (a 13-class dataset for AirSegNet6).
+    """
+    names = [c["name"] for c in spec.class_table["classes"]]
+    mapping = load_class_mapping(opts.mapping) if opts.mapping else None
+    if mapping is not None:
+        eval_table = mapping.class_table_dict()
+        matrix = ConfusionMatrix(mapping.num_classes, ignore_index=mapping.ignore_index)
+    else:
+        eval_table = spec.class_table
+        matrix = ConfusionMatrix(spec.num_classes, ignore_index=spec.ignore_index)
+    panels = []
+    for f in tqdm(files, desc="evaluate", leave=False):
+        rgb = read_image(f.image)
+        truth = read_label(f.label)
+        if truth.shape != rgb.shape[:2]:
+            raise DatasetError(f"{f.label}: label is {truth.shape[1]}x{truth.shape[0]} but the image is "
+                               f"{rgb.shape[1]}x{rgb.shape[0]}; give labels on the image's grid")
+        pred = predict_array(model, rgb, spec, mode=opts.mode, join=opts.join, tta=opts.tta,
+                             batch_size=opts.batch_size, device=opts.device)
+        if mapping is not None:
+            truth, pred = mapping.map_gt(truth), mapping.map_pred(pred, names)
+        elif label_lut is not None:
+            truth = label_lut[truth]
+        matrix.update(torch.from_numpy(truth.astype(np.int64)).flatten(), torch.from_numpy(pred.astype(np.int64)).flatten())
+        if len(panels) < opts.panels:
+            panels.append((f.name, rgb, truth, pred))
+    class_names = [c["name"] for c in eval_table["classes"]]
+    return matrix.compute(class_names), panels, eval_table
+
+
+def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: EvalOptions,
+             pairs: Sequence[tuple[Path, Path]] = ()) -> dict[str, Any]:
+    """Evaluate a checkpoint and write metrics and pictures into ``out_dir``."""
+    checkpoint = load_checkpoint(checkpoint_path)
+    model, spec = model_from_checkpoint(checkpoint_path, device=opts.device)
+    files, which = choose_files(checkpoint, dataset, pairs, opts.split)
+    if not files:
+        raise DatasetError(f"nothing to evaluate: the '{opts.split}' split is empty; use --split all")
+    label_lut = None
+    if opts.mapping is None and dataset is not None:
+        _, label_lut = model_classes(spec.name, dataset_class_table(dataset))
+    metrics, panels, table = evaluate_images(model, spec, files, opts, label_lut)
+    metrics["evaluated"] = {"checkpoint": str(checkpoint_path), "images": which, "mode": opts.mode,
+                            "join": opts.join, "tta": opts.tta, "mapping": opts.mapping}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out_dir / "metrics.json", (json.dumps(metrics, indent=2, sort_keys=True) + "\n").encode())
+    atomic_write_bytes(out_dir / "metrics.txt", (format_table(metrics) + "\n").encode())
+    confusion_matrix_png(metrics, out_dir / "confusion_matrix.png")
+    per_class_iou_png(metrics, table, out_dir / "per_class_iou.png")
+    qualitative_panels(panels, table, out_dir / "panels.png")
+    if checkpoint.get("history"):
+        training_curves_png(checkpoint["history"], out_dir / "curves.png")
+    return metrics

@@ -1,0 +1,280 @@
+"""``osmseg train``: the whole training run (torchvision-references style ``main``).
+
+Reads the dataset, splits it by image (``splits.json``), trains with validation every epoch,
+and writes into the output folder, from rank 0 only:
+
+* ``last.pt`` after every epoch (everything needed to resume exactly) and ``best.pt`` (best
+  validation mIoU) — both usable by ``osmseg predict`` / ``osmseg eval`` on their own;
+* ``log.csv`` (one row per epoch), ``curves.png`` and TensorBoard events when installed.
+
+Rerunning the same command resumes from ``last.pt``: data order and augmentations depend only
+on (seed, epoch, index), so a resumed CPU run ends with the same weights as one never stopped.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import logging
+import math
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader, DistributedSampler
+
+from osmseg.classes import ClassTable, load_class_table
+from osmseg.errors import ConfigError, DatasetError
+from osmseg.output.atomic import atomic_write_bytes
+from training.checkpoint import ModelSpec, load_checkpoint, save_checkpoint
+from training.config import TrainConfig
+from training.data import (
+    PatchDataset,
+    dataset_class_table,
+    discover_dataset,
+    files_by_name,
+    make_splits,
+    read_splits,
+    validate,
+    weights_from_histograms,
+    write_splits,
+)
+from training.distributed import Dist, barrier, cleanup, setup
+from training.engine import StepOptions, evaluate, train_one_epoch
+from training.model import PRESETS, build_model, load_encoder_weights, model_spec
+
+logger = logging.getLogger(__name__)
+
+#: Settings that may change between an interrupted run and its resumption.
+RESUMABLE_CHANGES = {"workers", "device", "tensorboard", "out_dir", "dataset"}
+LOG_FIELDS = ("epoch", "lr", "train_loss", "val_loss", "val_miou", "val_pixel_accuracy", "seconds")
+
+
+def dataset_fingerprint(root: Path) -> str | None:
+    """sha256 of the dataset's manifest.json (recorded in checkpoints), None without one."""
+    manifest = root / "manifest.json"
+    return hashlib.sha256(manifest.read_bytes()).hexdigest() if manifest.is_file() else None
+
+
+def poly_lambda(total_steps: int, power: float):  # noqa: ANN201 - a closure for LambdaLR
+    """Learning-rate factor ``(1 - step / total) ** power``, never below 0."""
+    return lambda step: max(0.0, 1.0 - step / max(1, total_steps)) ** power
+
+
+def seeded_loader(dataset: PatchDataset, config: TrainConfig, d: Dist, shuffle: bool) -> DataLoader:
+    """A loader whose order depends only on (seed, epoch): the same for 1 process or N."""
+    sampler = DistributedSampler(dataset, num_replicas=d.world_size, rank=d.rank, shuffle=shuffle,
+                                 seed=config.seed, drop_last=False)
+    return DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, num_workers=config.workers,
+                      pin_memory=d.device.type == "cuda", persistent_workers=config.workers > 0)
+
+
+class RunFiles:
+    """The files of a training run's output folder; only rank 0 writes them."""
+
+    def __init__(self, out_dir: Path, d: Dist, tensorboard: bool) -> None:
+        self.out = out_dir
+        self.d = d
+        self.writer = None
+        if d.is_main and tensorboard:
+            try:
+                from torch.utils.tensorboard import SummaryWriter
+
+                self.writer = SummaryWriter(str(out_dir / "tensorboard"))
+            except ImportError:  # tensorboard is optional
+                self.writer = None
+
+    @property
+    def last(self) -> Path:
+        return self.out / "last.pt"
+
+    @property
+    def best(self) -> Path:
+        return self.out / "best.pt"
+
+    def write_log(self, history: list[dict[str, Any]]) -> None:
+        """Rewrite log.csv from the whole history (so a resumed run's log has no gaps)."""
+        if not self.d.is_main:
+            return
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=LOG_FIELDS, lineterminator="\n")
+        writer.writeheader()
+        for row in history:
+            writer.writerow({k: row.get(k) for k in LOG_FIELDS})
+        atomic_write_bytes(self.out / "log.csv", buf.getvalue().encode())
+        if self.writer is not None:
+            row = history[-1]
+            for key in ("train_loss", "val_loss", "val_miou", "val_pixel_accuracy", "lr"):
+                if row.get(key) is not None:
+                    self.writer.add_scalar(key, row[key], row["epoch"])
+            self.writer.flush()
+        try:
+            from training.pictures import training_curves_png
+
+            training_curves_png(history, self.out / "curves.png")
+        except ImportError:  # matplotlib is part of the train extra; never fail a run over a picture
+            logger.warning("matplotlib missing: no curves.png")
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+def model_classes(model: str, dataset_table: ClassTable) -> tuple[ClassTable, np.ndarray | None]:
+    """The model's class table, and the lookup from dataset ids to it (None when they are the same).
+
+    ``airsegnet6`` on a 13-class dataset learns the 6-class mapping of ``classes6.toml``; a
+    model name that is not a preset takes the dataset's own table.
+    """
+    if model not in PRESETS:
+        return dataset_table, None
+    table = load_class_table(PRESETS[model])
+    if table.name == dataset_table.name:
+        return table, None
+    if table.base is not None and table.base.name == dataset_table.name:
+        return table, table.lookup_from_base()
+    raise ConfigError(f"--model {model} predicts the classes of {table.name!r}, but the dataset is labelled with "
+                      f"{dataset_table.name!r}; use --classes, or a model name of your own to train on its table")
+
+
+def check_resumable(saved: dict[str, Any], config: TrainConfig) -> None:
+    """Refuse to resume a run made with other settings (other than RESUMABLE_CHANGES)."""
+    now = config.to_dict()
+    then = saved.get("config", {})
+    changed = sorted(k for k in now if k not in RESUMABLE_CHANGES and then.get(k) != now[k])
+    if changed:
+        raise ConfigError(f"{config.out_dir} holds a run with other settings ({', '.join(changed)}); "
+                          "use a new --out, or the same settings to resume it")
+
+
+def prepare_splits(config: TrainConfig, names: list[str], d: Dist) -> dict[str, list[str]]:
+    """The run's image splits: read back on resume, else drawn from the seed and written down."""
+    path = config.out_dir / "splits.json"
+    if path.exists():
+        return read_splits(path)
+    splits = make_splits(names, config.seed, config.test_fraction, config.val_fraction)
+    if not splits["train"] or not splits["val"]:
+        raise DatasetError(f"{config.dataset}: {len(names)} images are too few to split into train, val and test; "
+                           "build more samples or lower --val-fraction/--test-fraction")
+    if d.is_main:
+        write_splits(path, splits, config.seed)
+    return splits
+
+
+def run(config: TrainConfig) -> dict[str, Any]:
+    """Train (or resume) the run ``config`` describes; returns a summary of the best epoch."""
+    d = setup(config.device)
+    try:
+        return _run(config, d)
+    finally:
+        cleanup()
+
+
+def _run(config: TrainConfig, d: Dist) -> dict[str, Any]:
+    torch.manual_seed(config.seed)  # the same initial weights in every process
+    if d.is_main:
+        config.out_dir.mkdir(parents=True, exist_ok=True)
+    barrier()
+    dataset_table = dataset_class_table(config.dataset, config.classes)
+    model_table, label_lut = model_classes(config.model, dataset_table)
+    spec: ModelSpec = model_spec(config.model, config.width, ignore_unlabeled=config.ignore_unlabeled,
+                                 class_table=model_table, input_size=config.patch_size)
+    files, given_splits = discover_dataset(config.dataset)
+    histograms = validate(files, dataset_table.num_classes)  # raw ids of every label, checked up front
+    splits = given_splits or prepare_splits(config, sorted(f.name for f in files), d)
+    train_files = files_by_name(files, splits["train"])
+    val_files = files_by_name(files, splits["val"])
+    common = dict(mean=spec.mean, std=spec.std, ignore_index=spec.ignore_index, seed=config.seed,
+                  num_classes=dataset_table.num_classes, label_lut=label_lut)
+    train_set = PatchDataset(train_files, config.patch_size, augment=config.augment, **common)
+    val_set = PatchDataset(val_files, config.patch_size, augment=False, **common)
+    if len(train_set) == 0:
+        raise DatasetError(f"{config.dataset}: no training patches of {config.patch_size}; are the images smaller?")
+
+    weights = None
+    if config.class_weights == "median-frequency":
+        index = {f.name: i for i, f in enumerate(files)}
+        hist = histograms[[index[f.name] for f in train_files]]
+        if label_lut is not None:  # dataset ids -> model ids before counting
+            mapped = np.zeros((hist.shape[0], spec.num_classes), dtype=hist.dtype)
+            for raw in range(hist.shape[1]):
+                mapped[:, label_lut[raw]] += hist[:, raw]
+            hist = mapped
+        weights = weights_from_histograms(hist, spec.ignore_index)
+    model = build_model(spec)
+    if config.init != "random":
+        load_encoder_weights(model, config.init)
+    opts = StepOptions(device=d.device, amp=config.amp and d.device.type == "cuda",
+                       channels_last=config.channels_last and d.device.type == "cuda",
+                       max_steps=config.max_steps_per_epoch, progress=d.is_main)
+    model.to(d.device, memory_format=torch.channels_last if opts.channels_last else torch.contiguous_format)
+    net: nn.Module = model
+    if d.distributed:
+        net = DistributedDataParallel(model, device_ids=[d.device.index] if d.device.type == "cuda" else None)
+    criterion = nn.CrossEntropyLoss(weight=None if weights is None else weights.to(d.device),
+                                    ignore_index=-100 if spec.ignore_index is None else spec.ignore_index)
+    optimizer = torch.optim.SGD(model.parameters(), lr=config.lr, momentum=config.momentum,
+                                weight_decay=config.weight_decay)
+    train_loader = seeded_loader(train_set, config, d, shuffle=True)
+    val_loader = seeded_loader(val_set, config, d, shuffle=False)
+    steps = len(train_loader) if config.max_steps_per_epoch is None else min(len(train_loader), config.max_steps_per_epoch)
+    factor = poly_lambda(config.epochs * steps, config.poly_power) if config.schedule == "poly" else (lambda _: 1.0)
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+    scaler = torch.amp.GradScaler(d.device.type, enabled=opts.amp)
+
+    files_out = RunFiles(config.out_dir, d, config.tensorboard)
+    history: list[dict[str, Any]] = []
+    best = -math.inf
+    start = 0
+    if files_out.last.exists():
+        saved = load_checkpoint(files_out.last, map_location=d.device)
+        check_resumable(saved, config)
+        model.load_state_dict(saved["model"])
+        optimizer.load_state_dict(saved["optimizer"])
+        scheduler.load_state_dict(saved["scheduler"])
+        scaler.load_state_dict(saved["scaler"])
+        history = list(saved["history"])
+        best = max((h["val_miou"] for h in history if h.get("val_miou") is not None), default=-math.inf)
+        start = int(saved["epoch"])
+        if d.is_main:
+            logger.info("resuming %s after epoch %d", config.out_dir, start)
+
+    base_state = {
+        "spec": asdict(spec), "config": config.to_dict(), "splits": splits,
+        "class_weights": None if weights is None else weights.cpu(),
+        "dataset_sha256": dataset_fingerprint(config.dataset),
+    }
+    for epoch in range(start, config.epochs):
+        began = time.monotonic()
+        train_set.set_epoch(epoch)
+        train_loader.sampler.set_epoch(epoch)  # type: ignore[attr-defined]
+        lr = optimizer.param_groups[0]["lr"]
+        train_loss = train_one_epoch(net, criterion, optimizer, scheduler, scaler, train_loader, opts, epoch + 1)
+        val_loss, matrix = evaluate(net, criterion, val_loader, opts, spec.num_classes, spec.ignore_index)
+        metrics = matrix.compute([c["name"] for c in spec.class_table["classes"]])
+        row = {"epoch": epoch + 1, "lr": lr, "train_loss": round(train_loss, 6), "val_loss": round(val_loss, 6),
+               "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
+               "seconds": round(time.monotonic() - began, 2)}
+        history.append(row)
+        if d.is_main:
+            state = dict(base_state, model=model.state_dict(), optimizer=optimizer.state_dict(),
+                         scheduler=scheduler.state_dict(), scaler=scaler.state_dict(), epoch=epoch + 1,
+                         history=history, val_metrics=metrics)
+            save_checkpoint(files_out.last, state)
+            if metrics["miou"] is not None and metrics["miou"] > best:
+                best = metrics["miou"]
+                save_checkpoint(files_out.best, state)
+            files_out.write_log(history)
+            logger.info("epoch %d/%d: train loss %.4f, val loss %.4f, val mIoU %s", epoch + 1, config.epochs,
+                        train_loss, val_loss, metrics["miou"])
+        barrier()
+    files_out.close()
+    best_row = max((h for h in history if h.get("val_miou") is not None), key=lambda h: h["val_miou"], default=None)
+    return {"out_dir": str(config.out_dir), "epochs": len(history), "best": best_row,
+            "last": history[-1] if history else None}
