@@ -15,8 +15,8 @@ from osmseg.cli.main import cli
 
 
 def test_demo_builds_offline_and_says_what_it_used(tmp_path: Path) -> None:
-    out = tmp_path / "demo"
-    result = CliRunner().invoke(cli, ["demo", "--out", str(out)])
+    out = tmp_path / "demo" / "dataset"
+    result = CliRunner().invoke(cli, ["demo", "--out", str(tmp_path / "demo"), "--no-train"])
     assert result.exit_code == 0, result.output
     assert result.stdout.strip() == str(out / "manifest.json")
     assert "Helsinki" in result.stderr and DEMO_CASSETTE.name in result.stderr and str(out) in result.stderr
@@ -41,3 +41,14 @@ def test_version_and_help() -> None:
     assert result.exit_code == 0 and __version__ in result.output
     result = CliRunner().invoke(cli, ["--help"])
     assert all(cmd in result.output for cmd in ("build", "demo", "verify"))
+
+
+def test_demo_trains_and_evaluates_after_the_build(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    result = CliRunner().invoke(cli, ["demo", "--out", str(out), "--epochs", "1"])
+    assert result.exit_code == 0, result.output
+    for picture in ("panels.png", "confusion_matrix.png", "per_class_iou.png", "curves.png"):
+        assert (out / "eval" / picture).stat().st_size > 1000
+    metrics = json.loads((out / "eval" / "metrics.json").read_text())
+    assert "test" in metrics["evaluated"]["images"] and 0 <= metrics["pixel_accuracy"] <= 1
+    assert "panels.png" in result.stderr and (out / "run" / "best.pt").is_file()

@@ -366,7 +366,7 @@ def test_band_counts(tmp_path) -> None:
         predict_file(model, spec, tmp_path / name, tmp_path / f"{name}.mask.png")
         assert np.array_equal(np.asarray(Image.open(tmp_path / f"{name}.mask.png")), expected), name
     write_tif(tmp_path / "two.tif", np.dstack([grey, alpha]))
-    Image.fromarray(np.dstack([grey, alpha]), mode="LA").save(tmp_path / "two.png")
+    Image.fromarray(np.dstack([grey, alpha])).save(tmp_path / "two.png")
     write_tif(tmp_path / "deep.tif", image.astype(np.uint16) * 257)
     for name, what in (("two.tif", "2 bands"), ("two.png", "2 bands"), ("deep.tif", "uint16")):
         with pytest.raises(ImageryError, match=what) as excinfo:

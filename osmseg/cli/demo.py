@@ -34,19 +34,57 @@ def demo_config(out_dir: Path) -> BuildConfig:
     )
 
 
+#: The demo's training run: the dissertation's recipe at 1/8 of SegNet's width, a few epochs on the CPU.
+DEMO_TRAINING = {"model": "airsegnet13", "width": 0.125, "epochs": 3, "batch_size": 4, "workers": 0, "seed": 0}
+
+
+def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int) -> None:
+    """Train the demo model briefly on the demo dataset, then evaluate it on its test split."""
+    from training.config import make_config
+    from training.evaluate import EvalOptions, run_eval
+    from training.train import run
+
+    run_dir, eval_dir = out_dir / "run", out_dir / "eval"
+    settings = dict(DEMO_TRAINING, epochs=epochs, device="cpu")
+    if verbosity >= 0:
+        click.echo(f"training {settings['model']} (width {settings['width']}, {epochs} epochs, CPU) "
+                   f"into {run_dir}/", err=True)
+    run(make_config(dataset, run_dir, None, settings))
+    if verbosity >= 0:
+        click.echo(f"evaluating {run_dir / 'best.pt'} on the test split into {eval_dir}/", err=True)
+    metrics = run_eval(run_dir / "best.pt", dataset, eval_dir, EvalOptions(split="test", device="cpu"))
+    if verbosity >= 0:
+        click.echo(f"test mIoU {metrics['miou']:.3f}, pixel accuracy {metrics['pixel_accuracy']:.3f} "
+                   f"(a tiny model after {epochs} epochs: a smoke test, not a result)", err=True)
+        click.echo(f"pictures: {eval_dir}/panels.png, confusion_matrix.png, per_class_iou.png, curves.png; "
+                   f"dataset overview: {dataset}/overview.png", err=True)
+
+
 @click.command("demo")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-out"),
-              show_default=True, help="Output folder.")
+              show_default=True, help="Output folder: dataset/, run/ (training) and eval/ (metrics, pictures).")
+@click.option("--train/--no-train", default=True, show_default=True,
+              help="After the build, train a tiny AirSegNet13 on the CPU and evaluate it (needs osmseg[train]).")
+@click.option("--epochs", type=click.IntRange(min=1), default=DEMO_TRAINING["epochs"], show_default=True)
 @click.pass_context
 @report_errors
-def demo_command(ctx: click.Context, out_dir: Path) -> None:
-    """Build a small dataset offline from the embedded recorded fixtures (no network, no key)."""
+def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int) -> None:
+    """Build a small dataset offline from embedded recorded fixtures, then train and evaluate on it."""
     verbosity = ctx.obj["verbosity"]
     if verbosity >= 0:
         click.echo(f"osmseg demo: replaying {DEMO_CASSETTE.name} (Helsinki, OSM API + Bing wire formats; "
                    "OSM © OpenStreetMap contributors, ODbL; imagery rendered from OSM by osmseg)", err=True)
+    dataset = out_dir / "dataset"
     env = dict(os.environ, BING_MAPS_KEY="demo-key-not-secret")
-    summary = run_build(demo_config(out_dir), verbosity, env=env)
+    summary = run_build(demo_config(dataset), verbosity, env=env)
     if verbosity >= 0:
-        click.echo(f"dataset in {out_dir}/: images/, segmented/, labels/, geo/, manifest.json, DATASHEET.md, "
+        click.echo(f"dataset in {dataset}/: images/, segmented/, labels/, geo/, manifest.json, DATASHEET.md, "
                    f"overview.png ({summary.accepted} samples)", err=True)
+    if not train:
+        return
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        click.echo("training skipped: PyTorch is not installed (pip install 'osmseg[train]')", err=True)
+        return
+    demo_training(dataset, out_dir, epochs, verbosity)

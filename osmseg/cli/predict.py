@@ -18,13 +18,17 @@ from osmseg.cli.common import report_errors, require_torch
               help="split-join: windows of the training patch size; rescale: letterbox the whole image into one.")
 @click.option("--join", type=click.Choice(["blend", "crop"]), default="blend", show_default=True,
               help="blend overlapping windows smoothly, or keep each window's centre (the dissertation's).")
+@click.option("--overlap", type=click.IntRange(min=0), help="Window overlap in pixels [a quarter of the window].")
+@click.option("--block-size", type=click.IntRange(min=256), default=2048, show_default=True,
+              help="Large rasters are predicted block by block (same result, bounded memory).")
 @click.option("--tta", is_flag=True, help="Average over flips (and 90-degree turns of square inputs).")
 @click.option("--batch-size", type=int, default=4, show_default=True)
 @click.option("--device", default="cpu", show_default=True)
 @click.pass_context
 @report_errors
 def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ...], out_dir: Path, mode: str,
-                    join: str, tta: bool, batch_size: int, device: str) -> None:
+                    join: str, overlap: int | None, block_size: int, tta: bool, batch_size: int,
+                    device: str) -> None:
     """Write a class mask (and a colour mask) for every INPUT image."""
     require_torch()
     from training.checkpoint import model_from_checkpoint
@@ -34,7 +38,8 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
     out_dir.mkdir(parents=True, exist_ok=True)
     for src in inputs:
         geo = src.suffix.lower() in (".tif", ".tiff")
-        dst = out_dir / (src.stem + (".tif" if geo else ".png"))
-        predict_file(model, spec, src, dst, colour_dst=out_dir / f"{src.stem}_color.png", mode=mode, join=join,
-                     tta=tta, batch_size=batch_size, device=device)
+        suffix = ".tif" if geo else ".png"  # a GeoTIFF's colour mask stays georeferenced and block-written
+        dst = out_dir / f"{src.stem}{suffix}"
+        predict_file(model, spec, src, dst, colour_dst=out_dir / f"{src.stem}_color{suffix}", mode=mode, join=join,
+                     overlap=overlap, block_size=block_size, tta=tta, batch_size=batch_size, device=device)
         click.echo(str(dst))
