@@ -100,6 +100,8 @@ def evaluate(
             loss = criterion(logits, masks)
         if torch.isfinite(loss):  # a batch of only ignored pixels has no loss
             total += torch.tensor([loss.item(), 1.0], dtype=torch.float64, device=opts.device)
+        if ignore_index is not None and num_classes > 1:  # never trained, so never predicted (as in infer)
+            logits[:, ignore_index] = float("-inf")
         matrix.update(masks.flatten(), logits.argmax(1).flatten())
     all_reduce_sum(total)
     matrix.reduce_from_all_processes()

@@ -32,7 +32,7 @@ from training.data import SampleFiles, dataset_class_table, discover_dataset, re
 from training.infer import predict_array
 from training.metrics import ConfusionMatrix, format_table, load_class_mapping
 from training.pictures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
-from training.train import dataset_fingerprint, model_classes
+from training.train import dataset_fingerprint, has_class_table, model_classes
 
 logger = logging.getLogger(__name__)
 
@@ -49,6 +49,7 @@ class EvalOptions:
     panels: int = 4  # samples shown in panels.png
     batch_size: int = 4
     device: str = "cpu"
+    progress: bool = True  # a tqdm bar over images on stderr
 
 
 def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequence[tuple[Path, Path]],
@@ -83,7 +84,7 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
         eval_table = spec.class_table
         matrix = ConfusionMatrix(spec.num_classes, ignore_index=spec.ignore_index)
     panels = []
-    for f in tqdm(files, desc="evaluate", leave=False):
+    for f in tqdm(files, desc="evaluate", leave=False, disable=not opts.progress):
         rgb = read_image(f.image)
         truth = read_label(f.label)
         if truth.shape != rgb.shape[:2]:
@@ -111,7 +112,7 @@ def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: E
     if not files:
         raise DatasetError(f"nothing to evaluate: the '{opts.split}' split is empty; use --split all")
     label_lut = None
-    if opts.mapping is None and dataset is not None:
+    if opts.mapping is None and dataset is not None and has_class_table(dataset):  # else: the model's ids
         _, label_lut = model_classes(spec.name, dataset_class_table(dataset))
     metrics, panels, table = evaluate_images(model, spec, files, opts, label_lut)
     metrics["evaluated"] = {"checkpoint": str(checkpoint_path), "images": which, "mode": opts.mode,

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 import torch
+import torch.distributed as dist
 from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
@@ -68,9 +69,19 @@ def poly_lambda(total_steps: int, power: float):  # noqa: ANN201 - a closure for
 
 
 def seeded_loader(dataset: PatchDataset, config: TrainConfig, d: Dist, shuffle: bool) -> DataLoader:
-    """A loader whose order depends only on (seed, epoch): the same for 1 process or N."""
-    sampler = DistributedSampler(dataset, num_replicas=d.world_size, rank=d.rank, shuffle=shuffle,
-                                 seed=config.seed, drop_last=False)
+    """A loader whose order depends only on (seed, epoch) and the number of processes.
+
+    The training loader shuffles with a DistributedSampler (which pads the last round with
+    repeated items so that every process takes the same number of steps). The validation
+    loader (``shuffle=False``) gives each process every ``world_size``-th item and pads
+    nothing, so the metrics summed over processes count every pixel exactly once.
+    """
+    sampler: Any
+    if shuffle:
+        sampler = DistributedSampler(dataset, num_replicas=d.world_size, rank=d.rank, shuffle=True,
+                                     seed=config.seed, drop_last=False)
+    else:
+        sampler = list(range(d.rank, len(dataset), d.world_size))
     return DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, num_workers=config.workers,
                       pin_memory=d.device.type == "cuda", persistent_workers=config.workers > 0)
 
@@ -126,6 +137,22 @@ class RunFiles:
             self.writer.close()
 
 
+def has_class_table(root: Path) -> bool:
+    """Whether dataset ``root`` says what its label ids mean (manifest.json or classes.toml)."""
+    return (Path(root) / "manifest.json").is_file() or (Path(root) / "classes.toml").is_file()
+
+
+def training_class_table(dataset: Path, classes: str | None, model: str) -> ClassTable:
+    """What the dataset's label ids mean: ``--classes``, else the dataset's own table, else
+    (a folder of images and labels only) the preset model's table."""
+    if classes is not None or has_class_table(dataset):
+        return dataset_class_table(dataset, classes)
+    if model in PRESETS:
+        return load_class_table(PRESETS[model])
+    raise ConfigError(f"{dataset} has no manifest.json or classes.toml, and --model {model} is not one of "
+                      f"{', '.join(sorted(PRESETS))}; give the class table of the labels with --classes FILE.toml")
+
+
 def model_classes(model: str, dataset_table: ClassTable) -> tuple[ClassTable, np.ndarray | None]:
     """The model's class table, and the lookup from dataset ids to it (None when they are the same).
 
@@ -148,6 +175,8 @@ def check_resumable(saved: dict[str, Any], config: TrainConfig) -> None:
     now = config.to_dict()
     then = saved.get("config", {})
     changed = sorted(k for k in now if k not in RESUMABLE_CHANGES and then.get(k) != now[k])
+    if saved.get("dataset_sha256") != dataset_fingerprint(config.dataset):
+        changed.append("the dataset's manifest.json")
     if changed:
         raise ConfigError(f"{config.out_dir} holds a run with other settings ({', '.join(changed)}); "
                           "use a new --out, or the same settings to resume it")
@@ -167,26 +196,35 @@ def prepare_splits(config: TrainConfig, names: list[str], d: Dist) -> dict[str, 
     return splits
 
 
-def run(config: TrainConfig) -> dict[str, Any]:
-    """Train (or resume) the run ``config`` describes; returns a summary of the best epoch."""
+def run(config: TrainConfig, progress: bool = True) -> dict[str, Any]:
+    """Train (or resume) the run ``config`` describes; returns a summary of the best epoch.
+
+    ``progress`` draws tqdm bars on stderr (rank 0 only); the CLI turns them off with ``-q``.
+    """
     d = setup(config.device)
     try:
-        return _run(config, d)
+        return _run(config, d, progress)
     finally:
         cleanup()
 
 
-def _run(config: TrainConfig, d: Dist) -> dict[str, Any]:
+def _run(config: TrainConfig, d: Dist, progress: bool = True) -> dict[str, Any]:
     torch.manual_seed(config.seed)  # the same initial weights in every process
-    if d.is_main:
-        config.out_dir.mkdir(parents=True, exist_ok=True)
-    barrier()
-    dataset_table = dataset_class_table(config.dataset, config.classes)
+    dataset_table = training_class_table(config.dataset, config.classes, config.model)
     model_table, label_lut = model_classes(config.model, dataset_table)
     spec: ModelSpec = model_spec(config.model, config.width, ignore_unlabeled=config.ignore_unlabeled,
                                  class_table=model_table, input_size=config.patch_size)
     files, given_splits = discover_dataset(config.dataset)
     histograms = validate(files, dataset_table.num_classes)  # raw ids of every label, checked up front
+    last_path = config.out_dir / "last.pt"
+    saved = load_checkpoint(last_path, map_location=d.device) if last_path.exists() else None
+    if saved is not None:
+        check_resumable(saved, config)  # before anything is written into someone else's run
+    if d.is_main:  # only now: bad input above leaves no output folder behind
+        config.out_dir.mkdir(parents=True, exist_ok=True)
+        for litter in config.out_dir.glob(".*.tmp"):  # a checkpoint save cut short by a kill
+            litter.unlink(missing_ok=True)
+    barrier()
     splits = given_splits or prepare_splits(config, sorted(f.name for f in files), d)
     train_files = files_by_name(files, splits["train"])
     val_files = files_by_name(files, splits["val"])
@@ -212,7 +250,7 @@ def _run(config: TrainConfig, d: Dist) -> dict[str, Any]:
         load_encoder_weights(model, config.init)
     opts = StepOptions(device=d.device, amp=config.amp and d.device.type == "cuda",
                        channels_last=config.channels_last and d.device.type == "cuda",
-                       max_steps=config.max_steps_per_epoch, progress=d.is_main)
+                       max_steps=config.max_steps_per_epoch, progress=progress and d.is_main)
     model.to(d.device, memory_format=torch.channels_last if opts.channels_last else torch.contiguous_format)
     net: nn.Module = model
     if d.distributed:
@@ -232,9 +270,7 @@ def _run(config: TrainConfig, d: Dist) -> dict[str, Any]:
     history: list[dict[str, Any]] = []
     best = -math.inf
     start = 0
-    if files_out.last.exists():
-        saved = load_checkpoint(files_out.last, map_location=d.device)
-        check_resumable(saved, config)
+    if saved is not None:
         model.load_state_dict(saved["model"])
         optimizer.load_state_dict(saved["optimizer"])
         scheduler.load_state_dict(saved["scheduler"])
@@ -256,7 +292,12 @@ def _run(config: TrainConfig, d: Dist) -> dict[str, Any]:
         train_loader.sampler.set_epoch(epoch)  # type: ignore[attr-defined]
         lr = optimizer.param_groups[0]["lr"]
         train_loss = train_one_epoch(net, criterion, optimizer, scheduler, scaler, train_loader, opts, epoch + 1)
-        val_loss, matrix = evaluate(net, criterion, val_loader, opts, spec.num_classes, spec.ignore_index)
+        if d.distributed:  # every process validates with rank 0's BN statistics (those saved below)
+            for buffer in model.buffers():
+                dist.broadcast(buffer, src=0)
+        # The plain module, not the DDP wrapper: its first forward after training would sync
+        # buffers (a collective), but processes may hold different numbers of val batches.
+        val_loss, matrix = evaluate(model, criterion, val_loader, opts, spec.num_classes, spec.ignore_index)
         metrics = matrix.compute([c["name"] for c in spec.class_table["classes"]])
         row = {"epoch": epoch + 1, "lr": lr, "train_loss": round(train_loss, 6), "val_loss": round(val_loss, 6),
                "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
@@ -266,15 +307,17 @@ def _run(config: TrainConfig, d: Dist) -> dict[str, Any]:
             state = dict(base_state, model=model.state_dict(), optimizer=optimizer.state_dict(),
                          scheduler=scheduler.state_dict(), scaler=scaler.state_dict(), epoch=epoch + 1,
                          history=history, val_metrics=metrics)
-            save_checkpoint(files_out.last, state)
             if metrics["miou"] is not None and metrics["miou"] > best:
                 best = metrics["miou"]
                 save_checkpoint(files_out.best, state)
             files_out.write_log(history)
+            # last.pt is the commit point of an epoch, written after best.pt and log.csv: a run
+            # killed in between redoes the epoch on resume and rewrites all three.
+            save_checkpoint(files_out.last, state)
             logger.info("epoch %d/%d: train loss %.4f, val loss %.4f, val mIoU %s", epoch + 1, config.epochs,
                         train_loss, val_loss, metrics["miou"])
         barrier()
     files_out.close()
     best_row = max((h for h in history if h.get("val_miou") is not None), key=lambda h: h["val_miou"], default=None)
     return {"out_dir": str(config.out_dir), "epochs": len(history), "best": best_row,
-            "last": history[-1] if history else None}
+            "last": history[-1] if history else None, "rank": d.rank}

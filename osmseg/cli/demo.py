@@ -49,10 +49,11 @@ def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int) -> 
     if verbosity >= 0:
         click.echo(f"training {settings['model']} (width {settings['width']}, {epochs} epochs, CPU) "
                    f"into {run_dir}/", err=True)
-    run(make_config(dataset, run_dir, None, settings))
+    run(make_config(dataset, run_dir, None, settings), progress=verbosity >= 0)
     if verbosity >= 0:
         click.echo(f"evaluating {run_dir / 'best.pt'} on the test split into {eval_dir}/", err=True)
-    metrics = run_eval(run_dir / "best.pt", dataset, eval_dir, EvalOptions(split="test", device="cpu"))
+    opts = EvalOptions(split="test", device="cpu", progress=verbosity >= 0)
+    metrics = run_eval(run_dir / "best.pt", dataset, eval_dir, opts)
     if verbosity >= 0:
         click.echo(f"test mIoU {metrics['miou']:.3f}, pixel accuracy {metrics['pixel_accuracy']:.3f} "
                    f"(a tiny model after {epochs} epochs: a smoke test, not a result)", err=True)

@@ -35,7 +35,8 @@ def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pai
     from training.evaluate import EvalOptions, run_eval
     from training.metrics import format_table
 
-    opts = EvalOptions(mode=mode, join=join, tta=tta, split=split, mapping=mapping, panels=panels, device=device)
+    opts = EvalOptions(mode=mode, join=join, tta=tta, split=split, mapping=mapping, panels=panels, device=device,
+                       progress=ctx.obj["verbosity"] >= 0)
     metrics = run_eval(checkpoint, dataset, out_dir, opts, pairs)
     if ctx.obj["verbosity"] >= 0:
         click.echo(format_table(metrics), err=True)

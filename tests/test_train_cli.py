@@ -1,0 +1,366 @@
+"""``osmseg train``, ``eval`` and ``predict`` through the real command line on the CPU.
+
+The trainer is tested the way a user runs it (torchgeo style): a YAML config checked in beside
+the tests (``tests/data/train/*.yaml``) plus command-line overrides, on the tiny learnable
+dataset ``tests/data/tinyseg`` (12 images of 128x160, 5 classes). In-process runs go through
+click's CliRunner with one torch thread; the runs that must be separate processes (a run
+killed with SIGKILL and resumed, two processes under torchrun) use ``python -m osmseg`` with
+``OMP_NUM_THREADS=1``, so that in-process and subprocess runs compute in the same order.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner, Result
+from PIL import Image
+
+torch = pytest.importorskip("torch")
+
+from osmseg.cli.main import cli  # noqa: E402
+from training.checkpoint import load_checkpoint  # noqa: E402
+
+from conftest import TEST_DATA  # noqa: E402
+
+TINYSEG = TEST_DATA / "tinyseg"
+CONFIGS = TEST_DATA / "train"
+NAMES = sorted(p.stem for p in (TINYSEG / "images").glob("*.png"))
+EPOCHS = 3  # tiny.yaml says 5: every run here overrides it with --epochs
+RUN_FILES = {"best.pt", "last.pt", "log.csv", "curves.png", "splits.json"}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread() -> Iterator[None]:
+    """One torch thread in this process, as OMP_NUM_THREADS=1 gives the subprocesses."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def osmseg(*args: object) -> Result:
+    """Run ``osmseg ARGS`` in this process."""
+    return CliRunner().invoke(cli, ["-q", *(str(a) for a in args)])
+
+
+def train_args(out: Path, *extra: object) -> list[object]:
+    return ["train", TINYSEG, "--out", out, "--config", CONFIGS / "tiny.yaml", "--epochs", EPOCHS, *extra]
+
+
+def subprocess_env() -> dict[str, str]:
+    return dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+
+
+def error_line(result: Result) -> str:
+    """The one ``Error: ...`` line a failed command printed (and no traceback)."""
+    assert isinstance(result.exception, SystemExit), result.exception
+    assert "Traceback" not in result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("Error: ")]
+    assert len(errors) == 1, result.output
+    return errors[0]
+
+
+def label(name: str, root: Path = TINYSEG) -> np.ndarray:
+    return np.asarray(Image.open(root / "labels" / f"{name}.png"))
+
+
+def labelled_pixels(names: list[str]) -> int:
+    """Pixels of these tinyseg images that are not unlabeled (0, ignored in the metrics)."""
+    return sum(int(np.count_nonzero(label(n))) for n in names)
+
+
+def log_rows(run: Path) -> list[dict[str, str]]:
+    with (run / "log.csv").open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def tree_bytes(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def copy_tinyseg(tmp_path: Path) -> Path:
+    return Path(shutil.copytree(TINYSEG, tmp_path / "tinyseg", ignore=shutil.ignore_patterns("data.py")))
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Result]:
+    """One uninterrupted 3-epoch run (the reference of the resume test too)."""
+    run = tmp_path_factory.mktemp("train") / "run"
+    result = osmseg(*train_args(run))
+    assert result.exit_code == 0, result.output
+    return run, result
+
+
+# ------------------------------------------------------------------------------ end to end
+def test_train_writes_a_complete_run_and_the_command_line_wins_over_the_file(trained: tuple[Path, Result]) -> None:
+    run, result = trained
+    assert {p.name for p in run.iterdir()} == RUN_FILES  # and no temp files left behind
+    assert json.loads(result.stdout.strip().splitlines()[-1]) == {
+        "best": str(run / "best.pt"), "last": str(run / "last.pt"), "log": str(run / "log.csv")}
+
+    rows = log_rows(run)
+    assert [int(r["epoch"]) for r in rows] == list(range(1, EPOCHS + 1))  # --epochs 3 beat the file's 5
+    last = load_checkpoint(run / "last.pt")
+    assert last["epoch"] == EPOCHS and len(last["history"]) == EPOCHS
+    assert last["config"]["epochs"] == EPOCHS and last["config"]["width"] == 0.125  # the rest from the file
+    assert last["spec"]["num_classes"] == 5 and last["spec"]["input_size"] == (64, 80)
+    assert [float(r["train_loss"]) for r in rows] == [h["train_loss"] for h in last["history"]]
+
+    best = load_checkpoint(run / "best.pt")
+    best_miou = max(float(r["val_miou"]) for r in rows)
+    assert best["history"][-1]["val_miou"] == best_miou == best["val_metrics"]["miou"]
+
+    splits = json.loads((run / "splits.json").read_text())["splits"]
+    assert splits == last["splits"]
+    groups = [set(splits[k]) for k in ("train", "val", "test")]
+    assert all(groups) and sum(map(len, groups)) == len(set().union(*groups))  # disjoint by image
+    assert set().union(*groups) == set(NAMES)  # and cover the dataset
+    with Image.open(run / "curves.png") as im:
+        assert im.format == "PNG" and im.width > 100
+
+
+def test_eval_reports_on_the_test_split_it_was_trained_with(trained: tuple[Path, Result], tmp_path: Path) -> None:
+    run, _ = trained
+    out = tmp_path / "eval"
+    result = osmseg("eval", run / "best.pt", TINYSEG, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert result.stdout.strip() == str(out / "metrics.json")
+    assert {"metrics.json", "metrics.txt", "confusion_matrix.png", "panels.png"} <= {p.name for p in out.iterdir()}
+
+    metrics = json.loads((out / "metrics.json").read_text())
+    test_names = load_checkpoint(run / "best.pt")["splits"]["test"]
+    which = metrics["evaluated"]["images"]
+    assert "'test' split" in which and f"({len(test_names)} images)" in which
+    matrix = np.array(metrics["confusion_matrix"])
+    assert matrix.shape == (5, 5)
+    assert matrix.sum() == metrics["num_pixels"] == labelled_pixels(test_names)  # whole test images, 0 ignored
+    assert set(metrics["per_class"]) == {"unlabeled", "building", "highway", "grass", "water"}
+    grass = metrics["per_class"]["grass"]
+    assert grass["support"] == matrix[3].sum() and grass["iou"] == pytest.approx(
+        matrix[3, 3] / (matrix[3].sum() + matrix[:, 3].sum() - matrix[3, 3]))
+    assert 0 <= metrics["miou"] <= 1
+    assert "mIoU" in (out / "metrics.txt").read_text()
+    for picture in ("confusion_matrix.png", "panels.png"):
+        with Image.open(out / picture) as im:
+            assert im.format == "PNG" and min(im.size) > 100
+
+    # eval's matrix is the one the masks `osmseg predict` writes give, image by image
+    images = [TINYSEG / "images" / f"{n}.png" for n in test_names]
+    assert osmseg("predict", run / "best.pt", *images, "--out", tmp_path / "pred").exit_code == 0
+    recount = np.zeros((5, 5), dtype=np.int64)
+    for n in test_names:
+        truth, pred = label(n).ravel(), np.asarray(Image.open(tmp_path / "pred" / f"{n}.png")).ravel()
+        keep = truth != 0
+        np.add.at(recount, (truth[keep], pred[keep]), 1)
+    assert recount.tolist() == metrics["confusion_matrix"]
+
+
+def test_predict_writes_a_mask_of_the_input_size_in_the_model_classes(trained: tuple[Path, Result],
+                                                                     tmp_path: Path) -> None:
+    run, _ = trained
+    src = TINYSEG / "images" / "tinyseg_000.png"
+    result = osmseg("predict", run / "best.pt", src, "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    assert result.stdout.strip() == str(tmp_path / "tinyseg_000.png")
+    with Image.open(tmp_path / "tinyseg_000.png") as im:
+        assert im.size == (160, 128) and im.mode in ("L", "P")
+        mask = np.asarray(im)
+    assert set(np.unique(mask)) <= {1, 2, 3, 4}  # the model's classes; 0 (ignored in training) never
+    with Image.open(tmp_path / "tinyseg_000_color.png") as im:
+        assert im.size == (160, 128)
+        colour = np.asarray(im.convert("RGB"))
+    table = json.loads((TINYSEG / "manifest.json").read_text())["classes"]["classes"]
+    palette = np.zeros((256, 3), dtype=np.uint8)
+    for c in table:
+        palette[c["id"]] = c["color"]
+    assert np.array_equal(colour, palette[mask])
+
+
+# ---------------------------------------------------------------------------- learnability
+def test_training_learns_tinyseg(tmp_path: Path) -> None:
+    """SegNet from random weights learns tinyseg's colour-coded classes in 12 short epochs.
+
+    (With learn.yaml and one thread: train loss 1.76 -> 0.45, val mIoU 0.03 -> 0.54.)
+    """
+    result = osmseg("train", TINYSEG, "--out", tmp_path / "run", "--config", CONFIGS / "learn.yaml")
+    assert result.exit_code == 0, result.output
+    rows = log_rows(tmp_path / "run")
+    loss = [float(r["train_loss"]) for r in rows]
+    miou = [float(r["val_miou"]) for r in rows]
+    assert len(rows) == 12
+    assert loss[-1] < 0.5 * loss[0], loss
+    assert max(miou) > miou[0] + 0.25 and max(miou) > 0.4, miou
+
+
+# ---------------------------------------------------------------------------------- resume
+def test_a_killed_run_resumes_to_the_same_weights(trained: tuple[Path, Result], tmp_path: Path) -> None:
+    """SIGKILL after epoch 1, rerun the same command: the same weights as the uninterrupted run."""
+    reference, _ = trained
+    run = tmp_path / "run"
+    command = [sys.executable, "-m", "osmseg", "-q", *(str(a) for a in train_args(run))]
+    log = tmp_path / "stderr.txt"
+    with log.open("wb") as stderr:  # a file, not a pipe: progress bars cannot fill it and block the run
+        proc = subprocess.Popen(command, env=subprocess_env(), stdout=subprocess.DEVNULL, stderr=stderr, cwd=tmp_path)
+    killed_after = None
+    deadline = time.monotonic() + 120
+    try:
+        while proc.poll() is None and time.monotonic() < deadline:
+            if (run / "last.pt").exists() and (epoch := load_checkpoint(run / "last.pt")["epoch"]) >= 1:
+                proc.send_signal(signal.SIGKILL)
+                killed_after = epoch
+                break
+            time.sleep(0.02)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert killed_after is not None, f"the run ended before epoch 1 was saved: {log.read_text()[-500:]}"
+    assert proc.returncode == -signal.SIGKILL
+    assert load_checkpoint(run / "last.pt")["epoch"] == killed_after < EPOCHS  # it really was interrupted
+
+    finish = subprocess.run(command, env=subprocess_env(), capture_output=True, cwd=tmp_path, timeout=300)
+    assert finish.returncode == 0, finish.stderr.decode()[-2000:]
+
+    a, b = load_checkpoint(reference / "last.pt"), load_checkpoint(run / "last.pt")
+    assert b["epoch"] == EPOCHS
+    assert a["model"].keys() == b["model"].keys()
+    different = [k for k in a["model"] if not torch.equal(a["model"][k], b["model"][k])]
+    assert not different, f"{len(different)} tensors differ, e.g. {different[:3]}"
+    assert a["scheduler"] == b["scheduler"]
+    momenta_a = [s["momentum_buffer"] for s in a["optimizer"]["state"].values()]
+    momenta_b = [s["momentum_buffer"] for s in b["optimizer"]["state"].values()]
+    assert all(torch.equal(x, y) for x, y in zip(momenta_a, momenta_b, strict=True))
+
+    def scores(history: list[dict]) -> list[tuple]:
+        return [(h["epoch"], h["lr"], h["train_loss"], h["val_loss"], h["val_miou"]) for h in history]
+
+    assert scores(b["history"]) == scores(a["history"])
+    assert [(r["epoch"], r["train_loss"], r["val_miou"]) for r in log_rows(run)] == \
+        [(r["epoch"], r["train_loss"], r["val_miou"]) for r in log_rows(reference)]
+    assert (run / "splits.json").read_bytes() == (reference / "splits.json").read_bytes()
+    best_a, best_b = load_checkpoint(reference / "best.pt"), load_checkpoint(run / "best.pt")
+    assert best_a["epoch"] == best_b["epoch"]
+    assert all(torch.equal(best_a["model"][k], best_b["model"][k]) for k in best_a["model"])
+
+
+# --------------------------------------------------------------------------------- torchrun
+def test_torchrun_two_cpu_processes_write_once_and_reduce_metrics(tmp_path: Path) -> None:
+    """DDP on the CPU (gloo): one set of files, validation metrics summed over both processes.
+
+    ddp.yaml uses whole images as patches, so the validation set is one patch: process 0
+    validates it and process 1 nothing. A padding sampler would count it twice.
+    """
+    run = tmp_path / "run"
+    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
+               "-m", "osmseg", "-q", "train", str(TINYSEG), "--out", str(run), "--config", str(CONFIGS / "ddp.yaml"),
+               "--max-steps-per-epoch", "2"]
+    done = subprocess.run(command, env=subprocess_env(), capture_output=True, cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr.decode()[-3000:]
+    assert done.stdout.decode().count('"last"') == 1  # only rank 0 reports
+
+    assert {p.name for p in run.iterdir()} == RUN_FILES  # no duplicate or temp files
+    rows = log_rows(run)
+    assert [int(r["epoch"]) for r in rows] == [1, 2]
+    last = load_checkpoint(run / "last.pt")
+    assert last["epoch"] == 2 and last["config"]["max_steps_per_epoch"] == 2
+    assert not any(k.startswith("module.") for k in last["model"])  # the plain model, not the DDP wrapper
+    val = last["splits"]["val"]
+    assert len(val) % 2 == 1  # an odd number of validation patches (one per image)
+    matrix = np.array(last["val_metrics"]["confusion_matrix"])
+    assert matrix.sum() == labelled_pixels(val)  # each validation pixel counted once, over both ranks
+    assert [round(h["val_miou"], 12) for h in last["history"]] == [round(float(r["val_miou"]), 12) for r in rows]
+
+    # A whole image is one window, so `osmseg eval` in one process sees what validation saw.
+    result = osmseg("eval", run / "best.pt", TINYSEG, "--split", "val", "--out", tmp_path / "eval")
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    best = load_checkpoint(run / "best.pt")
+    assert metrics["confusion_matrix"] == best["val_metrics"]["confusion_matrix"]
+    assert metrics["miou"] == pytest.approx(best["val_metrics"]["miou"])
+
+
+# -------------------------------------------------------------------------------- bad input
+def test_missing_dataset_is_a_usage_error(tmp_path: Path) -> None:
+    result = osmseg("train", tmp_path / "nowhere", "--out", tmp_path / "run", "--config", CONFIGS / "tiny.yaml")
+    assert result.exit_code == 2
+    assert "nowhere" in result.output and "does not exist" in result.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_label_of_another_size_names_the_file(tmp_path: Path) -> None:
+    data = copy_tinyseg(tmp_path)
+    Image.fromarray(label("tinyseg_003")[:100]).save(data / "labels" / "tinyseg_003.png")
+    result = osmseg("train", data, "--out", tmp_path / "run", "--config", CONFIGS / "tiny.yaml")
+    assert result.exit_code == 1
+    line = error_line(result)
+    assert "labels/tinyseg_003.png" in line and "160x100" in line and "160x128" in line
+    assert not (tmp_path / "run").exists()  # nothing written
+
+
+def test_label_with_unknown_class_ids_names_the_file_and_ids(tmp_path: Path) -> None:
+    data = copy_tinyseg(tmp_path)
+    broken = label("tinyseg_007").copy()
+    broken[10:20, 10:20] = 9
+    broken[40, 40] = 200
+    Image.fromarray(broken).save(data / "labels" / "tinyseg_007.png")
+    result = osmseg("train", data, "--out", tmp_path / "run", "--config", CONFIGS / "tiny.yaml")
+    assert result.exit_code == 1
+    line = error_line(result)
+    assert "labels/tinyseg_007.png" in line and "9, 200" in line and "0..4" in line
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated"])
+def test_corrupt_checkpoint_is_refused_by_eval_and_predict(trained: tuple[Path, Result], tmp_path: Path,
+                                                           damage: str) -> None:
+    good = (trained[0] / "best.pt").read_bytes()
+    bad = tmp_path / "model.pt"
+    bad.write_bytes(b"not a checkpoint at all\n" * 10 if damage == "garbage" else good[: len(good) // 2])
+    for args in (["eval", bad, TINYSEG, "--out", tmp_path / "eval"],
+                 ["predict", bad, TINYSEG / "images" / "tinyseg_000.png", "--out", tmp_path / "pred"]):
+        result = osmseg(*args)
+        assert result.exit_code == 1, result.output
+        assert "model.pt is not a checkpoint" in error_line(result)
+    assert not (tmp_path / "eval").exists() and not (tmp_path / "pred").exists()
+
+
+def test_model_without_a_class_table_is_a_usage_error(tmp_path: Path) -> None:
+    data = copy_tinyseg(tmp_path)
+    (data / "manifest.json").unlink()  # images/ and labels/ only: nothing says what the ids mean
+    result = osmseg("train", data, "--out", tmp_path / "run", "--config", CONFIGS / "tiny.yaml", "--model", "mine")
+    assert result.exit_code == 2
+    assert "--model mine" in result.output and "--classes" in result.output and "Traceback" not in result.output
+    # a preset's classes that are not the dataset's are refused too, before anything is written
+    result = osmseg(*train_args(tmp_path / "run", "--model", "airsegnet13"))
+    assert result.exit_code == 2
+    assert "--model airsegnet13 predicts the classes of" in result.output and "'tinyseg'" in result.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_config_file_with_an_unknown_setting_is_a_usage_error(tmp_path: Path) -> None:
+    config = tmp_path / "typo.yaml"
+    config.write_text((CONFIGS / "tiny.yaml").read_text() + "epochz: 3\n")
+    result = osmseg("train", TINYSEG, "--out", tmp_path / "run", "--config", config)
+    assert result.exit_code == 2
+    assert "unknown settings ['epochz']" in result.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_resuming_a_run_with_other_settings_is_refused_and_keeps_it(trained: tuple[Path, Result],
+                                                                   tmp_path: Path) -> None:
+    run = Path(shutil.copytree(trained[0], tmp_path / "run"))
+    before = tree_bytes(run)
+    result = osmseg(*train_args(run, "--lr", "0.05", "--seed", "3"))
+    assert result.exit_code == 2
+    assert "other settings (lr, seed)" in result.output and "use a new --out" in result.output
+    assert tree_bytes(run) == before  # nothing lost, nothing added
