@@ -13,6 +13,7 @@ from osmseg.cli.build import build_command
 from osmseg.cli.common import configure_logging
 from osmseg.cli.demo import demo_command
 from osmseg.cli.eval import eval_command
+from osmseg.cli.localize import localize_command
 from osmseg.cli.localize_bench import localize_bench_command
 from osmseg.cli.predict import predict_command
 from osmseg.cli.train import train_command
@@ -37,6 +38,7 @@ cli.add_command(verify_command)
 cli.add_command(train_command)
 cli.add_command(predict_command)
 cli.add_command(eval_command)
+cli.add_command(localize_command)
 cli.add_command(localize_bench_command)
 
 if __name__ == "__main__":  # pragma: no cover

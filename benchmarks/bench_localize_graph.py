@@ -1,0 +1,166 @@
+"""Landmark-graph speed: :func:`cliques_fast` beside the paper's plain sliding window.
+
+Run: ``.venv/bin/python benchmarks/bench_localize_graph.py [--repeat 5]`` (prints; asserts
+only that both algorithms give the same cliques). Every figure is measured in this run:
+
+* a 750 x 750 aerial label mask (classes13 ids) drawn with a fixed seed: a street grid (one
+  road network) with footways cut at the crossings, 50 buildings and 25 trees -- about 100
+  landmarks with the ``aerial13`` dictionary, like the paper's annotated aerial images;
+* a 1232 x 224 semantic panorama (CamVid ids, read with the ``camvid`` dictionary): road and
+  pavement bands all around, building facades and trees above them;
+* for each: landmark extraction (:func:`landmarks_from_mask`, centroid mode), the automatic
+  window (:func:`window_size_auto`), then the cliques by :func:`cliques_fast` (median of
+  ``--repeat`` runs) and by :func:`cliques_reference` (one run), and their ratio;
+* ``--real``: also the Helsinki extract of ../shared/data rasterised at z18 and cut to
+  750 x 750, in grid mode (stride 50), when present;
+* component landmarks (any pixel in the window) by :func:`cliques_fast`; the reference is run
+  only on the panorama (on the aerial mask it tests every pixel of every component in each of
+  the ~400,000 windows: hours).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from localization.graph import Cliques, cliques_fast, cliques_reference, window_size_auto  # noqa: E402
+from localization.landmarks import Landmarks, landmarks_from_mask, load_landmark_classes  # noqa: E402
+from osmseg.classes import load_class_table  # noqa: E402
+
+HELSINKI = ROOT.parent / "shared" / "data" / "helsinki-osm" / "helsinki.osm.pbf"
+# classes13 ids
+BUILDING, HIGHWAY, FOOTWAY, TREE, GRASS = 1, 2, 9, 13, 3
+# CamVid ids
+SKY, CV_BUILDING, CV_ROAD, CV_PAVEMENT, CV_TREE = 0, 1, 3, 4, 5
+
+
+def timed(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
+    """Median wall time of ``repeat`` calls, and the last result."""
+    times, result = [], None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), result
+
+
+def aerial_mask(seed: int = 0, size: int = 750) -> np.ndarray:
+    """Street grid (roads 14 px, footways 4 px beside them), buildings in the blocks, trees on grass."""
+    rng = np.random.default_rng(seed)
+    mask = np.full((size, size), GRASS, np.uint8)
+    streets = np.arange(60, size, 180)
+    for s in streets:
+        mask[s - 11:s - 7, :] = mask[s + 7:s + 11, :] = FOOTWAY
+        mask[:, s - 11:s - 7] = mask[:, s + 7:s + 11] = FOOTWAY
+    for s in streets:
+        mask[s - 7:s + 7, :] = HIGHWAY
+        mask[:, s - 7:s + 7] = HIGHWAY
+    yy, xx = np.mgrid[:size, :size]
+    free = mask == GRASS
+    placed = 0
+    while placed < 50:
+        x, y = rng.integers(0, size - 40, 2)
+        w, h = rng.integers(15, 40, 2)
+        if free[y - 3:y + h + 3, x - 3:x + w + 3].all() and y >= 3 and x >= 3:
+            mask[y:y + h, x:x + w] = BUILDING
+            free[y - 3:y + h + 3, x - 3:x + w + 3] = False
+            placed += 1
+    placed = 0
+    while placed < 25:
+        x, y, r = *rng.integers(8, size - 8, 2), rng.integers(5, 8)
+        disc = (xx - x) ** 2 + (yy - y) ** 2 <= r * r
+        if free[disc].all():
+            mask[disc] = TREE
+            free[(xx - x) ** 2 + (yy - y) ** 2 <= (r + 3) ** 2] = False
+            placed += 1
+    return mask
+
+
+def panorama_mask(seed: int = 0, width: int = 1232, height: int = 224) -> np.ndarray:
+    """Sky above, facades and trees on the horizon, pavement and road bands below, all around."""
+    rng = np.random.default_rng(seed)
+    mask = np.full((height, width), SKY, np.uint8)
+    horizon = height // 2
+    x = int(rng.integers(0, 40))
+    while x < width - 20:
+        w = int(rng.integers(25, 80))
+        top = horizon - int(rng.integers(15, 70))
+        mask[top:horizon + 10, x:min(x + w, width)] = CV_BUILDING if rng.random() < 0.7 else CV_TREE
+        x += w + int(rng.integers(4, 30))
+    mask[horizon + 10:horizon + 25, :] = CV_PAVEMENT
+    mask[horizon + 25:, :] = CV_ROAD
+    mask[horizon + 30:, 300:360] = CV_PAVEMENT  # a crossing footway splits the road once
+    return mask
+
+
+def compare(name: str, lm: Landmarks, repeat: int, reference: bool = True) -> None:
+    t_auto, w = timed(lambda: window_size_auto(lm), repeat)
+    t_fast, fast = timed(lambda: cliques_fast(lm, w), repeat)
+    line = (f"{name:<34} K={len(lm):4d} w={w:4d}  cliques {len(fast):5d}  window_size_auto {t_auto * 1000:6.2f} ms  "
+            f"fast {t_fast * 1000:7.2f} ms")
+    if reference:
+        t_ref, ref = timed(lambda: cliques_reference(lm, w), 1)
+        same = _same(ref, fast)
+        line += f"  reference {t_ref:7.3f} s  ratio {t_ref / t_fast:7.0f}x  identical: {same}"
+        if not same:
+            raise SystemExit(f"{name}: cliques_fast differs from cliques_reference")
+    else:
+        line += "  reference skipped (every pixel in every window)"
+    print(line)
+
+
+def _same(a: Cliques, b: Cliques) -> bool:
+    return a.members.shape == b.members.shape and bool((a.members == b.members).all()) and \
+        np.array_equal(a.centers, b.centers)
+
+
+def helsinki_mask() -> np.ndarray | None:
+    if not HELSINKI.exists():
+        return None
+    from osmseg.grid import sample_grid
+    from osmseg.osm.features import read_features
+    from osmseg.rasterize import rasterize
+    table = load_class_table("classes13.toml")
+    grid = sample_grid(24.944, 60.1715, 18)
+    return rasterize(read_features([HELSINKI], grid, table), grid, table)[265:1015, 265:1015]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--real", action="store_true", help="also the Helsinki mask of ../shared/data")
+    args = parser.parse_args()
+    table13 = load_class_table("classes13.toml")
+    aerial13, camvid = load_landmark_classes("aerial13"), load_landmark_classes("camvid")
+
+    scenes = [("aerial 750x750 (synthetic)", aerial_mask(), table13, aerial13, False),
+              ("panorama 1232x224 (synthetic)", panorama_mask(), None, camvid, True)]
+    if args.real:
+        real = helsinki_mask()
+        if real is None:
+            print(f"skipped the real mask: {HELSINKI} is absent (../shared/data)")
+        else:
+            scenes.append(("aerial 750x750 (Helsinki OSM, grid 50)", real, table13, aerial13, False))
+    for name, mask, table, classes, panorama in scenes:
+        mode = "grid" if "grid" in name else "centroid"
+        t_extract, lm = timed(lambda: landmarks_from_mask(mask, table, classes, mode=mode, panorama=panorama),
+                              args.repeat)
+        counts = ", ".join(f"{c} {int((lm.cls == i).sum())}" for i, c in enumerate(lm.classes))
+        print(f"{name}: {len(lm)} landmarks ({counts}); extraction {t_extract * 1000:.1f} ms")
+        compare(f"  {mode}", lm, args.repeat)
+        comp = landmarks_from_mask(mask, table, classes, mode="component", panorama=panorama)
+        compare("  component", comp, args.repeat, reference=panorama)
+
+
+if __name__ == "__main__":
+    main()

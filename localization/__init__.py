@@ -1,0 +1,33 @@
+"""Where was a 360° ground panorama taken inside an aerial image? Landmark-graph matching.
+
+The method of T. Resek's dissertation (UNICAMP 2022, chapter 3) and Verde, Resek, Milani &
+Rocha, "Ground-to-Aerial Viewpoint Localization via Landmark Graphs Matching" (IEEE Signal
+Processing Letters, 2020). Both images -- the aerial one and the panorama -- are reduced to
+a few labelled landmarks, each to a graph of which landmarks are seen together, and the
+panorama's graph is compared with sub-graphs of the aerial one. The pipeline, one module a
+step:
+
+1. :mod:`localization.landmarks` -- **landmarks**: from a segmentation mask (connected
+   components per landmark class, as centroids, grid points or whole components) or from a
+   landmark file (``x y Class`` lines, CSV, ``.npy``). A class dictionary
+   (``data_manifests/landmarks-*.toml``) says which mask classes become the four landmark
+   classes: building, road, vegetation, footway. :class:`~localization.landmarks.Landmarks`
+   is the data model every other step takes.
+2. :mod:`localization.graph` -- **landmark graph**: a square covisibility window slides over
+   the image (wrapping around a panorama); each position's landmarks form a clique;
+   ``A = H(Cᵀ C)``. :func:`~localization.graph.cliques_fast` gives exactly the cliques of the
+   paper's plain sliding window (:func:`~localization.graph.cliques_reference`) in
+   milliseconds; the window size is given or automatic (mean + 5 sigma of nearest-neighbour
+   distances).
+3. :mod:`localization.match` -- **matching**: candidate sub-graphs of the aerial graph (cliques
+   holding every class the panorama shows, extended by overlapping cliques), class adjacency
+   matrices, normalised cross-correlation, posterior over candidate positions, MAP and top-k.
+4. :mod:`localization.render`, :mod:`localization.pictures`, :mod:`localization.bench` --
+   **render / pictures / benchmark**: semantic panoramas rendered from aerial masks (real
+   panoramas paired with aerial images are not available offline), the paper's pictures
+   (candidates and top-k on the aerial image, both graphs overlaid), and a benchmark that
+   localizes rendered panoramas from seeded viewpoints and reports the errors.
+
+Coordinates are pixels throughout: ``x`` is the column, ``y`` the row. Nothing here needs
+torch; numpy and scipy do the work.
+"""

@@ -1,0 +1,127 @@
+"""``osmseg localize-bench``: localize rendered panoramas in their aerial mask and report the errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+
+from osmseg.cli.common import report_errors
+from osmseg.errors import ConfigError
+
+
+def _heights(values: tuple[str, ...]) -> dict[str, float]:
+    """``("building=12", "tree=5")`` -> the default heights updated with these."""
+    from localization.render import DEFAULT_HEIGHTS
+
+    heights = dict(DEFAULT_HEIGHTS)
+    for item in values:
+        name, eq, metres = item.partition("=")
+        try:
+            heights[name.strip()] = float(metres)
+        except ValueError:
+            raise ConfigError(f"--class-height {item!r}: write CLASS=METRES, e.g. building=12") from None
+        if not eq or not name.strip():
+            raise ConfigError(f"--class-height {item!r}: write CLASS=METRES, e.g. building=12")
+    return heights
+
+
+@click.command("localize-bench")
+@click.argument("source", type=click.Path(exists=True, path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder for results.json, errors.png and classes.png.")
+@click.option("-n", "--viewpoints", type=int, default=20, show_default=True, help="Rendered panoramas to localize.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seeds viewpoints and noise.")
+@click.option("--table", default="classes13.toml", show_default=True,
+              help="Class table of a mask file (a dataset folder brings its own).")
+@click.option("--resolution", type=float, help="Ground resolution of a mask file in m/px (a dataset brings its own).")
+@click.option("--landmarks", "landmark_dict", help="Landmark class dictionary (data_manifests/landmarks-*.toml); "
+              "default: the one for the class table.")
+@click.option("--mode", type=click.Choice(["centroid", "grid", "component"]), default="centroid", show_default=True,
+              help="Landmarks as component centroids, grid points or whole components.")
+@click.option("--min-size", type=int, default=50, show_default=True, help="Smallest landmark component (pixels).")
+@click.option("--stride", type=int, default=50, show_default=True, help="Grid step for --mode grid (pixels).")
+@click.option("--window", type=int, help="Aerial covisibility window (pixels); default mu + 5 sigma of "
+              "nearest-neighbour distances.")
+@click.option("--p", "p", type=float, default=0.5, show_default=True, help="Covisibility parameter of candidates.")
+@click.option("--top-k", type=int, default=5, show_default=True)
+@click.option("--margin", type=float, default=20.0, show_default=True,
+              help="Viewpoints stay this many metres from the mask border.")
+@click.option("--stand-on", multiple=True, help="Classes viewpoints may stand on (repeatable); default every "
+              "flat class but unlabeled and water.")
+@click.option("--subsets/--no-subsets", default=True, show_default=True,
+              help="Also localize with every subset of 2, 3... landmark classes.")
+@click.option("--width", type=int, default=1232, show_default=True, help="Panorama width (pixels, 360 degrees).")
+@click.option("--height", type=int, default=224, show_default=True, help="Panorama height (pixels).")
+@click.option("--camera-height", type=float, default=2.0, show_default=True, help="Metres above the ground.")
+@click.option("--max-range", type=float, default=100.0, show_default=True, help="How far the camera sees (m).")
+@click.option("--class-height", multiple=True, metavar="CLASS=METRES",
+              help="Height of a class that occludes (repeatable); default building=10, tree=6, others 0.")
+@click.option("--confusion", type=float, default=0.0, show_default=True,
+              help="Noise: fraction of panorama landmarks relabelled as another landmark class.")
+@click.option("--miss-small", type=int, default=0, show_default=True,
+              help="Noise: panorama landmarks under this many pixels are missed.")
+@click.option("--miss-prob", type=float, default=0.0, show_default=True,
+              help="Noise: every other panorama landmark is missed with this probability.")
+@click.option("--offset", type=float, default=0.0, show_default=True,
+              help="Noise: render from this many metres away from the true viewpoint.")
+@click.option("--save-panoramas", type=int, default=0, show_default=True,
+              help="Write the first K rendered panoramas as PNG under OUT/panoramas/.")
+@click.option("--plots/--no-plots", default=True, show_default=True, help="Draw errors.png and classes.png.")
+@click.pass_context
+@report_errors
+def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, viewpoints: int, seed: int, table: str,
+                           resolution: float | None, landmark_dict: str | None, mode: str, min_size: int, stride: int,
+                           window: int | None, p: float, top_k: int, margin: float, stand_on: tuple[str, ...],
+                           subsets: bool, width: int, height: int, camera_height: float, max_range: float,
+                           class_height: tuple[str, ...], confusion: float, miss_small: int, miss_prob: float,
+                           offset: float, save_panoramas: int, plots: bool) -> None:
+    """Render panoramas at seeded viewpoints of SOURCE and localize them in it.
+
+    SOURCE is a dataset folder made by `osmseg build` (its labels/ and manifest.json), or one
+    label mask file (PNG/GeoTIFF of class ids) with --table and --resolution. Prints the path
+    of results.json on stdout and a summary on stderr.
+    """
+    from localization.bench import BenchConfig, load_dataset_scenes, load_mask_scene, run_bench
+    from localization.render import NoiseConfig, RenderConfig
+
+    config = BenchConfig(
+        viewpoints=viewpoints, seed=seed, landmarks=landmark_dict, mode=mode, min_size=min_size, stride=stride,
+        window=window, p=p, top_k=top_k, margin_m=margin, stand_on=tuple(stand_on) or None, subsets=subsets,
+        render=RenderConfig(width=width, height=height, camera_height_m=camera_height, max_range_m=max_range,
+                            heights=_heights(class_height)),
+        noise=NoiseConfig(confusion=confusion, miss_small_px=miss_small, miss_prob=miss_prob, offset_m=offset),
+        save_panoramas=save_panoramas,
+    )
+    if source.is_dir():
+        if resolution is not None:
+            raise ConfigError("--resolution is for a mask file; a dataset folder records its own")
+        scenes = load_dataset_scenes(source)
+    else:
+        if resolution is None:
+            raise ConfigError(f"{source} is a mask file: give its ground resolution with --resolution (m/px)")
+        scenes = [load_mask_scene(source, table, resolution)]
+    verbosity = ctx.obj["verbosity"] if ctx.obj else 0
+    results = run_bench(scenes, config, out_dir, progress=verbosity >= 0, plots=plots, source=str(source))
+    if verbosity >= 0:
+        click.echo(format_summary(results), err=True)
+    click.echo(str(out_dir / "results.json"))
+
+
+def format_summary(results: dict[str, Any]) -> str:
+    """A few lines for the terminal: the full-class summary and the classes trend."""
+    s, b = results["summary"], results["baselines"]
+    rec = ", ".join(f"@{r} m {v}" for r, v in s["recall_at_m"].items())
+    lines = [
+        f"{s['n']} viewpoints, classes {'+'.join(results['classes'])}: {s['answered']} answered, "
+        f"{s['unanswered']} unanswered, {s['tied']} tied",
+        f"error: mean {s['mean_error_m']} m / median {s['median_error_m']} m "
+        f"(mean {s['mean_error_px']} px); top-5 mean distance {s['top5_mean_distance_m']} m",
+        f"recall {rec}; blind guesses: image centre {b['centre_guess_mean_m']} m, random {b['random_guess_mean_m']} m",
+    ]
+    for k, entry in sorted(results["by_num_classes"].items(), key=lambda kv: int(kv[0])):
+        e = entry["summary"]
+        lines.append(f"  {k} classes ({len(entry['subsets'])} subsets): median {e['median_error_m']} m, "
+                     f"recall@25 m {e['recall_at_m']['25']}, unanswered {e['unanswered']}/{e['n']}")
+    return "\n".join(lines)
