@@ -20,6 +20,9 @@ from osmseg.cli.common import report_errors, require_torch
 @click.option("--mode", type=click.Choice(["split-join", "rescale"]), default="split-join", show_default=True)
 @click.option("--join", type=click.Choice(["blend", "crop"]), default="blend", show_default=True,
               help="split-join: blend overlapping windows, or keep each window's centre (the dissertation's).")
+@click.option("--resolution", "resolution_m", type=click.FloatRange(min=0, min_open=True),
+              help="Resample georeferenced inputs to this ground pixel size (m) before predicting, e.g. the "
+                   "training data's (manifest.json ground_resolution_m); labels stay on their grid.")
 @click.option("--tta", is_flag=True, help="Average predictions over flips (and 90-degree turns of square inputs).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Folder for metrics.json, metrics.txt and the pictures.")
@@ -28,15 +31,15 @@ from osmseg.cli.common import report_errors, require_torch
 @click.pass_context
 @report_errors
 def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pairs: tuple[tuple[Path, Path], ...],
-                 split: str, mapping: str | None, mode: str, join: str, tta: bool, out_dir: Path, panels: int,
-                 device: str) -> None:
+                 split: str, mapping: str | None, mode: str, join: str, resolution_m: float | None, tta: bool,
+                 out_dir: Path, panels: int, device: str) -> None:
     """Evaluate CHECKPOINT on DATASET (its test split when it is the training dataset)."""
     require_torch()
     from training.evaluate import EvalOptions, run_eval
     from training.metrics import format_table
 
     opts = EvalOptions(mode=mode, join=join, tta=tta, split=split, mapping=mapping, panels=panels, device=device,
-                       progress=ctx.obj["verbosity"] >= 0)
+                       progress=ctx.obj["verbosity"] >= 0, resolution_m=resolution_m)
     metrics = run_eval(checkpoint, dataset, out_dir, opts, pairs)
     if ctx.obj["verbosity"] >= 0:
         click.echo(format_table(metrics), err=True)
