@@ -3,18 +3,20 @@
 Defaults follow the SegNet recipe (Badrinarayanan et al. 2017): SGD with momentum 0.9,
 weight decay 5e-4 and median-frequency class weights. Learning rate and schedule are ours:
 
-* ``lr = 0.01`` with a polynomial ("poly", power 0.9) decay to zero over the run, as
-  torchvision's segmentation references train VGG-style encoders. SegNet's paper used a fixed
-  0.1 with a pretrained, carefully initialised network; from random initialisation (the
-  dissertation trains "a completely new network") 0.1 diverges on BN-free starts and
-  overshoots with batch norm at small batch sizes, while 0.01 + poly is stable from the first
-  step and ends with the small steps that sharpen boundaries.
+* ``lr = 0.1`` — SegNet's own rate — with a polynomial ("poly", power 0.9) decay to zero over
+  the run, as torchvision's segmentation references use. Measured on the real Kampala dataset
+  (16 samples, width 0.125, CPU, ``--keep-unlabeled``): at 0.01 the loss sat at ln 2 (a constant
+  predictor) for 19 epochs and at 0.05 for the first epochs, while 0.1 started learning by epoch
+  7 (val mIoU 0.27 -> 0.52 by epoch 9); on tests/data/tinyseg 0.01 leaves the loss at ~1.5 after
+  6 epochs. From random initialisation (the dissertation trains "a completely new network") the
+  large early steps are what get the network out of the constant solution; the poly tail then
+  gives the small steps that sharpen boundaries.
 * ``batch_size = 4`` patches of 360x480 (SegNet trained CamVid at batch 12 on a 12 GB GPU; 4
   fits a common 8 GB card at width 1.0 with AMP).
 
 >>> c = TrainConfig(dataset=Path("d"), out_dir=Path("o"))
 >>> c.lr, c.momentum, c.weight_decay, c.schedule
-(0.01, 0.9, 0.0005, 'poly')
+(0.1, 0.9, 0.0005, 'poly')
 >>> merged = with_overrides(c, {"epochs": 3, "width": None})
 >>> merged.epochs, merged.width
 (3, 1.0)
@@ -46,7 +48,7 @@ class TrainConfig:
     patch_width: int = 480
     epochs: int = 100
     batch_size: int = 4
-    lr: float = 0.01
+    lr: float = 0.1
     momentum: float = 0.9
     weight_decay: float = 5e-4
     schedule: str = "poly"  # poly | constant

@@ -26,7 +26,7 @@ from osmseg.cli.common import report_errors, require_torch
 @click.option("--init", help="Encoder start: random (default, as the dissertation) | imagenet (downloads) | PATH.pth")
 @click.option("--epochs", type=int)
 @click.option("--batch-size", type=int)
-@click.option("--lr", type=float, help="Initial learning rate (default 0.01, poly decay).")
+@click.option("--lr", type=float, help="Initial learning rate (default 0.1, poly decay).")
 @click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=None,
               help="Train 'unlabeled' as a class instead of ignoring it (default: ignored).")
 @click.option("--seed", type=int)
