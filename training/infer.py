@@ -314,7 +314,9 @@ def _split_join(runner: _Runner, source: _Source, sink: Any, options: InferenceO
             ids = block.windows[first:first + options.batch_size]
             windows = [grid.window(i) for i in ids]
             logits = runner.logits(np.stack([_window_pixels(pixels, block.read, w) for w in windows]))
-            scores = torch.softmax(logits, dim=1) * weight if blend else logits.argmax(dim=1).to(torch.uint8)
+            # softmax over channels is 2-3x faster on contiguous NCHW than on channels_last logits
+            scores = (torch.softmax(logits.contiguous(), dim=1).mul_(weight) if blend
+                      else logits.argmax(dim=1).to(torch.uint8))
             for k, (i, window) in enumerate(zip(ids, windows)):
                 region = window if blend else grid.keep(i)
                 t0, t1 = max(region[0], top), min(region[1], bottom)
@@ -331,6 +333,7 @@ def _split_join(runner: _Runner, source: _Source, sink: Any, options: InferenceO
                 progress(done, planned)
         # dividing by the weight sum would not change the argmax (a positive factor per pixel)
         sink.write(top, left, _argmax_classes(acc) if blend else acc)
+        del acc  # free this block's accumulator before the next one is allocated
 
 
 def _rescale(runner: _Runner, source: _Source, sink: Any, options: InferenceOptions,
