@@ -9,7 +9,7 @@ step:
 
 1. :mod:`localization.landmarks` -- **landmarks**: from a segmentation mask (connected
    components per landmark class, as centroids, grid points or whole components) or from a
-   landmark file (``x y Class`` lines, CSV, ``.npy``). A class dictionary
+   landmark file (``x y Class`` lines, CSV, ``.npy``; :mod:`localization.landmark_files`). A class dictionary
    (``data_manifests/landmarks-*.toml``) says which mask classes become the four landmark
    classes: building, road, vegetation, footway. :class:`~localization.landmarks.Landmarks`
    is the data model every other step takes.
@@ -21,7 +21,9 @@ step:
    distances).
 3. :mod:`localization.match` -- **matching**: candidate sub-graphs of the aerial graph (cliques
    holding every class the panorama shows, extended by overlapping cliques), class adjacency
-   matrices, normalised cross-correlation, posterior over candidate positions, MAP and top-k.
+   matrices, normalised cross-correlation, posterior over candidate positions, MAP and top-k
+   (:mod:`localization.result`: the ranking, ties and the answer). :mod:`localization.refine`
+   adds the dissertation's options: the window hierarchy (eq. 3.8) and feature-based edge removal.
 4. :mod:`localization.render`, :mod:`localization.pictures`, :mod:`localization.bench` --
    **render / pictures / benchmark**: semantic panoramas rendered from aerial masks (real
    panoramas paired with aerial images are not available offline), the paper's pictures

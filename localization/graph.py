@@ -19,11 +19,16 @@ A window at corner ``(x, y)`` covers ``[x, x + w] x [y, y + w]``, bounds include
 landmark is in it when its ``xy`` is; a component landmark (``Landmarks.pixels``) when any
 of its pixels is.
 
-Each clique keeps the centre of the *first window in raster order* (rows top to bottom, then
-left to right) that produced it: the match step uses centres as candidate positions, and
-"first" makes the choice deterministic and the same for both algorithms. The centre is that
-of the window's part inside the image: ``(x + min(w, W) / 2, y + min(w, H) / 2)``, for a
-panorama ``((x + min(w, W) / 2) mod W, H / 2)``. Cliques are ordered by that first window.
+Each clique's centre is the mean of the centres of *all* the window positions that produce it
+(the match step uses centres as candidate positions: the first window in raster order would
+bias them up and left by up to ``w / 2``). A window's centre is that of its part inside the
+image, ``(x + min(w, W) / 2, y + min(w, H) / 2)``, so the clique's centre is
+``(s * mean(i) + min(w, W) / 2, s * mean(j) + min(w, H) / 2)`` over the corner indices
+``(i, j)`` producing it, computed from integer sums (corner indices and their count) so both
+algorithms give bit-identical floats. A panorama's centre is ``(x, H / 2)`` where ``x`` is the
+centre ``(x + min(w, W) / 2) mod W`` of the first producing window: on a circle a mean of
+positions is ill-defined, and panorama centres are never used as positions. Cliques are
+ordered by their first window in raster order (rows top to bottom, then left to right).
 
 Two algorithms give identical results (same cliques, same order, same centres):
 
@@ -35,14 +40,16 @@ Two algorithms give identical results (same cliques, same order, same centres):
   corner axes are cut at all interval ends into elementary intervals, each cell of the
   resulting grid gets its landmarks as a bit set (``uint64`` words: a point sets a rectangle
   of cells, a component the cells where prefix sums over its bounding box count one of its
-  pixels in the window), and the distinct bit sets, with the first cell of each in raster
-  order, are the cliques. Interval ends are computed from the very same comparisons as the reference, so
-  boundary cases (a landmark exactly on a window edge) agree bit for bit.
+  pixels in the window), and the distinct bit sets are the cliques, each with the sums of
+  the corner indices of all its cells (a cell is a rectangle of corners: closed-form
+  arithmetic-series sums) and its first cell in raster order. Interval ends are computed from
+  the very same comparisons as the reference, so boundary cases (a landmark exactly on a
+  window edge) agree bit for bit.
 
 >>> lm = Landmarks(np.array([[1.0, 1], [4, 1], [8, 1]]), np.array([0, 1, 0]), ("a", "b"), width=10, height=3)
->>> c = cliques_fast(lm, 4)
+>>> c = cliques_fast(lm, 4)  # corners x = 0..6: {l1, l2} at 0-1, {l2} at 2-3, {l2, l3} at 4, {l3} at 5-6
 >>> c.members.astype(int).tolist(), c.centers.tolist()
-([[1, 1, 0], [0, 1, 0], [0, 1, 1], [0, 0, 1]], [[2.0, 1.5], [4.0, 1.5], [6.0, 1.5], [7.0, 1.5]])
+([[1, 1, 0], [0, 1, 0], [0, 1, 1], [0, 0, 1]], [[2.5, 1.5], [4.5, 1.5], [6.0, 1.5], [7.5, 1.5]])
 >>> bool((cliques_reference(lm, 4).members == c.members).all())
 True
 >>> adjacency(c).astype(int).tolist()
@@ -71,8 +78,9 @@ AUTO_SIGMAS = 5.0
 class Cliques:
     """The cliques of a landmark graph: ``members[j, k]`` is True when clique j holds landmark k.
 
-    ``centers[j]`` is the ``(x, y)`` centre of the first window (raster order) that produced
-    clique j; ``window`` and ``stride`` are the window side and stride used.
+    ``centers[j]`` is the ``(x, y)`` mean of the centres of all the windows that produce
+    clique j (a panorama: ``x`` of the first such window, ``y = H / 2``; see the module
+    docstring); ``window`` and ``stride`` are the window side and stride used.
     """
 
     members: np.ndarray  # (M, K) bool
@@ -149,12 +157,20 @@ class _Geometry:
     height: int
     panorama: bool
 
-    def centers(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Centres of the windows at corners ``(x, y)`` (their part inside the image)."""
-        cx = np.asarray(x, dtype=np.float64) + min(self.w, self.width) / 2
+    def centers(self, first_i: np.ndarray, sum_i: np.ndarray, sum_j: np.ndarray, count: np.ndarray) -> np.ndarray:
+        """Clique centres from integer corner-index data (both algorithms call this, so they agree exactly).
+
+        ``first_i``: x index of the first producing window (used by a panorama only);
+        ``sum_i``/``sum_j``: sums of the x/y corner indices of all producing windows, ``count``
+        their number. Aerial: the mean window centre; panorama: the first window's, at ``H / 2``.
+        """
         if self.panorama:
+            cx = np.asarray(first_i, dtype=np.int64) * self.s + min(self.w, self.width) / 2
             return np.stack([cx % self.width, np.full(cx.shape, self.height / 2)], axis=-1)
-        return np.stack([cx, np.asarray(y, dtype=np.float64) + min(self.w, self.height) / 2], axis=-1)
+        n = np.asarray(count, dtype=np.int64)
+        cx = np.asarray(sum_i, dtype=np.int64) * self.s / n + min(self.w, self.width) / 2
+        cy = np.asarray(sum_j, dtype=np.int64) * self.s / n + min(self.w, self.height) / 2
+        return np.stack([cx, cy], axis=-1)
 
 
 def _geometry(lm: Landmarks, w: int, stride: int) -> _Geometry:
@@ -190,8 +206,9 @@ def cliques_reference(lm: Landmarks, w: int, stride: int = 1) -> Cliques:
         starts = np.cumsum([0] + [len(p) for p in lm.pixels[:-1]])
     else:
         px, py, starts = lm.xy[:, 0], lm.xy[:, 1], None
-    seen: set[bytes] = set()
-    members, corners = [], []
+    index_of: dict[bytes, int] = {}
+    members: list[np.ndarray] = []
+    sums: list[list[int]] = []  # per clique: first x index, sum of x indices, sum of y indices, count
     for j in range(g.ny):
         y = j * g.s
         in_y = True if g.panorama else _in_linear(py, y, g.w)
@@ -202,15 +219,19 @@ def cliques_reference(lm: Landmarks, w: int, stride: int = 1) -> Cliques:
             if starts is not None:
                 inside = np.logical_or.reduceat(inside, starts)
             key = inside.tobytes()
-            if key in seen or not inside.any():
-                continue
-            seen.add(key)
-            members.append(inside)
-            corners.append((x, y))
+            if key in index_of:
+                acc = sums[index_of[key]]
+                acc[1] += i
+                acc[2] += j
+                acc[3] += 1
+            elif inside.any():
+                index_of[key] = len(members)
+                members.append(inside)
+                sums.append([i, i, j, 1])
     if not members:
         return _empty(lm, g)
-    xy = np.array(corners)
-    return Cliques(np.array(members, dtype=bool), g.centers(xy[:, 0], xy[:, 1]), g.w, g.s)
+    first_i, sum_i, sum_j, count = np.array(sums, dtype=np.int64).T
+    return Cliques(np.array(members, dtype=bool), g.centers(first_i, sum_i, sum_j, count), g.w, g.s)
 
 
 # ------------------------------------------------------------------------------------------ fast
@@ -376,26 +397,45 @@ def _aerial_component(planes: np.ndarray, k: int, pix: np.ndarray, cuts_x: np.nd
 
 
 def _distinct(planes: np.ndarray, cuts_x: np.ndarray, cuts_y: np.ndarray, k: int, g: _Geometry) -> Cliques:
-    """Distinct non-empty cell bit sets, each with its first cell in raster order, as Cliques.
+    """Distinct non-empty cell bit sets as Cliques, ordered by their first cell in raster order.
 
-    A cell's first window is its top-left one, and cells in raster order have their first
-    windows in raster order; a cell equal to its left or upper neighbour is never a clique's
-    first, so only the others are compared.
+    Cells equal to their left neighbour are merged into horizontal runs first (a run is a
+    rectangle of window corners: indices ``cuts[a] .. cuts[a + 1] - 1`` per cell and axis);
+    only runs are compared, and a clique's corner-index sums and count add up over its runs,
+    in integers.
     """
+    ny, nx = planes.shape[1:]
     nonempty = (planes != 0).any(axis=0)
-    first = nonempty.copy()
-    first[:, 1:] &= (planes[:, :, 1:] != planes[:, :, :-1]).any(axis=0)
-    first[1:, :] &= (planes[:, 1:, :] != planes[:, :-1, :]).any(axis=0)
-    ey, ex = np.nonzero(first)  # raster order
-    if len(ey) == 0:
+    start = nonempty.copy()
+    start[:, 1:] &= (planes[:, :, 1:] != planes[:, :, :-1]).any(axis=0)
+    flat_start = np.flatnonzero(start)  # raster order
+    if len(flat_start) == 0:
         return _empty_from(k, g)
-    words = np.ascontiguousarray(planes[:, ey, ex].T)  # (cells, words)
-    _, index = np.unique(words, axis=0, return_index=True)
-    index.sort()
+    stops = np.append(np.flatnonzero(start | ~nonempty), ny * nx)  # column 0 is always one of these
+    flat_end = stops[np.searchsorted(stops, flat_start, side="right")]  # one past the run's last cell
+    ey, ex = np.divmod(flat_start, nx)
+    ex_end = flat_end - ey * nx
+    words = np.ascontiguousarray(planes[:, ey, ex].T)  # (runs, words)
+    keys = words.view(np.dtype((np.void, words.itemsize * words.shape[1]))).ravel()
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    order = np.argsort(first)  # cliques by first run in raster order
+    clique = np.empty(len(order), dtype=np.int64)
+    clique[order] = np.arange(len(order))
+    clique = clique[inverse.ravel()]  # each run's clique
+    x_bound = np.append(np.asarray(cuts_x, dtype=np.int64), g.nx)
+    y_bound = np.append(np.asarray(cuts_y, dtype=np.int64), g.ny)
+    x_lo, y_lo = x_bound[ex], y_bound[ey]
+    n_x, n_y = x_bound[ex_end] - x_lo, y_bound[ey + 1] - y_lo
+    run_sum_i = (2 * x_lo + n_x - 1) * n_x // 2 * n_y  # sum of the x indices of the run's corners
+    run_sum_j = (2 * y_lo + n_y - 1) * n_y // 2 * n_x
+    sums = np.zeros((3, len(order)), dtype=np.int64)
+    for row, values in enumerate((run_sum_i, run_sum_j, n_x * n_y)):
+        np.add.at(sums[row], clique, values)
+    firsts = first[order]
     shifts = np.arange(64, dtype=np.uint64)
-    bits = (words[index][:, :, None] >> shifts) & np.uint64(1)
-    members = bits.reshape(len(index), -1)[:, :k].astype(bool)
-    centers = g.centers(cuts_x[ex[index]] * g.s, cuts_y[ey[index]] * g.s)
+    bits = (words[firsts][:, :, None] >> shifts) & np.uint64(1)
+    members = bits.reshape(len(firsts), -1)[:, :k].astype(bool)
+    centers = g.centers(x_lo[firsts], sums[0], sums[1], sums[2])
     return Cliques(members, centers, g.w, g.s)
 
 

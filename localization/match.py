@@ -32,43 +32,33 @@ the text leaves a choice open we follow the authors' MATLAB code (``virtualLocat
    likelihood of the candidate's own clique before extension (how well the window alone
    matches), then by raster order of the centres (:func:`rank`).
 
-:func:`localize_hierarchical` repeats this with windows 400 -> 200 -> 100 and multiplies the
-probabilities (eq. 3.8). :func:`feature_edge_mask` gives the dissertation's §5.3.2 option: edges
-between landmarks whose image features are closer than T are removed from the graphs
-(``aerial_drop``/``query_drop``); computing the features (a network's encoder) is the caller's.
+:mod:`localization.refine` adds the dissertation's options: the window hierarchy 400 -> 200 ->
+100 (eq. 3.8) and the removal of edges between landmarks with close image features (§5.3.2),
+which :func:`localize` takes as ``aerial_drop``/``query_drop``.
 """
 
 from __future__ import annotations
 
 import functools
 import logging
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
 
 from localization.graph import Cliques, cliques_fast, cliques_reference, window_size_auto
 from localization.landmarks import Landmarks
+from localization.result import DEFAULT_P, Localization, answered, rank, unanswered
 from osmseg.errors import ConfigError
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "DEFAULT_P", "HIERARCHY", "Localization", "class_adjacency", "extend_cliques", "feature_edge_mask",
-    "inverted_index", "likelihood", "localize", "localize_hierarchical", "match_cliques", "posteriors", "rank",
-    "relevant_cliques",
+    "DEFAULT_P", "Localization", "class_adjacency", "extend_cliques", "inverted_index", "likelihood", "localize",
+    "match_cliques", "posteriors", "rank", "relevant_cliques", "unanswered",
 ]
 
-#: The covisibility parameter p of the candidate extension (the paper's value).
-DEFAULT_P = 0.5
-#: The dissertation's hierarchy of aerial windows, coarse to fine (pixels).
-HIERARCHY = (400, 200, 100)
-#: Scores within this relative (or absolute) distance of the best one count as tied with it.
-TIE_RTOL = 1e-9
-TIE_ATOL = 1e-12
 #: Relevant cliques whose overlaps are computed at once (bounds memory to CHUNK x M floats).
 CHUNK = 512
 
@@ -192,7 +182,10 @@ class _EdgeTable:
     @classmethod
     def build(cls, c: sparse.csr_matrix, cls_idx: np.ndarray, n_classes: int,
               drop: np.ndarray | None = None) -> "_EdgeTable":
-        """``drop``: optional ``(K, K)`` bool, landmark pairs whose edge is removed (:func:`feature_edge_mask`)."""
+        """``drop``: optional ``(K, K)`` bool, landmark pairs whose edge is removed.
+
+        See :func:`localization.refine.feature_edge_mask`.
+        """
         if drop is not None and np.shape(drop) != (c.shape[1], c.shape[1]):
             raise ConfigError(f"an edge mask must be ({c.shape[1]}, {c.shape[1]}) for {c.shape[1]} landmarks, "
                               f"got {np.shape(drop)}")
@@ -251,7 +244,7 @@ def class_adjacency(members: np.ndarray, lm: Landmarks, classes: Sequence[str] |
     edges between classes ``a`` and ``b`` (``W[a, a]``: within ``a``) over the number of edges,
     so the lower triangle including the diagonal sums to 1. Rows and columns follow
     ``classes`` (default ``lm.classes``). No edge (fewer than two landmarks): all zeros.
-    ``drop`` removes the edges of chosen landmark pairs (:func:`feature_edge_mask`).
+    ``drop`` removes the edges of chosen landmark pairs (:func:`~localization.refine.feature_edge_mask`).
 
     >>> from localization.landmarks import Landmarks
     >>> lm = Landmarks(xy=np.zeros((3, 2)), cls=np.array([0, 1, 1]), classes=("a", "b"), width=9, height=9)
@@ -294,49 +287,6 @@ def likelihood(query_w: np.ndarray, candidate_w: np.ndarray) -> float:
     return float(_ncc(q[low], c[low][None, :])[0])
 
 
-def feature_edge_mask(features: np.ndarray, threshold: float, *, metric: str = "euclidean",
-                      reduce: str | None = None, components: int = 8, seed: int = 0) -> np.ndarray:
-    """§5.3.2: landmark pairs whose image features are closer than ``threshold`` lose their edge.
-
-    ``features`` is ``(K, d)``, one vector per landmark (e.g. a segmentation network's encoder
-    output averaged over the landmark's pixels): two landmarks that look alike (two parts of
-    one building) carry little information together. ``reduce`` first projects the features
-    to ``components`` dimensions: "pca" (centred SVD) or "umap" (needs ``umap-learn``).
-    ``metric`` is "euclidean" or "cosine" (``1 -`` cosine similarity). Returns ``(K, K)`` bool,
-    symmetric, False on the diagonal: pass it as ``aerial_drop``/``query_drop``.
-
-    >>> feature_edge_mask(np.array([[0.0, 0.0], [0.0, 0.1], [5.0, 5.0]]), 0.5).astype(int).tolist()
-    [[0, 1, 0], [1, 0, 0], [0, 0, 0]]
-    """
-    x = np.asarray(features, dtype=np.float64)
-    if x.ndim != 2 or not np.isfinite(x).all():
-        raise ConfigError(f"features must be a finite (K, d) array, one row per landmark; got shape {x.shape}")
-    if reduce == "pca":
-        centred = x - x.mean(axis=0)
-        u, sv, _ = np.linalg.svd(centred, full_matrices=False)
-        x = u[:, :components] * sv[:components]
-    elif reduce == "umap":
-        try:
-            import umap  # type: ignore[import-not-found]
-        except ImportError:
-            raise ConfigError("reduce='umap' needs umap-learn: pip install umap-learn (or use 'pca')") from None
-        x = umap.UMAP(n_components=components, random_state=seed).fit_transform(x)
-    elif reduce is not None:
-        raise ConfigError(f"reduce must be None, 'pca' or 'umap', got {reduce!r}")
-    if metric == "euclidean":
-        sq = (x * x).sum(axis=1)
-        dist = np.sqrt(np.maximum(sq[:, None] + sq[None, :] - 2 * x @ x.T, 0.0))
-    elif metric == "cosine":
-        norm = np.linalg.norm(x, axis=1)
-        unit = np.divide(x, norm[:, None], out=np.zeros_like(x), where=norm[:, None] > 0)
-        dist = 1.0 - unit @ unit.T
-    else:
-        raise ConfigError(f"metric must be 'euclidean' or 'cosine', got {metric!r}")
-    close = dist < threshold
-    np.fill_diagonal(close, False)
-    return close
-
-
 def posteriors(likelihoods: np.ndarray) -> np.ndarray:
     """Eqs. 3.4-3.6: each candidate's posterior against all the others, with a uniform prior.
 
@@ -366,132 +316,6 @@ def posteriors(likelihoods: np.ndarray) -> np.ndarray:
     return np.divide(num, den, out=np.zeros(n), where=den > 0)
 
 
-def rank(scores: np.ndarray, centers: np.ndarray, second: np.ndarray | None = None) -> tuple[np.ndarray, int]:
-    """Candidate indices best first, and how many share the best score.
-
-    Scores within ``TIE_RTOL`` (relative) or ``TIE_ATOL`` of the best are tied with it. Ties
-    (and exactly equal scores further down) are broken by ``second`` (higher first; the
-    likelihood of the candidate's own clique before extension, see :func:`match_cliques`),
-    then by raster order of the centres (row ``y``, then column ``x``), then by index: the
-    same input always gives the same MAP.
-
-    >>> scores, centers = np.array([0.5, 0.9, 0.9]), np.array([[5.0, 9.0], [7.0, 3.0], [1.0, 3.0]])
-    >>> order, ties = rank(scores, centers)
-    >>> order.tolist(), ties
-    ([2, 1, 0], 2)
-    >>> rank(scores, centers, second=np.array([0.0, 0.8, 0.7]))[0].tolist()
-    [1, 2, 0]
-    """
-    s = np.asarray(scores, dtype=np.float64)
-    if s.size == 0:
-        return np.zeros(0, dtype=np.int64), 0
-    xy = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
-    sec = np.zeros(s.size) if second is None else np.asarray(second, dtype=np.float64)
-    index = np.arange(s.size)
-    order = np.lexsort((index, xy[:, 0], xy[:, 1], -sec, -s))
-    tied = np.isclose(s[order], s[order[0]], rtol=TIE_RTOL, atol=TIE_ATOL)
-    n_tied = int(tied.sum())  # a prefix: scores are sorted
-    head = order[:n_tied]
-    head = head[np.lexsort((head, xy[head, 0], xy[head, 1], -sec[head]))]
-    return np.concatenate([head, order[n_tied:]]).astype(np.int64), n_tied
-
-
-# --------------------------------------------------------------------------- result
-
-
-def _floats(values: np.ndarray, digits: int = 10) -> list[float]:
-    return [round(float(v), digits) for v in np.asarray(values).ravel()]
-
-
-@dataclass(frozen=True, eq=False)
-class Localization:
-    """The answer to "where was the query taken?": candidates, scores and the best guesses.
-
-    ``candidates`` are window centres ``(x, y)`` in aerial pixels, one per relevant clique;
-    ``likelihoods`` are eq. 3.3 and ``posteriors`` eq. 3.6 (hierarchical: their product over
-    the levels, eq. 3.8). ``order`` lists candidate indices best first;
-    ``top_k`` holds ``(x, y, score)`` of the first ``k``; ``map_xy`` is the best one.
-    ``ties`` is how many candidates share the best score (1: a unique answer); ties are broken
-    by ``clique_likelihoods`` (eq. 3.3 for the candidate's clique before extension), then by
-    raster order. ``relevant`` gives each candidate's aerial clique index. When the
-    question cannot be answered (no landmarks, a query graph without edges, no relevant
-    clique, or every candidate with likelihood 0) ``unanswered`` is True, ``reason`` says
-    why, and there are no candidates.
-    """
-
-    candidates: np.ndarray
-    likelihoods: np.ndarray
-    posteriors: np.ndarray
-    order: np.ndarray
-    top_k: tuple[tuple[float, float, float], ...]
-    map_xy: tuple[float, float] | None
-    ties: int
-    unanswered: bool
-    reason: str = ""
-    window: int = 0
-    query_window: int = 0
-    p: float = DEFAULT_P
-    n_cliques: int = 0
-    relevant: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    clique_likelihoods: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    levels: tuple["Localization", ...] = ()
-
-    def error(self, truth: tuple[float, float] | None, resolution: float | None = None
-              ) -> tuple[float | None, float | None]:
-        """Distance from the MAP to ``truth`` in pixels, and in metres given ``resolution`` (m/px).
-
-        (None, None) without a truth or an answer.
-        """
-        if truth is None or self.map_xy is None:
-            return None, None
-        px = math.hypot(self.map_xy[0] - truth[0], self.map_xy[1] - truth[1])
-        return px, (px * resolution if resolution else None)
-
-    def to_dict(self, all_candidates: bool = True) -> dict[str, Any]:
-        """A JSON-able summary: settings, top-k with ranks, and (optionally) every candidate."""
-        top = [{"rank": r + 1, "x": float(x), "y": float(y), "posterior": round(float(s), 10),
-                "likelihood": round(float(self.likelihoods[i]), 10)}
-               for r, ((x, y, s), i) in enumerate(zip(self.top_k, self.order))]
-        out: dict[str, Any] = {
-            "unanswered": self.unanswered,
-            "reason": self.reason,
-            "window": self.window,
-            "query_window": self.query_window,
-            "p": self.p,
-            "n_cliques": self.n_cliques,
-            "n_candidates": int(len(self.candidates)),
-            "ties": self.ties,
-            "map": None if self.map_xy is None else {"x": self.map_xy[0], "y": self.map_xy[1],
-                                                      "posterior": top[0]["posterior"]},
-            "top_k": top,
-        }
-        if all_candidates:
-            out["candidates"] = [{"x": float(x), "y": float(y), "likelihood": lk, "posterior": s}
-                                 for (x, y), lk, s in zip(self.candidates.tolist(), _floats(self.likelihoods),
-                                                          _floats(self.posteriors))]
-        if self.levels:
-            out["levels"] = [lv.to_dict(all_candidates=False) for lv in self.levels]
-        return out
-
-
-def unanswered(reason: str, **settings: Any) -> Localization:
-    """A result that says the query cannot be localized, and why (not an error)."""
-    empty = np.zeros(0)
-    return Localization(candidates=np.zeros((0, 2)), likelihoods=empty, posteriors=empty,
-                        order=np.zeros(0, dtype=np.int64), top_k=(), map_xy=None, ties=0,
-                        unanswered=True, reason=reason, **settings)
-
-
-def answered(centers: np.ndarray, likelihoods: np.ndarray, scores: np.ndarray, top_k: int, *,
-             clique_likelihoods: np.ndarray, **settings: Any) -> Localization:
-    """A result over candidates at ``centers``, ranked by ``scores`` then ``clique_likelihoods`` (:func:`rank`)."""
-    order, ties = rank(scores, centers, clique_likelihoods)
-    top = tuple((float(centers[i, 0]), float(centers[i, 1]), float(scores[i])) for i in order[:top_k])
-    return Localization(candidates=np.asarray(centers, dtype=np.float64), likelihoods=likelihoods, posteriors=scores,
-                        order=order, top_k=top, map_xy=(top[0][0], top[0][1]), ties=ties, unanswered=False,
-                        clique_likelihoods=clique_likelihoods, **settings)
-
-
 # --------------------------------------------------------------------------- localize
 
 
@@ -510,7 +334,7 @@ def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, 
     """Steps 1-6 of the module docstring on graphs already built (no window choice here).
 
     ``window`` and ``query_window`` are only recorded in the result (default: the cliques' own).
-    ``aerial_drop``/``query_drop`` remove edges from the graphs (:func:`feature_edge_mask`).
+    ``aerial_drop``/``query_drop`` remove edges from the graphs (:func:`~localization.refine.feature_edge_mask`).
     """
     settings = {"window": window or aerial_cliques.window, "query_window": query_window or query_cliques.window,
                 "p": p, "n_cliques": int(len(aerial_cliques.members))}
@@ -557,7 +381,7 @@ def localize(aerial: Landmarks, query: Landmarks, *, window: int | None = None, 
         top_k: how many best candidates ``top_k`` holds.
         fast: exact event-sweep cliques (:func:`cliques_fast`) instead of the plain sliding window.
         aerial_drop, query_drop: ``(K, K)`` landmark pairs whose edges are removed (§5.3.2,
-            :func:`feature_edge_mask`); None keeps every edge.
+            :func:`~localization.refine.feature_edge_mask`); None keeps every edge.
 
     Returns an unanswered :class:`Localization` (not an exception) when either image has no
     landmark, the query graph has no edge, no aerial clique holds all the query's classes, or
@@ -579,56 +403,3 @@ def localize(aerial: Landmarks, query: Landmarks, *, window: int | None = None, 
     logger.debug("localize: window %d, query window %d, %d cliques, %d candidates, ties %d",
                  w, qw, result.n_cliques, len(result.candidates), result.ties)
     return result
-
-
-def inherit(fine: np.ndarray, coarse: np.ndarray, coarse_scores: np.ndarray, coarse_window: int) -> np.ndarray:
-    """For each fine centre, the best score among coarse candidates whose window contains it.
-
-    A coarse window of side ``w`` centred at ``c`` covers ``[c - w/2, c + w/2]`` in x and y
-    (bounds included, as the covisibility windows). A centre no coarse window contains gets 0.
-
-    >>> inherit(np.array([[10.0, 10.0], [90.0, 10.0]]), np.array([[0.0, 0.0], [20.0, 20.0]]), np.array([0.2, 0.7]), 20)
-    array([0.7, 0. ])
-    """
-    if len(fine) == 0 or len(coarse) == 0:
-        return np.zeros(len(fine))
-    inside = np.all(np.abs(fine[:, None, :] - coarse[None, :, :]) <= coarse_window / 2.0 + 1e-9, axis=2)
-    return np.where(inside, coarse_scores[None, :], 0.0).max(axis=1)
-
-
-def localize_hierarchical(aerial: Landmarks, query: Landmarks, windows: Sequence[int] = HIERARCHY, *,
-                          query_window: int | None = None, p: float = DEFAULT_P, stride: int = 1, top_k: int = 5,
-                          fast: bool = True, aerial_drop: np.ndarray | None = None,
-                          query_drop: np.ndarray | None = None) -> Localization:
-    """Eq. 3.8: localize with each aerial window in turn (coarse to fine) and multiply probabilities.
-
-    Level 0 scores are its posteriors. A candidate of level ``l`` scores its own posterior
-    times the score it inherits from level ``l-1``: the best among the coarser candidates
-    whose window contains its centre (:func:`inherit`), 0 when none does. Refinement stops at
-    the last level that is answered and leaves some candidate with a non-zero score (finer
-    windows may be too small to hold every query class); the result is that level's
-    candidates with the combined scores, and ``levels`` keeps every level's own result.
-    """
-    if not windows or any(int(w) < 1 for w in windows):
-        raise ConfigError(f"windows must be positive pixel sizes, coarse to fine, got {list(windows)}")
-    levels: list[Localization] = []
-    best: Localization | None = None
-    for w in windows:
-        level = localize(aerial, query, window=int(w), query_window=query_window, p=p, stride=stride,
-                         top_k=top_k, fast=fast, aerial_drop=aerial_drop, query_drop=query_drop)
-        levels.append(level)
-        if level.unanswered:
-            break
-        if best is None:
-            best = level
-            continue
-        scores = level.posteriors * inherit(level.candidates, best.candidates, best.posteriors, best.window)
-        if not scores.any():
-            logger.info("hierarchical: no %d px candidate inside a %d px one; stopping", w, best.window)
-            break
-        best = answered(level.candidates, level.likelihoods, scores, top_k, relevant=level.relevant,
-                        clique_likelihoods=level.clique_likelihoods,
-                        window=level.window, query_window=level.query_window, p=p, n_cliques=level.n_cliques)
-    if best is None:
-        return Localization(**{**levels[0].__dict__, "levels": tuple(levels)})
-    return Localization(**{**best.__dict__, "levels": tuple(levels)})

@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 
 from localization.graph import Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
+from localization.landmark_files import read_landmarks
 from localization.landmarks import (PAPER_CLASSES, LandmarkClasses, Landmarks, landmarks_from_mask,
-                                    load_landmark_classes, read_landmarks)
+                                    load_landmark_classes)
 from osmseg.classes import load_class_table
 from osmseg.errors import ClassTableError, ConfigError, DatasetError
 
 ABC = ("a", "b", "c")
+REPO = Path(__file__).resolve().parents[1]
 
 
 def points(xy, width: int, height: int, panorama: bool = False, cls=None) -> Landmarks:
@@ -49,7 +51,8 @@ FIG31 = [(2, 2), (8, 2), (13, 3), (8, 8), (8, 13), (7, 14)]
 def test_figure_3_1_cliques(algorithm):
     c = algorithm(points(FIG31, 16, 16), 10, stride=6)
     assert sets(c) == [{1, 2, 4}, {2, 3, 4}, {4, 5, 6}]  # the 4th window repeats C3: dropped
-    assert c.centers.tolist() == [[5.0, 5.0], [11.0, 5.0], [5.0, 11.0]]  # first window of each
+    # centres: mean over the windows producing each clique (C3: corners (0, 6) and (6, 6))
+    assert c.centers.tolist() == [[5.0, 5.0], [11.0, 5.0], [8.0, 11.0]]
     a = adjacency(c)
     edges = {(i + 1, j + 1) for i, j in zip(*np.nonzero(np.triu(a, 1)))}
     assert edges == {(1, 2), (1, 4), (2, 4), (2, 3), (3, 4), (4, 5), (4, 6), (5, 6)}  # the figure's 8 edges
@@ -197,6 +200,32 @@ def test_panorama_window_wraps_around():
         assert {1, 2} not in sets(plain)  # an aerial image does not wrap
 
 
+def test_centre_is_the_mean_of_every_producing_window():
+    """A lone landmark's clique is centred on it, not up-left of it (the first window's centre)."""
+    lm = points([(40, 30)], 100, 80)
+    for algorithm in (cliques_fast, cliques_reference):
+        for w, stride in ((20, 1), (21, 1), (20, 3)):
+            c = algorithm(lm, w, stride)
+            assert sets(c) == [{1}]
+            # corners 20..40 (x) and 10..30 (y), or their multiples of 3: symmetric around the landmark
+            expect_x = np.mean([i + w / 2 for i in range(0, 81, stride) if i <= 40 <= i + w])
+            expect_y = np.mean([j + w / 2 for j in range(0, 61, stride) if j <= 30 <= j + w])
+            assert c.centers.tolist() == [[expect_x, expect_y]]
+        assert algorithm(lm, 20).centers.tolist() == [[40.0, 30.0]]
+    # two landmarks: brute force over every window position, averaging the centres per clique
+    two = points([(30, 30), (45, 38)], 90, 70)
+    c = cliques_fast(two, 25, 2)
+    by_clique: dict[frozenset[int], list[tuple[float, float]]] = {}
+    for y in range(0, 70 - 25 + 1, 2):
+        for x in range(0, 90 - 25 + 1, 2):
+            inside = frozenset(k + 1 for k, (px, py) in enumerate(two.xy) if x <= px <= x + 25 and y <= py <= y + 25)
+            if inside:
+                by_clique.setdefault(inside, []).append((x + 12.5, y + 12.5))
+    assert {frozenset(s) for s in sets(c)} == set(by_clique)
+    for members, centre in zip(sets(c), c.centers):
+        np.testing.assert_allclose(centre, np.mean(by_clique[frozenset(members)], axis=0), rtol=0, atol=1e-12)
+
+
 def test_window_larger_than_image_is_one_clique():
     lm = points([(1, 1), (9, 2), (4, 6)], 10, 7)
     for algorithm in (cliques_fast, cliques_reference):
@@ -284,6 +313,15 @@ def test_landmarks_from_mask_component_mode():
     assert lm.xy.tolist() == [[2.0, 1.5]]
 
 
+def test_component_mode_with_every_component_of_a_class_too_small():
+    mask = np.zeros((20, 30), np.uint8)
+    mask[2:12, 2:12] = 1  # a building of 100 px
+    mask[15, 20:23] = 2  # a road of 3 px: below min_size, so no road landmark
+    for panorama in (False, True):
+        lm = landmarks_from_mask(mask, TABLE3, DICT3, mode="component", min_size=10, panorama=panorama)
+        assert len(lm) == 1 and len(lm.pixels) == 1 and len(lm.pixels[0]) == 100
+
+
 def test_panorama_merges_components_across_the_seam():
     mask = np.zeros((20, 100), np.uint8)
     mask[5:15, 95:100] = 1
@@ -322,7 +360,8 @@ def test_class_dictionaries():
         known = {c.name for c in load_class_table(table).classes}
         assert set(d.mapping) <= known and set(d.mapping.values()) == set(PAPER_CLASSES)
     camvid = load_landmark_classes("landmarks-camvid.toml")
-    assert load_landmark_classes("landmarks-camvid") == camvid == load_landmark_classes("camvid")
+    for spelling in ("landmarks-camvid", "camvid", "camvid.toml", "data_manifests/landmarks-camvid.toml"):
+        assert load_landmark_classes(str(REPO / spelling) if "/" in spelling else spelling) == camvid
     assert camvid.mapping == {"Building": "building", "Road": "road", "Tree": "vegetation", "Pavement": "footway"}
     assert camvid.mask_ids()[4] == "Pavement" and len(camvid.mask_classes) == 12
     # a CamVid label mask, read with the dictionary's own class list (mask_table=None)
@@ -341,8 +380,9 @@ def test_class_dictionary_errors(tmp_path: Path):
     bad.write_text('name = "bad"\n[mapping]\nhouse = "building"\n')
     with pytest.raises(ClassTableError, match="malformed"):
         load_landmark_classes(str(bad))
-    with pytest.raises(ConfigError, match="not found"):
-        load_landmark_classes("nosuchdictionary")
+    for missing in ("nosuchdictionary", "landmarks-nosuch.toml", str(tmp_path / "landmarks-aerial13.toml")):
+        with pytest.raises(ConfigError, match="not found: give one of .*aerial13"):
+            load_landmark_classes(missing)
     with pytest.raises(ConfigError, match="names no mask table"):
         landmarks_from_mask(np.zeros((3, 3), np.uint8), None, DICT3)
 

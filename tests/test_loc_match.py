@@ -1,4 +1,4 @@
-"""Matching landmark graphs (localization.match), its pictures and the ``osmseg localize`` command.
+"""Matching landmark graphs (localization.match, .refine, .result), its pictures and the ``osmseg localize`` command.
 
 Scenes are built here, small and seeded: hand-checkable cliques (the dissertation's Figure
 3.1), and landmark layouts whose answer is known by construction (an isolated plaza, blocks
@@ -20,9 +20,10 @@ from PIL import Image
 from localization.graph import cliques_fast
 from localization.landmarks import Landmarks
 from localization.match import (
-    DEFAULT_P, class_adjacency, extend_cliques, feature_edge_mask, inherit, inverted_index, likelihood, localize,
-    localize_hierarchical, match_cliques, posteriors, rank, relevant_cliques,
+    DEFAULT_P, class_adjacency, extend_cliques, inverted_index, likelihood, localize, match_cliques, posteriors, rank,
+    relevant_cliques,
 )
+from localization.refine import feature_edge_mask, inherit, localize_hierarchical
 from localization.pictures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
 from osmseg.classes import load_class_table
 from osmseg.cli.localize import localize_command

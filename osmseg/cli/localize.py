@@ -140,8 +140,6 @@ def _dictionary(name: str) -> Any:
     """A landmark class dictionary by name ("aerial13", "landmarks-aerial13", a .toml path)."""
     from localization.landmarks import load_landmark_classes
 
-    if not Path(name).is_file() and not name.endswith(".toml") and name.startswith("landmarks-"):
-        name = name[len("landmarks-"):]
     return load_landmark_classes(name)
 
 
@@ -304,7 +302,7 @@ def _segmented_side(path: Path, pixels: np.ndarray, resolution: float | None, op
 
 def _landmark_file_side(path: Path, opts: SideOptions, dictionary: Any) -> Side:
     """Landmarks of an ``x y Class`` / CSV / .npy file, sized by --*-size, an image beside it, or their extent."""
-    from localization.landmarks import read_landmarks
+    from localization.landmark_files import read_landmarks
 
     background, size = None, opts.size
     beside = next((path.with_suffix(s) for s in IMAGE_SUFFIXES if path.with_suffix(s).is_file()), None)
@@ -447,7 +445,8 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                      reference: bool, truth_text: str | None, resolution: float | None, as_json: bool,
                      out_dir: Path | None) -> None:
     """Find where the GROUND panorama was taken in the AERIAL image by matching landmark graphs."""
-    from localization.match import localize, localize_hierarchical
+    from localization.match import localize
+    from localization.refine import localize_hierarchical
 
     verbosity = (ctx.obj or {}).get("verbosity", 0)
     window, windows, truth = _window(window_text), _windows(windows_text), _point(truth_text)
