@@ -16,29 +16,23 @@ without a software stamp (same input, same bytes) and written atomically.
 
 from __future__ import annotations
 
-import io
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 
 import matplotlib
 import numpy as np
 from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
-from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
 
 from localization.landmarks import Landmarks
 from localization.match import Localization
 from osmseg.errors import ConfigError
-from osmseg.output.atomic import atomic_write_bytes
+from osmseg.output.figures import DPI, figure as _figure, save_png as _save
 
 __all__ = ["CANDIDATE", "TOP_K", "TRUTH", "class_colours", "graph_png", "localization_png"]
 
-DPI = 100
-_STYLE = {"font.size": 9, "axes.titlesize": 10, "figure.titlesize": 11, "image.interpolation_stage": "rgba"}
 #: Colours of the paper's localization picture.
 CANDIDATE = "#ff9900"
 TOP_K = "#00c000"
@@ -50,25 +44,6 @@ KNOWN_COLOURS = {
 }
 #: Largest picture side in inches (at DPI 100: 900 px).
 MAX_INCHES = 9.0
-
-
-@contextmanager
-def _figure(width: float, height: float) -> Iterator[Figure]:
-    """A constrained-layout figure on an Agg canvas with our style; cleared on exit."""
-    with matplotlib.rc_context(_STYLE):
-        fig = Figure(figsize=(width, height), dpi=DPI, layout="constrained")
-        FigureCanvasAgg(fig)
-        try:
-            yield fig
-        finally:
-            fig.clear()
-
-
-def _save(fig: Figure, path: Path | str) -> Path:
-    """Render ``fig`` to PNG in memory (no software stamp) and write it atomically."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None}, facecolor="white")
-    return atomic_write_bytes(Path(path), buf.getvalue())
 
 
 def class_colours(classes: Sequence[str]) -> list[str]:

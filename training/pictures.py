@@ -1,7 +1,7 @@
 """Evaluation pictures: confusion matrix, qualitative panels, training curves, per-class IoU.
 
 Every picture is drawn with matplotlib's object-oriented API on an Agg canvas created here
-(:class:`matplotlib.figure.Figure` + :class:`FigureCanvasAgg`), never through ``pyplot``: no
+(osmseg.output.figures: a Figure on its own Agg canvas), never through ``pyplot``: no
 global backend is switched, no figure is registered in pyplot's figure manager (so nothing
 stays open after a call, and nothing needs a display), and style settings are applied with
 :func:`matplotlib.rc_context`, which restores ``rcParams`` on exit. Each PNG is rendered into
@@ -16,48 +16,23 @@ of a model's outputs use the same colours as the dataset's masks.
 from __future__ import annotations
 
 import csv
-import io
 import math
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import matplotlib
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.output.atomic import atomic_write_bytes
+from osmseg.output.figures import DPI, figure as _figure, save_png as _save
 
 __all__ = ["confusion_matrix_png", "qualitative_panels", "training_curves_png", "per_class_iou_png"]
 
-DPI = 100
 #: Matrices up to this many classes get their values written in the cells.
 MAX_ANNOTATED = 16
-_STYLE = {"font.size": 9, "axes.titlesize": 10, "figure.titlesize": 11, "image.interpolation_stage": "rgba"}
 Panel = tuple[str, np.ndarray, np.ndarray, np.ndarray]
-
-
-@contextmanager
-def _figure(width: float, height: float) -> Iterator[Figure]:
-    """A constrained-layout figure of ``width`` x ``height`` inches on an Agg canvas, with our style."""
-    with matplotlib.rc_context(_STYLE):
-        fig = Figure(figsize=(width, height), dpi=DPI, layout="constrained")
-        FigureCanvasAgg(fig)
-        try:
-            yield fig
-        finally:
-            fig.clear()
-
-
-def _save(fig: Figure, path: Path | str) -> Path:
-    """Render ``fig`` to PNG in memory (no timestamp/software stamp) and write it atomically."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None}, facecolor="white")
-    return atomic_write_bytes(Path(path), buf.getvalue())
 
 
 def _classes(class_table: Mapping[str, Any]) -> list[tuple[int, str, tuple[int, int, int]]]:
