@@ -29,8 +29,7 @@ import logging
 import math
 import sys
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +40,7 @@ from tqdm import tqdm
 from localization.graph import Cliques, cliques_fast, window_size_auto
 from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
 from localization.match import DEFAULT_P, Localization, match_cliques, unanswered
+from localization.bench_plots import plot_classes, plot_errors
 from localization.render import (NoiseConfig, RenderConfig, RenderedView, class_table_from_dict, render_view,
                                  save_panorama_png)
 from osmseg import __version__
@@ -50,8 +50,9 @@ from osmseg.output.atomic import atomic_write_text
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Scene", "BenchConfig", "load_dataset_scenes", "load_mask_scene", "place_viewpoints",
-           "class_subsets", "summarize", "run_bench", "plot_errors", "plot_classes"]
+__all__ = ["Scene", "BenchConfig", "load_dataset_scenes", "load_mask_scene", "place_viewpoints", "class_subsets",
+           "subsets_of", "summarize", "score", "chance_errors", "baselines", "by_num_classes", "aerial_graphs",
+           "localize_subsets", "run_bench", "write_results", "plot_errors", "plot_classes"]
 
 RECALL_RADII_M = (10, 25, 50)
 #: Classes nobody stands on, besides those with a height (buildings, trees).
@@ -217,16 +218,19 @@ def _mean(values: Sequence[float]) -> float | None:
     return round(float(np.mean(values)), 4) if len(values) else None
 
 
-def summarize(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Error statistics over per-viewpoint records (``error_m``, ``error_px``, ``top5_mean_m``, ...).
+def summarize(records: Sequence[dict[str, Any]], radii: Sequence[float] = RECALL_RADII_M) -> dict[str, Any]:
+    """Error statistics over per-query records (``error``, ``error_px``, ``top5_mean``, ``ties``, ``unanswered``).
 
-    >>> s = summarize([{"error_px": 10.0, "error_m": 5.0, "top5_mean_m": 8.0, "ties": 1, "unanswered": False},
-    ...                {"error_px": None, "error_m": None, "top5_mean_m": None, "ties": 0, "unanswered": True}])
-    >>> s["mean_error_m"], s["recall_at_m"]["10"], s["unanswered"], s["answered"]
+    ``error`` and ``top5_mean`` are in the run's unit (metres, or pixels without a resolution);
+    recall at each radius counts unanswered queries as misses.
+
+    >>> s = summarize([{"error_px": 10.0, "error": 5.0, "top5_mean": 8.0, "ties": 1, "unanswered": False},
+    ...                {"error_px": None, "error": None, "top5_mean": None, "ties": 0, "unanswered": True}])
+    >>> s["mean_error"], s["recall_at"]["10"], s["unanswered"], s["answered"]
     (5.0, 0.5, 1, 1)
     """
     answered = [r for r in records if not r["unanswered"]]
-    err_m = [r["error_m"] for r in answered]
+    err = [r["error"] for r in answered]
     err_px = [r["error_px"] for r in answered]
     n = len(records)
     return {
@@ -237,32 +241,56 @@ def summarize(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "mean_ties": _mean([r["ties"] for r in answered]),
         "mean_error_px": _mean(err_px),
         "median_error_px": round(float(np.median(err_px)), 4) if err_px else None,
-        "mean_error_m": _mean(err_m),
-        "median_error_m": round(float(np.median(err_m)), 4) if err_m else None,
-        "recall_at_m": {str(r): round(sum(e <= r for e in err_m) / n, 4) if n else None for r in RECALL_RADII_M},
-        "top5_mean_distance_m": _mean([r["top5_mean_m"] for r in answered]),
+        "mean_error": _mean(err),
+        "median_error": round(float(np.median(err)), 4) if err else None,
+        "recall_at": {f"{r:g}": round(sum(e <= r for e in err) / n, 4) if n else None for r in radii},
+        "top5_mean_distance": _mean([r["top5_mean"] for r in answered]),
     }
 
 
-def score(loc: Localization, truth: tuple[float, float], resolution_m: float) -> dict[str, Any]:
-    """Error of one localization against the true viewpoint."""
+def score(loc: Localization, truth: tuple[float, float], scale: float = 1.0) -> dict[str, Any]:
+    """Error of one localization against the true viewpoint; ``scale``: units per pixel (m/px, or 1)."""
     if loc.unanswered or loc.map_xy is None:
-        return {"map": None, "error_px": None, "error_m": None, "top5_mean_m": None, "ties": loc.ties,
+        return {"map": None, "error_px": None, "error": None, "top5_mean": None, "ties": loc.ties,
                 "unanswered": True, "reason": loc.reason, "candidates": 0}
     err = math.hypot(loc.map_xy[0] - truth[0], loc.map_xy[1] - truth[1])
     top = [math.hypot(x - truth[0], y - truth[1]) for x, y, _ in loc.top_k]
     return {"map": [round(loc.map_xy[0], 3), round(loc.map_xy[1], 3)], "error_px": round(err, 4),
-            "error_m": round(err * resolution_m, 4), "top5_mean_m": round(float(np.mean(top)) * resolution_m, 4),
+            "error": round(err * scale, 4), "top5_mean": round(float(np.mean(top)) * scale, 4),
             "ties": loc.ties, "unanswered": False, "reason": "", "candidates": int(len(loc.candidates))}
 
 
-def chance_errors(shape: tuple[int, int], truth: tuple[float, float], resolution_m: float) -> tuple[float, float]:
-    """Errors (m) of two blind guesses: the image centre, and a uniformly random pixel (expected)."""
+def chance_errors(shape: tuple[int, int], truth: tuple[float, float], scale: float = 1.0) -> tuple[float, float]:
+    """Errors of two blind guesses: the image centre, and a uniformly random pixel (expected).
+
+    >>> [round(e, 1) for e in chance_errors((101, 101), (50.0, 50.0))]   # random: ~0.38 x side
+    [0.0, 38.9]
+    """
     h, w = shape
-    centre = math.hypot(truth[0] - (w - 1) / 2, truth[1] - (h - 1) / 2) * resolution_m
+    centre = math.hypot(truth[0] - (w - 1) / 2, truth[1] - (h - 1) / 2) * scale
     gx, gy = np.meshgrid(np.linspace(0, w - 1, 64), np.linspace(0, h - 1, 64))
-    uniform = float(np.mean(np.hypot(gx - truth[0], gy - truth[1]))) * resolution_m
+    uniform = float(np.mean(np.hypot(gx - truth[0], gy - truth[1]))) * scale
     return centre, uniform
+
+
+def by_num_classes(subsets: Sequence[tuple[str, ...]], records: Sequence[dict[str, Any]],
+                   radii: Sequence[float] = RECALL_RADII_M) -> dict[str, Any]:
+    """Summaries per class subset, pooled by subset size (the dissertation's Figure 5.2).
+
+    ``subsets[0]`` is the full class set, scored in each record itself; the others are in
+    ``record["by_subset"]["a+b"]``.
+    """
+    full = "+".join(subsets[0])
+
+    def of(record: dict[str, Any], name: str) -> dict[str, Any]:
+        return record if name == full else record["by_subset"][name]
+
+    out: dict[str, Any] = {}
+    for k in sorted({len(s) for s in subsets}):
+        names = ["+".join(s) for s in subsets if len(s) == k]
+        per = {n: summarize([of(r, n) for r in records], radii) for n in names}
+        out[str(k)] = {"summary": summarize([of(r, n) for n in names for r in records], radii), "subsets": per}
+    return out
 
 
 # --------------------------------------------------------------------------- the run
@@ -284,15 +312,51 @@ def _aerial_graph(lm: Landmarks, window: int | None) -> _AerialGraph:
     return _AerialGraph(lm, w, cliques_fast(lm, w))
 
 
-def _localize(graph: _AerialGraph, query: Landmarks, config: BenchConfig) -> Localization:
+def _localize(graph: _AerialGraph, query: Landmarks, p: float, top_k: int) -> Localization:
     """:func:`localize` with a prebuilt aerial graph (same defaults: the query window is its height)."""
     if graph.cliques is None:
-        return unanswered("the aerial image has no landmarks", p=config.p)
+        return unanswered("the aerial image has no landmarks", p=p)
     if len(query.xy) == 0:
-        return unanswered("the query has no landmarks", p=config.p)
+        return unanswered("the query has no landmarks", p=p)
     qw = query.height if query.panorama else graph.window
-    return match_cliques(graph.landmarks, graph.cliques, query, cliques_fast(query, qw), p=config.p,
-                         top_k=config.top_k, window=graph.window, query_window=qw)
+    return match_cliques(graph.landmarks, graph.cliques, query, cliques_fast(query, qw), p=p,
+                         top_k=top_k, window=graph.window, query_window=qw)
+
+
+def aerial_graphs(lm: Landmarks, subsets: Sequence[tuple[str, ...]], window: int | None) -> dict[tuple[str, ...], Any]:
+    """The aerial landmarks' graph for every class subset, each with its own automatic window."""
+    return {s: _aerial_graph(lm.of_classes(s), window) for s in subsets}
+
+
+def localize_subsets(graphs: dict[tuple[str, ...], Any], query: Landmarks, truth: tuple[float, float], scale: float,
+                     p: float, top_k: int) -> tuple[dict[str, Any], float]:
+    """Score the query against every subset's graph: the full set's record (with ``by_subset``) and its time (s)."""
+    subsets = list(graphs)
+    by_subset: dict[str, dict[str, Any]] = {}
+    seconds = 0.0
+    for s in subsets:
+        t0 = time.perf_counter()
+        loc = _localize(graphs[s], query.of_classes(s), p, top_k)
+        if s == subsets[0]:
+            seconds = time.perf_counter() - t0
+        by_subset["+".join(s)] = score(loc, truth, scale)
+    full = by_subset.pop("+".join(subsets[0]))
+    return {**full, "by_subset": by_subset}, seconds
+
+
+def write_results(results: dict[str, Any], out_dir: Path, plots: bool) -> None:
+    """results.json, and errors.png + classes.png when ``plots``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out_dir / "results.json", json.dumps(results, indent=2, sort_keys=True) + "\n")
+    if plots:
+        plot_errors(results, out_dir / "errors.png")
+        plot_classes(results, out_dir / "classes.png")
+
+
+def subsets_of(classes: LandmarkClasses, all_subsets: bool) -> list[tuple[str, ...]]:
+    """The full class set first, then (when asked) every smaller subset of two or more classes."""
+    full = tuple(classes.names)
+    return [full] + ([s for s in class_subsets(full) if len(s) < len(full)] if all_subsets else [])
 
 
 def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, progress: bool = False,
@@ -302,8 +366,7 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
         raise DatasetError("no aerial masks to benchmark on")
     out_dir = Path(out_dir)
     classes = landmark_classes_for(scenes[0].table, config.landmarks)
-    subsets = [tuple(classes.names)] + ([s for s in class_subsets(classes.names) if len(s) < len(classes.names)]
-                                        if config.subsets else [])
+    subsets = subsets_of(classes, config.subsets)
     graphs: list[dict[tuple[str, ...], _AerialGraph]] = []
     placements: list[np.ndarray] = []
     counts = [config.viewpoints // len(scenes) + (i < config.viewpoints % len(scenes)) for i in range(len(scenes))]
@@ -311,7 +374,7 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     for scene, count in zip(scenes, counts):
         full = landmarks_from_mask(scene.mask, scene.table, classes, mode=config.mode, min_size=config.min_size,
                                    stride=config.stride)
-        graphs.append({s: _aerial_graph(full.of_classes(s), config.window) for s in subsets})
+        graphs.append(aerial_graphs(full, subsets, config.window))
         margin = int(math.ceil(config.margin_m / scene.resolution_m))
         placements.append(place_viewpoints(scene.mask, standable_ids(scene.table, config), count, margin, place_rng)
                           if count else np.zeros((0, 2), dtype=np.int64))
@@ -334,47 +397,29 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
         if index < config.save_panoramas:
             save_panorama_png(out_dir / "panoramas" / f"{index:04d}_{scene.name}.png", view.panorama)
         centre, uniform = chance_errors(scene.mask.shape, truth, scene.resolution_m)
-        by_subset: dict[str, dict[str, Any]] = {}
-        t_loc = 0.0
-        for s in subsets:
-            t0 = time.perf_counter()
-            loc = _localize(graphs[si][s], view.landmarks.of_classes(s), config)
-            if s == subsets[0]:
-                t_loc = time.perf_counter() - t0
-            by_subset["+".join(s)] = score(loc, truth, scene.resolution_m)
-        full_name = "+".join(subsets[0])
+        scored, t_loc = localize_subsets(graphs[si], view.landmarks, truth, scene.resolution_m, config.p, config.top_k)
         records.append({
             "index": index, "scene": scene.name, "truth": [truth[0], truth[1]],
             "camera": [round(view.panorama.camera[0], 3), round(view.panorama.camera[1], 3)],
             "resolution_m": scene.resolution_m, "query_landmarks": int(len(view.landmarks.xy)),
             "classes_seen": sorted({view.landmarks.classes[c] for c in np.unique(view.landmarks.cls)}),
-            **by_subset[full_name], "centre_guess_m": round(centre, 4), "random_guess_m": round(uniform, 4),
-            "render_s": round(t_render, 4), "localize_s": round(t_loc, 4),
-            "by_subset": {k: v for k, v in by_subset.items() if k != full_name},
+            "centre_guess": round(centre, 4), "random_guess": round(uniform, 4),
+            "render_s": round(t_render, 4), "localize_s": round(t_loc, 4), **scored,
         })
     total = time.perf_counter() - t_start
 
     results = _results(scenes, graphs, subsets, records, config, classes, source, total)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out_dir / "results.json", json.dumps(results, indent=2, sort_keys=True) + "\n")
-    if plots:
-        plot_errors(results, out_dir / "errors.png")
-        plot_classes(results, out_dir / "classes.png")
+    write_results(results, out_dir, plots)
     return results
 
 
 def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], _AerialGraph]],
              subsets: list[tuple[str, ...]], records: list[dict[str, Any]], config: BenchConfig,
              classes: LandmarkClasses, source: str, total_s: float) -> dict[str, Any]:
-    """The results.json document."""
-    by_k: dict[str, Any] = {}
-    for k in sorted({len(s) for s in subsets}):
-        names = ["+".join(s) for s in subsets if len(s) == k]
-        per = {n: summarize([r if n == "+".join(subsets[0]) else r["by_subset"][n] for r in records]) for n in names}
-        pooled = [r if n == "+".join(subsets[0]) else r["by_subset"][n] for n in names for r in records]
-        by_k[str(k)] = {"summary": summarize(pooled), "subsets": per}
+    """The results.json document (errors in metres)."""
     return {
-        "format": "osmseg-localize-bench", "format_version": 1, "tool": f"osmseg {__version__}",
+        "format": "osmseg-localize-bench", "format_version": 2, "tool": f"osmseg {__version__}",
+        "kind": "rendered panoramas", "queries": "rendered panoramas", "unit": "m",
         "seed": config.seed, "settings": config.to_dict(), "source": source,
         "landmark_classes": {"name": classes.name, "names": list(classes.names), "mapping": dict(classes.mapping)},
         "scenes": [{"name": sc.name, "shape": list(sc.mask.shape), "resolution_m": sc.resolution_m,
@@ -382,108 +427,15 @@ def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], _Aerial
                     "window_px": g[subsets[0]].window} for sc, g in zip(scenes, graphs)],
         "classes": list(subsets[0]),
         "summary": summarize(records),
-        "baselines": {"centre_guess_mean_m": _mean([r["centre_guess_m"] for r in records]),
-                      "random_guess_mean_m": _mean([r["random_guess_m"] for r in records])},
-        "by_num_classes": by_k,
+        "baselines": baselines(records),
+        "by_num_classes": by_num_classes(subsets, records),
         "timing": {"total_s": round(total_s, 3), "render_mean_s": _mean([r["render_s"] for r in records]),
                    "localize_mean_s": _mean([r["localize_s"] for r in records])},
         "viewpoints": records,
     }
 
 
-# --------------------------------------------------------------------------- pictures
-
-
-@contextmanager
-def _figure(width: float, height: float) -> Iterator[Any]:
-    """A constrained-layout Agg figure (no pyplot state) drawn in our style, cleared on exit."""
-    try:
-        import matplotlib
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-    except ImportError:
-        raise ConfigError("the benchmark plots need matplotlib: pip install matplotlib (or pass --no-plots)") from None
-    with matplotlib.rc_context({"font.size": 9, "axes.titlesize": 10, "figure.titlesize": 11}):
-        fig = Figure(figsize=(width, height), dpi=100, layout="constrained")
-        FigureCanvasAgg(fig)
-        try:
-            yield fig
-        finally:
-            fig.clear()
-
-
-def _save(fig: Any, path: Path) -> Path:
-    import io
-
-    from osmseg.output.atomic import atomic_write_bytes
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None}, facecolor="white")
-    return atomic_write_bytes(path, buf.getvalue())
-
-
-def _cdf(ax: Any, values: Sequence[float], n: int, **style: Any) -> None:
-    """Step CDF of ``values`` over ``n`` trials (missing trials keep the curve below 1)."""
-    v = np.sort(np.asarray(values, dtype=float))
-    ax.step(np.concatenate([[0.0], v]), np.arange(len(v) + 1) / max(n, 1), where="post", **style)
-
-
-def plot_errors(results: dict[str, Any], path: Path) -> Path:
-    """CDF of the MAP error in metres (all classes), with the blind guesses for comparison."""
-    with _figure(6.5, 4.0) as fig:
-        return _draw_errors(fig, results, path)
-
-
-def _draw_errors(fig: Any, results: dict[str, Any], path: Path) -> Path:
-    recs, s = results["viewpoints"], results["summary"]
-    ax = fig.add_subplot()
-    _cdf(ax, [r["error_m"] for r in recs if not r["unanswered"]], len(recs), color="tab:green", lw=2,
-         label=f"landmark graphs (MAP), {s['answered']}/{s['n']} answered")
-    _cdf(ax, [r["top5_mean_m"] for r in recs if not r["unanswered"]], len(recs), color="tab:green", ls=":",
-         label="top-5 mean distance")
-    _cdf(ax, [r["centre_guess_m"] for r in recs], len(recs), color="0.5", ls="--", label="guess the image centre")
-    _cdf(ax, [r["random_guess_m"] for r in recs], len(recs), color="0.7", ls="-.", label="random guess (expected)")
-    for radius in RECALL_RADII_M:
-        ax.axvline(radius, color="0.85", lw=1, zorder=0)
-    ax.set_xlim(left=0)
-    ax.set_ylim(0, 1.02)
-    ax.set_xlabel("error (m)")
-    ax.set_ylabel("fraction of viewpoints")
-    median = "n/a" if s["median_error_m"] is None else f"{s['median_error_m']:.1f} m"
-    ax.set_title(f"Localization error of {s['n']} rendered panoramas\n{', '.join(results['classes'])}: "
-                 f"median {median}, recall@25 m {s['recall_at_m']['25']:.2f}")
-    ax.legend(loc="lower right", fontsize=8)
-    return _save(fig, path)
-
-
-def plot_classes(results: dict[str, Any], path: Path) -> Path:
-    """Error and recall against the number of landmark classes used (the dissertation's Figure 5.2)."""
-    with _figure(9.0, 3.8) as fig:
-        return _draw_classes(fig, results, path)
-
-
-def _draw_classes(fig: Any, results: dict[str, Any], path: Path) -> Path:
-    ks = sorted(results["by_num_classes"], key=int)
-    ax_err, ax_rec = fig.subplots(1, 2)
-    xs = [int(k) for k in ks]
-    for stat, style in (("mean_error_m", "-o"), ("median_error_m", "--s")):
-        ys = [results["by_num_classes"][k]["summary"][stat] for k in ks]
-        ax_err.plot(xs, [np.nan if y is None else y for y in ys], style, label=stat.replace("_", " "))
-    for k in ks:
-        subs = results["by_num_classes"][k]["subsets"]
-        vals = [v["mean_error_m"] for v in subs.values() if v["mean_error_m"] is not None]
-        ax_err.scatter([int(k)] * len(vals), vals, color="0.6", s=12, zorder=0)
-    ax_err.set_xlabel("landmark classes used")
-    ax_err.set_ylabel("error (m); dots: each class subset")
-    ax_err.set_xticks(xs)
-    ax_err.legend(fontsize=8)
-    for radius in RECALL_RADII_M:
-        ax_rec.plot(xs, [results["by_num_classes"][k]["summary"]["recall_at_m"][str(radius)] for k in ks], "-o",
-                    label=f"recall@{radius} m")
-    ax_rec.set_xlabel("landmark classes used")
-    ax_rec.set_ylabel("fraction of viewpoints")
-    ax_rec.set_ylim(0, 1.02)
-    ax_rec.set_xticks(xs)
-    ax_rec.legend(fontsize=8)
-    fig.suptitle("Effect of the number of landmark classes (subsets pooled)")
-    return _save(fig, path)
+def baselines(records: Sequence[dict[str, Any]]) -> dict[str, float | None]:
+    """Mean errors of the two blind guesses over the records."""
+    return {"centre_guess_mean": _mean([r["centre_guess"] for r in records]),
+            "random_guess_mean": _mean([r["random_guess"] for r in records])}

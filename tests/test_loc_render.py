@@ -231,19 +231,20 @@ def test_views_are_deterministic_for_a_seed() -> None:
 def _check_results(results: dict, n: int, out: Path) -> None:
     s = results["summary"]
     assert s["n"] == n == len(results["viewpoints"]) and s["answered"] + s["unanswered"] == n
-    recall = [s["recall_at_m"][k] for k in ("10", "25", "50")]
+    recall = [s["recall_at"][k] for k in ("10", "25", "50")]
     assert all(0 <= r <= 1 for r in recall) and recall == sorted(recall)
     assert results["seed"] == results["settings"]["seed"] and results["settings"]["render"]["width"] == 1232
+    assert results["unit"] == "m" and results["format_version"] == 2
     assert sorted(results["by_num_classes"]) == ["2", "3", "4"]
     assert [len(results["by_num_classes"][k]["subsets"]) for k in "234"] == [6, 4, 1]
     for rec in results["viewpoints"]:
         if not rec["unanswered"]:
             dx, dy = rec["map"][0] - rec["truth"][0], rec["map"][1] - rec["truth"][1]
             assert rec["error_px"] == pytest.approx(math.hypot(dx, dy), abs=1e-3)
-            assert rec["error_m"] == pytest.approx(rec["error_px"] * rec["resolution_m"], abs=1e-3)
-            assert rec["top5_mean_m"] >= 0 and rec["ties"] >= 1
+            assert rec["error"] == pytest.approx(rec["error_px"] * rec["resolution_m"], abs=1e-3)
+            assert rec["top5_mean"] >= 0 and rec["ties"] >= 1
     if s["answered"]:
-        assert s["mean_error_m"] >= 0 and s["median_error_m"] >= 0
+        assert s["mean_error"] >= 0 and s["median_error"] >= 0
     on_disk = json.loads((out / "results.json").read_text())
     assert on_disk["summary"] == s
     for png in ("errors.png", "classes.png"):
@@ -264,7 +265,8 @@ def test_bench_end_to_end_on_a_constructed_town(tmp_path: Path) -> None:
     rec = results["viewpoints"][0]
     view = render_view(scene.mask, TABLE, RES, tuple(rec["truth"]), CLASSES)
     aerial = landmarks_from_mask(scene.mask, TABLE, CLASSES)
-    direct, cached = localize(aerial, view.landmarks), _localize(_aerial_graph(aerial, None), view.landmarks, config)
+    direct = localize(aerial, view.landmarks)
+    cached = _localize(_aerial_graph(aerial, None), view.landmarks, config.p, config.top_k)
     assert direct.map_xy == cached.map_xy and rec["map"] == (None if direct.map_xy is None else list(direct.map_xy))
     again = run_bench([scene], config, tmp_path / "again", plots=False)
     strip = lambda r: [{k: v for k, v in x.items() if not k.endswith("_s")} for x in r["viewpoints"]]  # noqa: E731

@@ -27,6 +27,16 @@ def _heights(values: tuple[str, ...]) -> dict[str, float]:
     return heights
 
 
+def _size(value: str | None, side: str) -> tuple[int, int] | None:
+    """``"750x750"`` -> (750, 750)."""
+    if value is None:
+        return None
+    w, x, h = value.lower().partition("x")
+    if not (x and w.strip().isdigit() and h.strip().isdigit() and int(w) > 0 and int(h) > 0):
+        raise ConfigError(f"--{side}-size {value!r}: write WIDTHxHEIGHT in pixels, e.g. 750x750")
+    return int(w), int(h)
+
+
 @click.command("localize-bench")
 @click.argument("source", type=click.Path(exists=True, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
@@ -69,6 +79,9 @@ def _heights(values: tuple[str, ...]) -> dict[str, float]:
 @click.option("--save-panoramas", type=int, default=0, show_default=True,
               help="Write the first K rendered panoramas as PNG under OUT/panoramas/.")
 @click.option("--plots/--no-plots", default=True, show_default=True, help="Draw errors.png and classes.png.")
+@click.option("--aerial-size", help="Annotated pairs: WIDTHxHEIGHT of the aerial images when no image lies beside "
+              "the landmark files, e.g. 750x750.")
+@click.option("--ground-size", help="Annotated pairs: WIDTHxHEIGHT of the panoramas, e.g. 1232x224.")
 @click.pass_context
 @report_errors
 def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, viewpoints: int, seed: int, table: str,
@@ -76,15 +89,34 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
                            window: int | None, p: float, top_k: int, margin: float, stand_on: tuple[str, ...],
                            subsets: bool, width: int, height: int, camera_height: float, max_range: float,
                            class_height: tuple[str, ...], confusion: float, miss_small: int, miss_prob: float,
-                           offset: float, save_panoramas: int, plots: bool) -> None:
+                           offset: float, save_panoramas: int, plots: bool, aerial_size: str | None,
+                           ground_size: str | None) -> None:
     """Render panoramas at seeded viewpoints of SOURCE and localize them in it.
 
     SOURCE is a dataset folder made by `osmseg build` (its labels/ and manifest.json), or one
-    label mask file (PNG/GeoTIFF of class ids) with --table and --resolution. Prints the path
-    of results.json on stdout and a summary on stderr.
+    label mask file (PNG/GeoTIFF of class ids) with --table and --resolution. Or SOURCE is a
+    folder of annotated pairs, the paper's own evaluation: aerial/NAME.txt and ground/NAME.txt
+    landmark files (x y Class), images beside them or --aerial-size/--ground-size, the truth
+    in truth.csv (name,x,y) or the aerial centre; then nothing is rendered, the landmark
+    dictionary defaults to camvid (Building, Pavement, Road, Tree) and errors are in pixels
+    unless --resolution gives the aerial m/px. Prints the path of results.json on stdout and a
+    summary on stderr.
     """
     from localization.bench import BenchConfig, load_dataset_scenes, load_mask_scene, run_bench
+    from localization.pairs import PairsConfig, is_pairs_folder, load_pairs, run_pairs
     from localization.render import NoiseConfig, RenderConfig
+
+    verbosity = ctx.obj["verbosity"] if ctx.obj else 0
+    if source.is_dir() and is_pairs_folder(source):
+        pairs_config = PairsConfig(landmarks=landmark_dict or "camvid", window=window, p=p, top_k=top_k,
+                                   subsets=subsets, resolution_m=resolution, aerial_size=_size(aerial_size, "aerial"),
+                                   ground_size=_size(ground_size, "ground"))
+        results = run_pairs(load_pairs(source, pairs_config), pairs_config, out_dir, progress=verbosity >= 0,
+                            plots=plots, source=str(source))
+        if verbosity >= 0:
+            click.echo(format_summary(results), err=True)
+        click.echo(str(out_dir / "results.json"))
+        return
 
     config = BenchConfig(
         viewpoints=viewpoints, seed=seed, landmarks=landmark_dict, mode=mode, min_size=min_size, stride=stride,
@@ -102,7 +134,6 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         if resolution is None:
             raise ConfigError(f"{source} is a mask file: give its ground resolution with --resolution (m/px)")
         scenes = [load_mask_scene(source, table, resolution)]
-    verbosity = ctx.obj["verbosity"] if ctx.obj else 0
     results = run_bench(scenes, config, out_dir, progress=verbosity >= 0, plots=plots, source=str(source))
     if verbosity >= 0:
         click.echo(format_summary(results), err=True)
@@ -111,17 +142,18 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
 
 def format_summary(results: dict[str, Any]) -> str:
     """A few lines for the terminal: the full-class summary and the classes trend."""
-    s, b = results["summary"], results["baselines"]
-    rec = ", ".join(f"@{r} m {v}" for r, v in s["recall_at_m"].items())
+    s, b, u = results["summary"], results["baselines"], results.get("unit", "m")
+    rec = ", ".join(f"@{r} {u} {v}" for r, v in s["recall_at"].items())
+    second = list(s["recall_at"])[1]
     lines = [
-        f"{s['n']} viewpoints, classes {'+'.join(results['classes'])}: {s['answered']} answered, "
-        f"{s['unanswered']} unanswered, {s['tied']} tied",
-        f"error: mean {s['mean_error_m']} m / median {s['median_error_m']} m "
-        f"(mean {s['mean_error_px']} px); top-5 mean distance {s['top5_mean_distance_m']} m",
-        f"recall {rec}; blind guesses: image centre {b['centre_guess_mean_m']} m, random {b['random_guess_mean_m']} m",
+        f"{s['n']} {results.get('queries', 'queries')}, classes {'+'.join(results['classes'])}: {s['answered']} "
+        f"answered, {s['unanswered']} unanswered, {s['tied']} tied",
+        f"error: mean {s['mean_error']} {u} / median {s['median_error']} {u} "
+        f"(mean {s['mean_error_px']} px); top-5 mean distance {s['top5_mean_distance']} {u}",
+        f"recall {rec}; blind guesses: image centre {b['centre_guess_mean']} {u}, random {b['random_guess_mean']} {u}",
     ]
     for k, entry in sorted(results["by_num_classes"].items(), key=lambda kv: int(kv[0])):
         e = entry["summary"]
-        lines.append(f"  {k} classes ({len(entry['subsets'])} subsets): median {e['median_error_m']} m, "
-                     f"recall@25 m {e['recall_at_m']['25']}, unanswered {e['unanswered']}/{e['n']}")
+        lines.append(f"  {k} classes ({len(entry['subsets'])} subsets): median {e['median_error']} {u}, "
+                     f"recall@{second} {u} {e['recall_at'][second]}, unanswered {e['unanswered']}/{e['n']}")
     return "\n".join(lines)

@@ -1,0 +1,93 @@
+"""Pictures of a localization benchmark: the error CDF and the number-of-classes trend.
+
+Both read the ``results.json`` document of :func:`localization.bench.run_bench` (rendered
+panoramas, errors in metres) or :func:`localization.pairs.run_pairs` (annotated pairs, errors
+in metres given a resolution, else in pixels): ``results["unit"]`` says which, and the recall
+radii are the keys of ``summary["recall_at"]``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from osmseg.errors import ConfigError
+
+__all__ = ["plot_errors", "plot_classes"]
+
+
+def _figures() -> Any:
+    """:mod:`osmseg.output.figures`, or a one-line error when matplotlib is missing."""
+    try:
+        from osmseg.output import figures
+    except ImportError:
+        raise ConfigError("the benchmark plots need matplotlib: pip install matplotlib (or pass --no-plots)") from None
+    return figures
+
+
+def _cdf(ax: Any, values: Sequence[float], n: int, **style: Any) -> None:
+    """Step CDF of ``values`` over ``n`` trials (missing trials keep the curve below 1)."""
+    v = np.sort(np.asarray(values, dtype=float))
+    ax.step(np.concatenate([[0.0], v]), np.arange(len(v) + 1) / max(n, 1), where="post", **style)
+
+
+def plot_errors(results: dict[str, Any], path: Path) -> Path:
+    """CDF of the MAP error (all classes), with the top-5 mean distance and two blind guesses."""
+    figures = _figures()
+    unit = results.get("unit", "m")
+    recs, s = results["viewpoints"], results["summary"]
+    with figures.figure(6.5, 4.0) as fig:
+        ax = fig.add_subplot()
+        _cdf(ax, [r["error"] for r in recs if not r["unanswered"]], len(recs), color="tab:green", lw=2,
+             label=f"landmark graphs (MAP), {s['answered']}/{s['n']} answered")
+        _cdf(ax, [r["top5_mean"] for r in recs if not r["unanswered"]], len(recs), color="tab:green", ls=":",
+             label="top-5 mean distance")
+        _cdf(ax, [r["centre_guess"] for r in recs], len(recs), color="0.5", ls="--", label="guess the image centre")
+        _cdf(ax, [r["random_guess"] for r in recs], len(recs), color="0.7", ls="-.", label="random guess (expected)")
+        for radius in s["recall_at"]:
+            ax.axvline(float(radius), color="0.85", lw=1, zorder=0)
+        ax.set_xlim(left=0)
+        ax.set_ylim(0, 1.02)
+        ax.set_xlabel(f"error ({unit})")
+        ax.set_ylabel(f"fraction of {results.get('queries', 'queries')}")
+        median = "n/a" if s["median_error"] is None else f"{s['median_error']:.1f} {unit}"
+        first = next(iter(s["recall_at"]))
+        ax.set_title(f"Localization error of {s['n']} {results.get('queries', 'queries')}\n"
+                     f"{', '.join(results['classes'])}: median {median}, "
+                     f"recall@{first} {unit} {s['recall_at'][first]:.2f}")
+        ax.legend(loc="lower right", fontsize=8)
+        return figures.save_png(fig, path)
+
+
+def plot_classes(results: dict[str, Any], path: Path) -> Path:
+    """Error and recall against the number of landmark classes used (the dissertation's Figure 5.2)."""
+    figures = _figures()
+    unit = results.get("unit", "m")
+    by_k = results["by_num_classes"]
+    ks = sorted(by_k, key=int)
+    xs = [int(k) for k in ks]
+    with figures.figure(9.0, 3.8) as fig:
+        ax_err, ax_rec = fig.subplots(1, 2)
+        for stat, style in (("mean_error", "-o"), ("median_error", "--s")):
+            ys = [by_k[k]["summary"][stat] for k in ks]
+            ax_err.plot(xs, [np.nan if y is None else y for y in ys], style, label=stat.replace("_", " "))
+        for k in ks:
+            vals = [v["mean_error"] for v in by_k[k]["subsets"].values() if v["mean_error"] is not None]
+            ax_err.scatter([int(k)] * len(vals), vals, color="0.6", s=12, zorder=0)
+        ax_err.set_xlabel("landmark classes used")
+        ax_err.set_ylabel(f"error ({unit}); dots: each class subset")
+        ax_err.set_xticks(xs)
+        ax_err.legend(fontsize=8)
+        for radius in results["summary"]["recall_at"]:
+            ax_rec.plot(xs, [by_k[k]["summary"]["recall_at"][radius] for k in ks], "-o",
+                        label=f"recall@{radius} {unit}")
+        ax_rec.set_xlabel("landmark classes used")
+        ax_rec.set_ylabel(f"fraction of {results.get('queries', 'queries')}")
+        ax_rec.set_ylim(0, 1.02)
+        ax_rec.set_xticks(xs)
+        ax_rec.legend(fontsize=8)
+        fig.suptitle("Effect of the number of landmark classes (subsets pooled)")
+        return figures.save_png(fig, path)
