@@ -11,6 +11,9 @@ only that both algorithms give the same cliques). Every figure is measured in th
 * for each: landmark extraction (:func:`landmarks_from_mask`, centroid mode), the automatic
   window (:func:`window_size_auto`), then the cliques by :func:`cliques_fast` (median of
   ``--repeat`` runs) and by :func:`cliques_reference` (one run), and their ratio;
+* end to end, the issue's target: :func:`localize` of the panorama in the aerial image (both
+  graphs, candidates, matching; landmarks already extracted), fast against ``fast=False``
+  (the reference cliques), with the same answer asserted;
 * ``--real``: also the Helsinki extract of ../shared/data rasterised at z18 and cut to
   750 x 750, in grid mode (stride 50), when present;
 * component landmarks (any pixel in the window) by :func:`cliques_fast`; the reference is run
@@ -35,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from localization.graph import Cliques, cliques_fast, cliques_reference, window_size_auto  # noqa: E402
 from localization.landmarks import Landmarks, landmarks_from_mask, load_landmark_classes  # noqa: E402
+from localization.match import localize  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 
 HELSINKI = ROOT.parent / "shared" / "data" / "helsinki-osm" / "helsinki.osm.pbf"
@@ -151,6 +155,7 @@ def main() -> None:
             print(f"skipped the real mask: {HELSINKI} is absent (../shared/data)")
         else:
             scenes.append(("aerial 750x750 (Helsinki OSM, grid 50)", real, table13, aerial13, False))
+    extracted = {}
     for name, mask, table, classes, panorama in scenes:
         mode = "grid" if "grid" in name else "centroid"
         t_extract, lm = timed(lambda: landmarks_from_mask(mask, table, classes, mode=mode, panorama=panorama),
@@ -160,6 +165,23 @@ def main() -> None:
         compare(f"  {mode}", lm, args.repeat)
         comp = landmarks_from_mask(mask, table, classes, mode="component", panorama=panorama)
         compare("  component", comp, args.repeat, reference=panorama)
+        extracted[name] = (lm, t_extract)
+    end_to_end(extracted, args.repeat)
+
+
+def end_to_end(extracted: dict[str, tuple[Landmarks, float]], repeat: int) -> None:
+    """localize(panorama in each aerial image): fast beside the reference cliques, same answer."""
+    (pano, t_pano), = [v for k, v in extracted.items() if k.startswith("panorama")]
+    for name, (aerial, t_aerial) in extracted.items():
+        if name.startswith("panorama"):
+            continue
+        t_fast, fast = timed(lambda: localize(aerial, pano), repeat)
+        t_ref, ref = timed(lambda: localize(aerial, pano, fast=False), 1)
+        if (fast.map_xy, fast.ties, len(fast.candidates)) != (ref.map_xy, ref.ties, len(ref.candidates)):
+            raise SystemExit(f"{name}: localize differs between fast and reference cliques")
+        print(f"localize panorama in {name}: {len(fast.candidates)} candidates, fast {t_fast * 1000:.1f} ms "
+              f"(+ landmark extraction {(t_aerial + t_pano) * 1000:.1f} ms = {(t_fast + t_aerial + t_pano) * 1000:.1f} ms)"
+              f"  reference {t_ref:.2f} s  ratio {t_ref / t_fast:.0f}x  same answer: True")
 
 
 if __name__ == "__main__":
