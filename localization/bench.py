@@ -218,6 +218,10 @@ def _mean(values: Sequence[float]) -> float | None:
     return round(float(np.mean(values)), 4) if len(values) else None
 
 
+def _median(values: Sequence[float]) -> float | None:
+    return round(float(np.median(values)), 4) if len(values) else None
+
+
 def summarize(records: Sequence[dict[str, Any]], radii: Sequence[float] = RECALL_RADII_M) -> dict[str, Any]:
     """Error statistics over per-query records (``error``, ``error_px``, ``top5_mean``, ``ties``, ``unanswered``).
 
@@ -240,23 +244,29 @@ def summarize(records: Sequence[dict[str, Any]], radii: Sequence[float] = RECALL
         "tied": sum(1 for r in answered if r["ties"] > 1),
         "mean_ties": _mean([r["ties"] for r in answered]),
         "mean_error_px": _mean(err_px),
-        "median_error_px": round(float(np.median(err_px)), 4) if err_px else None,
+        "median_error_px": _median(err_px),
         "mean_error": _mean(err),
-        "median_error": round(float(np.median(err)), 4) if err else None,
+        "median_error": _median(err),
         "recall_at": {f"{r:g}": round(sum(e <= r for e in err) / n, 4) if n else None for r in radii},
         "top5_mean_distance": _mean([r["top5_mean"] for r in answered]),
     }
 
 
 def score(loc: Localization, truth: tuple[float, float], scale: float = 1.0) -> dict[str, Any]:
-    """Error of one localization against the true viewpoint; ``scale``: units per pixel (m/px, or 1)."""
+    """Error of one localization against the true viewpoint; ``scale``: units per pixel (m/px, or 1).
+
+    ``candidate_guess`` is the expected error of picking one of the candidates at random: what
+    the candidate selection alone achieves, so ``error`` below it is what the matching adds.
+    """
     if loc.unanswered or loc.map_xy is None:
-        return {"map": None, "error_px": None, "error": None, "top5_mean": None, "ties": loc.ties,
-                "unanswered": True, "reason": loc.reason, "candidates": 0}
+        return {"map": None, "error_px": None, "error": None, "top5_mean": None, "candidate_guess": None,
+                "ties": loc.ties, "unanswered": True, "reason": loc.reason, "candidates": 0}
     err = math.hypot(loc.map_xy[0] - truth[0], loc.map_xy[1] - truth[1])
     top = [math.hypot(x - truth[0], y - truth[1]) for x, y, _ in loc.top_k]
+    anyone = float(np.mean(np.hypot(loc.candidates[:, 0] - truth[0], loc.candidates[:, 1] - truth[1])))
     return {"map": [round(loc.map_xy[0], 3), round(loc.map_xy[1], 3)], "error_px": round(err, 4),
             "error": round(err * scale, 4), "top5_mean": round(float(np.mean(top)) * scale, 4),
+            "candidate_guess": round(anyone * scale, 4),
             "ties": loc.ties, "unanswered": False, "reason": "", "candidates": int(len(loc.candidates))}
 
 
@@ -436,6 +446,8 @@ def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], _Aerial
 
 
 def baselines(records: Sequence[dict[str, Any]]) -> dict[str, float | None]:
-    """Mean errors of the two blind guesses over the records."""
+    """Mean errors of the blind guesses over the records, and of a random candidate (answered records)."""
     return {"centre_guess_mean": _mean([r["centre_guess"] for r in records]),
-            "random_guess_mean": _mean([r["random_guess"] for r in records])}
+            "random_guess_mean": _mean([r["random_guess"] for r in records]),
+            "random_candidate_mean": _mean([r["candidate_guess"] for r in records if not r["unanswered"]]),
+            "random_candidate_median": _median([r["candidate_guess"] for r in records if not r["unanswered"]])}

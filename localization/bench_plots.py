@@ -45,6 +45,8 @@ def plot_errors(results: dict[str, Any], path: Path) -> Path:
              label=f"landmark graphs (MAP), {s['answered']}/{s['n']} answered")
         _cdf(ax, [r["top5_mean"] for r in recs if not r["unanswered"]], len(recs), color="tab:green", ls=":",
              label="top-5 mean distance")
+        _cdf(ax, [r["candidate_guess"] for r in recs if not r["unanswered"]], len(recs), color="tab:orange", ls="--",
+             label="a random candidate (expected)")
         _cdf(ax, [r["centre_guess"] for r in recs], len(recs), color="0.5", ls="--", label="guess the image centre")
         _cdf(ax, [r["random_guess"] for r in recs], len(recs), color="0.7", ls="-.", label="random guess (expected)")
         for radius in s["recall_at"]:
@@ -54,10 +56,11 @@ def plot_errors(results: dict[str, Any], path: Path) -> Path:
         ax.set_xlabel(f"error ({unit})")
         ax.set_ylabel(f"fraction of {results.get('queries', 'queries')}")
         median = "n/a" if s["median_error"] is None else f"{s['median_error']:.1f} {unit}"
-        first = next(iter(s["recall_at"]))
+        radii = list(s["recall_at"])
+        middle = radii[len(radii) // 2]
         ax.set_title(f"Localization error of {s['n']} {results.get('queries', 'queries')}\n"
                      f"{', '.join(results['classes'])}: median {median}, "
-                     f"recall@{first} {unit} {s['recall_at'][first]:.2f}")
+                     f"recall@{middle} {unit} {s['recall_at'][middle]:.2f}")
         ax.legend(loc="lower right", fontsize=8)
         return figures.save_png(fig, path)
 

@@ -15,6 +15,7 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
+from localization.match import localize
 from localization.pairs import PairsConfig, load_pairs, run_pairs
 from osmseg.cli.localize_bench import localize_bench_command
 from osmseg.errors import DatasetError
@@ -78,6 +79,11 @@ def test_run_pairs_finds_the_only_place_that_shows_every_class(tmp_path: Path) -
         assert rec["error"] == rec["error_px"] and rec["centre_guess"] == pytest.approx(np.hypot(305 - 199.5,
                                                                                                   105 - 199.5), abs=1e-3)
     assert s["recall_at"]["100"] == 1.0 and s["median_error"] < results["baselines"]["random_guess_mean"] / 3
+    pair = load_pairs(tmp_path / "pairs")[0]  # a random candidate's expected error, recomputed
+    loc = localize(pair.aerial, pair.ground)
+    expected = np.hypot(loc.candidates[:, 0] - TRUTH[0], loc.candidates[:, 1] - TRUTH[1]).mean()
+    assert results["viewpoints"][0]["candidate_guess"] == pytest.approx(expected, abs=1e-3)
+    assert results["baselines"]["random_candidate_median"] == pytest.approx(expected, abs=1e-3)
     assert [len(results["by_num_classes"][k]["subsets"]) for k in "234"] == [6, 4, 1]
     on_disk = json.loads((tmp_path / "out" / "results.json").read_text())
     assert on_disk["summary"] == s and on_disk["kind"] == "annotated pairs"

@@ -242,7 +242,7 @@ def _check_results(results: dict, n: int, out: Path) -> None:
             dx, dy = rec["map"][0] - rec["truth"][0], rec["map"][1] - rec["truth"][1]
             assert rec["error_px"] == pytest.approx(math.hypot(dx, dy), abs=1e-3)
             assert rec["error"] == pytest.approx(rec["error_px"] * rec["resolution_m"], abs=1e-3)
-            assert rec["top5_mean"] >= 0 and rec["ties"] >= 1
+            assert rec["top5_mean"] >= 0 and rec["ties"] >= 1 and rec["candidate_guess"] >= 0
     if s["answered"]:
         assert s["mean_error"] >= 0 and s["median_error"] >= 0
     on_disk = json.loads((out / "results.json").read_text())
