@@ -37,12 +37,13 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from localization.graph import Cliques, cliques_fast, window_size_auto
-from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
-from localization.match import DEFAULT_P, Localization, match_cliques, unanswered
 from localization.bench_plots import plot_classes, plot_errors
+from localization.graph import Cliques, cliques_fast, window_size_auto
+from localization.landmarks import LandmarkClasses, Landmarks, load_landmark_classes
+from localization.match import DEFAULT_P, Localization, match_cliques, unanswered
 from localization.render import (NoiseConfig, RenderConfig, RenderedView, class_table_from_dict, render_view,
                                  save_panorama_png)
+from localization.visible import landmark_cells, visible_landmarks
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
@@ -93,6 +94,8 @@ class BenchConfig:
     render: RenderConfig = field(default_factory=RenderConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     save_panoramas: int = 0             # write the first K panoramas as PNG
+    query_landmarks: str = "mask"       # "mask": from the rendered panorama; "visible": the aerial ones it shows
+    visible_min_px: int = 20            # "visible": panorama pixels an aerial landmark needs to count as seen
 
     def __post_init__(self) -> None:
         if self.viewpoints < 1:
@@ -105,6 +108,11 @@ class BenchConfig:
             raise ConfigError(f"window must be at least 1 pixel, got {self.window}")
         if self.mode not in ("centroid", "grid", "component"):
             raise ConfigError(f"mode must be centroid, grid or component, got {self.mode!r}")
+        if self.query_landmarks not in ("mask", "visible"):
+            raise ConfigError(f"query landmarks must be 'mask' or 'visible', got {self.query_landmarks!r}")
+        if self.query_landmarks == "visible" and self.noise.active:
+            raise ConfigError("class confusion and missed landmarks apply to mask landmarks: drop them with "
+                              "visible query landmarks (the viewpoint offset still applies)")
 
     def to_dict(self) -> dict[str, Any]:
         out = dataclasses.asdict(self)
@@ -381,9 +389,11 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     placements: list[np.ndarray] = []
     counts = [config.viewpoints // len(scenes) + (i < config.viewpoints % len(scenes)) for i in range(len(scenes))]
     place_rng = np.random.default_rng([config.seed, 0])
+    aerial: list[tuple[Landmarks, np.ndarray]] = []  # each scene's landmarks and the cell each pixel is in
     for scene, count in zip(scenes, counts):
-        full = landmarks_from_mask(scene.mask, scene.table, classes, mode=config.mode, min_size=config.min_size,
-                                   stride=config.stride)
+        full, cells = landmark_cells(scene.mask, scene.table, classes, mode=config.mode, min_size=config.min_size,
+                                     stride=config.stride)
+        aerial.append((full, cells))
         graphs.append(aerial_graphs(full, subsets, config.window))
         margin = int(math.ceil(config.margin_m / scene.resolution_m))
         placements.append(place_viewpoints(scene.mask, standable_ids(scene.table, config), count, margin, place_rng)
@@ -400,9 +410,13 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
         seq = np.random.SeedSequence([config.seed, config.noise.seed, index])  # each view its own noise
         noise = dataclasses.replace(config.noise, seed=int(seq.generate_state(1)[0]))
         t0 = time.perf_counter()
+        visible = config.query_landmarks == "visible"
         view: RenderedView = render_view(scene.mask, scene.table, scene.resolution_m, truth, classes,
                                          config=config.render, noise=noise, mode=config.mode,
-                                         min_size=config.min_size, stride=config.stride)
+                                         min_size=config.min_size, stride=config.stride, sources=visible)
+        if visible:
+            shown, _ = visible_landmarks(view.panorama, aerial[si][1], aerial[si][0], config.visible_min_px)
+            view = dataclasses.replace(view, landmarks=shown)
         t_render = time.perf_counter() - t0
         if index < config.save_panoramas:
             save_panorama_png(out_dir / "panoramas" / f"{index:04d}_{scene.name}.png", view.panorama)

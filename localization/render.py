@@ -140,6 +140,7 @@ class Panorama:
     camera: tuple[float, float]      # where it was rendered from, aerial pixels (x, y)
     heading_deg: float
     resolution_m: float              # of the aerial mask, m/px
+    sources: np.ndarray | None = None  # (height, width) int64: flat aerial index (y * W + x) seen, -1 none
 
     def rgb(self) -> np.ndarray:
         """``(height, width, 3)`` uint8 picture in the class colours."""
@@ -257,10 +258,13 @@ def _class_id(table: ClassTable, name: str) -> int:
 
 
 def render_panorama(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str, resolution_m: float,
-                    viewpoint: tuple[float, float], config: RenderConfig = RenderConfig()) -> Panorama:
+                    viewpoint: tuple[float, float], config: RenderConfig = RenderConfig(), *,
+                    sources: bool = False) -> Panorama:
     """Ray-cast the panorama seen from ``viewpoint`` (aerial pixels x, y) over the label ``mask``.
 
     One ray per column, all columns and steps at once (numpy, no Python loop over pixels).
+    ``sources=True`` also records, per panorama pixel, the aerial pixel it shows
+    (:attr:`Panorama.sources`; sky and far ground: -1).
     """
     mask = np.asarray(mask)
     if mask.ndim != 2 or mask.size == 0 or not np.issubdtype(mask.dtype, np.integer):
@@ -297,13 +301,18 @@ def render_panorama(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | st
     queries = (offsets + np.arange(h, dtype=np.int64)[None, :]).ravel()      # (W*H,) column-major by bottom row
     first = np.searchsorted(flat, queries, side="right")
     seen = first < (np.repeat(np.arange(w), h) + 1) * steps
-    ids = np.where(seen, cls.ravel()[np.minimum(first, cls.size - 1)], -1).reshape(w, h)
+    sample = np.minimum(first, cls.size - 1)
+    ids = np.where(seen, cls.ravel()[sample], -1).reshape(w, h)
 
     above = (row_elevations(config) > 0)[::-1]                                # per bottom-up row
     ids = np.where(ids >= 0, ids, np.where(above[None, :], sky_id, far_id))
     labels = np.ascontiguousarray(ids[:, ::-1].T).astype(np.uint8)             # rows top-down
+    seen_from = None
+    if sources:  # which aerial pixel each panorama pixel shows (the visible-landmark oracle needs it)
+        flat_xy = np.where(inside, ys * mw + xs, -1).ravel()
+        seen_from = np.ascontiguousarray(np.where(seen, flat_xy[sample], -1).reshape(w, h)[:, ::-1].T)
     return Panorama(labels=labels, table=pano_table, camera=(x0, y0), heading_deg=config.heading_deg,
-                    resolution_m=float(resolution_m))
+                    resolution_m=float(resolution_m), sources=seen_from)
 
 
 # --------------------------------------------------------------------------- noise and views
@@ -368,19 +377,20 @@ def apply_noise(labels: np.ndarray, table: ClassTable, classes: LandmarkClasses,
 def render_view(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str, resolution_m: float,
                 viewpoint: tuple[float, float], classes: LandmarkClasses, *,
                 config: RenderConfig = RenderConfig(), noise: NoiseConfig = NoiseConfig(),
-                mode: str = "centroid", min_size: int = 50, stride: int = 50) -> RenderedView:
+                mode: str = "centroid", min_size: int = 50, stride: int = 50, sources: bool = False) -> RenderedView:
     """Render the panorama at ``viewpoint`` (with ``noise``) and extract its landmarks.
 
     The landmarks are those of the (noisy) panorama, as cylinders (``panorama=True``), with the
     same ``mode``/``min_size``/``stride`` as :func:`localization.landmarks.landmarks_from_mask`.
-    ``truth`` is always the given ``viewpoint``, even when the camera was offset.
+    ``truth`` is always the given ``viewpoint``, even when the camera was offset. ``sources``:
+    keep which aerial pixel each panorama pixel shows (:func:`render_panorama`).
     """
     camera = tuple(float(v) for v in viewpoint)
     if noise.offset_m > 0:
         mask_shape = np.asarray(mask).shape
         camera = offset_viewpoint(camera, noise.offset_m, resolution_m, np.random.default_rng([noise.seed, 0]),
                                   (int(mask_shape[0]), int(mask_shape[1])))
-    pano = render_panorama(mask, table, resolution_m, camera, config)  # type: ignore[arg-type]
+    pano = render_panorama(mask, table, resolution_m, camera, config, sources=sources)  # type: ignore[arg-type]
     if noise.active:
         pano = dataclasses.replace(pano, labels=apply_noise(pano.labels, pano.table, classes, noise))
     marks = landmarks_from_mask(pano.labels, pano.table, classes, mode=mode, min_size=min_size, stride=stride,

@@ -21,6 +21,7 @@ from PIL import Image
 from localization.bench import BenchConfig, _aerial_graph, _localize, load_dataset_scenes, run_bench, Scene
 from localization.landmarks import landmarks_from_mask, load_landmark_classes
 from localization.match import localize
+from localization.visible import landmark_cells, visible_landmarks
 from localization.render import (NoiseConfig, RenderConfig, apply_noise, azimuth_to_column, elevation_to_row,
                                  panorama_table, render_panorama, render_view)
 from osmseg.classes import load_class_table
@@ -327,3 +328,65 @@ def test_bench_on_the_demo_dataset(tmp_path: Path) -> None:
     results = run_bench(scenes, BenchConfig(viewpoints=8, seed=0), tmp_path / "bench")
     _check_results(results, 8, tmp_path / "bench")
     assert results["scenes"][0]["resolution_m"] == pytest.approx(0.297, abs=0.001)
+
+
+# --------------------------------------------------------------------------- visible landmarks (the oracle)
+
+
+@pytest.mark.parametrize("mode", ["centroid", "grid", "component"])
+def test_landmark_cells_give_the_mask_landmarks_and_own_their_pixels(mode: str) -> None:
+    mask = town(seed=3)
+    lm, cells = landmark_cells(mask, TABLE, CLASSES, mode=mode, stride=40)
+    plain = landmarks_from_mask(mask, TABLE, CLASSES, mode=mode, stride=40)
+    assert np.array_equal(lm.xy, plain.xy) and np.array_equal(lm.cls, plain.cls)
+    comps = landmarks_from_mask(mask, TABLE, CLASSES, mode="component", stride=40)
+    comp_cls = np.full(mask.shape, -1)
+    for p, c in zip(comps.pixels, comps.cls):
+        comp_cls[p[:, 1], p[:, 0]] = c
+    owned = comp_cls >= 0
+    assert np.array_equal(cells >= 0, owned)  # every landmark pixel has a cell, nothing else
+    assert np.array_equal(lm.cls[cells[owned]], comp_cls[owned])  # ... a cell of its own class
+    if mode == "grid":  # a cell is the part of its component nearest to its node
+        rng = np.random.default_rng(0)
+        for k in rng.choice(len(comps), size=min(6, len(comps)), replace=False):
+            p = comps.pixels[k]
+            mine = np.unique(cells[p[:, 1], p[:, 0]])
+            d = np.hypot(p[:, None, 0] - lm.xy[None, mine, 0], p[:, None, 1] - lm.xy[None, mine, 1])
+            got = cells[p[:, 1], p[:, 0]]
+            assert np.allclose(d[np.arange(len(p)), np.searchsorted(mine, got)], d.min(axis=1))
+
+
+def test_visible_landmarks_are_the_aerial_ones_the_camera_sees() -> None:
+    mask = field()
+    mask[121:161, 180:221] = B   # north, 19.75 m away: seen
+    mask[60:81, 190:211] = B     # right behind it, lower than its roof: hidden
+    mask[190:211, 300:321] = B   # east, 50 m: seen
+    aerial, cells = landmark_cells(mask, TABLE, CLASSES, mode="centroid")
+    pano = render_panorama(mask, TABLE, RES, (200, 200), CFG, sources=True)
+    assert pano.sources.shape == pano.labels.shape
+    shows = pano.sources >= 0
+    assert np.array_equal(mask.ravel()[pano.sources[shows]], pano.labels[shows])  # the source has the pixel's class
+    shown, index = visible_landmarks(pano, cells, aerial, min_px=20)
+    north = int(np.argmin(np.hypot(aerial.xy[:, 0] - 200, aerial.xy[:, 1] - 140.5)))
+    east = int(np.argmin(np.hypot(aerial.xy[:, 0] - 310, aerial.xy[:, 1] - 200)))
+    hidden = int(np.argmin(np.hypot(aerial.xy[:, 0] - 200, aerial.xy[:, 1] - 70)))
+    assert north in index and east in index and hidden not in index
+    at = dict(zip(index.tolist(), shown.xy.tolist()))
+    assert at[north][0] == pytest.approx(azimuth_to_column(0.0, W), abs=1.5)
+    assert at[east][0] == pytest.approx(azimuth_to_column(math.degrees(math.atan2(110, 0)), W), abs=1.5)
+    assert shown.panorama and all(shown.classes[c] == "building" for c in shown.cls[np.isin(index, [north, east])])
+    with pytest.raises(ConfigError, match="sources=True"):
+        visible_landmarks(render_panorama(mask, TABLE, RES, (200, 200), CFG), cells, aerial)
+
+
+def test_bench_with_visible_query_landmarks(tmp_path: Path) -> None:
+    scene = Scene("town", town(), TABLE, RES)
+    config = BenchConfig(viewpoints=3, seed=5, margin_m=10.0, query_landmarks="visible", mode="grid", stride=40)
+    results = run_bench([scene], config, tmp_path, plots=False)
+    assert results["settings"]["query_landmarks"] == "visible" and results["summary"]["n"] == 3
+    lm, cells = landmark_cells(scene.mask, TABLE, CLASSES, mode="grid", stride=40)
+    rec = results["viewpoints"][0]
+    pano = render_panorama(scene.mask, TABLE, RES, tuple(rec["truth"]), CFG, sources=True)
+    assert rec["query_landmarks"] == len(visible_landmarks(pano, cells, lm)[0])
+    with pytest.raises(ConfigError, match="mask landmarks"):
+        BenchConfig(query_landmarks="visible", noise=NoiseConfig(confusion=0.2))

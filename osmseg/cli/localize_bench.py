@@ -76,6 +76,11 @@ def _size(value: str | None, side: str) -> tuple[int, int] | None:
               help="Noise: every other panorama landmark is missed with this probability.")
 @click.option("--offset", type=float, default=0.0, show_default=True,
               help="Noise: render from this many metres away from the true viewpoint.")
+@click.option("--query-landmarks", type=click.Choice(["mask", "visible"]), default="mask", show_default=True,
+              help="Panorama landmarks from its rendered mask, or the aerial landmarks the camera sees "
+              "(perfect correspondence, as a person annotating both views: measures the matching alone).")
+@click.option("--visible-min-px", type=click.IntRange(min=1), default=20, show_default=True,
+              help="With --query-landmarks visible: panorama pixels an aerial landmark needs to count as seen.")
 @click.option("--save-panoramas", type=int, default=0, show_default=True,
               help="Write the first K rendered panoramas as PNG under OUT/panoramas/.")
 @click.option("--plots/--no-plots", default=True, show_default=True, help="Draw errors.png and classes.png.")
@@ -89,7 +94,8 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
                            window: int | None, p: float, top_k: int, margin: float, stand_on: tuple[str, ...],
                            subsets: bool, width: int, height: int, camera_height: float, max_range: float,
                            class_height: tuple[str, ...], confusion: float, miss_small: int, miss_prob: float,
-                           offset: float, save_panoramas: int, plots: bool, aerial_size: str | None,
+                           offset: float, query_landmarks: str, visible_min_px: int, save_panoramas: int,
+                           plots: bool, aerial_size: str | None,
                            ground_size: str | None) -> None:
     """Render panoramas at seeded viewpoints of SOURCE and localize them in it.
 
@@ -124,7 +130,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         render=RenderConfig(width=width, height=height, camera_height_m=camera_height, max_range_m=max_range,
                             heights=_heights(class_height)),
         noise=NoiseConfig(confusion=confusion, miss_small_px=miss_small, miss_prob=miss_prob, offset_m=offset),
-        save_panoramas=save_panoramas,
+        save_panoramas=save_panoramas, query_landmarks=query_landmarks, visible_min_px=visible_min_px,
     )
     if source.is_dir():
         if resolution is not None:
