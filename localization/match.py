@@ -61,6 +61,9 @@ __all__ = [
 
 #: Relevant cliques whose overlaps are computed at once (bounds memory to CHUNK x M floats).
 CHUNK = 512
+#: Landmark pairs held by all cliques together above which matching would not fit in memory
+#: (about 16 bytes each while the edge table is built): refused with advice instead.
+MAX_CLIQUE_PAIRS = 50_000_000
 
 
 # --------------------------------------------------------------------------- classes
@@ -193,6 +196,11 @@ class _EdgeTable:
         c.sort_indices()
         k = c.shape[1]
         sizes = np.diff(c.indptr)
+        pairs = int((sizes * (sizes - 1) // 2).sum())
+        if pairs > MAX_CLIQUE_PAIRS:
+            raise ConfigError(f"the graph's windows hold {pairs:,} landmark pairs ({k:,} landmarks, up to "
+                              f"{int(sizes.max()):,} in one window): too many to match; use fewer landmarks "
+                              "(a larger --min-size, --mode centroid) or a smaller --window")
         clique_of, code_of = [], []
         for size in np.unique(sizes[sizes >= 2]):  # cliques of one size: a rectangular block of indices
             rows = np.flatnonzero(sizes == size)

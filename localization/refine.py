@@ -6,7 +6,7 @@
 * :func:`feature_edge_mask` -- §5.3.2: graph edges between landmarks whose image features
   (a network's encoder, optionally reduced by PCA or UMAP) are closer than a threshold ``T``
   are removed; pass the mask as ``aerial_drop``/``query_drop`` to
-  :func:`~localization.match.localize`. Computing the features is the caller's.
+  :func:`~localization.match.localize`. :mod:`localization.features` computes the features.
 """
 
 from __future__ import annotations
@@ -22,7 +22,10 @@ from osmseg.errors import ConfigError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["HIERARCHY", "feature_edge_mask", "inherit", "localize_hierarchical"]
+__all__ = ["HIERARCHY", "MAX_FEATURE_LANDMARKS", "feature_edge_mask", "inherit", "localize_hierarchical"]
+
+#: Landmarks above which the K x K feature distances (8 bytes each) are refused: 10,000 is 800 MB.
+MAX_FEATURE_LANDMARKS = 10_000
 
 #: The dissertation's hierarchy of aerial windows, coarse to fine (pixels).
 HIERARCHY = (400, 200, 100)
@@ -98,6 +101,9 @@ def feature_edge_mask(features: np.ndarray, threshold: float, *, metric: str = "
     x = np.asarray(features, dtype=np.float64)
     if x.ndim != 2 or not np.isfinite(x).all():
         raise ConfigError(f"features must be a finite (K, d) array, one row per landmark; got shape {x.shape}")
+    if len(x) > MAX_FEATURE_LANDMARKS:  # K x K distances, 8 bytes each
+        raise ConfigError(f"{len(x):,} landmarks are too many for feature edges (a {len(x):,}² distance matrix): "
+                          f"keep at most {MAX_FEATURE_LANDMARKS:,} (a larger --min-size, --mode centroid)")
     if reduce == "pca":
         centred = x - x.mean(axis=0)
         u, sv, _ = np.linalg.svd(centred, full_matrices=False)

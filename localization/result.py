@@ -69,7 +69,8 @@ class Localization:
     raster order. ``relevant`` gives each candidate's aerial clique index. When the
     question cannot be answered (no landmarks, a query graph without edges, no relevant
     clique, or every candidate with likelihood 0) ``unanswered`` is True, ``reason`` says
-    why, and there are no candidates.
+    why, and there are no candidates. ``feature_edges``, when set, records the §5.3.2 edge
+    removal that was applied (settings and edges dropped per side; see :mod:`localization.features`).
     """
 
     candidates: np.ndarray
@@ -88,6 +89,7 @@ class Localization:
     relevant: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     clique_likelihoods: np.ndarray = field(default_factory=lambda: np.zeros(0))
     levels: tuple["Localization", ...] = ()
+    feature_edges: dict[str, Any] | None = None
 
     def error(self, truth: tuple[float, float] | None, resolution: float | None = None
               ) -> tuple[float | None, float | None]:
@@ -124,6 +126,8 @@ class Localization:
                                                           _floats(self.posteriors))]
         if self.levels:
             out["levels"] = [lv.to_dict(all_candidates=False) for lv in self.levels]
+        if self.feature_edges is not None:
+            out["feature_edges"] = self.feature_edges
         return out
 
 

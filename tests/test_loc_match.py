@@ -551,3 +551,18 @@ def test_cli_segments_an_rgb_image_with_a_checkpoint(tmp_path) -> None:
     data = json.loads(res.stdout)
     assert data["aerial_landmarks"] == 1  # the whole image is one building component ...
     assert data["unanswered"] and "building, road" in data["reason"]  # ... and no road to match the ground's
+
+
+def test_too_many_landmarks_is_a_clear_error_not_a_crash() -> None:
+    """Landmarks of a noisy mask at --min-size 1 can number tens of thousands: refuse, with advice."""
+    from localization.match import MAX_CLIQUE_PAIRS
+    from localization.refine import MAX_FEATURE_LANDMARKS
+
+    rng = np.random.default_rng(0)
+    k = int((2 * MAX_CLIQUE_PAIRS) ** 0.5) + 2  # one window holding them all: k (k - 1) / 2 pairs, over the limit
+    many = Landmarks(rng.uniform(0, 100, (k, 2)), rng.integers(0, 2, k), ("building", "road"), 100, 100)
+    few = Landmarks(np.array([[10.0, 10], [20, 20]]), np.array([0, 1]), ("building", "road"), 100, 100)
+    with pytest.raises(ConfigError, match="too many to match.*--min-size"):
+        localize(many, few, window=200)
+    with pytest.raises(ConfigError, match="too many for feature edges"):
+        feature_edge_mask(np.zeros((MAX_FEATURE_LANDMARKS + 1, 2)), 0.5)

@@ -135,6 +135,16 @@ def _tta_pairs(square: bool) -> list[tuple[_Op, _Op]]:
     return pairs
 
 
+def normalise(pixels: np.ndarray, mean: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
+    """``(N, h, w, 3)`` uint8 -> ``(N, 3, h, w)`` float32 on ``mean``'s device, as in training.
+
+    RGB scaled to 0..1, minus ``mean``, over ``std`` (both ``(1, 3, 1, 1)``, from the spec). The
+    one place inference and :mod:`localization.features` turn pixels into network input.
+    """
+    x = torch.from_numpy(np.ascontiguousarray(pixels)).to(mean.device).permute(0, 3, 1, 2).float() / 255.0
+    return (x - mean) / std
+
+
 class _Runner:
     """Normalises uint8 windows and runs the model (batching, device, autocast, TTA)."""
 
@@ -152,8 +162,7 @@ class _Runner:
 
     def logits(self, pixels: np.ndarray) -> torch.Tensor:
         """``(N, h, w, 3)`` uint8 windows -> ``(N, C, h, w)`` float32 logits on the device."""
-        x = torch.from_numpy(np.ascontiguousarray(pixels)).to(self.device).permute(0, 3, 1, 2).float() / 255.0
-        x = (x - self.mean) / self.std
+        x = normalise(pixels, self.mean, self.std)
         cuda = self.device.type == "cuda"
         if cuda:
             x = x.contiguous(memory_format=torch.channels_last)

@@ -8,6 +8,10 @@ dataset it belongs to (``DATASET/labels/NAME.png``), else the one the landmark d
 image size is ``--*-size``, else that of an image beside it with the same name (also drawn
 under the pictures), else the extent of its landmarks (with a warning).
 
+``--feature-threshold T`` removes the graph edges between landmarks whose encoder features
+are closer than T (§5.3.2, :mod:`localization.features`) on each side that is an RGB image or
+has its photo as ``--*-image``; result.json's ``feature_edges`` says how many went per side.
+
 The top-k locations go to stdout (a table, or JSON with ``--json``); "unanswered" (no place
 in the aerial image shows every class the ground sees) is a normal outcome: exit 0. Bad input
 (an unreadable file, no landmarks, a window larger than the image, landmarks of a single
@@ -21,7 +25,7 @@ import logging
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,13 +46,16 @@ class Side:
     """One image's landmarks, what to draw under them, and its ground resolution if known.
 
     ``paint`` draws a mask's colour picture when there is no RGB ``background``; it runs only
-    when pictures are asked for (it needs matplotlib's colours).
+    when pictures are asked for (it needs matplotlib's colours). ``photo`` is the RGB image
+    the landmarks were found in (segmented, or given by --*-image): the one landmark
+    features (--feature-threshold) are computed from; None for a mask or landmark file alone.
     """
 
     landmarks: Any  # localization.landmarks.Landmarks
     background: np.ndarray | None
     resolution: float | None
     paint: Callable[[], np.ndarray] | None = None
+    photo: np.ndarray | None = None
 
     def picture(self) -> np.ndarray | None:
         """The RGB image to draw under the landmarks, if any."""
@@ -297,7 +304,7 @@ def _segmented_side(path: Path, pixels: np.ndarray, resolution: float | None, op
         raise ConfigError(f"{path}: --{opts.name}-checkpoint needs an RGB image, got {pixels.shape}")
     model, spec = model_from_checkpoint(opts.checkpoint)  # type: ignore[arg-type]
     mask = predict_array(model, rgb, spec)
-    return _mask_side(path, mask, resolution, opts, dictionary, rgb, spec.class_table)
+    return replace(_mask_side(path, mask, resolution, opts, dictionary, rgb, spec.class_table), photo=rgb)
 
 
 def _landmark_file_side(path: Path, opts: SideOptions, dictionary: Any) -> Side:
@@ -341,6 +348,18 @@ def load_side(path: Path, opts: SideOptions) -> Side:
         raise DatasetError(f"{path}: a {kind} image is not a label mask of class ids: give the mask, a landmark "
                            f"file, or --{opts.name}-checkpoint to segment it")
     return _mask_side(path, pixels, resolution, opts, dictionary, None, None)
+
+
+def _with_photo(side: Side, path: Path | None, name: str) -> Side:
+    """``side`` with the RGB photo of ``--NAME-image`` (for landmark features; drawn under the pictures)."""
+    if path is None:
+        return side
+    rgb, lm = _rgb(_read_image(path)[0]), side.landmarks
+    if rgb is None or rgb.shape[:2] != (lm.height, lm.width):
+        got = "not an RGB image" if rgb is None else f"{rgb.shape[1]}x{rgb.shape[0]}"
+        raise ConfigError(f"--{name}-image {path.name} is {got}; the {name} landmarks need the {lm.width}x{lm.height} "
+                          f"RGB photo they were found in (or a matching --{name}-size)")
+    return replace(side, background=rgb, photo=rgb)
 
 
 # --------------------------------------------------------------------------- checks and output
@@ -435,6 +454,19 @@ def _pictures(out_dir: Path, result: Any, aerial: Side, ground: Side, truth: tup
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON instead of a table.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Folder for localization.png, aerial_graph.png, ground_graph.png and result.json.")
+@click.option("--aerial-image", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="RGB photo of the aerial mask or landmark file: for --feature-threshold, and drawn under the graph.")
+@click.option("--ground-image", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="RGB photo of the ground mask or landmark file.")
+@click.option("--feature-threshold", type=click.FloatRange(min=0, min_open=True),
+              help="Remove edges between landmarks whose encoder features are closer than this (§5.3.2) [off].")
+@click.option("--feature-metric", type=click.Choice(["euclidean", "cosine"]), default="cosine", show_default=True)
+@click.option("--feature-reduce", type=click.Choice(["none", "pca", "umap"]), default="pca", show_default=True,
+              help="Reduce the features first (umap needs umap-learn). PCA centres them: with 2 landmarks their cosine distance is 2, so nothing is dropped.")
+@click.option("--feature-components", type=click.IntRange(min=1), default=8, show_default=True,
+              help="Dimensions --feature-reduce keeps.")
+@click.option("--feature-checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Checkpoint whose encoder gives the features [the side's --aerial-checkpoint/--ground-checkpoint].")
 @click.pass_context
 @report_errors
 def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, aerial_classes: str,
@@ -443,8 +475,11 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                      panorama: bool, window_text: str, ground_window: int | None, p: float, top_k: int, stride: int,
                      hierarchical: bool, windows_text: str, mode: str, min_size: int, grid_stride: int,
                      reference: bool, truth_text: str | None, resolution: float | None, as_json: bool,
-                     out_dir: Path | None) -> None:
+                     out_dir: Path | None, aerial_image: Path | None, ground_image: Path | None,
+                     feature_threshold: float | None, feature_metric: str, feature_reduce: str,
+                     feature_components: int, feature_checkpoint: Path | None) -> None:
     """Find where the GROUND panorama was taken in the AERIAL image by matching landmark graphs."""
+    from localization.features import FeatureEdges
     from localization.match import localize
     from localization.refine import localize_hierarchical
 
@@ -458,6 +493,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                                                 _size(ground_size, "--ground-size"), ground_checkpoint, panorama,
                                                 **common))
     _check_inputs(aerial, ground, aerial_path, ground_path)
+    aerial, ground = _with_photo(aerial, aerial_image, "aerial"), _with_photo(ground, ground_image, "ground")
     a = aerial.landmarks
     if window is not None and not hierarchical and window >= max(a.width, a.height):
         raise ConfigError(f"--window {window} is not smaller than the aerial image ({a.width}x{a.height}): every "
@@ -465,6 +501,12 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
     if truth is not None and not (0 <= truth[0] < a.width and 0 <= truth[1] < a.height):
         raise ConfigError(f"--truth {truth[0]:g},{truth[1]:g} is outside the aerial image ({a.width}x{a.height})")
     settings = {"query_window": ground_window, "p": p, "stride": stride, "top_k": top_k, "fast": not reference}
+    edges, drops = None, {}
+    if feature_threshold is not None:
+        edges = FeatureEdges(feature_threshold, feature_metric, feature_reduce, feature_components)
+        drops = edges.masks({"aerial": (aerial.photo, a, feature_checkpoint or aerial_checkpoint),
+                             "ground": (ground.photo, ground.landmarks, feature_checkpoint or ground_checkpoint)})
+        settings.update(aerial_drop=drops["aerial"], query_drop=drops["ground"])
     if hierarchical:
         result = localize_hierarchical(a, ground.landmarks, windows, **settings)
     else:
@@ -472,6 +514,9 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
         if window is None and not result.unanswered and result.window >= max(a.width, a.height):
             logger.warning("the automatic window (%d px) covers the whole aerial image, so there is one candidate: "
                            "give a smaller --window", result.window)
+    if edges is not None:
+        graphs = {"aerial": (a, result.window), "ground": (ground.landmarks, result.query_window)}
+        result = replace(result, feature_edges=edges.summary(drops, graphs, fast=not reference, stride=stride))
     resolution = resolution or aerial.resolution
     error_px, error_m = result.error(truth, resolution)
     summary: dict[str, Any] = {"aerial": str(aerial_path), "ground": str(ground_path),
