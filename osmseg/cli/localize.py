@@ -24,8 +24,7 @@ import json
 import logging
 import math
 import re
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -33,49 +32,10 @@ import click
 import numpy as np
 
 from osmseg.cli.common import report_errors
-from osmseg.errors import ConfigError, DatasetError, ImageryError
+from osmseg.cli.localize_inputs import Side, SideOptions, load_side, with_photo
+from osmseg.errors import ConfigError, DatasetError
 
 logger = logging.getLogger(__name__)
-
-LANDMARK_SUFFIXES = (".txt", ".csv", ".npy", ".lm")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
-
-
-@dataclass(frozen=True)
-class Side:
-    """One image's landmarks, what to draw under them, and its ground resolution if known.
-
-    ``paint`` draws a mask's colour picture when there is no RGB ``background``; it runs only
-    when pictures are asked for (it needs matplotlib's colours). ``photo`` is the RGB image
-    the landmarks were found in (segmented, or given by --*-image): the one landmark
-    features (--feature-threshold) are computed from; None for a mask or landmark file alone.
-    """
-
-    landmarks: Any  # localization.landmarks.Landmarks
-    background: np.ndarray | None
-    resolution: float | None
-    paint: Callable[[], np.ndarray] | None = None
-    photo: np.ndarray | None = None
-
-    def picture(self) -> np.ndarray | None:
-        """The RGB image to draw under the landmarks, if any."""
-        return self.background if self.background is not None or self.paint is None else self.paint()
-
-
-@dataclass(frozen=True)
-class SideOptions:
-    """How to read one side (the command's ``--aerial-*`` or ``--ground-*`` options)."""
-
-    name: str  # "aerial" or "ground": for messages
-    classes: str
-    table: str | None
-    size: tuple[int, int] | None
-    checkpoint: Path | None
-    panorama: bool
-    mode: str
-    min_size: int
-    grid_stride: int
-
 
 # --------------------------------------------------------------------------- parsing options
 
@@ -141,225 +101,6 @@ def _windows(value: str) -> tuple[int, ...]:
     if not sizes or min(sizes) < 1:
         raise ConfigError(f"--windows must be positive pixel sizes, got {value!r}")
     return sizes
-
-
-def _dictionary(name: str) -> Any:
-    """A landmark class dictionary by name ("aerial13", "landmarks-aerial13", a .toml path)."""
-    from localization.landmarks import load_landmark_classes
-
-    return load_landmark_classes(name)
-
-
-# --------------------------------------------------------------------------- reading inputs
-
-
-def _read_image(path: Path) -> tuple[np.ndarray, float | None]:
-    """Pixels ``(H, W)`` or ``(H, W, bands)`` of an image, and its ground resolution (m/px) if georeferenced."""
-    if path.suffix.lower() in (".tif", ".tiff"):
-        import rasterio
-        from rasterio.errors import RasterioError
-
-        try:
-            with rasterio.open(path) as src:
-                data = src.read()
-                resolution = _resolution(src)
-        except (RasterioError, OSError) as exc:
-            raise ImageryError(f"{path}: cannot read the image ({exc})") from None
-        return (data[0] if data.shape[0] == 1 else np.moveaxis(data, 0, -1)), resolution
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as img:
-            img.load()
-            if img.mode in ("RGBA", "LA", "CMYK", "YCbCr", "HSV", "LAB"):
-                img = img.convert("RGB")  # colour: an image to segment or to draw under the landmarks
-            elif img.mode == "1":
-                img = img.convert("L")
-            return np.asarray(img), None  # "L", "P" (palette indices), "I;16", "I": class ids
-    except (UnidentifiedImageError, OSError) as exc:
-        raise ImageryError(f"{path}: cannot read the image ({exc})") from None
-
-
-def _resolution(src: Any) -> float | None:
-    """Metres per pixel of an open rasterio dataset (Web Mercator scaled at its centre latitude)."""
-    if src.crs is None or src.transform.is_identity:
-        return None
-    res = abs(src.transform.a)
-    if src.crs.is_geographic:
-        return None
-    if src.crs.to_epsg() == 3857:
-        from pyproj import Transformer
-
-        x, y = src.xy(src.height // 2, src.width // 2)
-        lat = Transformer.from_crs(3857, 4326, always_xy=True).transform(x, y)[1]
-        return res * math.cos(math.radians(lat))
-    unit = (src.crs.linear_units or "").lower()
-    return res if unit in ("metre", "meter", "m") else None
-
-
-def _manifest_for(mask: Path) -> tuple[dict[str, Any], dict[str, Any], Path] | None:
-    """The class table and sample entry of ``mask`` in the manifest of the osmseg dataset listing it, and its root.
-
-    Looks at ``DATASET/labels/NAME.png`` -> ``DATASET/manifest.json`` (and a manifest beside the
-    mask); a manifest that does not list the mask is not its own and is ignored.
-    """
-    for root in (mask.parent.parent, mask.parent):
-        path = root / "manifest.json"
-        if not path.is_file():
-            continue
-        try:
-            manifest = json.loads(path.read_text(encoding="utf-8"))
-            table = {"classes": list(manifest["classes"]["classes"])}
-            samples = list(manifest.get("samples", ()))
-        except (OSError, ValueError, KeyError, TypeError):
-            raise DatasetError(f"{path}: not a readable osmseg dataset manifest; give the mask's class table "
-                               "with --aerial-table/--ground-table") from None
-        rel = mask.resolve().relative_to(root.resolve()).as_posix()
-        sample = next((s for s in samples if isinstance(s, dict) and rel in s.get("files", {})), None)
-        if sample is not None:
-            return table, sample, root
-    return None
-
-
-def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: SideOptions, dictionary: Any,
-               rgb: np.ndarray | None, table_dict: dict[str, Any] | None) -> Side:
-    """Landmarks of a label mask, with the best background at hand (RGB image, class colours)."""
-    from localization.landmarks import landmarks_from_mask
-    from osmseg.classes import load_class_table
-
-    background = rgb
-    if opts.table is not None:
-        table = load_class_table(opts.table)
-        ids: Any = {c.id: c.name for c in (table.unlabeled, *table.classes)}
-        colours = {c.id: c.color for c in (table.unlabeled, *table.classes)}
-    elif table_dict is not None:
-        ids = {int(c["id"]): str(c["name"]) for c in table_dict["classes"]}
-        colours = {int(c["id"]): tuple(c["color"]) for c in table_dict["classes"] if "color" in c}
-    else:
-        found = _manifest_for(path)
-        if found is not None:
-            table_dict, sample, root = found
-            ids = {int(c["id"]): str(c["name"]) for c in table_dict["classes"]}
-            colours = {int(c["id"]): tuple(c["color"]) for c in table_dict["classes"] if "color" in c}
-            resolution = resolution or sample.get("ground_resolution_m")
-            image = root / "images" / path.name
-            if background is None and image.is_file():
-                background = _rgb(_read_image(image)[0])
-        else:
-            ids, colours = None, {}
-    mask = pixels.astype(np.int64)
-    lm = landmarks_from_mask(mask, ids, dictionary, mode=opts.mode, stride=opts.grid_stride,
-                             min_size=opts.min_size, panorama=opts.panorama)
-    paint: Callable[[], np.ndarray] | None = None
-    if background is None and 0 <= int(mask.min()) and int(mask.max()) < 256:
-        names = ids if ids is not None else dictionary.mask_ids()
-
-        def paint_mask() -> np.ndarray:
-            return _colourise(mask, colours, names, dictionary)
-        paint = paint_mask
-    return Side(lm, background, resolution, paint)
-
-
-def _colourise(mask: np.ndarray, colours: dict[int, Any], ids: dict[int, str] | None, dictionary: Any) -> np.ndarray:
-    """An RGB picture of a class mask: its table's colours, else pale landmark-class colours (others grey)."""
-    lut = np.full((256, 3), 235, dtype=np.uint8)
-    if colours:
-        for cid, rgb_colour in colours.items():
-            if 0 <= cid < 256:
-                lut[cid] = rgb_colour
-    elif ids:
-        from matplotlib.colors import to_rgb
-
-        from localization.pictures import class_colours
-
-        palette = dict(zip(dictionary.names, class_colours(dictionary.names)))
-        for cid, name in ids.items():
-            target = dictionary.mapping.get(name)
-            if target is not None and 0 <= cid < 256:  # pale, so the graph drawn over it stands out
-                lut[cid] = [round(255 - 0.45 * (255 - 255 * v)) for v in to_rgb(palette[target])]
-    return lut[mask]
-
-
-def _rgb(pixels: np.ndarray) -> np.ndarray | None:
-    """``pixels`` as an RGB image for drawing, or None if it is not one."""
-    if pixels.ndim == 3 and pixels.shape[2] >= 3:
-        rgb = pixels[:, :, :3]
-        return rgb if rgb.dtype == np.uint8 else np.clip(rgb, 0, 255).astype(np.uint8)
-    if pixels.ndim == 2 and pixels.dtype == np.uint8:
-        return np.repeat(pixels[:, :, None], 3, axis=2)
-    return None
-
-
-def _segmented_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: SideOptions,
-                    dictionary: Any) -> Side:
-    """Segment an RGB image with ``opts.checkpoint`` (needs PyTorch), then read its mask."""
-    from osmseg.cli.common import require_torch
-
-    require_torch()
-    from training.checkpoint import model_from_checkpoint
-    from training.infer import predict_array
-
-    rgb = _rgb(pixels)
-    if rgb is None:
-        raise ConfigError(f"{path}: --{opts.name}-checkpoint needs an RGB image, got {pixels.shape}")
-    model, spec = model_from_checkpoint(opts.checkpoint)  # type: ignore[arg-type]
-    mask = predict_array(model, rgb, spec)
-    return replace(_mask_side(path, mask, resolution, opts, dictionary, rgb, spec.class_table), photo=rgb)
-
-
-def _landmark_file_side(path: Path, opts: SideOptions, dictionary: Any) -> Side:
-    """Landmarks of an ``x y Class`` / CSV / .npy file, sized by --*-size, an image beside it, or their extent."""
-    from localization.landmark_files import read_landmarks
-
-    background, size = None, opts.size
-    beside = next((path.with_suffix(s) for s in IMAGE_SUFFIXES if path.with_suffix(s).is_file()), None)
-    resolution = None
-    if beside is not None:
-        pixels, resolution = _read_image(beside)
-        background = _rgb(pixels)
-        size = size or (pixels.shape[1], pixels.shape[0])
-    if size is None:
-        probe = read_landmarks(path, dictionary, 1 << 30, 1 << 30)
-        if len(probe) == 0:
-            size = (1, 1)
-        else:
-            size = (int(probe.xy[:, 0].max()) + 1, int(probe.xy[:, 1].max()) + 1)
-        logger.warning("%s: no image size given (--%s-size) and no image beside it: using %dx%d, the landmarks' "
-                       "extent%s", path, opts.name, size[0], size[1],
-                       "; a panorama's width must be exact for its wrap-around" if opts.panorama else "")
-    elif background is not None and (background.shape[1], background.shape[0]) != size:
-        background = None  # an image of another size cannot be drawn under these landmarks
-    return Side(read_landmarks(path, dictionary, size[0], size[1], panorama=opts.panorama), background, resolution)
-
-
-def load_side(path: Path, opts: SideOptions) -> Side:
-    """Read one side of the match from whatever ``path`` is (see the module docstring)."""
-    dictionary = _dictionary(opts.classes)
-    suffix = path.suffix.lower()
-    if suffix in LANDMARK_SUFFIXES or suffix not in IMAGE_SUFFIXES:
-        if opts.checkpoint is not None:
-            raise ConfigError(f"--{opts.name}-checkpoint needs an image to segment, but {path.name} is a landmark file")
-        return _landmark_file_side(path, opts, dictionary)
-    pixels, resolution = _read_image(path)
-    if opts.checkpoint is not None:
-        return _segmented_side(path, pixels, resolution, opts, dictionary)
-    if pixels.ndim != 2 or not np.issubdtype(pixels.dtype, np.integer):
-        kind = f"{pixels.shape[2]}-band" if pixels.ndim == 3 else f"{pixels.dtype}"
-        raise DatasetError(f"{path}: a {kind} image is not a label mask of class ids: give the mask, a landmark "
-                           f"file, or --{opts.name}-checkpoint to segment it")
-    return _mask_side(path, pixels, resolution, opts, dictionary, None, None)
-
-
-def _with_photo(side: Side, path: Path | None, name: str) -> Side:
-    """``side`` with the RGB photo of ``--NAME-image`` (for landmark features; drawn under the pictures)."""
-    if path is None:
-        return side
-    rgb, lm = _rgb(_read_image(path)[0]), side.landmarks
-    if rgb is None or rgb.shape[:2] != (lm.height, lm.width):
-        got = "not an RGB image" if rgb is None else f"{rgb.shape[1]}x{rgb.shape[0]}"
-        raise ConfigError(f"--{name}-image {path.name} is {got}; the {name} landmarks need the {lm.width}x{lm.height} "
-                          f"RGB photo they were found in (or a matching --{name}-size)")
-    return replace(side, background=rgb, photo=rgb)
 
 
 # --------------------------------------------------------------------------- checks and output
@@ -493,7 +234,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                                                 _size(ground_size, "--ground-size"), ground_checkpoint, panorama,
                                                 **common))
     _check_inputs(aerial, ground, aerial_path, ground_path)
-    aerial, ground = _with_photo(aerial, aerial_image, "aerial"), _with_photo(ground, ground_image, "ground")
+    aerial, ground = with_photo(aerial, aerial_image, "aerial"), with_photo(ground, ground_image, "ground")
     a = aerial.landmarks
     if window is not None and not hierarchical and window >= max(a.width, a.height):
         raise ConfigError(f"--window {window} is not smaller than the aerial image ({a.width}x{a.height}): every "
