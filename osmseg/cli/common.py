@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import re
 import sys
 from typing import Any, Callable, TypeVar
 
@@ -94,3 +95,17 @@ def require_torch() -> None:
         raise click.UsageError(
             "this command needs PyTorch: pip install 'osmseg[train]' (or run `make test`, which installs it)"
         ) from None
+
+
+def parse_size(value: str | None, option: str) -> tuple[int, int] | None:
+    """An option's ``"WIDTHxHEIGHT"`` as ``(width, height)`` pixels; None stays None.
+
+    >>> parse_size("1232x224", "--ground-size"), parse_size(None, "--ground-size")
+    ((1232, 224), None)
+    """
+    if value is None:
+        return None
+    m = re.fullmatch(r"\s*(\d+)\s*[xX,]\s*(\d+)\s*", value)
+    if not m or int(m.group(1)) < 1 or int(m.group(2)) < 1:
+        raise ConfigError(f"{option} must be WIDTHxHEIGHT in pixels, e.g. 750x750; got {value!r}")
+    return int(m.group(1)), int(m.group(2))

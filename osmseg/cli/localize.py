@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import re
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -31,27 +30,13 @@ from typing import Any
 import click
 import numpy as np
 
-from osmseg.cli.common import report_errors
+from osmseg.cli.common import parse_size, report_errors
 from osmseg.cli.localize_inputs import Side, SideOptions, load_side, with_photo
 from osmseg.errors import ConfigError, DatasetError
 
 logger = logging.getLogger(__name__)
 
 # --------------------------------------------------------------------------- parsing options
-
-
-def _size(value: str | None, option: str) -> tuple[int, int] | None:
-    """``"750x750"`` -> (750, 750).
-
-    >>> _size("1232x224", "--ground-size"), _size(None, "--ground-size")
-    ((1232, 224), None)
-    """
-    if value is None:
-        return None
-    m = re.fullmatch(r"\s*(\d+)\s*[xX,]\s*(\d+)\s*", value)
-    if not m or int(m.group(1)) < 1 or int(m.group(2)) < 1:
-        raise ConfigError(f"{option} must be WIDTHxHEIGHT in pixels, e.g. 750x750; got {value!r}")
-    return int(m.group(1)), int(m.group(2))
 
 
 def _point(value: str | None) -> tuple[float, float] | None:
@@ -228,10 +213,10 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
     window, windows, truth = _window(window_text), _windows(windows_text), _point(truth_text)
     common = {"mode": mode, "min_size": min_size, "grid_stride": grid_stride}
     aerial = load_side(aerial_path, SideOptions("aerial", aerial_classes, aerial_table,
-                                                _size(aerial_size, "--aerial-size"), aerial_checkpoint, False,
+                                                parse_size(aerial_size, "--aerial-size"), aerial_checkpoint, False,
                                                 **common))
     ground = load_side(ground_path, SideOptions("ground", ground_classes, ground_table,
-                                                _size(ground_size, "--ground-size"), ground_checkpoint, panorama,
+                                                parse_size(ground_size, "--ground-size"), ground_checkpoint, panorama,
                                                 **common))
     _check_inputs(aerial, ground, aerial_path, ground_path)
     aerial, ground = with_photo(aerial, aerial_image, "aerial"), with_photo(ground, ground_image, "ground")

@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from osmseg.cli.common import report_errors
+from osmseg.cli.common import parse_size, report_errors
 from osmseg.errors import ConfigError
 
 
@@ -25,16 +25,6 @@ def _heights(values: tuple[str, ...]) -> dict[str, float]:
         if not eq or not name.strip():
             raise ConfigError(f"--class-height {item!r}: write CLASS=METRES, e.g. building=12")
     return heights
-
-
-def _size(value: str | None, side: str) -> tuple[int, int] | None:
-    """``"750x750"`` -> (750, 750)."""
-    if value is None:
-        return None
-    w, x, h = value.lower().partition("x")
-    if not (x and w.strip().isdigit() and h.strip().isdigit() and int(w) > 0 and int(h) > 0):
-        raise ConfigError(f"--{side}-size {value!r}: write WIDTHxHEIGHT in pixels, e.g. 750x750")
-    return int(w), int(h)
 
 
 @click.command("localize-bench")
@@ -115,8 +105,8 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     verbosity = ctx.obj["verbosity"] if ctx.obj else 0
     if source.is_dir() and is_pairs_folder(source):
         pairs_config = PairsConfig(landmarks=landmark_dict or "camvid", window=window, p=p, top_k=top_k,
-                                   subsets=subsets, resolution_m=resolution, aerial_size=_size(aerial_size, "aerial"),
-                                   ground_size=_size(ground_size, "ground"))
+                                   subsets=subsets, resolution_m=resolution, aerial_size=parse_size(aerial_size, "--aerial-size"),
+                                   ground_size=parse_size(ground_size, "--ground-size"))
         results = run_pairs(load_pairs(source, pairs_config), pairs_config, out_dir, progress=verbosity >= 0,
                             plots=plots, source=str(source))
         if verbosity >= 0:
