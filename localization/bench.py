@@ -94,14 +94,15 @@ class BenchConfig:
     render: RenderConfig = field(default_factory=RenderConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     save_panoramas: int = 0             # write the first K panoramas as PNG
+    pictures: int = 0                   # draw the first K localizations (map + panorama graph) under views/
     query_landmarks: str = "mask"       # "mask": from the rendered panorama; "visible": the aerial ones it shows
     visible_min_px: int = 20            # "visible": panorama pixels an aerial landmark needs to count as seen
 
     def __post_init__(self) -> None:
         if self.viewpoints < 1:
             raise ConfigError(f"viewpoints must be at least 1, got {self.viewpoints}")
-        if self.margin_m < 0 or self.top_k < 1 or self.save_panoramas < 0:
-            raise ConfigError("margin_m and save_panoramas must be >= 0 and top_k >= 1")
+        if self.margin_m < 0 or self.top_k < 1 or self.save_panoramas < 0 or self.pictures < 0:
+            raise ConfigError("margin_m, save_panoramas and pictures must be >= 0 and top_k >= 1")
         if not 0 < self.p <= 1:
             raise ConfigError(f"p must be in (0, 1], got {self.p}")
         if self.window is not None and self.window < 1:
@@ -420,6 +421,8 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
         t_render = time.perf_counter() - t0
         if index < config.save_panoramas:
             save_panorama_png(out_dir / "panoramas" / f"{index:04d}_{scene.name}.png", view.panorama)
+        if index < config.pictures:
+            draw_view(out_dir / "views" / f"{index:04d}_{scene.name}", scene, view, graphs[si][subsets[0]], config)
         centre, uniform = chance_errors(scene.mask.shape, truth, scene.resolution_m)
         scored, t_loc = localize_subsets(graphs[si], view.landmarks, truth, scene.resolution_m, config.p, config.top_k)
         records.append({
@@ -435,6 +438,21 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     results = _results(scenes, graphs, subsets, records, config, classes, source, total)
     write_results(results, out_dir, plots)
     return results
+
+
+def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: _AerialGraph, config: BenchConfig) -> list[Path]:
+    """``STEM_map.png`` (the mask with candidates, top-k and truth) and ``STEM_panorama.png`` (its graph)."""
+    from localization.graph import adjacency
+    from localization.pictures import graph_png, localization_png
+
+    loc = _localize(graph, view.landmarks, config.p, config.top_k)
+    query = view.landmarks
+    pano_graph = adjacency(cliques_fast(query, query.height)) if len(query) else np.zeros((0, 0), bool)
+    return [localization_png(stem.with_name(stem.name + "_map.png"), loc, graph.landmarks,
+                             image=scene.table.colorize(scene.mask), truth=view.truth, resolution=scene.resolution_m,
+                             classes=[(c.name, c.color) for c in scene.table.classes if (scene.mask == c.id).any()]),
+            graph_png(stem.with_name(stem.name + "_panorama.png"), query, pano_graph, image=view.panorama.rgb(),
+                      title=f"rendered panorama at ({view.truth[0]:.0f}, {view.truth[1]:.0f}): {len(query)} landmarks")]
 
 
 def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], _AerialGraph]],

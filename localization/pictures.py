@@ -83,11 +83,12 @@ def _background(ax: Axes, image: np.ndarray | None, width: int, height: int) -> 
 
 def localization_png(path: Path | str, result: Localization, aerial: Landmarks, *, image: np.ndarray | None = None,
                      truth: tuple[float, float] | None = None, resolution: float | None = None,
-                     title: str | None = None) -> Path:
+                     title: str | None = None, classes: Sequence[tuple[str, Sequence[int]]] = ()) -> Path:
     """The aerial image with all candidates (orange), the top-k (green, ranked) and the truth.
 
     ``image`` is the aerial RGB image or a colourised mask (``(H, W[, 3])``, the landmarks'
-    size); without it a grey canvas. Top-k windows are squares of the result's window size
+    size); without it a grey canvas. ``classes``: ``(name, rgb)`` of a colourised mask's
+    classes, added to the legend. Top-k windows are squares of the result's window size
     around their centres. The title says how many candidates there are, the ties and the
     MAP's error to ``truth`` (px, and m with ``resolution`` in metres per pixel).
     """
@@ -116,7 +117,9 @@ def localization_png(path: Path | str, result: Localization, aerial: Landmarks, 
             ax.plot(*truth, marker="*", ms=16, mfc=TRUTH, mec="white", mew=1.0, zorder=7)
             handles.append(Line2D([], [], ls="", marker="*", ms=12, mfc=TRUTH, mec="white", label="ground truth"))
         ax.set_title(title or _summary(result, truth, resolution))
-        fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), frameon=False)
+        swatches = [Rectangle((0, 0), 1, 1, fc=np.asarray(rgb) / 255.0, ec="0.3", label=name) for name, rgb in classes]
+        fig.legend(handles=handles + swatches, loc="outside lower center", ncol=min(len(handles) + len(swatches), 5),
+                   frameon=False)
         return _save(fig, path)
 
 

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from PIL import Image
 
 from osmseg import __version__
-from osmseg.cli.demo import DEMO_CASSETTE, DEMO_SAMPLES
+from osmseg.cli.demo import DEMO_CASSETTE, DEMO_SAMPLES, DEMO_VIEWPOINTS
 from osmseg.cli.main import cli
 
 
@@ -34,6 +34,13 @@ def test_demo_builds_offline_and_says_what_it_used(tmp_path: Path) -> None:
     assert verified.exit_code == 0
     offsets = json.loads(verified.stdout)["alignment"]["offsets"].values()
     assert all(o["dx"] == 0 and o["dy"] == 0 for o in offsets)
+    # then panoramas rendered from those masks were localized in them, with pictures
+    loc = tmp_path / "demo" / "localize"
+    results = json.loads((loc / "results.json").read_text())
+    assert results["summary"]["n"] == DEMO_VIEWPOINTS and {r["scene"] for r in results["viewpoints"]} == {
+        s["name"] for s in manifest["samples"]}
+    assert sorted(p.name for p in (loc / "views").glob("*_map.png"))[:1] == ["0000_helsinki_00000_map.png"]
+    assert (loc / "errors.png").stat().st_size > 1000 and "rendered panoramas" in result.stderr
 
 
 def test_version_and_help() -> None:
@@ -45,10 +52,11 @@ def test_version_and_help() -> None:
 
 def test_demo_trains_and_evaluates_after_the_build(tmp_path: Path) -> None:
     out = tmp_path / "demo"
-    result = CliRunner().invoke(cli, ["demo", "--out", str(out), "--epochs", "1"])
+    result = CliRunner().invoke(cli, ["demo", "--out", str(out), "--epochs", "1", "--no-localize"])
     assert result.exit_code == 0, result.output
     for picture in ("panels.png", "confusion_matrix.png", "per_class_iou.png", "curves.png"):
         assert (out / "eval" / picture).stat().st_size > 1000
     metrics = json.loads((out / "eval" / "metrics.json").read_text())
     assert "test" in metrics["evaluated"]["images"] and 0 <= metrics["pixel_accuracy"] <= 1
     assert "panels.png" in result.stderr and (out / "run" / "best.pt").is_file()
+    assert not (out / "localize").exists()

@@ -255,10 +255,14 @@ def _check_results(results: dict, n: int, out: Path) -> None:
 
 def test_bench_end_to_end_on_a_constructed_town(tmp_path: Path) -> None:
     scene = Scene("town", town(), TABLE, RES)
-    config = BenchConfig(viewpoints=3, seed=5, margin_m=10.0, save_panoramas=1)
+    config = BenchConfig(viewpoints=3, seed=5, margin_m=10.0, save_panoramas=1, pictures=2)
     results = run_bench([scene], config, tmp_path)
     _check_results(results, 3, tmp_path)
     assert len(list((tmp_path / "panoramas").glob("*.png"))) == 1
+    views = sorted(p.name for p in (tmp_path / "views").glob("*.png"))
+    assert views == ["0000_town_map.png", "0000_town_panorama.png", "0001_town_map.png", "0001_town_panorama.png"]
+    with Image.open(tmp_path / "views" / "0000_town_map.png") as im:  # the 400 px mask, drawn with its legend
+        assert im.format == "PNG" and im.size[0] > 400 and im.size[1] > im.size[0]
     for rec in results["viewpoints"]:  # off-centre, on standable ground, away from the border
         x, y = rec["truth"]
         assert scene.mask[int(y), int(x)] in (ROAD, FOOT, GRASS) and 20 <= x < 380 and 20 <= y < 380

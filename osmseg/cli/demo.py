@@ -1,4 +1,8 @@
-"""``osmseg demo``: the whole pipeline offline on the embedded recorded fixtures."""
+"""``osmseg demo``: the whole pipeline offline on the embedded recorded fixtures.
+
+Build (4 Helsinki samples replayed from a cassette), localization (panoramas rendered from the
+masks, localized by landmark-graph matching), then training and evaluation of a tiny model.
+"""
 
 from __future__ import annotations
 
@@ -61,16 +65,45 @@ def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int) -> 
                    f"dataset overview: {dataset}/overview.png", err=True)
 
 
+#: The demo's localization run: rendered panoramas at seeded viewpoints of the demo masks.
+DEMO_VIEWPOINTS = 12
+
+
+def demo_localization(dataset: Path, out_dir: Path, verbosity: int) -> None:
+    """Render panoramas in the demo masks and localize them (localize-bench with a few viewpoints)."""
+    import importlib.util
+
+    from localization.bench import BenchConfig, load_dataset_scenes, run_bench
+    from osmseg.cli.localize_bench import format_summary
+
+    loc_dir = out_dir / "localize"
+    drawing = importlib.util.find_spec("matplotlib") is not None
+    if verbosity >= 0:
+        click.echo(f"localizing {DEMO_VIEWPOINTS} rendered panoramas in the dataset's masks into {loc_dir}/", err=True)
+    config = BenchConfig(viewpoints=DEMO_VIEWPOINTS, seed=0, subsets=True, pictures=2 if drawing else 0)
+    results = run_bench(load_dataset_scenes(dataset), config, loc_dir, progress=verbosity >= 0, plots=drawing,
+                        source=str(dataset))
+    if verbosity >= 0:
+        click.echo(format_summary(results), err=True)
+        click.echo(f"pictures: {loc_dir}/errors.png, classes.png, views/ (candidates, top-5 and truth on the mask; "
+                   "the panorama's landmark graph)" if drawing else
+                   "localization pictures skipped: matplotlib is not installed (pip install 'osmseg[train]')",
+                   err=True)
+
+
 @click.command("demo")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-out"),
-              show_default=True, help="Output folder: dataset/, run/ (training) and eval/ (metrics, pictures).")
+              show_default=True, help="Output folder: dataset/, localize/, run/ (training) and eval/ (metrics, pictures).")
 @click.option("--train/--no-train", default=True, show_default=True,
               help="After the build, train a tiny AirSegNet13 on the CPU and evaluate it (needs osmseg[train]).")
 @click.option("--epochs", type=click.IntRange(min=1), default=DEMO_TRAINING["epochs"], show_default=True)
+@click.option("--localize/--no-localize", default=True, show_default=True,
+              help="After the build, localize rendered panoramas in the dataset's masks (localize-bench).")
 @click.pass_context
 @report_errors
-def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int) -> None:
-    """Build a small dataset offline from embedded recorded fixtures, then train and evaluate on it."""
+def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int, localize: bool) -> None:
+    """Build a small dataset offline from embedded recorded fixtures, localize panoramas rendered
+    from its masks, then train and evaluate a tiny model on it."""
     verbosity = ctx.obj["verbosity"]
     if verbosity >= 0:
         click.echo(f"osmseg demo: replaying {DEMO_CASSETTE.name} (Helsinki, OSM API + Bing wire formats; "
@@ -81,6 +114,8 @@ def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int) ->
     if verbosity >= 0:
         click.echo(f"dataset in {dataset}/: images/, segmented/, labels/, geo/, manifest.json, DATASHEET.md, "
                    f"overview.png ({summary.accepted} samples)", err=True)
+    if localize:
+        demo_localization(dataset, out_dir, verbosity)
     if not train:
         return
     try:

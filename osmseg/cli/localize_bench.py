@@ -73,6 +73,9 @@ def _heights(values: tuple[str, ...]) -> dict[str, float]:
               help="With --query-landmarks visible: panorama pixels an aerial landmark needs to count as seen.")
 @click.option("--save-panoramas", type=int, default=0, show_default=True,
               help="Write the first K rendered panoramas as PNG under OUT/panoramas/.")
+@click.option("--pictures", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Draw the first K localizations under OUT/views/: the mask with candidates, top-k and truth, "
+              "and the panorama with its landmark graph.")
 @click.option("--plots/--no-plots", default=True, show_default=True, help="Draw errors.png and classes.png.")
 @click.option("--aerial-size", help="Annotated pairs: WIDTHxHEIGHT of the aerial images when no image lies beside "
               "the landmark files, e.g. 750x750.")
@@ -85,7 +88,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
                            subsets: bool, width: int, height: int, camera_height: float, max_range: float,
                            class_height: tuple[str, ...], confusion: float, miss_small: int, miss_prob: float,
                            offset: float, query_landmarks: str, visible_min_px: int, save_panoramas: int,
-                           plots: bool, aerial_size: str | None,
+                           pictures: int, plots: bool, aerial_size: str | None,
                            ground_size: str | None) -> None:
     """Render panoramas at seeded viewpoints of SOURCE and localize them in it.
 
@@ -120,7 +123,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         render=RenderConfig(width=width, height=height, camera_height_m=camera_height, max_range_m=max_range,
                             heights=_heights(class_height)),
         noise=NoiseConfig(confusion=confusion, miss_small_px=miss_small, miss_prob=miss_prob, offset_m=offset),
-        save_panoramas=save_panoramas, query_landmarks=query_landmarks, visible_min_px=visible_min_px,
+        save_panoramas=save_panoramas, pictures=pictures, query_landmarks=query_landmarks, visible_min_px=visible_min_px,
     )
     if source.is_dir():
         if resolution is not None:
