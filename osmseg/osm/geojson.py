@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from collections.abc import Iterator, Mapping
 from datetime import datetime, timezone
 from pathlib import Path
@@ -40,7 +39,7 @@ from osmseg.errors import ConfigError, OSMDataError
 from osmseg.grid import LngLatBBox
 from osmseg.osm.base import OsmExtract
 from osmseg.osm.localfile import cache_name, check_bbox, iso_utc, read_done, write_done
-from osmseg.output.atomic import temp_path_for
+from osmseg.output.atomic import atomic_path
 
 logger = logging.getLogger(__name__)
 
@@ -101,8 +100,7 @@ class _OsmBuilder:
 
     def write(self, path: Path) -> dict[str, int]:
         """Write everything as OSM XML to ``path`` atomically; returns the counts."""
-        tmp = temp_path_for(path)
-        try:
+        with atomic_path(path) as tmp:
             with osmium.SimpleWriter(osmium.io.File(str(tmp), "osm"), overwrite=True) as writer:
                 for n in self.nodes:
                     writer.add_node(n)
@@ -110,10 +108,6 @@ class _OsmBuilder:
                     writer.add_way(w)
                 for r in self.relations:
                     writer.add_relation(r)
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
         return {"n": len(self.nodes), "w": len(self.ways), "r": len(self.relations)}
 
 

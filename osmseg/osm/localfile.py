@@ -47,7 +47,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -59,7 +58,7 @@ import osmium
 from osmseg.errors import ConfigError, OSMDataError
 from osmseg.grid import LngLatBBox, pad_bbox
 from osmseg.osm.base import OsmExtract
-from osmseg.output.atomic import atomic_write_text, temp_path_for
+from osmseg.output.atomic import atomic_path, atomic_write_text
 
 logger = logging.getLogger(__name__)
 
@@ -174,14 +173,9 @@ def store_osm_xml(data: bytes, path: Path, origin: str, advice: str) -> OsmScan:
 
     Raises the one-line OSMDataError of :func:`scan_osm` (and writes nothing) otherwise.
     """
-    tmp = temp_path_for(path)
-    try:
+    with atomic_path(path) as tmp:
         tmp.write_bytes(data)
         scan = scan_osm(tmp, origin, advice, fmt="osm")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return scan
 
 
@@ -278,8 +272,7 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
                 keep_nodes.update(nd.ref for nd in way.nodes)
         keep = {"n": keep_nodes, "w": keep_ways, "r": keep_relations}
         header = _extract_header(src_name, envelope)
-        tmp = temp_path_for(out)
-        try:
+        with atomic_path(out) as tmp:
             counts = {"n": 0, "w": 0, "r": 0}
             with osmium.SimpleWriter(osmium.io.File(str(tmp), "pbf"), header=header, overwrite=True) as writer:
                 for obj in osmium.FileProcessor(src_name):
@@ -287,10 +280,6 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
                     if obj.id in keep[kind]:
                         writer.add(obj)
                         counts[kind] += 1
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, out)
-        finally:
-            tmp.unlink(missing_ok=True)
     except RuntimeError as exc:
         raise OSMDataError(f"--osm {src}: cannot read it as OSM data ({_first_line(exc)}); "
                            "give a valid .osm/.osm.pbf/.osm.bz2 file") from None

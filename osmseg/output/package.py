@@ -14,7 +14,7 @@ import zipfile
 from pathlib import Path
 
 from osmseg.errors import DatasetError
-from osmseg.output.atomic import temp_path_for
+from osmseg.output.atomic import atomic_path
 
 ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 #: Already-compressed formats are stored as they are; deflating them again only costs time.
@@ -49,8 +49,7 @@ def make_zip(out_dir: Path, zip_path: Path, root: str | None = None) -> Path:
         raise DatasetError(f"{out_dir} is not a folder; give the dataset folder to zip")
     top = root if root is not None else out_dir.resolve().name
     names = dataset_files(out_dir, exclude=zip_path)
-    tmp = temp_path_for(zip_path)
-    try:
+    with atomic_path(zip_path) as tmp:
         with zipfile.ZipFile(tmp, "w") as zf:
             for rel in names:
                 info = zipfile.ZipInfo(f"{top}/{rel}" if top else rel, date_time=ZIP_DATE)
@@ -64,9 +63,4 @@ def make_zip(out_dir: Path, zip_path: Path, root: str | None = None) -> Path:
                 with open(out_dir / rel, "rb") as src, zf.open(info, "w") as dst:
                     while block := src.read(1 << 20):
                         dst.write(block)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, zip_path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return zip_path
