@@ -115,6 +115,7 @@ def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     ("nothing paired", "both aerial/ and ground/"),
     ("bad size", "WIDTHxHEIGHT"),
     ("outside", "outside the 400x400 image"),
+    ("render option", "--viewpoints, --confusion apply only to rendered panoramas"),
 ])
 def test_cli_bad_pairs_give_one_line(tmp_path: Path, case: str, words: str) -> None:
     root = tmp_path / "pairs"
@@ -131,6 +132,9 @@ def test_cli_bad_pairs_give_one_line(tmp_path: Path, case: str, words: str) -> N
     elif case == "bad size":
         write_pairs(root, images=False)
         args = ["--aerial-size", "400by400"]
+    elif case == "render option":
+        write_pairs(root)
+        args = ["-n", "5", "--confusion", "0.1"]
     else:
         write_pairs(root)
         (root / "aerial" / "p1.txt").write_text("450 10 Building\n")

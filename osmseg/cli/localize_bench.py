@@ -27,6 +27,21 @@ def _heights(values: tuple[str, ...]) -> dict[str, float]:
     return heights
 
 
+#: Options that only make sense for one kind of SOURCE (a mistake to give for the other).
+RENDER_ONLY = ("viewpoints", "seed", "table", "mode", "min_size", "stride", "margin", "stand_on", "width", "height",
+               "camera_height", "max_range", "class_height", "confusion", "miss_small", "miss_prob", "offset",
+               "query_landmarks", "visible_min_px", "save_panoramas", "pictures")
+PAIRS_ONLY = ("aerial_size", "ground_size")
+
+
+def _given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
+    """The options among ``names`` that were typed on the command line, as ``--option-names``."""
+    from click.core import ParameterSource
+
+    by_name = {p.name: p for p in ctx.command.params}
+    return [max(by_name[n].opts, key=len) for n in names if ctx.get_parameter_source(n) == ParameterSource.COMMANDLINE]
+
+
 @click.command("localize-bench")
 @click.argument("source", type=click.Path(exists=True, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
@@ -106,7 +121,13 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     from localization.render import NoiseConfig, RenderConfig
 
     verbosity = ctx.obj["verbosity"] if ctx.obj else 0
-    if source.is_dir() and is_pairs_folder(source):
+    pairs = source.is_dir() and is_pairs_folder(source)
+    misplaced = _given(ctx, RENDER_ONLY if pairs else PAIRS_ONLY)
+    if misplaced:
+        what = "rendered panoramas (a dataset or a mask file)" if pairs else "annotated pairs (aerial/ + ground/)"
+        raise ConfigError(f"{', '.join(misplaced)} apply only to {what}; {source} is "
+                          f"{'a folder of annotated pairs' if pairs else 'not one'}: leave them out")
+    if pairs:
         pairs_config = PairsConfig(landmarks=landmark_dict or "camvid", window=window, p=p, top_k=top_k,
                                    subsets=subsets, resolution_m=resolution, aerial_size=parse_size(aerial_size, "--aerial-size"),
                                    ground_size=parse_size(ground_size, "--ground-size"))
