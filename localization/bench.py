@@ -23,6 +23,7 @@ the dissertation's Figure 5.2). Pictures: ``errors.png`` (the error CDF) and ``c
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import itertools
 import json
 import logging
@@ -39,7 +40,7 @@ from tqdm import tqdm
 
 from localization.bench_plots import plot_classes, plot_errors
 from localization.graph import Cliques, cliques_fast, window_size_auto
-from localization.landmarks import LandmarkClasses, Landmarks, load_landmark_classes
+from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
 from localization.match import DEFAULT_P, Localization, match_cliques, unanswered
 from localization.render import (NoiseConfig, RenderConfig, RenderedView, class_table_from_dict, render_view,
                                  save_panorama_png)
@@ -383,6 +384,8 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     """Run the benchmark over ``scenes`` (viewpoints spread round-robin) and write results.json + plots."""
     if not scenes:
         raise DatasetError("no aerial masks to benchmark on")
+    if config.pictures and importlib.util.find_spec("matplotlib") is None:
+        raise ConfigError("--pictures needs matplotlib: pip install matplotlib (or leave --pictures out)")
     out_dir = Path(out_dir)
     classes = landmark_classes_for(scenes[0].table, config.landmarks)
     subsets = subsets_of(classes, config.subsets)
@@ -392,8 +395,13 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     place_rng = np.random.default_rng([config.seed, 0])
     aerial: list[tuple[Landmarks, np.ndarray]] = []  # each scene's landmarks and the cell each pixel is in
     for scene, count in zip(scenes, counts):
-        full, cells = landmark_cells(scene.mask, scene.table, classes, mode=config.mode, min_size=config.min_size,
-                                     stride=config.stride)
+        if config.query_landmarks == "visible":  # the cells say which aerial landmark a panorama pixel shows
+            full, cells = landmark_cells(scene.mask, scene.table, classes, mode=config.mode,
+                                         min_size=config.min_size, stride=config.stride)
+        else:
+            full = landmarks_from_mask(scene.mask, scene.table, classes, mode=config.mode, min_size=config.min_size,
+                                       stride=config.stride)
+            cells = np.zeros((0, 0), dtype=np.int64)
         aerial.append((full, cells))
         graphs.append(aerial_graphs(full, subsets, config.window))
         margin = int(math.ceil(config.margin_m / scene.resolution_m))

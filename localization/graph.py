@@ -93,15 +93,16 @@ class Cliques:
 
 
 def window_size_auto(lm: Landmarks) -> int:
-    """Window side ``ceil(mu + 5 sigma)`` of the landmarks' nearest-neighbour distances.
+    """Window side ``round(mu + 5 sigma)`` of the landmarks' nearest-neighbour distances.
 
-    ``sigma`` is the sample standard deviation (``ddof=1``); in a panorama distances wrap
-    around in x. With fewer than two landmarks there is no distance, and every window gives
-    the same cliques, so the answer is the image size ``max(width, height)``.
+    ``sigma`` is the sample standard deviation (``ddof=1``) and halves round up, as the
+    authors' ``autoWindowSize.m`` (MATLAB's ``std`` and ``round``); in a panorama distances
+    wrap around in x. With fewer than two landmarks there is no distance, and every window
+    gives the same cliques, so the answer is the image size ``max(width, height)``.
 
     >>> lm = Landmarks(np.array([[0.0, 0], [3, 4], [3, 0]]), np.zeros(3, int), ("a",), 10, 10)
-    >>> window_size_auto(lm)  # distances 3, 3, 4: mu = 3.33, sigma = 0.577
-    7
+    >>> window_size_auto(lm)  # distances 3, 3, 4: mu = 3.33, sigma = 0.577, mu + 5 sigma = 6.22
+    6
     """
     if len(lm) < 2:
         return max(lm.width, lm.height)
@@ -114,7 +115,7 @@ def window_size_auto(lm: Landmarks) -> int:
         tree = cKDTree(xy)
     dist = tree.query(xy, k=2)[0][:, 1]
     value = float(dist.mean() + AUTO_SIGMAS * dist.std(ddof=1))
-    return max(1, math.ceil(value - 1e-9))
+    return max(1, math.floor(value + 0.5))
 
 
 def adjacency(cliques: Cliques) -> np.ndarray:

@@ -28,13 +28,14 @@ def read_landmarks(path: str | Path, classes: LandmarkClasses | Sequence[str], w
                    panorama: bool = False) -> Landmarks:
     """Read landmarks from a file: ``x y Class`` lines, CSV (header ``x,y,class``) or ``.npy``.
 
-    Text: one landmark per line, ``x y Class`` (the K x 3 format of the paper's manual
-    annotations); ``#`` starts a comment, blank lines are skipped, the class is the rest of the
-    line (so it may contain spaces). ``.csv``: columns ``x``, ``y``, ``class`` (any order, any
-    case). ``.npy``: a numeric ``(K, 3)`` array whose last column is the class index. A class is
-    a landmark class name (any case), a mask class the dictionary maps (``Tree`` -> vegetation),
-    or an index into the landmark classes; mask classes the dictionary drops (``Sky``) are
-    skipped. Errors name the file and line.
+    Text: one landmark per line, ``x y Class`` or ``x,y,Class`` (the K x 3 format of the
+    paper's manual annotations, published with both separators); ``#`` starts a comment,
+    blank lines are skipped, the class is the rest of the line (so it may contain spaces).
+    ``.csv``: columns ``x``, ``y``, ``class`` (any order, any case). ``.npy``: a numeric
+    ``(K, 3)`` array whose last column is the class index. A class is a landmark class name
+    (any case), a mask class the dictionary maps (``Tree`` -> vegetation), or an index into
+    the landmark classes; mask classes the dictionary drops (``Sky``) are skipped. Errors
+    name the file and line.
     """
     path = Path(path)
     names = classes.names if isinstance(classes, LandmarkClasses) else tuple(classes)
@@ -93,7 +94,7 @@ class _ClassResolver:
 
 def _open_text(path: Path) -> list[str]:
     try:
-        return path.read_text(encoding="utf-8").splitlines()
+        return path.read_text(encoding="utf-8-sig").splitlines()  # -sig: a byte-order mark is not text
     except FileNotFoundError:
         raise DatasetError(f"{path}: landmark file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -107,18 +108,25 @@ def _number(text: str, where: str, what: str) -> float:
         raise DatasetError(f"{where}: {what} must be a number, got {text!r}") from None
 
 
+#: Fields of a text landmark file: separated by spaces or by a comma (the authors publish both).
+_FIELDS = re.compile(r"\s*,\s*|\s+")
+
+
 def _read_text(path: Path) -> list[tuple[int, float, float, str]]:
-    """``(line number, x, y, class token)`` of an ``x y Class`` file."""
+    """``(line number, x, y, class token)`` of an ``x y Class`` (or ``x,y,Class``) file.
+
+    The class is the rest of the line, so it may contain spaces (``dirt road``).
+    """
     rows = []
     for number, line in enumerate(_open_text(path), start=1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
-        parts = line.split(None, 2)
+        parts = [part.strip() for part in _FIELDS.split(line, maxsplit=2)]
         if not rows and [p.lower() for p in parts[:2]] == ["x", "y"]:
             continue  # a header line
-        if len(parts) < 3:
-            raise DatasetError(f"{path}:{number}: expected 'x y Class', got {line!r}")
+        if len(parts) < 3 or not parts[2]:
+            raise DatasetError(f"{path}:{number}: expected 'x y Class' (or x,y,Class), got {line!r}")
         where = f"{path}:{number}"
         rows.append((number, _number(parts[0], where, "x"), _number(parts[1], where, "y"), parts[2]))
     return rows

@@ -5,12 +5,13 @@ where it was taken (CVUSA: 1232x224 panoramas, 750x750 aerial images), each anno
 with ``x y Class`` landmarks (Building, Pavement, Road, Tree). The authors published such
 pairs in that layout, which is what :func:`load_pairs` reads::
 
-    DIR/aerial/NAME.txt    aerial landmarks, one ``x y Class`` per line (or .csv / .npy)
+    DIR/aerial/NAME.txt    aerial landmarks, one ``x y Class`` or ``x,y,Class`` per line (or .csv / .npy)
     DIR/ground/NAME.txt    the panorama's landmarks
-    DIR/aerial/NAME.jpg    optional: the images, read only for their size
-    DIR/ground/NAME.jpg       (else give the sizes in :class:`PairsConfig`)
+    DIR/aerial/NAME.jpg    optional: the images, read only for their size, unless the sizes
+    DIR/ground/NAME.jpg       are given in :class:`PairsConfig` (``--aerial-size``, which wins)
     DIR/truth.csv          optional: ``name,x,y`` viewpoints in aerial pixels; default: the
-                           aerial image's centre, as in CVUSA
+                           aerial image's centre ``((W - 1) / 2, (H - 1) / 2)``, as in CVUSA
+                           (the authors' code uses pixel 375 of 750, 1-based: half a pixel off)
 
 :func:`run_pairs` localizes every panorama in its aerial image with every subset of classes and
 writes the same ``results.json`` and pictures as the rendered-panorama benchmark
@@ -88,43 +89,49 @@ def is_pairs_folder(folder: Path) -> bool:
     return (Path(folder) / "aerial").is_dir() and (Path(folder) / "ground").is_dir()
 
 
-def _landmark_file(folder: Path, name: str) -> Path | None:
-    return next((folder / f"{name}{s}" for s in LANDMARK_SUFFIXES if (folder / f"{name}{s}").is_file()), None)
+def _files(folder: Path, suffixes: tuple[str, ...]) -> dict[str, Path]:
+    """``NAME -> path`` of the files in ``folder`` with one of ``suffixes`` (any case; first suffix wins)."""
+    found: dict[str, Path] = {}
+    for path in sorted(folder.iterdir(), key=lambda q: (suffixes.index(q.suffix.lower())
+                                                        if q.suffix.lower() in suffixes else len(suffixes), q.name)):
+        if path.is_file() and path.suffix.lower() in suffixes:
+            found.setdefault(path.stem, path)
+    return found
 
 
-def _size(folder: Path, name: str, given: tuple[int, int] | None, side: str) -> tuple[int, int]:
-    """(width, height) of the image beside a landmark file (header only), else the given size."""
-    for suffix in IMAGE_SUFFIXES:
-        path = folder / f"{name}{suffix}"
-        if path.is_file():
-            from PIL import Image
-
-            try:
-                with Image.open(path) as im:
-                    return im.size
-            except OSError as exc:
-                raise DatasetError(f"{path}: cannot read the image for its size ({exc}); remove it or "
-                                   f"give --{side}-size") from None
-    if given is None:
-        raise DatasetError(f"{folder / name}: no image beside the landmark file to read its size from; "
+def _size(image: Path | None, given: tuple[int, int] | None, where: Path, side: str) -> tuple[int, int]:
+    """(width, height): the given ``--SIDE-size``, else that of the image beside the file (header only)."""
+    if given is not None:
+        return given
+    if image is None:
+        raise DatasetError(f"{where}: no image beside the landmark file to read its size from; "
                            f"give --{side}-size WIDTHxHEIGHT")
-    return given
+    from PIL import Image
+
+    try:
+        with Image.open(image) as im:
+            return im.size
+    except OSError as exc:
+        raise DatasetError(f"{image}: cannot read the image for its size ({exc}); remove it or "
+                           f"give --{side}-size") from None
 
 
 def _truths(folder: Path) -> dict[str, tuple[float, float]]:
-    """``truth.csv`` (``name,x,y``) if present."""
+    """``truth.csv`` (``name,x,y``; a byte-order mark and spaces around the names are fine) if present."""
     path = folder / "truth.csv"
     if not path.is_file():
         return {}
     out: dict[str, tuple[float, float]] = {}
-    with path.open(newline="", encoding="utf-8") as fh:
-        for line, row in enumerate(csv.DictReader(fh), start=2):
+    with path.open(newline="", encoding="utf-8-sig") as fh:
+        reader = csv.DictReader(fh)
+        reader.fieldnames = [f.strip().lower() for f in reader.fieldnames or []]
+        for line, row in enumerate(reader, start=2):
             try:
                 x, y = float(row["x"]), float(row["y"])
                 if not (math.isfinite(x) and math.isfinite(y)):
                     raise ValueError
                 out[str(row["name"]).strip()] = (x, y)
-            except (KeyError, TypeError, ValueError):
+            except (KeyError, TypeError, ValueError, AttributeError):
                 raise DatasetError(f"{path}:{line}: write name,x,y with numbers (a header line first)") from None
     return out
 
@@ -136,24 +143,40 @@ def load_pairs(folder: Path, config: PairsConfig = PairsConfig()) -> list[Pair]:
         raise DatasetError(f"{folder}: annotated pairs need aerial/ and ground/ folders of landmark files")
     classes = load_landmark_classes(config.landmarks)
     aerial_dir, ground_dir = folder / "aerial", folder / "ground"
-    names = sorted({p.stem for p in aerial_dir.iterdir() if p.suffix.lower() in LANDMARK_SUFFIXES})
-    lonely = [n for n in names if _landmark_file(ground_dir, n) is None]
+    aerial_files, ground_files = _files(aerial_dir, LANDMARK_SUFFIXES), _files(ground_dir, LANDMARK_SUFFIXES)
+    aerial_images, ground_images = _files(aerial_dir, IMAGE_SUFFIXES), _files(ground_dir, IMAGE_SUFFIXES)
+    names = sorted(set(aerial_files) & set(ground_files))
+    lonely = sorted(set(aerial_files) ^ set(ground_files))
     if lonely:
-        logger.warning("%d aerial landmark files have no ground file and are skipped: %s", len(lonely),
+        logger.warning("%d landmark files have no partner on the other side and are skipped: %s", len(lonely),
                        ", ".join(lonely[:5]))
-    names = [n for n in names if n not in lonely]
     if not names:
         raise DatasetError(f"{folder}: no NAME has a landmark file (.txt/.csv/.npy) in both aerial/ and ground/")
     truths = _truths(folder)
+    unknown = sorted(set(truths) - set(names))
+    if unknown:
+        logger.warning("truth.csv names %d pairs that do not exist (%s); check its name column", len(unknown),
+                       ", ".join(unknown[:5]))
+    if truths and len(unknown) < len(truths) and set(names) - set(truths):
+        logger.warning("%d pairs have no line in truth.csv: their truth is the aerial image's centre",
+                       len(set(names) - set(truths)))
     pairs = []
     for name in names:
-        aw, ah = _size(aerial_dir, name, config.aerial_size, "aerial")
-        gw, gh = _size(ground_dir, name, config.ground_size, "ground")
-        aerial = read_landmarks(_landmark_file(aerial_dir, name), classes, aw, ah)
-        ground = read_landmarks(_landmark_file(ground_dir, name), classes, gw, gh, panorama=True)
+        aw, ah = _size(aerial_images.get(name), config.aerial_size, aerial_files[name], "aerial")
+        gw, gh = _size(ground_images.get(name), config.ground_size, ground_files[name], "ground")
+        aerial = read_landmarks(aerial_files[name], classes, aw, ah)
+        ground = read_landmarks(ground_files[name], classes, gw, gh, panorama=True)
         truth = truths.get(name, ((aw - 1) / 2, (ah - 1) / 2))
+        if not (0 <= truth[0] < aw and 0 <= truth[1] < ah):
+            raise DatasetError(f"{folder / 'truth.csv'}: the truth of {name} ({truth[0]:g}, {truth[1]:g}) is outside "
+                               f"its {aw}x{ah} aerial image")
         pairs.append(Pair(name, aerial, ground, truth))
     return pairs
+
+
+def _mean_time(records: Sequence[dict[str, Any]]) -> float:
+    """Mean time of the full-class localization (graph building and matching) per pair, as in the bench."""
+    return round(sum(r["localize_s"] for r in records) / max(len(records), 1), 4)
 
 
 def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, progress: bool = False,
@@ -191,7 +214,7 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
         "summary": summarize(records, radii),
         "baselines": baselines(records),
         "by_num_classes": by_num_classes(subsets, records, radii),
-        "timing": {"total_s": round(total, 3), "localize_mean_s": round(total / len(pairs), 4)},
+        "timing": {"total_s": round(total, 3), "localize_mean_s": _mean_time(records)},
         "viewpoints": records,
     }
     write_results(results, Path(out_dir), plots)

@@ -1,7 +1,7 @@
 """Annotated pairs (localization.pairs): the paper's evaluation on landmark files, through the CLI.
 
 The pairs are written here as the authors lay them out (aerial/NAME.txt, ground/NAME.txt,
-``x y Class`` lines in the paper's class names). The scene has one place that shows every
+``x y Class`` or ``x,y,Class`` lines in the paper's class names: their files use both). The scene has one place that shows every
 class the panorama sees, so the answer is known.
 """
 
@@ -41,11 +41,12 @@ def _ground_lines() -> list[str]:
 
 
 def write_pairs(root: Path, names: tuple[str, ...] = ("p1", "p2"), *, images: bool = True,
-                truth: bool = True) -> Path:
+                truth: bool = True, sep: str = " ") -> Path:
     for side, lines, size in (("aerial", _aerial_lines(), AERIAL), ("ground", _ground_lines(), GROUND)):
         (root / side).mkdir(parents=True, exist_ok=True)
         for name in names:
-            (root / side / f"{name}.txt").write_text("\n".join(lines) + "\n")
+            text = "\n".join(line.replace(" ", sep, 2) for line in lines) + "\n"
+            (root / side / f"{name}.txt").write_text(text)
             if images:
                 Image.new("RGB", size).save(root / side / f"{name}.jpg")
     if truth:
@@ -65,6 +66,21 @@ def test_pairs_are_read_with_sizes_from_images_and_truth_from_csv(tmp_path: Path
     bare = write_pairs(tmp_path / "bare", ("q",), images=False, truth=False)
     [q] = load_pairs(bare, PairsConfig(aerial_size=AERIAL, ground_size=GROUND))
     assert q.truth == (199.5, 199.5)
+
+
+def test_the_authors_comma_files_a_bom_in_truth_csv_and_upper_case_suffixes(tmp_path: Path) -> None:
+    spaced = load_pairs(write_pairs(tmp_path / "spaced"))
+    root = write_pairs(tmp_path / "commas", sep=",", truth=False)
+    (root / "truth.csv").write_bytes("\ufeffName, X, Y\np1, 305, 105\np2,305,105\n".encode())
+    (root / "ground" / "p2.txt").rename(root / "ground" / "p2.TXT")
+    commas = load_pairs(root)
+    assert [p.name for p in commas] == ["p1", "p2"]
+    for a, b in zip(spaced, commas):
+        assert np.array_equal(a.aerial.xy, b.aerial.xy) and np.array_equal(a.ground.cls, b.ground.cls)
+        assert b.truth == TRUTH
+    # a given size wins over the image beside the file (as in osmseg localize)
+    [big] = load_pairs(write_pairs(tmp_path / "sized", ("s",)), PairsConfig(aerial_size=(800, 600)))
+    assert (big.aerial.width, big.aerial.height) == (800, 600)
 
 
 def test_run_pairs_finds_the_only_place_that_shows_every_class(tmp_path: Path) -> None:
@@ -116,6 +132,7 @@ def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     ("bad size", "WIDTHxHEIGHT"),
     ("outside", "outside the 400x400 image"),
     ("render option", "--viewpoints, --confusion apply only to rendered panoramas"),
+    ("truth outside", "is outside its 400x400 aerial image"),
 ])
 def test_cli_bad_pairs_give_one_line(tmp_path: Path, case: str, words: str) -> None:
     root = tmp_path / "pairs"
@@ -132,6 +149,9 @@ def test_cli_bad_pairs_give_one_line(tmp_path: Path, case: str, words: str) -> N
     elif case == "bad size":
         write_pairs(root, images=False)
         args = ["--aerial-size", "400by400"]
+    elif case == "truth outside":
+        write_pairs(root)
+        (root / "truth.csv").write_text("name,x,y\np1,3000,-5\n")
     elif case == "render option":
         write_pairs(root)
         args = ["-n", "5", "--confusion", "0.1"]

@@ -324,6 +324,9 @@ def test_cli_bad_input_is_one_line(tmp_path: Path) -> None:
     res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--aerial-size", "9x9",
                                                  "--out", str(tmp_path / "o")], obj={"verbosity": 0})
     assert res.exit_code == 2 and "--aerial-size apply only to annotated pairs" in res.stderr
+    res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--visible-min-px", "5",
+                                                 "--out", str(tmp_path / "o")], obj={"verbosity": 0})
+    assert res.exit_code == 2 and "--query-landmarks visible only" in res.stderr
 
 
 @pytest.mark.slow

@@ -56,7 +56,8 @@ def _given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
 @click.option("--mode", type=click.Choice(["centroid", "grid", "component"]), default="centroid", show_default=True,
               help="Landmarks as component centroids, grid points or whole components.")
 @click.option("--min-size", type=int, default=50, show_default=True, help="Smallest landmark component (pixels).")
-@click.option("--stride", type=int, default=50, show_default=True, help="Grid step for --mode grid (pixels).")
+@click.option("--grid-stride", "stride", type=click.IntRange(min=1), default=50, show_default=True,
+              help="Grid step for --mode grid (pixels), as osmseg localize's --grid-stride.")
 @click.option("--window", type=int, help="Aerial covisibility window (pixels); default mu + 5 sigma of "
               "nearest-neighbour distances.")
 @click.option("--p", "p", type=float, default=0.5, show_default=True, help="Covisibility parameter of candidates.")
@@ -146,9 +147,11 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         noise=NoiseConfig(confusion=confusion, miss_small_px=miss_small, miss_prob=miss_prob, offset_m=offset),
         save_panoramas=save_panoramas, pictures=pictures, query_landmarks=query_landmarks, visible_min_px=visible_min_px,
     )
+    if query_landmarks != "visible" and _given(ctx, ("visible_min_px",)):
+        raise ConfigError("--visible-min-px applies with --query-landmarks visible only: add it or leave it out")
     if source.is_dir():
-        if resolution is not None:
-            raise ConfigError("--resolution is for a mask file; a dataset folder records its own")
+        if resolution is not None or _given(ctx, ("table",)):
+            raise ConfigError("--resolution and --table are for a mask file; a dataset folder records its own")
         scenes = load_dataset_scenes(source)
     else:
         if resolution is None:
@@ -163,13 +166,14 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
 def format_summary(results: dict[str, Any]) -> str:
     """A few lines for the terminal: the full-class summary and the classes trend."""
     s, b, u = results["summary"], results["baselines"], results.get("unit", "m")
+    in_px = "" if u == "px" else f" (mean {s['mean_error_px']} px)"
     rec = ", ".join(f"@{r} {u} {v}" for r, v in s["recall_at"].items())
     second = list(s["recall_at"])[1]
     lines = [
         f"{s['n']} {results.get('queries', 'queries')}, classes {'+'.join(results['classes'])}: {s['answered']} "
         f"answered, {s['unanswered']} unanswered, {s['tied']} tied",
-        f"error: mean {s['mean_error']} {u} / median {s['median_error']} {u} "
-        f"(mean {s['mean_error_px']} px); top-5 mean distance {s['top5_mean_distance']} {u}",
+        f"error: mean {s['mean_error']} {u} / median {s['median_error']} {u}"
+        f"{in_px}; top-5 mean distance {s['top5_mean_distance']} {u}",
         f"recall {rec}; a random candidate: median {b['random_candidate_median']} {u}; "
         f"blind guesses: image centre {b['centre_guess_mean']} {u}, random {b['random_guess_mean']} {u}",
     ]
