@@ -186,6 +186,7 @@ def test_cli_drops_the_edge_between_look_alike_landmarks(net, tmp_path) -> None:
     # the ground graph has the two building-road edges only (its buildings are 200 px apart, its
     # window 112 px): without A-B the aerial graph is the same, 2/sqrt(5) with it (eq. 3.3)
     assert [c["likelihood"] for c in saved["candidates"]] == [1.0] * 3
+    del args["--feature-checkpoint"]  # without a threshold it would be refused
     plain = run({**args, "--out": str(tmp_path / "plain")})
     assert plain.exit_code == 0, plain.output
     kept = json.loads((tmp_path / "plain" / "result.json").read_text())
@@ -222,6 +223,7 @@ def test_cli_segmented_photo_gives_its_own_features(net, tmp_path) -> None:
     ("corrupt checkpoint", 1, "is not a checkpoint (corrupt or truncated)"),
     ("photo of another size", 2, "--aerial-image small.png is 64x32; the aerial landmarks need the 640x320 RGB photo"),
     ("umap without umap-learn", 2, "pip install umap-learn"),
+    ("options without a threshold", 2, "--feature-checkpoint, --feature-metric set how --feature-threshold removes"),
 ])
 def test_cli_feature_options_bad_input_is_one_line(net, tmp_path, case: str, code: int, words: str) -> None:
     _, _, path = net
@@ -241,6 +243,9 @@ def test_cli_feature_options_bad_input_is_one_line(net, tmp_path, case: str, cod
             pytest.skip("umap-learn is installed")
         args.update({"--aerial-image": str(tmp_path / "aerial.png"), "--feature-checkpoint": str(path),
                      "--feature-reduce": "umap"})
+    elif case == "options without a threshold":
+        del args["--feature-threshold"]
+        args.update({"--feature-checkpoint": str(path), "--feature-metric": "euclidean"})
     res = run(args)
     assert res.exit_code == code, res.output
     lines = res.stderr.strip().splitlines()

@@ -228,7 +228,16 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
         raise ConfigError(f"--truth {truth[0]:g},{truth[1]:g} is outside the aerial image ({a.width}x{a.height})")
     settings = {"query_window": ground_window, "p": p, "stride": stride, "top_k": top_k, "fast": not reference}
     edges, drops = None, {}
-    if feature_threshold is not None:
+    if feature_threshold is None:
+        from click.core import ParameterSource
+
+        stray = [f"--{n.replace('_', '-')}" for n in ("feature_checkpoint", "feature_metric", "feature_reduce",
+                                                      "feature_components")
+                 if ctx.get_parameter_source(n) == ParameterSource.COMMANDLINE]
+        if stray:
+            raise ConfigError(f"{', '.join(stray)} set how --feature-threshold removes edges: add --feature-threshold "
+                              "T, or leave them out")
+    else:
         edges = FeatureEdges(feature_threshold, feature_metric, feature_reduce, feature_components)
         drops = edges.masks({"aerial": (aerial.photo, a, feature_checkpoint or aerial_checkpoint),
                              "ground": (ground.photo, ground.landmarks, feature_checkpoint or ground_checkpoint)})
