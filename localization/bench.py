@@ -326,9 +326,10 @@ class _AerialGraph:
 
 
 def _aerial_graph(lm: Landmarks, window: int | None) -> _AerialGraph:
+    """The graph of ``lm`` with the given window, or the automatic one (no graph without landmarks)."""
     if len(lm.xy) == 0:
         return _AerialGraph(lm, 0, None)
-    w = int(window) if window is not None else (window_size_auto(lm) if len(lm.xy) > 1 else max(lm.width, lm.height))
+    w = int(window) if window is not None else window_size_auto(lm)  # one landmark: the image size
     return _AerialGraph(lm, w, cliques_fast(lm, w))
 
 
