@@ -42,7 +42,7 @@ from localization.bench_plots import plot_classes, plot_errors
 from localization.graph import Cliques, cliques_fast, window_size_auto
 from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
 from localization.match import DEFAULT_P, Localization, match_cliques, unanswered
-from localization.render import (NoiseConfig, RenderConfig, RenderedView, class_table_from_dict, render_view,
+from localization.render import (NoiseConfig, RenderConfig, RenderedView, render_view,
                                  save_panorama_png)
 from localization.visible import landmark_cells, visible_landmarks
 from osmseg import __version__
@@ -157,7 +157,7 @@ def load_dataset_scenes(folder: Path) -> list[Scene]:
     folder = Path(folder)
     try:
         manifest = json.loads((folder / "manifest.json").read_text(encoding="utf-8"))
-        table = class_table_from_dict(manifest["classes"])
+        table = ClassTable.from_dict(manifest["classes"], f"{folder / 'manifest.json'} classes")
         samples = [(s["name"], float(s["ground_resolution_m"])) for s in manifest["samples"]]
     except FileNotFoundError:
         raise DatasetError(f"{folder}: no manifest.json; give a dataset made by `osmseg build`, "

@@ -70,7 +70,7 @@ from osmseg.errors import ConfigError
 
 __all__ = [
     "DEFAULT_HEIGHTS", "SKY_NAME", "SKY_COLOR", "RenderConfig", "NoiseConfig", "Panorama", "RenderedView",
-    "class_table_from_dict", "panorama_table", "column_azimuths", "azimuth_to_column", "row_elevations",
+    "panorama_table", "column_azimuths", "azimuth_to_column", "row_elevations",
     "elevation_to_row", "render_panorama", "offset_viewpoint", "apply_noise", "render_view", "save_panorama_png",
 ]
 
@@ -159,30 +159,12 @@ class RenderedView:
 # --------------------------------------------------------------------------- class tables
 
 
-def class_table_from_dict(table: Mapping[str, Any]) -> ClassTable:
-    """A :class:`ClassTable` (ids, names, colours) from its ``to_dict()`` form, as in manifest.json.
-
-    >>> class_table_from_dict({"name": "t", "classes": [{"id": 0, "name": "unlabeled", "color": [0, 0, 0]},
-    ...                        {"id": 1, "name": "building", "color": [255, 255, 0]}]}).by_id[1].name
-    'building'
-    """
-    try:
-        entries = [ClassDef(id=int(c["id"]), name=str(c["name"]),
-                            color=tuple(int(v) for v in c["color"]))  # type: ignore[arg-type]
-                   for c in table["classes"]]
-    except (KeyError, TypeError, ValueError):
-        raise ConfigError("class table must look like {'name': ..., 'classes': [{'id', 'name', 'color'}]}") from None
-    unlabeled = next((c for c in entries if c.id == 0), ClassDef(id=0, name="unlabeled", color=(0, 0, 0)))
-    return ClassTable(name=str(table.get("name", "table")), unlabeled=unlabeled,
-                      classes=tuple(c for c in entries if c.id != 0))
-
-
 def _as_table(table: ClassTable | Mapping[str, Any] | str) -> ClassTable:
     if isinstance(table, ClassTable):
         return table
     if isinstance(table, str):
         return load_class_table(table)
-    return class_table_from_dict(table)
+    return ClassTable.from_dict(table)
 
 
 def panorama_table(table: ClassTable | Mapping[str, Any] | str) -> ClassTable:

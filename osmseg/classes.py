@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from osmseg.errors import ClassTableError
+from osmseg.errors import ClassTableError, DatasetError
 from osmseg.manifests import load_toml
 
 RGB = tuple[int, int, int]
@@ -235,12 +235,56 @@ class ClassTable:
                 lut[base_ids[src]] = c.id
         return lut
 
+    def names_by_id(self, count: int | None = None) -> list[str]:
+        """Class names indexed by class id, ``0 .. count - 1`` (default: ``num_classes``).
+
+        The table lists classes in rule order (``classes13.toml`` puts dirt road, id 12, second),
+        so its ``classes`` are never indexed by position: this is the list a confusion matrix,
+        a model's output channels or a legend is indexed with. Ids the table does not define
+        are named ``classN``.
+
+        >>> load_class_table().names_by_id()[:4], load_class_table().names_by_id()[12]
+        (['unlabeled', 'building', 'highway', 'grass'], 'dirt road')
+        """
+        n = self.num_classes if count is None else count
+        known = self.by_id
+        return [known[i].name if i in known else f"class{i}" for i in range(n)]
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able summary (id, name, colour) for manifests and checkpoints."""
+        """JSON-able summary (id, name, colour) for manifests and checkpoints; :meth:`from_dict` reads it."""
         return {
             "name": self.name,
             "classes": [{"id": c.id, "name": c.name, "color": list(c.color)} for c in (self.unlabeled, *self.classes)],
         }
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str = "class table") -> ClassTable:
+        """A table from its :meth:`to_dict` form (manifest.json, checkpoints, GeoTIFF tags).
+
+        The one reader of that form: ids must be unique integers in 0..255 with 0 (unlabeled)
+        and at least one class more, colours three integers 0..255. Tag rules are not part of
+        the form: the result names and colours classes, it does not rasterise OSM.
+
+        >>> t = load_class_table("classes6.toml")
+        >>> ClassTable.from_dict(t.to_dict()).to_dict() == t.to_dict()
+        True
+        >>> ClassTable.from_dict({"classes": [{"id": 1, "name": "a", "color": [0, 0, 0]}]}, "x.json")
+        Traceback (most recent call last):
+        osmseg.errors.DatasetError: x.json: class ids must be unique, in 0..255, with 0 (unlabeled) and one class more
+        """
+        try:
+            entries = data["classes"]
+            defs = [ClassDef(id=int(c["id"]), name=str(c["name"]), color=_color(list(c["color"]), where))
+                    for c in entries]
+        except (KeyError, TypeError, ValueError, ClassTableError):
+            raise DatasetError(f"{where}: classes must be a list of {{id, name, color}} "
+                               "with colours of three integers 0..255") from None
+        ids = [c.id for c in defs]
+        if len(set(ids)) != len(ids) or not all(0 <= i < 256 for i in ids) or 0 not in ids or len(defs) < 2:
+            raise DatasetError(f"{where}: class ids must be unique, in 0..255, with 0 (unlabeled) and one class more")
+        unlabeled = next(c for c in defs if c.id == 0)
+        name = data.get("name", "dataset") if isinstance(data, Mapping) else "dataset"
+        return cls(name=str(name), classes=tuple(c for c in defs if c.id != 0), unlabeled=unlabeled)
 
 
 def _color(value: Any, where: str) -> RGB:

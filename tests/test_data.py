@@ -12,12 +12,12 @@ import torch
 from PIL import Image
 
 from conftest import TEST_DATA
+from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from training.augment import GEOMETRIC, OVERHEAD, STREET, Draw, orient
 from training.data import (
     PatchDataset,
     SampleFiles,
-    class_table_from_dict,
     dataset_class_table,
     discover,
     discover_camvid,
@@ -189,7 +189,7 @@ def test_class_table_from_manifest_toml_or_error(tmp_path: Path) -> None:
     table = dataset_class_table(TINY)
     assert table.name == "tinyseg" and table.num_classes == 5
     assert table.by_name["water"].color == (119, 242, 242) and table.unlabeled.name == "unlabeled"
-    assert class_table_from_dict(table.to_dict()).to_dict() == table.to_dict()
+    assert ClassTable.from_dict(table.to_dict()).to_dict() == table.to_dict()
     assert dataset_class_table(TINY, "classes6.toml").num_classes == 7
     with pytest.raises(DatasetError) as exc:
         dataset_class_table(tmp_path)

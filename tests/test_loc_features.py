@@ -196,7 +196,6 @@ def test_cli_drops_the_edge_between_look_alike_landmarks(net, tmp_path) -> None:
 
 def test_cli_segmented_photo_gives_its_own_features(net, tmp_path) -> None:
     """An RGB aerial image segmented by the checkpoint: the same photo and encoder give the features."""
-    from localization.render import class_table_from_dict
     from training.infer import predict_array
 
     model, spec, path = net
@@ -209,7 +208,7 @@ def test_cli_segmented_photo_gives_its_own_features(net, tmp_path) -> None:
     saved = json.loads((tmp_path / "out" / "result.json").read_text())
     # the same pairs by hand: segment the photo, take its landmarks, their features, the close pairs
     photo = patches_image()
-    lm = landmarks_from_mask(predict_array(model, photo, spec), class_table_from_dict(spec.class_table),
+    lm = landmarks_from_mask(predict_array(model, photo, spec), spec.table,
                              load_landmark_classes("airsegnet6"))
     expected = int(np.triu(FeatureEdges(0.5).mask(photo, lm, (model, spec)), k=1).sum())
     assert saved["aerial_landmarks"] == len(lm) >= 2

@@ -166,6 +166,37 @@ def test_eval_reports_on_the_test_split_it_was_trained_with(trained: tuple[Path,
     assert recount.tolist() == metrics["confusion_matrix"]
 
 
+def test_eval_names_every_number_by_class_id_not_by_list_position(tmp_path: Path) -> None:
+    """A class table listed out of id order (as classes13.toml lists dirt road, id 12, second):
+    each class's support in metrics.json/metrics.txt is its own pixel count in the labels."""
+    data = copy_tinyseg(tmp_path)
+    manifest = json.loads((data / "manifest.json").read_text())
+    listed = manifest["classes"]["classes"]
+    manifest["classes"]["classes"] = [listed[i] for i in (3, 0, 4, 2, 1)]  # grass, unlabeled, water, ...
+    (data / "manifest.json").write_text(json.dumps(manifest))
+    run = tmp_path / "run"
+    assert osmseg("train", data, "--out", run, "--config", CONFIGS / "tiny.yaml", "--epochs", 1).exit_code == 0
+    result = osmseg("eval", run / "best.pt", data, "--split", "all", "--out", tmp_path / "eval")
+    assert result.exit_code == 0, result.output
+
+    metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    pixels = np.bincount(np.concatenate([label(n, data).ravel() for n in NAMES]), minlength=5)
+    table = metrics
+    for entry in listed:  # looked up by id and name, independently of any list order
+        reported = table["per_class"][entry["name"]]
+        assert reported["id"] == entry["id"]
+        expected = 0 if entry["id"] == 0 else int(pixels[entry["id"]])  # unlabeled is ignored
+        assert reported["support"] == expected, entry["name"]
+        assert np.array(table["confusion_matrix"])[entry["id"]].sum() == expected
+    assert table["class_names"] == ["unlabeled", "building", "highway", "grass", "water"]
+    text = (tmp_path / "eval" / "metrics.txt").read_text().splitlines()
+    water = next(line for line in text if line.startswith("water "))
+    assert water.split()[-1].replace(",", "") == str(pixels[4])
+    # validation during training names its numbers by id too
+    history = load_checkpoint(run / "best.pt")["val_metrics"]
+    assert history["class_names"] == table["class_names"]
+
+
 def test_predict_writes_a_mask_of_the_input_size_in_the_model_classes(trained: tuple[Path, Result],
                                                                      tmp_path: Path) -> None:
     run, _ = trained

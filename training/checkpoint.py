@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from osmseg.classes import ClassTable
 from osmseg.errors import CheckpointError, ConfigError
 
 if TYPE_CHECKING:
@@ -104,17 +105,18 @@ class ModelSpec:
         return cls(**values)
 
     @property
+    def table(self) -> ClassTable:
+        """The class table the outputs are ids of (``class_table`` read by ``ClassTable.from_dict``)."""
+        return ClassTable.from_dict(self.class_table, f"model spec {self.name!r}")
+
+    @property
     def class_names(self) -> list[str]:
-        """Class name per output channel (``"classN"`` for ids the table does not name)."""
-        names = {c["id"]: c["name"] for c in self.class_table["classes"]}
-        return [names.get(i, f"class{i}") for i in range(self.num_classes)]
+        """Class name per output channel, indexed by class id (``"classN"`` for ids the table does not name)."""
+        return self.table.names_by_id(self.num_classes)
 
     def palette(self) -> np.ndarray:
         """``(256, 3)`` uint8 colour lookup table indexed by class id (unnamed ids black)."""
-        lut = np.zeros((256, 3), dtype=np.uint8)
-        for c in self.class_table["classes"]:
-            lut[c["id"]] = c["color"]
-        return lut
+        return self.table.palette()
 
 
 def storable(obj: Any, where: str = "state") -> Any:

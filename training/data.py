@@ -266,28 +266,6 @@ def files_by_name(files: Sequence[SampleFiles], names: Iterable[str]) -> list[Sa
 
 
 # ------------------------------------------------------------------------------ class table
-def class_table_from_dict(d: Any, where: str = "class table") -> ClassTable:
-    """A ClassTable from its ``to_dict()`` form (as in manifest.json and checkpoints).
-
-    >>> t = load_class_table("classes6.toml")
-    >>> class_table_from_dict(t.to_dict()).to_dict() == t.to_dict()
-    True
-    """
-    try:
-        defs = [ClassDef(id=int(c["id"]), name=str(c["name"]), color=tuple(int(v) for v in c["color"]))  # type: ignore[arg-type]
-                for c in d["classes"]]
-    except (KeyError, TypeError, ValueError):
-        raise DatasetError(f"{where}: classes must be a list of {{id, name, color}}") from None
-    ids = [c.id for c in defs]
-    if len(set(ids)) != len(ids) or not all(0 <= i < 256 for i in ids) or 0 not in ids or len(defs) < 2:
-        raise DatasetError(f"{where}: class ids must be unique, in 0..255, with 0 (unlabeled) and one class more")
-    if not all(len(c.color) == 3 and all(0 <= v <= 255 for v in c.color) for c in defs):
-        raise DatasetError(f"{where}: colours must be three integers 0..255")
-    unlabeled = next(c for c in defs if c.id == 0)
-    return ClassTable(name=str(d.get("name", "dataset")), classes=tuple(c for c in defs if c.id != 0),
-                      unlabeled=unlabeled)
-
-
 def dataset_class_table(root: Path, classes: str | None = None) -> ClassTable:
     """What the label ids of dataset ``root`` mean: the TOML table ``classes`` when given, else
     ``root/manifest.json``'s ``classes`` (``osmseg build`` output), else ``root/classes.toml``."""
@@ -302,7 +280,7 @@ def dataset_class_table(root: Path, classes: str | None = None) -> ClassTable:
             raise DatasetError(f"{manifest}: not readable JSON ({exc}); rebuild the dataset") from None
         if not isinstance(raw, dict) or "classes" not in raw:
             raise DatasetError(f"{manifest}: has no 'classes' table; give one with --classes FILE.toml")
-        return class_table_from_dict(raw["classes"], f"{manifest} classes")
+        return ClassTable.from_dict(raw["classes"], f"{manifest} classes")
     if (root / "classes.toml").is_file():
         return load_class_table(str(root / "classes.toml"))
     raise DatasetError(f"{root}: no manifest.json or classes.toml says what the label ids mean; "

@@ -114,7 +114,7 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
 
     ``label_lut`` maps the labels' ids to the model's (a 13-class dataset for AirSegNet6).
     """
-    names = [c["name"] for c in spec.class_table["classes"]]
+    names = spec.class_names  # by output id: the table lists classes in rule order, not id order
     mapping = load_class_mapping(opts.mapping) if opts.mapping else None
     if mapping is not None:
         eval_table = mapping.class_table_dict()
@@ -122,6 +122,8 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
     else:
         eval_table = spec.class_table
         matrix = ConfusionMatrix(spec.num_classes, ignore_index=spec.ignore_index)
+    # names indexed by evaluation id: a mapping's classes are numbered by position, a model's by id
+    class_names = list(mapping.classes) if mapping is not None else spec.class_names
     panels = []
     for f in tqdm(files, desc="evaluate", leave=False, disable=not opts.progress):
         rgb = read_image(f.image)
@@ -138,7 +140,6 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
         matrix.update(torch.from_numpy(truth.astype(np.int64)).flatten(), torch.from_numpy(pred.astype(np.int64)).flatten())
         if len(panels) < opts.panels:
             panels.append((f.name, rgb, truth, pred))
-    class_names = [c["name"] for c in eval_table["classes"]]
     return matrix.compute(class_names), panels, eval_table
 
 

@@ -298,7 +298,7 @@ def _run(config: TrainConfig, d: Dist, progress: bool = True) -> dict[str, Any]:
         # The plain module, not the DDP wrapper: its first forward after training would sync
         # buffers (a collective), but processes may hold different numbers of val batches.
         val_loss, matrix = evaluate(model, criterion, val_loader, opts, spec.num_classes, spec.ignore_index)
-        metrics = matrix.compute([c["name"] for c in spec.class_table["classes"]])
+        metrics = matrix.compute(spec.class_names)  # by id, never by list position
         row = {"epoch": epoch + 1, "lr": lr, "train_loss": round(train_loss, 6), "val_loss": round(val_loss, 6),
                "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
                "seconds": round(time.monotonic() - began, 2)}
