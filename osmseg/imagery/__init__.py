@@ -4,6 +4,8 @@
 ``bing`` / ``bing:SET``   Bing Maps (key from ``BING_MAPS_KEY``), imagery set ``Aerial``
 ``xyz:TEMPLATE``          any ``{z}/{x}/{y}`` / ``{q}`` tile URL, or a ``file://`` folder
 ``geotiff:PATH``          a local GeoTIFF/COG in any CRS (a bare ``*.tif`` path works too)
+``NAME``                  a provider of the xyzservices catalogue, e.g. ``Esri.WorldImagery``
+                          (key, if any, from ``<FAMILY>_API_KEY``; see :mod:`.providers`)
 ========================  ==============================================================
 
 >>> make_provider("geotiff:/no/such/file.tif", None)
@@ -12,6 +14,9 @@ osmseg.errors.ConfigError: GeoTIFF /no/such/file.tif does not exist: check the g
 >>> make_provider("bing", None, env={})
 Traceback (most recent call last):
 osmseg.errors.ConfigError: --imagery bing needs a Bing Maps key: set BING_MAPS_KEY or use --imagery xyz:... / geotiff:...
+>>> make_provider("Esri.WorldImagry", None)  # doctest: +ELLIPSIS
+Traceback (most recent call last):
+osmseg.errors.ConfigError: unknown imagery 'Esri.WorldImagry': use bing (with BING_MAPS_KEY), a provider name such as Esri.WorldImagery, xyz:TEMPLATE or geotiff:PATH; close names: Esri.WorldImagery, ...
 """
 
 from __future__ import annotations
@@ -23,36 +28,56 @@ from osmseg.errors import ConfigError
 from osmseg.imagery.base import Imagery, ImageryProvider
 from osmseg.imagery.bing import BingProvider
 from osmseg.imagery.geotiff import GeoTiffProvider
+from osmseg.imagery.providers import (
+    KEYLESS_DEFAULT,
+    AerialProvider,
+    NamedProvider,
+    aerial_providers,
+    close_names,
+    find_tile_provider,
+)
 from osmseg.imagery.xyz import XYZProvider
 from osmseg.net.http import HttpClient
 
 __all__ = [
+    "KEYLESS_DEFAULT",
+    "AerialProvider",
     "BingProvider",
     "GeoTiffProvider",
     "Imagery",
     "ImageryProvider",
+    "NamedProvider",
     "XYZProvider",
+    "aerial_providers",
     "default_imagery_spec",
     "make_provider",
 ]
 
 BING_KEY_ENV = "BING_MAPS_KEY"
 RASTER_SUFFIXES = (".tif", ".tiff", ".vrt")
-CHOICES = "bing (with BING_MAPS_KEY), xyz:TEMPLATE or geotiff:PATH"
+CHOICES = (
+    f"bing (with BING_MAPS_KEY), a provider name such as {KEYLESS_DEFAULT}, xyz:TEMPLATE or geotiff:PATH"
+)
 
 
 def default_imagery_spec(env: Mapping[str, str] = os.environ) -> str:
-    """``"bing"`` when ``BING_MAPS_KEY`` is set, else a :class:`ConfigError` listing the choices.
+    """``"bing"`` when ``BING_MAPS_KEY`` is set, else a one-line :class:`ConfigError`.
+
+    The error names a provider that needs no key, since new Bing Maps keys cannot be had.
 
     >>> default_imagery_spec({"BING_MAPS_KEY": "k"})
     'bing'
     >>> default_imagery_spec({})
     Traceback (most recent call last):
-    osmseg.errors.ConfigError: no imagery chosen and BING_MAPS_KEY is not set: use --imagery bing (with BING_MAPS_KEY), xyz:TEMPLATE or geotiff:PATH
+    osmseg.errors.ConfigError: no imagery chosen and BING_MAPS_KEY is not set (Bing Maps Basic keys no longer exist): use --imagery Esri.WorldImagery, which needs no key, or another provider name, xyz:TEMPLATE or geotiff:PATH
     """
     if env.get(BING_KEY_ENV):
         return "bing"
-    raise ConfigError(f"no imagery chosen and {BING_KEY_ENV} is not set: use --imagery {CHOICES}")
+    raise ConfigError(
+        f"no imagery chosen and {BING_KEY_ENV} is not set (Bing Maps Basic keys no longer exist):"
+        f" use --imagery {KEYLESS_DEFAULT}, which needs no key, or another provider name,"
+        " xyz:TEMPLATE or geotiff:PATH"
+    )
 
 
 def make_provider(
@@ -61,7 +86,9 @@ def make_provider(
     """The provider an ``--imagery`` spec names.
 
     ``client`` is the build's shared HTTP client (None is enough for ``geotiff:`` and
-    ``xyz:file://``).  ``env`` supplies ``BING_MAPS_KEY`` and ``{env:NAME}`` template keys.
+    ``xyz:file://``).  ``env`` supplies ``BING_MAPS_KEY``, ``{env:NAME}`` template keys and
+    the ``<FAMILY>_API_KEY`` of named providers.  Any other spec is looked up as an
+    xyzservices name (:mod:`osmseg.imagery.providers`).
     """
     spec = spec.strip()
     kind, _, arg = spec.partition(":")
@@ -88,4 +115,9 @@ def make_provider(
         return GeoTiffProvider(arg)
     if spec.lower().endswith(RASTER_SUFFIXES):
         return GeoTiffProvider(spec)
-    raise ConfigError(f"unknown imagery {spec!r}: use {CHOICES}")
+    entry = find_tile_provider(spec)
+    if entry is not None:
+        return NamedProvider(entry, client, env=env)
+    close = close_names(spec)
+    hint = f"; close names: {', '.join(close)}" if close else ""
+    raise ConfigError(f"unknown imagery {spec!r}: use {CHOICES}{hint}")

@@ -13,7 +13,8 @@ from disk; ``file://`` followed by an absolute or relative path).  Keys come onl
 show the template with ``{env:NAME}`` left in.  ``{env:NAME}`` is accepted only as the
 value of a query parameter the HTTP client redacts and keeps out of its cache
 (:data:`osmseg.net.redact.SECRET_PARAMS`: ``key``, ``access_token``, ``subscription-key``,
-``api_key``, ``apikey``, ``token``), which is where Mapbox, Azure Maps and Esri take keys.
+``api_key``, ``apikey``, ``token``, ``apiKey``, ...), which is where Mapbox, Azure Maps,
+Esri, MapTiler and HERE take keys.
 
 Transparent tile pixels and tiles the server does not have (HTTP 404/204, empty body, a
 missing file) are invalid areas, not errors; bytes that are not an image are an
@@ -117,6 +118,10 @@ def parse_template(template: str, env: Mapping[str, str]) -> dict[str, str]:
     """
     if not template.startswith(_SCHEMES):
         raise ConfigError(f"xyz template {template} must start with https://, http:// or file://")
+    shell = re.search(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}", template)
+    if shell:  # a shell variable: expanded by the shell it would put the key into argv (ps, history)
+        raise ConfigError(f"xyz template: write ${{{shell.group(1)}}} as {{env:{shell.group(1)}}} (in single quotes): "
+                          "osmseg reads the key from the environment itself and keeps it out of logs")
     keys = _PLACEHOLDER.findall(template)
     secrets: dict[str, str] = {}
     for key in keys:

@@ -17,8 +17,14 @@ import re
 
 from requests_cache.policy.settings import AUTH_HEADERS
 
-#: Query parameters that carry keys or tokens (Bing, Azure Maps, Mapbox, Esri, generic).
-SECRET_PARAMS = ("key", "access_token", "subscription-key", "api_key", "apikey", "token")
+#: Query parameters that carry keys or tokens (Bing, Azure Maps, Mapbox, Esri, MapTiler,
+#: Thunderforest, HERE, Jawg, OpenWeatherMap, MapTilesAPI, generic).  Redaction and cassettes
+#: match them in any case; the HTTP cache (requests-cache) only as spelt here, hence both
+#: ``apikey`` and ``apiKey``.
+SECRET_PARAMS = (
+    "key", "access_token", "subscription-key", "api_key", "apikey", "token",
+    "apiKey", "access-token", "appid", "rapidapi-key",
+)
 #: Request headers that carry keys (never stored in the cache).
 SECRET_HEADERS: tuple[str, ...] = (*AUTH_HEADERS, "Ocp-Apim-Subscription-Key")
 
