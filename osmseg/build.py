@@ -13,6 +13,7 @@ build resumable and shardable), then writes the dataset-level files: ``manifest.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import time
@@ -25,7 +26,7 @@ import numpy as np
 
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
-from osmseg.errors import ConfigError
+from osmseg.errors import ConfigError, DatasetError
 from osmseg.filters import FilterConfig, check_imagery, check_labels
 from osmseg.grid import TILE_SIZE, LngLatBBox, SampleGrid, ground_resolution, pad_bbox, sample_grid
 from osmseg.imagery import make_provider
@@ -49,6 +50,8 @@ from osmseg.output import (
     write_sample,
 )
 from osmseg.output.manifest import FORMAT, FORMAT_VERSION, SAMPLE_DIRS
+from osmseg.output.stac import write_stac
+from osmseg.output.writer import IMAGE_FORMATS
 from osmseg.places import Area, normalise_name
 from osmseg.rasterize import rasterize, to_table
 from osmseg.state import BuildState
@@ -120,7 +123,14 @@ class BuildConfig:
     cassette_mode: str = "replay"
 
     def identity(self) -> dict[str, Any]:
-        """What decides the dataset's content; recorded in the state and the manifest."""
+        """What decides the dataset's content; recorded in the state and the manifest.
+
+        Returned in its JSON form (tuples as lists), so the identity a rerun computes equals,
+        value for value, the one read back from ``.osmseg-build/config.json``.
+        """
+        return json.loads(json.dumps(self._identity(), allow_nan=False))
+
+    def _identity(self) -> dict[str, Any]:
         return {
             "area": {k: v for k, v in asdict(self.area).items() if v is not None},
             "imagery": redact(self.imagery),  # a literal key in a template never reaches disk
@@ -294,13 +304,7 @@ def build(
     """
     env = dict(os.environ if env is None else env)
     start = time.monotonic()
-    if config.samples < 1:
-        raise ConfigError("--samples must be at least 1")
-    ground_resolution(config.area.lat, config.zoom)  # validates lat
-    config.out_dir.mkdir(parents=True, exist_ok=True)
-    sweep_temp_files(config.out_dir)
-    state = BuildState(config.out_dir)
-    state.check_config(config.identity())
+    check_config(config)
     summary = BuildSummary(out_dir=config.out_dir)
     recording = config.cassette is not None and config.cassette_mode == "record"
     http = HttpConfig(
@@ -310,7 +314,13 @@ def build(
         cassette=config.cassette, cassette_mode=config.cassette_mode,
     )
     with HttpClient(http) as client:
+        # every source and option is checked before anything is written into the output folder:
+        # a command refused here leaves no state that the corrected command would be refused by
         pipe = open_pipeline(config, client, env)
+        config.out_dir.mkdir(parents=True, exist_ok=True)
+        sweep_temp_files(config.out_dir)
+        state = BuildState(config.out_dir)
+        state.check_config(config.identity())
         mine = config.my_slots()
         todo = [s for s in mine if state.slot(s) is None]
         prepare = getattr(pipe.osm, "prepare", None)
@@ -330,11 +340,25 @@ def build(
     outcomes = [state.slot(s) for s in range(config.samples)]
     summary.pending_other_shards = sum(o is None for o in outcomes)
     if summary.pending_other_shards == 0:
+        if state.recorded_config() != config.identity():  # another command took the folder over meanwhile
+            raise DatasetError(f"{config.out_dir} was taken over by a build with other options while this one ran; "
+                               "use a new --out for one of them")
         manifest = finalize(config, pipe.table, [o for o in outcomes if o], imagery_info, osm_info, command_line)
         summary.duplicates = manifest["summary"]["duplicate_samples"]
         summary.finalized = True
     summary.seconds = time.monotonic() - start
     return summary
+
+
+def check_config(config: BuildConfig) -> None:
+    """Refuse, with one line each, the settings that no source needs to see to know are wrong."""
+    if config.samples < 1:
+        raise ConfigError("--samples must be at least 1")
+    if config.image_format not in IMAGE_FORMATS:
+        raise ConfigError(f"--image-format must be one of {', '.join(IMAGE_FORMATS)}, got {config.image_format!r}")
+    ground_resolution(config.area.lat, config.zoom)  # validates lat
+    if config.out_dir.exists() and not config.out_dir.is_dir():
+        raise ConfigError(f"--out {config.out_dir} is a file; give a folder (new, or a build to resume)")
 
 
 def sweep_temp_files(out_dir: Path) -> None:
@@ -405,6 +429,7 @@ def finalize(
     write_manifest(config.out_dir, manifest)
     write_datasheet(config.out_dir, manifest)
     write_attribution(config.out_dir, manifest)
+    write_stac(config.out_dir, manifest)
     write_overview(config.out_dir, samples, table)
     write_class_histogram(config.out_dir, class_totals(samples), table)
     if config.zip:

@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import mercantile
 from affine import Affine
+from pyproj import CRS, Geod, Transformer
 
 TILE_SIZE = 256
 EARTH_CIRCUMFERENCE = 2 * math.pi * 6378137.0
@@ -157,3 +158,28 @@ def pad_bbox(bbox: LngLatBBox, metres: float) -> LngLatBBox:
     mid = math.radians((bbox.south + bbox.north) / 2)
     dlon = metres / (111_320.0 * max(math.cos(mid), 1e-6))
     return LngLatBBox(bbox.west - dlon, max(bbox.south - dlat, -85.0511), bbox.east + dlon, min(bbox.north + dlat, 85.0511))
+
+
+def ground_pixel_size(crs: Any, transform: Affine, width: int, height: int) -> float | None:
+    """Metres on the ground between neighbouring pixel centres at a raster's centre, any CRS.
+
+    The geodesic (WGS84) distances to the next pixel right and down, averaged: for a projected
+    CRS with true metres (UTM, national grids) that is the pixel size; for Web Mercator it is the
+    pixel size times cos(latitude), not the CRS's own "metres"; for lon/lat degrees it converts.
+    None when ``crs`` is None.
+
+    >>> g = sample_grid(13.4050, 52.5200, zoom=18)
+    >>> round(ground_pixel_size("EPSG:3857", g.transform, g.width, g.height), 3)  # spherical 0.363
+    0.364
+    >>> ground_pixel_size("EPSG:32633", Affine(0.3, 0, 390000, 0, -0.3, 5820000), 1000, 1000)  # UTM scale
+    0.3001
+    """
+    if crs is None:
+        return None
+    col, row = width / 2, height / 2
+    xs, ys = zip(transform * (col, row), transform * (col + 1, row), transform * (col, row + 1))
+    lon, lat = Transformer.from_crs(CRS.from_user_input(crs), "EPSG:4326", always_xy=True).transform(xs, ys)
+    geod = Geod(ellps="WGS84")
+    right = geod.inv(lon[0], lat[0], lon[1], lat[1])[2]
+    down = geod.inv(lon[0], lat[0], lon[2], lat[2])[2]
+    return round((right + down) / 2, 4)

@@ -36,22 +36,44 @@ class BuildState:
         """Record the build's identity, or refuse to mix two different builds in one folder.
 
         ``config`` holds only what decides the dataset's content (seed, area, zoom, sources,
-        classes, thresholds); options such as ``--offline`` or ``--shard`` may change freely.
+        classes, thresholds), in its JSON form; options such as ``--offline`` or ``--shard``
+        may change freely. A folder whose recorded build never finished an attempt (the
+        command failed at its first request: a wrong key, a typo in a URL) holds nothing of
+        that build, so a corrected command takes it over instead of being refused.
         """
-        path = self.root / "config.json"
-        if path.exists():
-            try:
-                recorded = json.loads(path.read_text())
-            except (OSError, ValueError):
-                raise DatasetError(f"{path} is unreadable; delete {self.root} to start the build over") from None
-            if recorded != config:
+        path = self.config_path
+        recorded = self.recorded_config()
+        if recorded is not None and recorded != config:
+            if self.has_work():
                 changed = sorted(k for k in set(recorded) | set(config) if recorded.get(k) != config.get(k))
                 raise DatasetError(
                     f"{self.root.parent} holds a different build (differs in: {', '.join(changed)}); "
                     "use a new --out, or the same options to resume it"
                 )
-        else:
+            recorded = None  # nothing was built with it: the new command takes the folder over
+        if recorded is None:
             atomic_write_json(path, config)
+
+    @property
+    def config_path(self) -> Path:
+        return self.root / "config.json"
+
+    def recorded_config(self) -> dict[str, Any] | None:
+        """The identity recorded by the first run in this folder, or None."""
+        path = self.config_path
+        if not path.exists():
+            return None
+        try:
+            recorded = json.loads(path.read_text())
+        except (OSError, ValueError):
+            if not self.has_work():
+                return None  # a torn file with nothing built after it: start afresh
+            raise DatasetError(f"{path} is unreadable; delete {self.root} to start the build over") from None
+        return recorded if isinstance(recorded, dict) else None
+
+    def has_work(self) -> bool:
+        """True once any attempt or slot of this folder's build has finished."""
+        return any(any((self.root / d).glob("*.json")) for d in ("attempts", "slots"))
 
     def _attempt_path(self, slot: int, attempt: int) -> Path:
         return self.root / "attempts" / f"{slot:05d}-{attempt:02d}.json"

@@ -24,6 +24,7 @@ import rasterio
 from click.testing import CliRunner
 from PIL import Image
 from rasterio.warp import calculate_default_transform, reproject
+from rio_cogeo.cogeo import cog_validate
 
 from osmseg.classes import load_class_table
 from osmseg.cli.main import cli
@@ -102,6 +103,42 @@ def test_build_writes_a_dataset_whose_masks_line_up_with_the_imagery(tmp_path: P
             assert (geo.read(1) == labels).all()
     for extra in ("DATASHEET.md", "ATTRIBUTION.md", "overview.png", "class_histogram.png"):
         assert (out / extra).stat().st_size > 0
+
+
+def test_cog_images_and_labels_share_one_grid_and_are_cloud_optimized(tmp_path: Path, imagery_tif: Path) -> None:
+    """--image-format cog: images/NAME.tif on exactly geo/NAME.tif's grid, both COGs by rio-cogeo's
+    validator, the photo's pixels those of the PNG build (lossless), class names in the label tags."""
+    png_out, cog_out = tmp_path / "png" / "ds", tmp_path / "cog" / "ds"
+    assert run_cli(*build_args(png_out, imagery_tif, samples=2)).exit_code == 0
+    assert run_cli(*build_args(cog_out, imagery_tif, "--image-format", "cog", samples=2)).exit_code == 0
+    manifest = json.loads((cog_out / "manifest.json").read_text())
+    assert manifest["image_format"] == "cog"
+    for sample in manifest["samples"]:
+        name = sample["name"]
+        assert set(sample["files"]) == {f"images/{name}.tif", f"segmented/{name}.png", f"labels/{name}.png",
+                                        f"geo/{name}.tif"}
+        image_path, label_path = cog_out / "images" / f"{name}.tif", cog_out / "geo" / f"{name}.tif"
+        for path in (image_path, label_path):
+            valid, errors, _ = cog_validate(str(path))
+            assert valid, (path, errors)
+        with rasterio.open(image_path) as image, rasterio.open(label_path) as label:
+            assert image.crs.to_epsg() == label.crs.to_epsg() == 3857
+            assert image.transform == label.transform and image.shape == label.shape == (1280, 1280)
+            assert image.count == 3 and label.count == 1 and image.block_shapes[0] == (256, 256)
+            assert image.overviews(1) == label.overviews(1) == [2, 4, 8]
+            assert label.nodata is None  # class 0 is a label, not missing data (osmseg.output.geotiff)
+            png = np.asarray(Image.open(png_out / "images" / f"{name}.png"))
+            assert np.array_equal(image.read().transpose(1, 2, 0), png)
+            classes = label.read(1)
+            assert np.array_equal(classes, np.asarray(Image.open(cog_out / "labels" / f"{name}.png")))
+            # nearest-neighbour overviews: every overview pixel is a class id of the full mask
+            assert set(np.unique(label.read(1, out_shape=(320, 320)))) <= set(np.unique(classes))
+            names = {int(k.split("_")[1]): v for k, v in label.tags(1).items() if k.startswith("CLASS_")}
+            assert names == {c["id"]: c["name"] for c in manifest["classes"]["classes"]}
+            assert label.tags()["CLASS_TABLE"] == manifest["classes"]["name"]
+            assert label.colormap(1)[1][:3] == tuple(TABLE.by_name["building"].color)
+        # the bounds in the manifest are the GeoTIFF's
+        assert tuple(sample["bounds_3857"]) == pytest.approx(tuple(rasterio.open(label_path).bounds))
 
 
 def test_interrupted_build_resumes_to_identical_bytes(tmp_path: Path, imagery_tif: Path) -> None:

@@ -14,6 +14,7 @@ import tracemalloc
 import numpy as np
 import pytest
 import rasterio
+from rio_cogeo.cogeo import cog_validate
 import torch
 from PIL import Image
 from rasterio.crs import CRS
@@ -21,6 +22,7 @@ from rasterio.transform import from_origin
 from torch import nn
 
 from osmseg.errors import ConfigError, ImageryError
+from osmseg.output.geotiff import read_class_table
 from training.checkpoint import ModelSpec
 from training.infer import predict_array, predict_file
 from training.tiling import WindowGrid, blend_weight, letterbox
@@ -299,10 +301,40 @@ def test_geotiff_in_geotiff_out_keeps_georeference(tmp_path) -> None:
         assert ds.compression.value.lower() == "deflate" and ds.profile["tiled"]
         assert ds.colormap(1)[3] == (*COLOURS[3], 255) and ds.colormap(1)[8] == (*COLOURS[8], 255)
         assert np.array_equal(ds.read(1), truth)
+        # the class metadata convention of every osmseg GeoTIFF (dataset labels alike)
+        assert ds.tags(1)["CLASS_3"] == "c3" and ds.tags()["CLASS_TABLE"] == "test"
+        assert read_class_table(ds).to_dict() == spec.table.to_dict()
+    assert cog_validate(str(out))[0], cog_validate(str(out))  # a Cloud-Optimized GeoTIFF, by rio-cogeo
     colour = np.asarray(Image.open(tmp_path / "out" / "colour.png"))
     assert np.array_equal(colour, spec.palette()[truth])
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["colour.png", "mask.tif"]  # no temp files
     assert out.stat().st_mode & 0o777 == 0o644  # readable by others, like the dataset files
+
+
+@pytest.mark.parametrize("suffix", [".tif", ".png"])
+def test_resolution_resamples_the_input_and_returns_classes_on_its_grid(tmp_path, suffix: str) -> None:
+    """0.5 m pixels predicted at 1.0 m: a quarter of the windows, the mask back on the 0.5 m grid."""
+    spec = make_spec()
+    image, truth = blocky(720, 960, 40, list(COLOURS), seed=4)
+    write_tif(tmp_path / "in.tif", image)  # 0.5 m pixels in UTM 33N
+    runs = {}
+    for target in (None, 1.0):
+        calls: list[tuple[int, int]] = []
+        out = predict_file(ColourModel(spec), spec, tmp_path / "in.tif", tmp_path / f"{target}{suffix}",
+                           resolution_m=target, progress=lambda d, t: calls.append((d, t)))
+        mask = np.asarray(Image.open(out)) if suffix == ".png" else rasterio.open(out).read(1)
+        runs[target] = (calls[-1][1], mask)
+    (whole_windows, whole), (coarse_windows, coarse) = runs[None], runs[1.0]
+    assert coarse.shape == whole.shape == truth.shape
+    assert np.array_equal(whole, truth)
+    assert coarse_windows < whole_windows / 2  # the model saw the image at half the size
+    assert (coarse == truth).mean() > 0.97  # the same classes, but for a pixel's width along cell edges
+    if suffix == ".tif":
+        with rasterio.open(tmp_path / "1.0.tif") as ds, rasterio.open(tmp_path / "in.tif") as src:
+            assert ds.transform == src.transform and ds.crs == src.crs
+            assert read_class_table(ds).to_dict() == spec.table.to_dict()
+        assert cog_validate(str(tmp_path / "1.0.tif"))[0]
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []  # no staging files left
 
 
 @pytest.mark.parametrize("join", ["crop", "blend"])

@@ -30,6 +30,7 @@ from torch import Tensor
 
 from osmseg.classes import ClassTable
 from osmseg.errors import CheckpointError, ConfigError
+from training.distributed import pick_device
 
 if TYPE_CHECKING:
     from training.model import SegNet
@@ -53,6 +54,9 @@ class ModelSpec:
     [{"id", "name", "color"}]}``); output channel ``i`` is the class with id ``i``.
     ``ignore_index`` is 0 when unlabeled pixels are ignored in loss and metrics, None when
     unlabeled is a class of its own.  ``mean``/``std`` normalise RGB scaled to 0..1.
+    ``resolution_m`` is the ground pixel size of the training images (metres, the median over
+    the dataset; None when the training data did not say): ``predict``/``eval`` compare inputs
+    with it, and ``--resolution model`` resamples inputs to it.
 
     >>> spec = ModelSpec("segnet", "demo", 3, 0.0625,
     ...                  {"name": "t", "classes": [{"id": 0, "name": "unlabeled", "color": [0, 0, 0]},
@@ -70,6 +74,7 @@ class ModelSpec:
     input_size: tuple[int, int] = (360, 480)
     mean: tuple[float, float, float] = IMAGENET_MEAN
     std: tuple[float, float, float] = IMAGENET_STD
+    resolution_m: float | None = None
 
     def __post_init__(self) -> None:
         ids = [c.get("id") for c in self.class_table.get("classes", ())] if isinstance(self.class_table, Mapping) else None
@@ -85,6 +90,8 @@ class ModelSpec:
              f"input_size must be (height, width) >= 32, got {self.input_size!r}"),
             (len(self.mean) == 3 and len(self.std) == 3 and all(s > 0 for s in self.std),
              "mean and std must be three numbers each (std > 0)"),
+            (self.resolution_m is None or (isinstance(self.resolution_m, (int, float)) and self.resolution_m > 0),
+             f"resolution_m must be None or > 0 metres, got {self.resolution_m!r}"),
         ]
         for ok, message in checks:
             if not ok:
@@ -250,4 +257,4 @@ def model_from_checkpoint(path: Path, device: str | torch.device = "cpu") -> tup
         raise CheckpointError(f"{path}: weights do not fit its spec ({spec.arch}, {spec.num_classes} classes, "
                               f"width {spec.width}): {first}; the checkpoint is inconsistent")
     model.load_state_dict(weights)
-    return model.to(device).eval(), spec
+    return model.to(pick_device(device) if isinstance(device, str) else device).eval(), spec

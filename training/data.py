@@ -38,12 +38,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import rasterio
+import rasterio.errors
 import torch
 from PIL import Image, UnidentifiedImageError
 from torch.utils.data import Dataset
 from torchvision.transforms.v2 import functional as F
 
 from osmseg.classes import ClassDef, ClassTable, load_class_table
+from osmseg.grid import ground_pixel_size
 from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_bytes
 from training.augment import OVERHEAD, AugmentConfig, draw, item_rng, jitter, orient
@@ -81,8 +84,6 @@ def image_size(path: Path) -> tuple[int, int]:
     """(height, width) of an image or label file from its header, without decoding pixels."""
     try:
         if _is_tiff(path):
-            import rasterio
-
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # NotGeoreferencedWarning for plain TIFFs
                 with rasterio.open(path) as src:
@@ -94,8 +95,6 @@ def image_size(path: Path) -> tuple[int, int]:
 
 
 def _read_tiff(path: Path) -> np.ndarray:
-    import rasterio
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with rasterio.open(path) as src:
@@ -285,6 +284,35 @@ def dataset_class_table(root: Path, classes: str | None = None) -> ClassTable:
         return load_class_table(str(root / "classes.toml"))
     raise DatasetError(f"{root}: no manifest.json or classes.toml says what the label ids mean; "
                        "give a class table with --classes FILE.toml")
+
+
+def dataset_resolution(root: Path, files: Sequence[SampleFiles]) -> float | None:
+    """The training images' ground pixel size in metres (median), recorded in the checkpoint.
+
+    ``osmseg build`` output says it per sample (manifest.json ``ground_resolution_m``); other
+    datasets are measured from their georeferenced images (up to 16 of them); None when the
+    images are plain PNG/JPEG, which say nothing about the ground.
+    """
+    manifest = Path(root) / "manifest.json"
+    values: list[float] = []
+    if manifest.is_file():
+        try:
+            raw = json.loads(manifest.read_text(encoding="utf-8"))
+            values = [float(s["ground_resolution_m"]) for s in raw.get("samples", ()) if "ground_resolution_m" in s]
+        except (OSError, ValueError, TypeError, KeyError, AttributeError):
+            values = []
+    if not values:
+        for f in [f for f in files if _is_tiff(f.image)][:16]:
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # NotGeoreferencedWarning for plain TIFFs
+                    with rasterio.open(f.image) as ds:
+                        size = ground_pixel_size(ds.crs, ds.transform, ds.width, ds.height) if ds.crs else None
+            except rasterio.errors.RasterioError:
+                size = None
+            if size is not None:
+                values.append(size)
+    return round(float(np.median(values)), 4) if values else None
 
 
 # ------------------------------------------------------------------------- checks, weights

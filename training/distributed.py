@@ -40,7 +40,10 @@ def pick_device(preference: str, local_rank: int = 0) -> torch.device:
     """``auto`` → this process's CUDA device when there is one, else the CPU."""
     if preference == "auto":
         return torch.device(f"cuda:{local_rank}") if torch.cuda.is_available() else torch.device("cpu")
-    device = torch.device(preference)
+    try:
+        device = torch.device(preference)
+    except (RuntimeError, TypeError):
+        raise ConfigError(f"--device {preference!r}: unknown device; use auto, cpu, cuda or cuda:N") from None
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ConfigError(f"--device {preference}: no CUDA device here; use --device cpu or auto")
     return device

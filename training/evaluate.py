@@ -29,7 +29,7 @@ from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_bytes
 from training.checkpoint import ModelSpec, load_checkpoint, model_from_checkpoint
 from training.data import SampleFiles, dataset_class_table, discover_dataset, read_image, read_label
-from training.infer import predict_array
+from training.infer import check_resolution, input_resolution, predict_array, resolution_factor, target_resolution
 from training.metrics import ConfusionMatrix, format_table, load_class_mapping
 from training.pictures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
 from training.train import dataset_fingerprint, has_class_table, model_classes
@@ -48,9 +48,10 @@ class EvalOptions:
     mapping: str | None = None  # class mapping TOML for foreign labels
     panels: int = 4  # samples shown in panels.png
     batch_size: int = 4
-    device: str = "cpu"
+    device: str = "auto"  # auto: the GPU when there is one, as in training
     progress: bool = True  # a tqdm bar over images on stderr
-    resolution_m: float | None = None  # resample georeferenced inputs to this ground pixel size first
+    resolution_m: float | str | None = None  # resample georeferenced inputs to this ground pixel size first
+    # (metres, or "model": the training data's, recorded in the checkpoint)
 
 
 def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequence[tuple[Path, Path]],
@@ -67,23 +68,6 @@ def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequen
         chosen = [f for f in files if f.name in wanted]
         return chosen, f"the '{split}' split the model was trained with ({len(chosen)} images)"
     return files, f"all {len(files)} images (not the dataset the model was trained on)"
-
-
-def resolution_scale(path: Path, target_m: float | None) -> float:
-    """How much to enlarge the image at ``path`` so its pixels are ``target_m`` metres (1.0: leave it).
-
-    Only georeferenced rasters in a projected CRS know their pixel size; others are left alone.
-    """
-    if target_m is None or path.suffix.lower() not in (".tif", ".tiff"):
-        return 1.0
-    import rasterio
-
-    with rasterio.open(path) as src:
-        if src.crs is None or not src.crs.is_projected:
-            logger.warning("%s has no projected CRS: evaluated at its own resolution", path)
-            return 1.0
-        size_m = abs(src.res[0]) * src.crs.linear_units_factor[1]
-    return size_m / target_m
 
 
 def predict_at_scale(model: torch.nn.Module, rgb: np.ndarray, spec: ModelSpec, opts: EvalOptions,
@@ -124,6 +108,7 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
         matrix = ConfusionMatrix(spec.num_classes, ignore_index=spec.ignore_index)
     # names indexed by evaluation id: a mapping's classes are numbered by position, a model's by id
     class_names = list(mapping.classes) if mapping is not None else spec.class_names
+    target_m = target_resolution(opts.resolution_m, spec)
     panels = []
     for f in tqdm(files, desc="evaluate", leave=False, disable=not opts.progress):
         rgb = read_image(f.image)
@@ -131,8 +116,9 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
         if truth.shape != rgb.shape[:2]:
             raise DatasetError(f"{f.label}: label is {truth.shape[1]}x{truth.shape[0]} but the image is "
                                f"{rgb.shape[1]}x{rgb.shape[0]}; give labels on the image's grid")
-        scale = resolution_scale(f.image, opts.resolution_m)
-        pred = predict_at_scale(model, rgb, spec, opts, scale)
+        pixel_m = input_resolution(f.image)
+        check_resolution(pixel_m, spec, str(f.image), target_m)
+        pred = predict_at_scale(model, rgb, spec, opts, resolution_factor(pixel_m, target_m))
         if mapping is not None:
             truth, pred = mapping.map_gt(truth), mapping.map_pred(pred, names)
         elif label_lut is not None:
@@ -157,7 +143,7 @@ def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: E
     metrics, panels, table = evaluate_images(model, spec, files, opts, label_lut)
     metrics["evaluated"] = {"checkpoint": str(checkpoint_path), "images": which, "mode": opts.mode,
                             "join": opts.join, "tta": opts.tta, "mapping": opts.mapping,
-                            "resolution_m": opts.resolution_m}
+                            "resolution_m": target_resolution(opts.resolution_m, spec)}
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out_dir / "metrics.json", (json.dumps(metrics, indent=2, sort_keys=True) + "\n").encode())
     atomic_write_bytes(out_dir / "metrics.txt", (format_table(metrics) + "\n").encode())

@@ -34,7 +34,6 @@ GDAL's block cache) and writes the upscaled mask block by block.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import warnings
@@ -47,13 +46,18 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import rasterio
 import torch
+from affine import Affine
 from PIL import Image
 from rasterio.enums import Resampling
 from rasterio.errors import NotGeoreferencedWarning, RasterioError
+from rasterio.vrt import WarpedVRT
 from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError
 from osmseg.output.atomic import temp_path_for
+from osmseg.grid import ground_pixel_size
+from osmseg.output.geotiff import cog_file, write_class_metadata
+from training.distributed import pick_device
 from training.tiling import Box, WindowGrid, blend_weight, letterbox, nearest_index, pixel_blocks
 
 if TYPE_CHECKING:
@@ -102,13 +106,8 @@ class InferenceOptions:
 # --------------------------------------------------------------------------- model running
 
 def _device(name: str) -> torch.device:
-    try:
-        device = torch.device(name)
-    except (RuntimeError, TypeError):
-        raise ConfigError(f"unknown device {name!r}; use cpu, cuda or cuda:N") from None
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError(f"device {name!r} asked for but CUDA is not available here; use --device cpu")
-    return device
+    """The torch device ``name`` names (``auto``: the GPU when there is one, as in training)."""
+    return pick_device(name)
 
 
 _Op = Callable[[torch.Tensor], torch.Tensor]
@@ -399,6 +398,16 @@ def _atomic(dst: Path) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
+@contextmanager
+def _staging(tmp: Path) -> Iterator[Path]:
+    """A hidden file beside ``tmp`` to write a tiled GeoTIFF into block by block before its COG copy."""
+    stage = tmp.with_name(tmp.name + ".stage.tif")
+    try:
+        yield stage
+    finally:
+        stage.unlink(missing_ok=True)
+
+
 def _kind(path: Path, what: str) -> str:
     suffix = path.suffix.lower()
     if suffix == ".png":
@@ -438,17 +447,77 @@ def _open_source(src: Path) -> Iterator[tuple[_Source, dict[str, Any]]]:
         yield _RasterSource(dataset, str(src)), {"crs": dataset.crs, "transform": dataset.transform}
 
 
+def input_resolution(src: str | Path) -> float | None:
+    """Ground metres per pixel of an image file (geodesic, any CRS); None without georeferencing."""
+    path = Path(src)
+    if path.suffix.lower() in PIL_SUFFIXES:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                return ground_pixel_size(ds.crs, ds.transform, ds.width, ds.height) if ds.crs else None
+    except RasterioError:
+        return None
+
+
+def resolution_factor(pixel_m: float | None, target_m: float | None) -> float:
+    """How much to enlarge an image with ``pixel_m`` pixels so they become ``target_m`` (1.0: leave it).
+
+    >>> resolution_factor(0.6, 0.3), resolution_factor(None, 0.3), resolution_factor(0.3, 0.31)
+    (2.0, 1.0, 1.0)
+    """
+    if pixel_m is None or target_m is None:
+        return 1.0
+    factor = pixel_m / target_m
+    return 1.0 if abs(factor - 1.0) < 0.05 else factor
+
+
+def target_resolution(asked: float | str | None, spec: ModelSpec) -> float | None:
+    """``--resolution``'s metres: a number, ``"model"`` (the training data's, from the checkpoint) or None."""
+    if asked is None or isinstance(asked, (int, float)):
+        return None if asked is None else float(asked)
+    if str(asked).strip().lower() == "model":
+        if spec.resolution_m is None:
+            raise ConfigError("--resolution model: this checkpoint does not record the ground resolution of its "
+                              "training data; give it in metres, e.g. --resolution 0.3")
+        return spec.resolution_m
+    try:
+        value = float(asked)
+    except ValueError:
+        raise ConfigError(f"--resolution {asked!r}: give metres per pixel (e.g. 0.3) or 'model'") from None
+    if not value > 0:
+        raise ConfigError(f"--resolution {asked!r}: must be > 0 metres per pixel")
+    return value
+
+
+def check_resolution(pixel_m: float | None, spec: ModelSpec, name: str, asked: float | None) -> None:
+    """Warn when an input's pixels are far (> 1.5x) from the training data's and nothing resamples them."""
+    trained = spec.resolution_m
+    if asked is not None or pixel_m is None or trained is None:
+        return
+    if max(pixel_m / trained, trained / pixel_m) > 1.5:
+        logger.warning("%s has %.3g m pixels but the model was trained on %.3g m pixels: objects look %.1fx %s "
+                       "than it learnt them; pass --resolution model to resample the input first", name, pixel_m,
+                       trained, max(pixel_m / trained, trained / pixel_m),
+                       "smaller" if pixel_m > trained else "larger")
+
+
 def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: str | Path, *,
                  colour_dst: str | Path | None = None, mode: str = "split-join", join: str = "blend",
                  overlap: int | tuple[int, int] | None = None, tta: bool = False, batch_size: int = 4,
                  device: str = "cpu", block_size: int | None = DEFAULT_BLOCK,
-                 progress: Progress | None = None) -> Path:
+                 progress: Progress | None = None, resolution_m: float | None = None) -> Path:
     """Predict ``src`` (PNG/JPEG/GeoTIFF or any GDAL raster) into a class-id mask at ``dst``.
 
     ``dst`` ending in .png gets an 8-bit greyscale PNG of class ids (the whole mask is held in
-    memory); ending in .tif a tiled DEFLATE GeoTIFF with the source's CRS and transform and a
-    colour table, written block by block.  ``colour_dst`` (.png, or .tif beside a .tif mask)
-    gets an RGB picture in the class colours.  Writes are atomic.  Returns ``dst``.
+    memory); ending in .tif a Cloud-Optimized GeoTIFF with the source's CRS and transform, the
+    class colour table and names (:mod:`osmseg.output.geotiff`), predicted block by block.
+    ``colour_dst`` (.png, or .tif beside a .tif mask) gets an RGB picture in the class colours.
+    ``resolution_m``: a georeferenced input is first resampled (bilinear, on the fly) to pixels of
+    that ground size, predicted there, and the classes brought back onto the input's own grid
+    (nearest), so the mask always matches the input pixel for pixel. Writes are atomic.
+    Returns ``dst``.
     """
     options = InferenceOptions(mode, join, overlap, tta, batch_size, device, block_size)
     src, dst = Path(src), Path(dst)
@@ -460,27 +529,70 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
         raise ConfigError(f"{dst}: the output would overwrite the input image; choose another path")
     lut = spec.palette()
     with _open_source(src) as (source, georef):
-        logger.info("%s: %dx%d, %s", src, source.width, source.height, options.mode)
-        if out_kind == "png":
-            sink = _ArraySink(source.height, source.width)
-            _predict(model, spec, source, sink, options, progress)
-            with _atomic(dst) as tmp:
-                Image.fromarray(sink.array).save(tmp, format="PNG")
-        else:
-            profile = {"driver": "GTiff", "height": source.height, "width": source.width, "count": 1,
-                       "dtype": "uint8", "compress": "deflate", "tiled": True, "blockxsize": 256,
-                       "blockysize": 256, **georef}
-            with _atomic(dst) as tmp:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", NotGeoreferencedWarning)
-                    with rasterio.open(tmp, "w", **profile) as out:
-                        _predict(model, spec, source, _RasterSink(out), options, progress)
-                        out.write_colormap(1, {i: (*map(int, lut[i]), 255) for i in range(256)})
-                        out.set_band_description(1, "class id")
-                        out.update_tags(osmseg_class_table=json.dumps(spec.class_table))
+        pixel_m = (ground_pixel_size(georef["crs"], georef["transform"], source.width, source.height)
+                   if georef.get("crs") else None)
+        check_resolution(pixel_m, spec, str(src), resolution_m)
+        if resolution_m is not None and pixel_m is None:
+            logger.warning("%s is not georeferenced: --resolution cannot apply, predicted at its own pixel size", src)
+        factor = resolution_factor(pixel_m, resolution_m)
+        logger.info("%s: %dx%d, %s, resampled x%.3g", src, source.width, source.height, options.mode, factor)
+        with _resampled(source, georef, factor) as (work, work_georef):
+            if out_kind == "png":
+                sink = _ArraySink(work.height, work.width)
+                _predict(model, spec, work, sink, options, progress)
+                classes = sink.array
+                if work is not source:
+                    classes = np.asarray(Image.fromarray(classes).resize((source.width, source.height),
+                                                                          Image.Resampling.NEAREST))
+                with _atomic(dst) as tmp:
+                    Image.fromarray(classes).save(tmp, format="PNG")
+            else:
+                profile = {"driver": "GTiff", "height": work.height, "width": work.width, "count": 1,
+                           "dtype": "uint8", "compress": "deflate", "tiled": True, "blockxsize": 256,
+                           "blockysize": 256, **work_georef}
+                with _atomic(dst) as tmp, _staging(tmp) as stage:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                        with rasterio.open(stage, "w", **profile) as out:
+                            _predict(model, spec, work, _RasterSink(out), options, progress)
+                            write_class_metadata(out, spec.table)  # the one convention of every osmseg GeoTIFF
+                        if work is not source:  # the classes back onto the input's grid, nearest neighbour
+                            _regrid(stage, dict(profile, height=source.height, width=source.width, **georef),
+                                    spec, block_size)
+                        cog_file(stage, tmp, classes=True)
     if colour is not None:
         _write_colour(dst, colour, lut, block_size)
     return dst
+
+
+def _regrid(stage: Path, profile: dict[str, Any], spec: ModelSpec, block_size: int | None) -> None:
+    """Replace the class mask at ``stage`` by its nearest-neighbour copy on ``profile``'s grid, block by block."""
+    regridded = stage.with_name(stage.name + ".grid.tif")
+    try:
+        with rasterio.open(stage) as staged, WarpedVRT(staged, crs=profile["crs"], transform=profile["transform"],
+                                                       width=profile["width"], height=profile["height"],
+                                                       resampling=Resampling.nearest) as back, \
+                rasterio.open(regridded, "w", **profile) as out:
+            for r0, r1, c0, c1 in pixel_blocks(out.height, out.width, block_size):
+                window = Window(c0, r0, c1 - c0, r1 - r0)
+                out.write(back.read(1, window=window), 1, window=window)
+            write_class_metadata(out, spec.table)
+        os.replace(regridded, stage)
+    finally:
+        regridded.unlink(missing_ok=True)
+
+
+@contextmanager
+def _resampled(source: _Source, georef: dict[str, Any], factor: float) -> Iterator[tuple[_Source, dict[str, Any]]]:
+    """``source`` seen through a bilinear WarpedVRT enlarged ``factor`` times (itself when 1)."""
+    if factor == 1.0 or not isinstance(source, _RasterSource):
+        yield source, georef
+        return
+    width, height = max(1, round(source.width * factor)), max(1, round(source.height * factor))
+    transform = georef["transform"] * Affine.scale(source.width / width, source.height / height)
+    with WarpedVRT(source.dataset, crs=georef["crs"], transform=transform, width=width, height=height,
+                   resampling=Resampling.bilinear) as vrt:
+        yield _RasterSource(vrt, source.name), {"crs": georef["crs"], "transform": transform}
 
 
 def _write_colour(mask: Path, colour: Path, lut: np.ndarray, block_size: int | None) -> None:
@@ -497,9 +609,12 @@ def _write_colour(mask: Path, colour: Path, lut: np.ndarray, block_size: int | N
         return
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(mask) as ds, _atomic(colour) as tmp:
-            profile = {**ds.profile, "count": 3, "photometric": "RGB"}
-            with rasterio.open(tmp, "w", **profile) as out:
+        with rasterio.open(mask) as ds, _atomic(colour) as tmp, _staging(tmp) as stage:
+            profile = {"driver": "GTiff", "height": ds.height, "width": ds.width, "count": 3, "dtype": "uint8",
+                       "crs": ds.crs, "transform": ds.transform, "tiled": True, "blockxsize": 256,
+                       "blockysize": 256, "photometric": "RGB"}
+            with rasterio.open(stage, "w", **profile) as out:
                 for r0, r1, c0, c1 in pixel_blocks(ds.height, ds.width, block_size):
                     window = Window(c0, r0, c1 - c0, r1 - r0)
                     out.write(lut[ds.read(1, window=window)].transpose(2, 0, 1), window=window)
+            cog_file(stage, tmp, classes=True)  # class colours: nearest-neighbour overviews

@@ -180,7 +180,8 @@ def model_spec(name: str, width: float = 1.0, ignore_unlabeled: bool = True,
                class_table: ClassTable | Mapping[str, Any] | str | Path | None = None,
                input_size: tuple[int, int] = (360, 480),
                mean: tuple[float, float, float] = IMAGENET_MEAN,
-               std: tuple[float, float, float] = IMAGENET_STD) -> ModelSpec:
+               std: tuple[float, float, float] = IMAGENET_STD,
+               resolution_m: float | None = None) -> ModelSpec:
     """The spec of a SegNet named ``name`` whose outputs are ``class_table``'s ids (0..max id).
 
     ``class_table`` (a ClassTable, its ``to_dict()``, or a TOML name/path) defaults to the
@@ -203,7 +204,8 @@ def model_spec(name: str, width: float = 1.0, ignore_unlabeled: bool = True,
         raise ConfigError(f"class table {table['name']!r} needs integer class ids in 0..255, got {ids}")
     return ModelSpec(arch="segnet", name=name, num_classes=max(ids) + 1, width=float(width), class_table=table,
                      ignore_index=0 if ignore_unlabeled else None, input_size=(int(input_size[0]), int(input_size[1])),
-                     mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std))  # type: ignore[arg-type]
+                     mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std),  # type: ignore[arg-type]
+                     resolution_m=None if resolution_m is None else float(resolution_m))
 
 
 def _vgg_features(state: Mapping[str, Any], source: str) -> dict[str, Tensor]:

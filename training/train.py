@@ -38,6 +38,7 @@ from training.config import TrainConfig
 from training.data import (
     PatchDataset,
     dataset_class_table,
+    dataset_resolution,
     discover_dataset,
     files_by_name,
     make_splits,
@@ -212,9 +213,10 @@ def _run(config: TrainConfig, d: Dist, progress: bool = True) -> dict[str, Any]:
     torch.manual_seed(config.seed)  # the same initial weights in every process
     dataset_table = training_class_table(config.dataset, config.classes, config.model)
     model_table, label_lut = model_classes(config.model, dataset_table)
-    spec: ModelSpec = model_spec(config.model, config.width, ignore_unlabeled=config.ignore_unlabeled,
-                                 class_table=model_table, input_size=config.patch_size)
     files, given_splits = discover_dataset(config.dataset)
+    spec: ModelSpec = model_spec(config.model, config.width, ignore_unlabeled=config.ignore_unlabeled,
+                                 class_table=model_table, input_size=config.patch_size,
+                                 resolution_m=dataset_resolution(config.dataset, files))
     histograms = validate(files, dataset_table.num_classes)  # raw ids of every label, checked up front
     last_path = config.out_dir / "last.pt"
     saved = load_checkpoint(last_path, map_location=d.device) if last_path.exists() else None

@@ -64,9 +64,9 @@ class ProgressBar:
         self.bar.close()
 
 
-def run_build(config: BuildConfig, verbosity: int, env: dict[str, str] | None = None) -> BuildSummary:
-    """Run a build with a progress bar and print the summary (stderr) and output path (stdout)."""
-    bar = ProgressBar(len(config.my_slots()), enabled=verbosity >= 0)
+def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str, str] | None = None) -> BuildSummary:
+    """Run a build (a progress bar if ``progress``) and print the summary (stderr) and output path (stdout)."""
+    bar = ProgressBar(len(config.my_slots()), enabled=progress)
     try:
         summary = build(config, env=env, progress=bar, command_line=command_line(config.command()))
     finally:
@@ -96,7 +96,9 @@ def run_build(config: BuildConfig, verbosity: int, env: dict[str, str] | None = 
 @click.option("--imagery", help="bing (needs BING_MAPS_KEY) | xyz:TEMPLATE | geotiff:PATH [bing if BING_MAPS_KEY is set].")
 @click.option("--osm", default="api", show_default=True, help="api | overpass | PATH.osm(.pbf) | geojson:PATH (see docs/osm.md).")
 @click.option("--classes", default="classes13.toml", show_default=True, help="Class table: classes13.toml or classes6.toml or a path.")
-@click.option("--image-format", type=click.Choice(["png", "jpg"]), default="png", show_default=True)
+@click.option("--image-format", type=click.Choice(["png", "jpg", "cog"]), default="png", show_default=True,
+              help="cog: images/NAME.tif, a Cloud-Optimized GeoTIFF on the label GeoTIFF's grid (GIS, torchgeo); "
+                   "png/jpg: the dissertation's layout.")
 @click.option("--max-unlabeled", type=click.FloatRange(0, 1), default=0.70, show_default=True, help="Reject samples with at least this unlabeled share.")
 @click.option("--min-classes", type=int, default=2, show_default=True, help="Reject samples with fewer classes.")
 @click.option("--min-contrast", type=float, default=FilterConfig.min_contrast, show_default=True,
@@ -146,4 +148,4 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
         raise ConfigError("--record and --replay exclude each other")
     if record or replay:
         config = replace(config, cassette=record or replay, cassette_mode="record" if record else "replay")
-    run_build(config, ctx.obj["verbosity"])
+    run_build(config, ctx.obj["verbosity"], ctx.obj.get("progress", False))

@@ -66,6 +66,20 @@ def configure_logging(verbosity: int) -> None:
     root.setLevel({0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG if verbosity > 1 else logging.ERROR))
 
 
+def show_progress(asked: bool | None, verbosity: int, stream: Any = None) -> bool:
+    """Whether to draw progress bars: as asked (``--progress``/``--no-progress``), else only when
+    stderr is a terminal and not ``-q``. A log file or a CI capture then gets no ``\\r`` frames.
+
+    >>> show_progress(True, -1), show_progress(False, 0), show_progress(None, 0, stream=open("/dev/null", "w"))
+    (True, False, False)
+    """
+    if asked is not None:
+        return asked
+    stream = sys.stderr if stream is None else stream
+    isatty = getattr(stream, "isatty", None)
+    return verbosity >= 0 and bool(isatty and isatty())
+
+
 def report_errors(func: F) -> F:
     """Turn osmseg errors into one line on stderr: exit 2 for usage/config errors, 1 otherwise."""
 

@@ -42,7 +42,7 @@ def demo_config(out_dir: Path) -> BuildConfig:
 DEMO_TRAINING = {"model": "airsegnet13", "width": 0.125, "epochs": 3, "batch_size": 4, "workers": 0, "seed": 0}
 
 
-def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int) -> None:
+def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, progress: bool) -> None:
     """Train the demo model briefly on the demo dataset, then evaluate it on its test split."""
     from training.config import make_config
     from training.evaluate import EvalOptions, run_eval
@@ -53,10 +53,10 @@ def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int) -> 
     if verbosity >= 0:
         click.echo(f"training {settings['model']} (width {settings['width']}, {epochs} epochs, CPU) "
                    f"into {run_dir}/", err=True)
-    run(make_config(dataset, run_dir, None, settings), progress=verbosity >= 0)
+    run(make_config(dataset, run_dir, None, settings), progress=progress)
     if verbosity >= 0:
         click.echo(f"evaluating {run_dir / 'best.pt'} on the test split into {eval_dir}/", err=True)
-    opts = EvalOptions(split="test", device="cpu", progress=verbosity >= 0)
+    opts = EvalOptions(split="test", device="cpu", progress=progress)
     metrics = run_eval(run_dir / "best.pt", dataset, eval_dir, opts)
     if verbosity >= 0:
         click.echo(f"test mIoU {metrics['miou']:.3f}, pixel accuracy {metrics['pixel_accuracy']:.3f} "
@@ -69,7 +69,7 @@ def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int) -> 
 DEMO_VIEWPOINTS = 12
 
 
-def demo_localization(dataset: Path, out_dir: Path, verbosity: int) -> None:
+def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: bool) -> None:
     """Render panoramas in the demo masks and localize them (localize-bench with a few viewpoints)."""
     import importlib.util
 
@@ -81,7 +81,7 @@ def demo_localization(dataset: Path, out_dir: Path, verbosity: int) -> None:
     if verbosity >= 0:
         click.echo(f"localizing {DEMO_VIEWPOINTS} rendered panoramas in the dataset's masks into {loc_dir}/", err=True)
     config = BenchConfig(viewpoints=DEMO_VIEWPOINTS, seed=0, subsets=True, pictures=2 if drawing else 0)
-    results = run_bench(load_dataset_scenes(dataset), config, loc_dir, progress=verbosity >= 0, plots=drawing,
+    results = run_bench(load_dataset_scenes(dataset), config, loc_dir, progress=progress, plots=drawing,
                         source=str(dataset))
     if verbosity >= 0:
         click.echo(format_summary(results), err=True)
@@ -104,18 +104,18 @@ def demo_localization(dataset: Path, out_dir: Path, verbosity: int) -> None:
 def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int, localize: bool) -> None:
     """Build a small dataset offline from embedded recorded fixtures, localize panoramas rendered
     from its masks, then train and evaluate a tiny model on it."""
-    verbosity = ctx.obj["verbosity"]
+    verbosity, progress = ctx.obj["verbosity"], ctx.obj.get("progress", False)
     if verbosity >= 0:
         click.echo(f"osmseg demo: replaying {DEMO_CASSETTE.name} (Helsinki, OSM API + Bing wire formats; "
                    "OSM © OpenStreetMap contributors, ODbL; imagery rendered from OSM by osmseg)", err=True)
     dataset = out_dir / "dataset"
     env = dict(os.environ, BING_MAPS_KEY="demo-key-not-secret")
-    summary = run_build(demo_config(dataset), verbosity, env=env)
+    summary = run_build(demo_config(dataset), verbosity, progress, env=env)
     if verbosity >= 0:
         click.echo(f"dataset in {dataset}/: images/, segmented/, labels/, geo/, manifest.json, DATASHEET.md, "
                    f"overview.png ({summary.accepted} samples)", err=True)
     if localize:
-        demo_localization(dataset, out_dir, verbosity)
+        demo_localization(dataset, out_dir, verbosity, progress)
     if not train:
         return
     try:
@@ -123,4 +123,4 @@ def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int, lo
     except ImportError:
         click.echo("training skipped: PyTorch is not installed (pip install 'osmseg[train]')", err=True)
         return
-    demo_training(dataset, out_dir, epochs, verbosity)
+    demo_training(dataset, out_dir, epochs, verbosity, progress)

@@ -122,6 +122,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     from localization.render import NoiseConfig, RenderConfig
 
     verbosity = ctx.obj["verbosity"] if ctx.obj else 0
+    progress = bool(ctx.obj.get("progress", False)) if ctx.obj else False
     pairs = source.is_dir() and is_pairs_folder(source)
     misplaced = _given(ctx, RENDER_ONLY if pairs else PAIRS_ONLY)
     if misplaced:
@@ -132,7 +133,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         pairs_config = PairsConfig(landmarks=landmark_dict or "camvid", window=window, p=p, top_k=top_k,
                                    subsets=subsets, resolution_m=resolution, aerial_size=parse_size(aerial_size, "--aerial-size"),
                                    ground_size=parse_size(ground_size, "--ground-size"))
-        results = run_pairs(load_pairs(source, pairs_config), pairs_config, out_dir, progress=verbosity >= 0,
+        results = run_pairs(load_pairs(source, pairs_config), pairs_config, out_dir, progress=progress,
                             plots=plots, source=str(source))
         if verbosity >= 0:
             click.echo(format_summary(results), err=True)
@@ -157,7 +158,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         if resolution is None:
             raise ConfigError(f"{source} is a mask file: give its ground resolution with --resolution (m/px)")
         scenes = [load_mask_scene(source, table, resolution)]
-    results = run_bench(scenes, config, out_dir, progress=verbosity >= 0, plots=plots, source=str(source))
+    results = run_bench(scenes, config, out_dir, progress=progress, plots=plots, source=str(source))
     if verbosity >= 0:
         click.echo(format_summary(results), err=True)
     click.echo(str(out_dir / "results.json"))

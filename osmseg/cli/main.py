@@ -10,7 +10,7 @@ import click
 
 from osmseg import __version__
 from osmseg.cli.build import build_command
-from osmseg.cli.common import configure_logging
+from osmseg.cli.common import configure_logging, show_progress
 from osmseg.cli.demo import demo_command
 from osmseg.cli.eval import eval_command
 from osmseg.cli.localize import localize_command
@@ -24,12 +24,14 @@ from osmseg.cli.verify import verify_command
 @click.version_option(__version__, "--version", prog_name="osmseg")
 @click.option("-v", "--verbose", count=True, help="More log output on stderr (-vv for debug).")
 @click.option("-q", "--quiet", count=True, help="Less output on stderr: only errors, no progress bar.")
+@click.option("--progress/--no-progress", default=None,
+              help="Draw progress bars on stderr [only when stderr is a terminal, so logs stay clean].")
 @click.pass_context
-def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
+def cli(ctx: click.Context, verbose: int, quiet: int, progress: bool | None) -> None:
     """osmseg: aerial segmentation datasets from OpenStreetMap, and what to do with them."""
     verbosity = verbose - quiet
     configure_logging(verbosity)
-    ctx.obj = {"verbosity": verbosity}
+    ctx.obj = {"verbosity": verbosity, "progress": show_progress(progress, verbosity)}
 
 
 cli.add_command(build_command)

@@ -45,7 +45,7 @@ def train_command(ctx: click.Context, dataset: Path, out_dir: Path, config_file:
     overrides = dict(options)
     overrides["ignore_unlabeled"] = None if keep_unlabeled is None else not keep_unlabeled
     config = make_config(dataset, out_dir, config_file, overrides)
-    summary = run(config, progress=ctx.obj["verbosity"] >= 0)
+    summary = run(config, progress=ctx.obj.get("progress", False))
     if summary.get("rank", 0) != 0:  # under torchrun only rank 0 reports, as only it writes
         return
     if summary.get("best") is not None and ctx.obj["verbosity"] >= 0:

@@ -12,6 +12,7 @@ from PIL import Image
 from osmseg.cli.common import report_errors
 from osmseg.errors import ConfigError
 from osmseg.output import read_manifest, verify
+from osmseg.output.writer import read_rgb
 from osmseg.quality import edge_alignment
 
 
@@ -44,7 +45,7 @@ def verify_command(ctx: click.Context, dataset: Path, align_class: str | None) -
             label = next((k for k in files if k.startswith("labels/")), None)
             if image is None or label is None or image in broken or label in broken:
                 continue  # already reported as a problem
-            rgb = np.asarray(Image.open(dataset / image).convert("RGB"))
+            rgb = read_rgb(dataset / image)
             mask = np.asarray(Image.open(dataset / label)) == ids[align_class]
             fit = edge_alignment(rgb, mask)
             offsets[sample["name"]] = {"dx": fit.best[0], "dy": fit.best[1], "edge_at_zero": round(fit.at_zero, 1),

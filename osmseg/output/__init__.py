@@ -3,8 +3,9 @@
 The builder calls, per accepted sample, :func:`write_sample` then :func:`sample_entry`;
 per rejected attempt :func:`rejection_entry`; and at the end :func:`write_manifest`,
 :func:`write_datasheet`, :func:`write_attribution`, :func:`write_overview`,
-:func:`write_class_histogram` and, with ``--zip``, :func:`make_zip`. The folder layout and
-the manifest schema are documented in ``docs/dataset-format.md``.
+:func:`write_class_histogram`, :func:`write_stac` (a STAC catalog of the dataset) and, with
+``--zip``, :func:`make_zip`. The folder layout and the manifest schema are documented in
+``docs/dataset-format.md``.
 """
 
 from osmseg.output.atomic import atomic_write_bytes, atomic_write_text, sha256_file
@@ -23,6 +24,7 @@ from osmseg.output.manifest import (
 )
 from osmseg.output.package import make_zip
 from osmseg.output.pictures import write_class_histogram, write_overview
+from osmseg.output.stac import write_stac
 from osmseg.output.writer import read_labels, sample_paths, write_sample
 
 __all__ = [
@@ -46,4 +48,5 @@ __all__ = [
     "write_manifest",
     "write_overview",
     "write_sample",
+    "write_stac",
 ]

@@ -85,6 +85,10 @@ def _timestamps(samples: list[dict[str, Any]]) -> str:
     return stamps[0] if len(stamps) == 1 else f"{stamps[0]} to {stamps[-1]}"
 
 
+_FORMAT_TEXT = {"cog": "RGB Cloud-Optimized GeoTIFF on the grid of `geo/` (EPSG:3857)",
+                "png": "RGB PNG", "jpg": "RGB JPEG (quality 95, 4:4:4)"}
+
+
 def render_datasheet(manifest: dict[str, Any]) -> str:
     """The datasheet Markdown for ``manifest`` (pure function of the manifest)."""
     samples: list[dict[str, Any]] = manifest["samples"]
@@ -127,10 +131,10 @@ def render_datasheet(manifest: dict[str, Any]) -> str:
         "",
         "  | folder | content |",
         "  |---|---|",
-        f"  | `images/` | aerial image, RGB {fmt.upper()} |",
+        f"  | `images/` | aerial image, {_FORMAT_TEXT.get(fmt, 'RGB ' + fmt.upper())} |",
         "  | `segmented/` | labels in class colours, RGB PNG, same file names |",
         "  | `labels/` | class ids, 8-bit greyscale PNG (0 = unlabeled) |",
-        "  | `geo/` | class ids as GeoTIFF in EPSG:3857 with a colour table (QGIS, torchgeo) |",
+        "  | `geo/` | class ids as Cloud-Optimized GeoTIFF in EPSG:3857 with a colour table and class names (QGIS, torchgeo) |",
         "",
         f"- **Area.** {_area_text(area)}.",
         f"- **Ground resolution.** zoom {zoom}: {res_text} per pixel at the samples' latitudes.",

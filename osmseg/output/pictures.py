@@ -19,7 +19,7 @@ from PIL import Image, ImageDraw, ImageFont
 from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_bytes
-from osmseg.output.writer import encode_png
+from osmseg.output.writer import encode_png, read_rgb
 
 OVERVIEW_NAME = "overview.png"
 HISTOGRAM_NAME = "class_histogram.png"
@@ -83,8 +83,7 @@ def overview_image(
     for col, title in enumerate(("image", "labels", "overlay 50%")):
         draw.text((MARGIN + col * (thumb + MARGIN), MARGIN), title, fill=INK, font=font)
     for row, sample in enumerate(shown):
-        with Image.open(_file(out_dir, sample, "images")) as im:
-            image = im.convert("RGB").resize((thumb, thumb), Image.Resampling.BOX)
+        image = Image.fromarray(read_rgb(_file(out_dir, sample, "images"))).resize((thumb, thumb), Image.Resampling.BOX)
         with Image.open(_file(out_dir, sample, "labels")) as im:
             labels = np.asarray(im.resize((thumb, thumb), Image.Resampling.NEAREST))
         mask = Image.fromarray(table.colorize(labels))

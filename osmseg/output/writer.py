@@ -2,10 +2,12 @@
 
 For a sample called ``NAME`` in dataset folder ``OUT``::
 
-    OUT/images/NAME.png      the aerial image, RGB (or NAME.jpg with --image-format jpg)
+    OUT/images/NAME.png      the aerial image, RGB (NAME.jpg with --image-format jpg, or NAME.tif,
+                             a Cloud-Optimized GeoTIFF on the label GeoTIFF's grid, with cog)
     OUT/segmented/NAME.png   the labels in class colours, RGB (the dissertation's layout)
     OUT/labels/NAME.png      the class ids, 8-bit greyscale (0 = unlabeled)
-    OUT/geo/NAME.tif         the class ids as a GeoTIFF in EPSG:3857 with a colour table
+    OUT/geo/NAME.tif         the class ids as a Cloud-Optimized GeoTIFF in EPSG:3857 with a colour
+                             table and class names (osmseg.output.geotiff)
 
 Every file is encoded in memory with fixed options and no timestamps, hashed, and written
 atomically, so the same inputs give byte-identical files and the manifest's SHA-256 is the
@@ -22,14 +24,16 @@ from typing import Any
 import numpy as np
 import rasterio
 from PIL import Image
-from rasterio.io import MemoryFile
 
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.grid import TILE_SIZE, SampleGrid
+from osmseg.grid import SampleGrid
 from osmseg.output.atomic import atomic_write_bytes, sha256_bytes
+from osmseg.output.geotiff import encode_cog, write_class_metadata
 
-IMAGE_FORMATS = ("png", "jpg")
+IMAGE_FORMATS = ("png", "jpg", "cog")
+#: file suffix of the image of each format
+IMAGE_SUFFIXES = {"png": "png", "jpg": "jpg", "cog": "tif"}
 #: zlib level for PNG and the GeoTIFF's DEFLATE: fixed, so output bytes never depend on defaults.
 COMPRESS_LEVEL = 6
 #: Aerial photos barely compress (level 6 saves ~14% over level 1 at 5x the time), so the
@@ -59,7 +63,7 @@ def sample_paths(name: str, image_format: str = "png") -> dict[str, str]:
         raise ConfigError(f"image format must be one of {', '.join(IMAGE_FORMATS)}, got {image_format!r}")
     check_name(name)
     return {
-        "image": f"images/{name}.{image_format}",
+        "image": f"images/{name}.{IMAGE_SUFFIXES[image_format]}",
         "segmented": f"segmented/{name}.png",
         "labels": f"labels/{name}.png",
         "geo": f"geo/{name}.tif",
@@ -91,38 +95,33 @@ def encode_jpeg(rgb: np.ndarray, quality: int = 95) -> bytes:
 
 
 def encode_label_geotiff(labels: np.ndarray, table: ClassTable, grid: SampleGrid) -> bytes:
-    """GeoTIFF bytes of the class ids on ``grid`` (EPSG:3857), with the class colours as colour table.
+    """Cloud-Optimized GeoTIFF bytes of the class ids on ``grid`` (EPSG:3857).
 
-    Tiled 256x256, DEFLATE-compressed uint8, one band described as the class id. No nodata
-    value: 0 (unlabeled) is a real label. Class names are band metadata ``CLASS_<id>``.
-    GDAL writes no date/time tag unless asked, so the bytes depend only on the inputs.
+    256 x 256 tiles, DEFLATE, nearest-neighbour overviews, the class colours as colour table and
+    the class names as ``CLASS_<id>`` band tags (:mod:`osmseg.output.geotiff`). No nodata value:
+    0 (unlabeled) is a real label. The bytes depend only on the inputs.
     """
-    height, width = labels.shape
-    profile = {
-        "driver": "GTiff",
-        "width": width,
-        "height": height,
-        "count": 1,
-        "dtype": "uint8",
-        "crs": "EPSG:3857",
-        "transform": grid.transform,
-        "tiled": True,
-        "blockxsize": TILE_SIZE,
-        "blockysize": TILE_SIZE,
-        "compress": "deflate",
-        "zlevel": COMPRESS_LEVEL,
-        "interleave": "band",
-    }
-    palette = table.palette()
-    colormap = {i: (int(r), int(g), int(b), 255) for i, (r, g, b) in enumerate(palette)}
-    with MemoryFile() as mem:
-        with mem.open(**profile) as dst:
-            dst.write(np.ascontiguousarray(labels, dtype=np.uint8), 1)
-            dst.write_colormap(1, colormap)
-            dst.set_band_description(1, f"class id ({table.name}); 0 = unlabeled")
-            dst.update_tags(1, **{f"CLASS_{c.id}": c.name for c in (table.unlabeled, *table.classes)})
-            dst.update_tags(CLASS_TABLE=table.name, AREA_OR_POINT="Area")
-        return bytes(mem.read())
+    return encode_cog(labels, "EPSG:3857", grid.transform, classes=True,
+                      describe=lambda dst: write_class_metadata(dst, table))
+
+
+def encode_image_cog(rgb: np.ndarray, grid: SampleGrid) -> bytes:
+    """Cloud-Optimized GeoTIFF bytes of the RGB photo on ``grid``: the label GeoTIFF's very grid.
+
+    Lossless (DEFLATE with horizontal differencing), averaged overviews, photometric RGB.
+    """
+    return encode_cog(rgb, "EPSG:3857", grid.transform, classes=False)
+
+
+def encode_image(rgb: np.ndarray, grid: SampleGrid, image_format: str, jpeg_quality: int = 95) -> bytes:
+    """The aerial image's bytes in ``image_format`` (png, jpg or cog)."""
+    if image_format == "png":
+        return encode_png(rgb, PHOTO_COMPRESS_LEVEL)
+    if image_format == "jpg":
+        return encode_jpeg(rgb, jpeg_quality)
+    if image_format == "cog":
+        return encode_image_cog(rgb, grid)
+    raise ConfigError(f"image format must be one of {', '.join(IMAGE_FORMATS)}, got {image_format!r}")
 
 
 def class_histogram(labels: np.ndarray, table: ClassTable) -> dict[str, int]:
@@ -166,7 +165,7 @@ def write_sample(
         raise DatasetError(f"sample {name}: image and labels must be uint8, got {rgb.dtype} and {labels.dtype}")
     histogram = class_histogram(labels, table)
     encoded = {
-        paths["image"]: encode_png(rgb, PHOTO_COMPRESS_LEVEL) if image_format == "png" else encode_jpeg(rgb, jpeg_quality),
+        paths["image"]: encode_image(rgb, grid, image_format, jpeg_quality),
         paths["segmented"]: encode_png(table.colorize(labels)),
         paths["labels"]: encode_png(labels),
         paths["geo"]: encode_label_geotiff(labels, table, grid),
@@ -177,6 +176,17 @@ def write_sample(
         atomic_write_bytes(out_dir / rel, data)
         files[rel] = sha256_bytes(data)
     return {"files": files, "class_histogram": histogram}
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """An ``images/`` file (PNG, JPEG or GeoTIFF) as ``(H, W, 3)`` uint8 RGB."""
+    path = Path(path)
+    if path.suffix.lower() in (".tif", ".tiff"):
+        with rasterio.open(path) as src:
+            bands = src.read(indexes=[1, 2, 3] if src.count >= 3 else [1] * 3)
+        return np.ascontiguousarray(bands.transpose(1, 2, 0))
+    with Image.open(path) as im:
+        return np.asarray(im.convert("RGB"))
 
 
 def read_labels(path: Path) -> np.ndarray:

@@ -1,0 +1,286 @@
+"""The STAC catalog ``osmseg build`` writes (``OUT/stac/``), read back with pystac alone.
+
+Two real builds of tinycity go through the CLI (local OSM file, local GeoTIFF imagery
+painted from it, as in ``test_build.py``). The catalog is then read only with pystac,
+jsonschema, rasterio, PIL and numpy: validated against the STAC 1.1 core schemas pystac
+bundles (offline: a schema that is not bundled makes the check fail, never fetches), its
+extension fields read through pystac's extension APIs and compared with the files
+themselves (GeoTIFF grid, pixel counts by class id, SHA-256 of every asset).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import shutil
+import warnings
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pystac
+import pytest
+import rasterio
+from click.testing import CliRunner
+from jsonschema import Draft7Validator
+from PIL import Image
+from pystac.extensions.classification import ClassificationExtension
+from pystac.extensions.file import FileExtension
+from pystac.extensions.projection import ProjectionExtension
+from pystac.validation.local_validator import get_local_schema_cache
+from rasterio.warp import calculate_default_transform, reproject, transform_bounds
+from referencing import Registry, Resource
+
+with warnings.catch_warnings():  # pystac flags the label extension as unmaintained
+    warnings.simplefilter("ignore", DeprecationWarning)
+    from pystac.extensions.label import LabelExtension, LabelType
+
+from osmseg.classes import load_class_table
+from osmseg.cli.main import cli
+from osmseg.demo.render import render_aerial
+from osmseg.errors import DatasetError
+from osmseg.grid import sample_grid
+from osmseg.osm.features import read_features
+from osmseg.output.stac import write_stac
+from osmseg.rasterize import rasterize
+
+from conftest import TEST_DATA
+
+TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
+LON, LAT = 24.94, 60.17
+SCHEMAS = get_local_schema_cache()
+
+
+def _not_bundled(uri: str) -> Resource[Any]:
+    raise LookupError(f"{uri} is not bundled with pystac; this check does not fetch")
+
+
+REGISTRY = Registry(retrieve=_not_bundled).with_resources(  # type: ignore[call-arg]
+    [(uri, Resource.from_contents(schema)) for uri, schema in SCHEMAS.items()])
+
+
+def core_errors(doc: dict[str, Any]) -> list[str]:
+    """Messages of every violation of the STAC core schema (item or collection) of ``doc``."""
+    kind = {"Feature": "item", "Collection": "collection"}[doc["type"]]
+    schema = SCHEMAS[f"https://schemas.stacspec.org/v{doc['stac_version']}/{kind}-spec/json-schema/{kind}.json"]
+    validator = Draft7Validator(schema, registry=REGISTRY)
+    return [f"{list(e.absolute_path)}: {e.message}" for e in validator.iter_errors(doc)]
+
+
+def build(out: Path, imagery: Path) -> dict[str, Any]:
+    args = ["-q", "build", "--lat", str(LAT), "--lon", str(LON), "--radius-km", "0.08", "--samples", "3",
+            "--seed", "1", "--imagery", f"geotiff:{imagery}", "--osm", str(TINYCITY), "--out", str(out),
+            "--cache-dir", str(out.parent / "cache")]
+    result = CliRunner().invoke(cli, args, catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    manifest: dict[str, Any] = json.loads((out / "manifest.json").read_text())
+    return manifest
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict[str, Any]]:
+    """The same 3-sample dataset built twice, in two folders; and its manifest."""
+    table = load_class_table("classes13.toml")
+    grid = sample_grid(LON, LAT, 18, size=9)
+    rgb = render_aerial(rasterize(read_features([TINYCITY], grid, table), grid, table), seed=3).transpose(2, 0, 1)
+    transform, width, height = calculate_default_transform("EPSG:3857", "EPSG:3067", grid.width, grid.height,
+                                                           *grid.xy_bounds)
+    imagery = tmp_path_factory.mktemp("imagery") / "tinycity-tm35fin.tif"
+    with rasterio.open(imagery, "w", driver="GTiff", width=width, height=height, count=3, dtype="uint8",
+                       crs="EPSG:3067", transform=transform) as dst:
+        for band in range(3):
+            reproject(rgb[band], rasterio.band(dst, band + 1), src_transform=grid.transform,
+                      src_crs="EPSG:3857", dst_transform=transform, dst_crs="EPSG:3067")
+    first = tmp_path_factory.mktemp("first") / "ds"
+    second = tmp_path_factory.mktemp("second") / "elsewhere"
+    manifest = build(first, imagery)
+    assert build(second, imagery) == manifest
+    return first, second, manifest
+
+
+def items_of(out: Path) -> tuple[pystac.Collection, list[pystac.Item]]:
+    collection = pystac.Collection.from_file(str(out / "stac" / "collection.json"))
+    return collection, list(collection.get_items())
+
+
+def test_collection_and_items_are_valid_stac_core(built: tuple[Path, Path, dict[str, Any]]) -> None:
+    out, _, manifest = built
+    collection, items = items_of(out)
+    assert [i.id for i in items] == [s["name"] for s in manifest["samples"]] and len(items) == 3
+    docs = [json.loads(p.read_text()) for p in sorted((out / "stac").rglob("*.json"))]
+    assert len(docs) == 4
+    for doc in docs:
+        assert core_errors(doc) == [], doc["id"]
+    broken = copy.deepcopy(next(d for d in docs if d["type"] == "Feature"))
+    del broken["properties"]["datetime"]
+    broken["bbox"] = broken["bbox"][:3]
+    assert len(core_errors(broken)) >= 2  # the check itself can fail
+    assert all(i.collection_id == collection.id for i in items)
+    assert collection.license == "other"
+    licences = [Path(link.get_absolute_href() or "") for link in collection.get_links("license")]
+    assert any(p.name == "ATTRIBUTION.md" and p.is_file() for p in licences)
+    roles = {p.name: p.roles for p in collection.providers or []}
+    assert roles["OpenStreetMap contributors"] == ["licensor", "producer"] and roles["osmseg"] == ["processor"]
+
+
+def test_items_describe_the_labels_and_the_grid_of_the_geotiffs(built: tuple[Path, Path, dict[str, Any]]) -> None:
+    out, _, manifest = built
+    collection, items = items_of(out)
+    ids = sorted(c["id"] for c in manifest["classes"]["classes"])
+    by_name = {s["name"]: s for s in manifest["samples"]}
+    for item in items:
+        label = LabelExtension.ext(item)
+        assert label.label_type == LabelType.RASTER and label.label_tasks == ["segmentation"]
+        assert label.label_properties is None and len(label.label_classes or []) == 1
+        assert sorted((label.label_classes or [])[0].classes) == ids
+        proj = ProjectionExtension.ext(item)
+        assert proj.code == "EPSG:3857"
+        assert item.bbox is not None and item.datetime is not None
+        with rasterio.open(item.assets["geo"].get_absolute_href() or "") as src:
+            assert src.crs.to_epsg() == 3857
+            assert proj.shape == [src.height, src.width] == [1280, 1280]
+            assert proj.transform == pytest.approx(list(src.transform)[:6], rel=0, abs=1e-6)
+            assert proj.bbox == pytest.approx(list(src.bounds), rel=0, abs=1e-6)
+            assert item.bbox == pytest.approx(list(transform_bounds(src.crs, "EPSG:4326", *src.bounds)), abs=1e-9)
+        with Image.open(item.assets["labels"].get_absolute_href() or "") as im:
+            assert list(im.size) == proj.shape[::-1]
+        stamp = by_name[item.id]["osm"]["timestamp"]
+        assert item.datetime == datetime.fromisoformat(stamp.replace("Z", "+00:00"))
+        west, south, east, north = collection.extent.spatial.bboxes[0]
+        assert west <= item.bbox[0] and south <= item.bbox[1] and item.bbox[2] <= east and item.bbox[3] <= north
+        start, end = collection.extent.temporal.intervals[0]
+        assert start is not None and end is not None and start <= item.datetime <= end
+
+
+def test_every_asset_is_a_file_with_the_recorded_checksum(built: tuple[Path, Path, dict[str, Any]]) -> None:
+    out, _, manifest = built
+    collection, items = items_of(out)
+    listed = {(out / rel).resolve() for s in manifest["samples"] for rel in s["files"]}
+    seen = set()
+    for item in items:
+        for key, asset in item.assets.items():
+            path = Path(asset.get_absolute_href() or "").resolve()
+            assert path.is_file(), f"{item.id} {key}: {asset.href}"
+            digest = hashlib.sha256(path.read_bytes()).hexdigest()
+            assert FileExtension.ext(asset).checksum == "1220" + digest
+            seen.add(path)
+        assert item.assets["image"].media_type == "image/png" and "data" in (item.assets["image"].roles or [])
+        assert item.assets["geo"].media_type == "image/tiff; application=geotiff"
+        assert item.assets["labels"].roles == ["labels"] and item.assets["geo"].roles == ["labels"]
+    assert seen == listed
+    for asset in collection.assets.values():
+        assert Path(asset.get_absolute_href() or "").is_file()
+
+
+def test_overviews_count_the_label_pixels_of_each_class_id(built: tuple[Path, Path, dict[str, Any]]) -> None:
+    out, _, manifest = built
+    listed = [c["id"] for c in manifest["classes"]["classes"]]
+    assert listed != sorted(listed)  # classes13 lists dirt road (12) second: position is not id
+    _, items = items_of(out)
+    for item in items:
+        labels = item.assets["labels"]
+        classes = ClassificationExtension.ext(labels).classes or []
+        geo_classes = ClassificationExtension.ext(item.assets["geo"]).classes or []
+        assert [c.to_dict() for c in classes] == [c.to_dict() for c in geo_classes]
+        id_of = {c.title: c.value for c in classes}
+        assert id_of["dirt road"] == 12 and id_of["unlabeled"] == 0
+        overviews = LabelExtension.ext(item).label_overviews or []
+        counts = {c.name: c.count for c in overviews[0].counts or []}
+        pixels = np.asarray(Image.open(labels.get_absolute_href() or ""))
+        per_id = np.bincount(pixels.ravel(), minlength=256)
+        assert {id_of[name]: n for name, n in counts.items()} == {i: int(per_id[i]) for i in id_of.values()}
+        assert sum(counts.values()) == pixels.size and sum(n > 0 for n in counts.values()) >= 3
+        with rasterio.open(item.assets["geo"].get_absolute_href() or "") as src:  # names, colours as in the file
+            colours, tags = src.colormap(1), src.tags(1)
+        for c in classes:
+            assert tags[f"CLASS_{c.value}"] == c.title
+            assert "%02X%02X%02X" % colours[c.value][:3] == c.color_hint
+
+
+def test_same_dataset_gives_identical_stac_bytes_and_the_folder_moves(built: tuple[Path, Path, dict[str, Any]],
+                                                                       tmp_path: Path) -> None:
+    first, second, _ = built
+    tree, again = ({p.relative_to(root).as_posix(): p.read_bytes() for p in sorted((root / "stac").rglob("*"))
+                    if p.is_file()} for root in (first, second))
+    assert tree == again and len(tree) == 4
+    assert not any(str(first).encode() in data or str(second).encode() in data for data in tree.values())
+    moved = tmp_path / "moved"
+    shutil.copytree(first, moved)
+    _, items = items_of(moved)
+    for item in items:
+        for asset in item.assets.values():
+            assert Path(asset.get_absolute_href() or "").resolve().is_relative_to(moved.resolve())
+
+
+# -- write_stac on hand-written manifests ------------------------------------------------------
+
+def manifest_of(*samples: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "format": "osmseg-dataset", "format_version": 1, "tool": {"name": "osmseg", "version": "0.1.0"},
+        "command": "osmseg build --city Testville", "seed": 0, "zoom": 18, "grid_size": 5,
+        "area": {"name": "Test ville", "kind": "urban", "lat": 60.17, "lon": 24.94, "radius_km": 1.0, "bbox": None},
+        "classes": {"name": "two", "classes": [{"id": 0, "name": "unlabeled", "color": [0, 0, 0]},
+                                                {"id": 7, "name": "dirt road", "color": [232, 116, 32]}]},
+        "filters": {}, "imagery": {"provider": "xyz", "attribution": "© Example Aerial"},
+        "osm": {"source": "api"}, "samples": list(samples), "rejected": [],
+        "summary": {"accepted": len(samples)},
+    }
+
+
+def sample(name: str, timestamp: str | None, newest: str | None = None) -> dict[str, Any]:
+    files = {f"{d}/{name}.{ext}": hashlib.sha256(f"{d}{name}".encode()).hexdigest()
+             for d, ext in (("images", "tif"), ("labels", "png"), ("geo", "tif"), ("segmented", "png"))}
+    return {"name": name, "center": {"lon": 24.94, "lat": 60.17}, "bbox_wgs84": [24.93, 60.16, 24.95, 60.18],
+            "bounds_3857": [2775000.0, 8437000.0, 2775764.37, 8437764.37], "zoom": 18, "ground_resolution_m": 0.297,
+            "tiles": [], "imagery": {}, "osm": {"timestamp": timestamp, "newest_element": newest},
+            "class_histogram": {"unlabeled": 1638000, "dirt road": 400}, "files": files}
+
+
+def test_an_undated_sample_spans_the_dates_the_manifest_knows(tmp_path: Path) -> None:
+    manifest = manifest_of(sample("a_1", None, newest="2019-04-21T09:50:14Z"), sample("a_2", "2024-05-01T12:00:00Z"))
+    manifest["imagery"].update(terms="no redistribution", url="https://t.example/{z}/{x}/{y}.png")
+    path = write_stac(tmp_path, manifest)
+    imagery = json.loads(path.read_text())["providers"][1]
+    assert imagery == {"name": "xyz", "description": "© Example Aerial; no redistribution",
+                       "roles": ["licensor", "producer"]}  # a tile URL is not the provider's page
+    undated = json.loads((tmp_path / "stac" / "items" / "a_1.json").read_text())
+    assert core_errors(undated) == [] and core_errors(json.loads(path.read_text())) == []
+    props = undated["properties"]
+    assert props["datetime"] is None
+    assert (props["start_datetime"], props["end_datetime"]) == ("2019-04-21T09:50:14Z", "2024-05-01T12:00:00Z")
+    assert undated["assets"]["image"]["type"] == "image/tiff; application=geotiff; profile=cloud-optimized"
+    names = {c["title"]: c["name"] for c in undated["assets"]["labels"]["classification:classes"]}
+    assert names == {"unlabeled": "unlabeled", "dirt road": "dirt_road"}
+    interval = json.loads(path.read_text())["extent"]["temporal"]["interval"]
+    assert interval == [["2019-04-21T09:50:14Z", "2024-05-01T12:00:00Z"]]
+
+
+def test_write_stac_is_repeatable_and_drops_items_of_removed_samples(tmp_path: Path) -> None:
+    manifest = manifest_of(sample("a_1", "2024-05-01T12:00:00Z"), sample("a_2", "2024-05-01T12:00:00Z"))
+    write_stac(tmp_path, manifest)
+    before = {p.name: p.read_bytes() for p in (tmp_path / "stac").rglob("*.json")}
+    write_stac(tmp_path, copy.deepcopy(manifest))
+    assert {p.name: p.read_bytes() for p in (tmp_path / "stac").rglob("*.json")} == before
+    write_stac(tmp_path, manifest_of(manifest["samples"][1]))
+    assert sorted(p.name for p in (tmp_path / "stac" / "items").iterdir()) == ["a_2.json"]
+
+
+@pytest.mark.parametrize(("damage", "says"), [
+    (lambda m: m["samples"][0].update(bbox_wgs84=[1, 2, 3]), "bbox_wgs84"),
+    (lambda m: m["samples"][0]["files"].update({"labels/a_1.png": "not-a-digest"}), "sha256"),
+    (lambda m: m["samples"][0]["class_histogram"].update(lava=3), "class_histogram"),
+    (lambda m: m["samples"][0]["files"].pop("labels/a_1.png"), "labels/"),
+    (lambda m: m["samples"][0]["osm"].update(timestamp="yesterday"), "ISO 8601"),
+    (lambda m: m["samples"][0].update(name="../escape"), "file stem"),
+    (lambda m: m.pop("samples"), "missing keys"),
+    (lambda m: m["classes"]["classes"].pop(0), "class ids"),
+])
+def test_a_malformed_manifest_gives_one_line(tmp_path: Path, damage: Any, says: str) -> None:
+    manifest = manifest_of(sample("a_1", "2024-05-01T12:00:00Z"))
+    damage(manifest)
+    with pytest.raises(DatasetError) as info:
+        write_stac(tmp_path, manifest)
+    assert says in str(info.value) and "\n" not in str(info.value)
+    assert not (tmp_path / "stac" / "collection.json").exists()
