@@ -26,7 +26,7 @@ import numpy as np
 
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
-from osmseg.errors import ConfigError, DatasetError
+from osmseg.errors import ConfigError, DatasetError, RetriesExhausted
 from osmseg.filters import FilterConfig, check_imagery, check_labels
 from osmseg.grid import TILE_SIZE, LngLatBBox, SampleGrid, ground_resolution, pad_bbox, sample_grid
 from osmseg.imagery import make_provider
@@ -54,6 +54,7 @@ from osmseg.output.stac import write_stac
 from osmseg.output.writer import IMAGE_FORMATS
 from osmseg.places import Area, normalise_name
 from osmseg.rasterize import rasterize, to_table
+from osmseg.sampling import block_attempt_centre, check_room, overlap_groups
 from osmseg.state import BuildState
 
 logger = logging.getLogger(__name__)
@@ -121,6 +122,7 @@ class BuildConfig:
     http_timeout: float = 30.0  # seconds to connect, and between bytes read
     cassette: Path | None = None  # --record/--replay FILE
     cassette_mode: str = "replay"
+    no_overlap: bool = False  # --no-overlap: every attempt gets its own tile block (osmseg.sampling)
 
     def identity(self) -> dict[str, Any]:
         """What decides the dataset's content; recorded in the state and the manifest.
@@ -144,6 +146,8 @@ class BuildConfig:
             "filters": self.filters.to_dict(),
             "max_tries": self.max_tries,
             "osm_padding_m": self.osm_padding_m,
+            # only when asked, so that a folder built before the option existed still resumes
+            **({"sampling": "blocks (--no-overlap)"} if self.no_overlap else {}),
         }
 
     def my_slots(self) -> list[int]:
@@ -173,7 +177,7 @@ class BuildConfig:
             "--image-format", self.image_format, "--max-unlabeled", f"{f.max_unlabeled:g}",
             "--min-classes", str(f.min_classes), "--min-contrast", f"{f.min_contrast:g}",
             "--max-missing-imagery", f"{f.max_invalid_imagery:g}", "--max-placeholder-tiles", str(f.max_placeholder_tiles),
-            "--max-tries", str(self.max_tries),
+            "--max-tries", str(self.max_tries), *(["--no-overlap"] if self.no_overlap else []),
         ]
 
     @property
@@ -194,6 +198,11 @@ class BuildSummary:
     seconds: float = 0.0
     finalized: bool = False
     duplicates: int = 0
+    failed: list[tuple[int, str]] = field(default_factory=list)  # (slot, reason) of attempts that could not fetch
+    unplaced: int = 0  # OSM objects of a class with no located node, over all attempts
+    overlapping: int = 0  # samples sharing pixels with another sample
+    groups: int = 0  # groups of overlapping samples (a sample alone is a group)
+    no_overlap: bool = False
 
     def lines(self) -> list[str]:
         reasons = ", ".join(f"{n} {r}" for r, n in sorted(self.rejected.items())) or "none"
@@ -201,16 +210,26 @@ class BuildSummary:
             f"accepted {self.accepted} samples; rejected {sum(self.rejected.values())} attempts ({reasons})",
             f"time {self.seconds:.1f} s",
         ]
+        if self.unplaced:
+            out.append(f"warning: {self.unplaced} OSM objects that match a class were not drawn: none of their nodes "
+                       "has a location in the OSM data (an extract without its nodes?); see osm_problems in "
+                       "manifest.json, and check the --osm source")
         if self.osm_problems:
             out.append(f"{self.osm_problems} broken OSM objects were repaired or skipped "
                        "(listed per sample in manifest.json as osm_problems; -v prints them)")
-        if self.duplicates:
-            out.append(f"{self.duplicates} samples repeat the tiles of another (random centres in one tile): "
-                       "use a larger area, or fewer --samples")
+        if self.overlapping:
+            repeat = f", {self.duplicates} of them the very tiles of another" if self.duplicates else ""
+            out.append(f"{self.overlapping} of {self.accepted} samples overlap another ({self.groups} spatial groups"
+                       f"{repeat}): training keeps each group in one split; --no-overlap draws samples that never "
+                       "overlap")
         if self.gave_up:
             out.append(f"{self.gave_up} slots hit --max-tries without an accepted sample")
-        if self.pending_other_shards:
-            out.append(f"{self.pending_other_shards} slots belong to other shards and are not built yet")
+        if self.failed:
+            out.append(f"{len(self.failed)} samples could not be fetched (services kept failing through every retry); "
+                       "their reasons are in .osmseg-build/failures/")
+        pending = self.pending_other_shards - len(self.failed)
+        if pending > 0:
+            out.append(f"{pending} slots belong to other shards and are not built yet")
         return out
 
 
@@ -219,8 +238,15 @@ def attempt_rng(seed: int, slot: int, attempt: int) -> np.random.Generator:
     return np.random.default_rng([seed, slot, attempt])
 
 
-def attempt_centre(config: BuildConfig, slot: int, attempt: int) -> tuple[float, float]:
-    """Seeded (lon, lat) centre of attempt ``attempt`` of slot ``slot``."""
+def attempt_centre(config: BuildConfig, slot: int, attempt: int) -> tuple[float, float] | None:
+    """Seeded (lon, lat) centre of attempt ``attempt`` of slot ``slot``.
+
+    With ``--no-overlap`` the centre of that attempt's own tile block (None once the area has
+    no block left for it: the slot gives up); else a random point of the area.
+    """
+    if config.no_overlap:
+        return block_attempt_centre(config.area, config.zoom, config.grid_size, config.seed, config.samples,
+                                    slot, attempt)
     return config.area.random_centres(attempt_rng(config.seed, slot, attempt), 1)[0]
 
 
@@ -240,7 +266,10 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) ->
     OSM comes first: a sample whose mask fails the label checks is rejected before any of
     its 25 tiles is downloaded.
     """
-    lon, lat = attempt_centre(config, slot, attempt)
+    centre = attempt_centre(config, slot, attempt)
+    if centre is None:
+        return {"status": "exhausted"}
+    lon, lat = centre
     grid = sample_grid(lon, lat, config.zoom, config.grid_size)
     extract = pipe.osm.fetch(pad_bbox(grid.bbox, config.osm_padding_m))
     features = read_features(extract.paths, grid, pipe.rules)
@@ -252,31 +281,46 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) ->
     if rejection is None:
         imagery = pipe.imagery.fetch(grid)
         rejection = check_imagery(imagery.rgb, imagery.valid, imagery.placeholder_tiles, config.filters)
+    # OSM objects of a class that could not be drawn at all (their nodes have no location in the
+    # data): recorded for rejected attempts too, so an empty mask is never a silent one
+    unplaced = {"osm_unplaced": features.unplaced} if features.unplaced else {}
     if rejection is not None or imagery is None:
         assert rejection is not None
-        return {"status": "rejected", **rejection_entry(lon, lat, rejection, attempt=attempt)}
+        problems = {"osm_problems": list(features.problems)} if features.problems else {}
+        return {"status": "rejected", **rejection_entry(lon, lat, rejection, attempt=attempt), **problems, **unplaced}
     name = f"{config.prefix}_{slot:05d}"
     written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format)
     entry = sample_entry(name, grid, written, imagery=imagery.info, osm=extract.info, osm_timestamp=extract.timestamp)
     # broken OSM objects that were repaired or skipped, for users checking a mask they doubt
     entry["osm_problems"] = list(features.problems)
+    entry.update(unplaced)
     return {"status": "accepted", "sample": entry}
 
 
 def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int) -> dict[str, Any]:
     """Try centres for one slot until one is accepted or ``max_tries`` runs out."""
     rejections = []
+    outcome = {"slot": slot, "status": "gave_up", "rejected": rejections}  # unless an attempt is accepted
     for attempt in range(config.max_tries):
         record = state.attempt(slot, attempt)
         if record is None:
-            record = run_attempt(config, pipe, slot, attempt)
+            try:
+                record = run_attempt(config, pipe, slot, attempt)
+            except RetriesExhausted as exc:
+                # A service kept failing through every retry. That says nothing about this centre,
+                # so the slot does not move on to its next centre (the dataset would then depend on
+                # the network's luck): the attempt stays unfinished, its reason is recorded, the
+                # build goes on with the other slots and the same command later retries it.
+                reason = str(exc)
+                state.record_failure(slot, attempt, reason)
+                return {"slot": slot, "status": "failed", "attempt": attempt, "reason": reason, "rejected": rejections}
+            if record["status"] == "exhausted":  # --no-overlap: no block of the area is left for this attempt
+                break
             state.record_attempt(slot, attempt, record)
         if record["status"] == "accepted":
             outcome = {"slot": slot, "status": "accepted", "sample": record["sample"], "rejected": rejections}
             break
         rejections.append({k: v for k, v in record.items() if k != "status"})
-    else:
-        outcome = {"slot": slot, "status": "gave_up", "rejected": rejections}
     state.record_slot(slot, outcome)
     return outcome
 
@@ -330,7 +374,8 @@ def build(
             if (area.east - area.west) * (area.north - area.south) <= PREPARE_AREA_MAX_DEG2:
                 prepare([area])
             else:  # a country-sized area: cut just the first-try boxes
-                prepare([pad_bbox(_grid(config, s, 0).bbox, config.osm_padding_m) for s in todo])
+                grids = [g for g in (_grid(config, s, 0) for s in todo) if g is not None]
+                prepare([pad_bbox(g.bbox, config.osm_padding_m) for g in grids])
         for slot in mine:
             outcome = state.slot(slot) or run_slot(config, pipe, state, slot)
             _count(summary, outcome)
@@ -345,6 +390,8 @@ def build(
                                "use a new --out for one of them")
         manifest = finalize(config, pipe.table, [o for o in outcomes if o], imagery_info, osm_info, command_line)
         summary.duplicates = manifest["summary"]["duplicate_samples"]
+        summary.overlapping = manifest["summary"]["overlapping_samples"]
+        summary.groups = manifest["summary"]["overlap_groups"]
         summary.finalized = True
     summary.seconds = time.monotonic() - start
     return summary
@@ -357,6 +404,8 @@ def check_config(config: BuildConfig) -> None:
     if config.image_format not in IMAGE_FORMATS:
         raise ConfigError(f"--image-format must be one of {', '.join(IMAGE_FORMATS)}, got {config.image_format!r}")
     ground_resolution(config.area.lat, config.zoom)  # validates lat
+    if config.no_overlap:
+        check_room(config.area, config.zoom, config.grid_size, config.seed, config.samples)
     if config.out_dir.exists() and not config.out_dir.is_dir():
         raise ConfigError(f"--out {config.out_dir} is a file; give a folder (new, or a build to resume)")
 
@@ -376,13 +425,18 @@ def sampling_box(config: BuildConfig) -> LngLatBBox:
     return pad_bbox(box, (config.grid_size / 2 + 1) * tile_m + config.osm_padding_m)
 
 
-def _grid(config: BuildConfig, slot: int, attempt: int) -> SampleGrid:
-    lon, lat = attempt_centre(config, slot, attempt)
-    return sample_grid(lon, lat, config.zoom, config.grid_size)
+def _grid(config: BuildConfig, slot: int, attempt: int) -> SampleGrid | None:
+    centre = attempt_centre(config, slot, attempt)
+    return None if centre is None else sample_grid(centre[0], centre[1], config.zoom, config.grid_size)
 
 
 def _count(summary: BuildSummary, outcome: dict[str, Any]) -> None:
+    summary.unplaced += sum(int(r.get("osm_unplaced", 0)) for r in outcome["rejected"])
     if outcome["status"] == "accepted":
+        summary.unplaced += int(outcome["sample"].get("osm_unplaced", 0))
+    if outcome["status"] == "failed":
+        summary.failed.append((outcome["slot"], outcome["reason"]))
+    elif outcome["status"] == "accepted":
         summary.accepted += 1
         summary.osm_problems += len(outcome["sample"].get("osm_problems", ()))
     else:
@@ -423,9 +477,19 @@ def finalize(
         "summary": summary_entry(samples, rejected, requested=config.samples,
                                  max_attempts=config.samples * config.max_tries),
     }
-    # slots draw independently (that is what makes shards exact), so two may land on one grid
+    # slots draw independently (that is what makes shards exact), so two may land on one grid, or
+    # overlap: groups of overlapping samples are recorded, and training keeps a group in one split
     grids = Counter(tuple(t["quadkey"] for t in s["tiles"]) for s in samples)
-    manifest["summary"]["duplicate_samples"] = sum(n - 1 for n in grids.values())
+    groups = overlap_groups([s["bounds_3857"] for s in samples])
+    sizes = Counter(groups)
+    for sample, group in zip(samples, groups):
+        sample["overlap_group"] = group
+    manifest["summary"].update(
+        duplicate_samples=sum(n - 1 for n in grids.values()),
+        overlapping_samples=sum(1 for g in groups if sizes[g] > 1),
+        overlap_groups=len(sizes),
+        osm_unplaced=sum(int(r.get("osm_unplaced", 0)) for r in [*samples, *rejected]),
+    )
     write_manifest(config.out_dir, manifest)
     write_datasheet(config.out_dir, manifest)
     write_attribution(config.out_dir, manifest)

@@ -40,12 +40,31 @@ class HTTPStatusError(NetworkError):
         self.status = status
 
 
+class RetriesExhausted(NetworkError):
+    """A service kept failing in a way that may heal (429/5xx, timeouts, dropped connections,
+    answers with an unusable body) through all retries. The builder fails only that sample's
+    attempt with this message and goes on; the same command later retries it."""
+
+
+class ServiceUnavailable(HTTPStatusError, RetriesExhausted):
+    """A service kept answering 429/500/502/503/504 through all retries."""
+
+
+class CorruptResponse(OsmsegError, ValueError):
+    """An answer's body is not usable (a broken image, malformed OSM XML): raised by the check a
+    caller gives :meth:`osmseg.net.http.HttpClient.fetch`, which retries like a 5xx."""
+
+
 class AuthError(HTTPStatusError):
     """A key or token was refused (HTTP 401/403 or a provider's own refusal)."""
 
 
 class OfflineCacheMiss(NetworkError):
     """``--offline`` was given and the request is not in the cache."""
+
+
+class CacheError(OsmsegError, IOError):
+    """The on-disk HTTP cache cannot be read or written (a full disk, a read-only folder)."""
 
 
 class ImageryError(OsmsegError, IOError):

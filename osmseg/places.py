@@ -122,3 +122,16 @@ def destination(lon: float, lat: float, distance_m: float, bearing_rad: float) -
         math.sin(bearing_rad) * math.sin(d) * math.cos(phi1), math.cos(d) - math.sin(phi1) * math.sin(phi2)
     )
     return (math.degrees(lam2) + 540.0) % 360.0 - 180.0, math.degrees(phi2)
+
+
+def haversine_m(lon1: float, lat1: float, lon2: np.ndarray | float, lat2: np.ndarray | float) -> np.ndarray:
+    """Great-circle distance in metres from (lon1, lat1) to each (lon2, lat2) on the same sphere as
+    :func:`destination` (so a point ``destination(..., d, ...)`` is ``d`` away).
+
+    >>> round(float(haversine_m(0.0, 0.0, *destination(0.0, 0.0, 1234.5, 1.0))), 3)
+    1234.5
+    """
+    phi1, phi2 = np.radians(lat1), np.radians(lat2)
+    dphi, dlam = phi2 - phi1, np.radians(np.asarray(lon2) - lon1)
+    a = np.sin(dphi / 2) ** 2 + np.cos(phi1) * np.cos(phi2) * np.sin(dlam / 2) ** 2
+    return np.asarray(2 * EARTH_RADIUS_M * np.arcsin(np.sqrt(np.clip(a, 0.0, 1.0))))

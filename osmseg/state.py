@@ -87,6 +87,12 @@ class BuildState:
 
     def record_attempt(self, slot: int, attempt: int, outcome: dict[str, Any]) -> None:
         atomic_write_json(self._attempt_path(slot, attempt), outcome)
+        (self.root / "failures" / f"{slot:05d}-{attempt:02d}.json").unlink(missing_ok=True)  # it worked now
+
+    def record_failure(self, slot: int, attempt: int, reason: str) -> None:
+        """Note why an attempt could not fetch its data (not an outcome: a rerun tries it again)."""
+        atomic_write_json(self.root / "failures" / f"{slot:05d}-{attempt:02d}.json",
+                          {"slot": slot, "attempt": attempt, "reason": reason})
 
     def slot(self, slot: int) -> dict[str, Any] | None:
         """The final outcome of a slot (accepted sample or gave up), or None if unfinished."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -219,6 +220,35 @@ def test_bad_input_gives_one_line_and_a_usage_exit(tmp_path: Path, args: list[st
     assert says in result.output
     assert "Traceback" not in result.output
     assert not (tmp_path / "x" / "manifest.json").exists()
+
+
+def test_osm_objects_that_cannot_be_placed_are_said_loudly_and_recorded(tmp_path: Path, imagery_tif: Path,
+                                                                         http_server: "ScriptedServer") -> None:
+    """An OSM API answer whose ways come without their nodes: a warning on stderr, and counts in
+    the manifest, instead of a silently empty mask."""
+    from servers import Reply
+
+    xml = re.sub(r"<node [^>]*/>\n|<node [^>]*>.*?</node>\n", "", TINYCITY.read_text(), flags=re.S)
+    assert "<node" not in xml and "<way" in xml
+    http_server.script("/api/0.6/map", Reply(200, xml, {"Content-Type": "text/xml; charset=utf-8"}))
+    args = build_args(tmp_path / "ds", imagery_tif, "--max-tries", "2", "--max-unlabeled", "1", "--min-classes", "0",
+                      samples=1)
+    args[args.index(str(TINYCITY))] = "api:" + http_server.url("/api/0.6")
+    result = CliRunner().invoke(cli, args)  # not -q: the summary is what a user reads
+    assert "OSM objects that match a class were not drawn" in result.stderr, result.output
+    assert "Traceback" not in result.output
+    state = [json.loads(p.read_text()) for p in (tmp_path / "ds" / ".osmseg-build" / "attempts").glob("*.json")]
+    assert state and all(r.get("osm_unplaced", 0) > 10 for r in state)
+    assert all(any("no node with a location" in p for p in r["osm_problems"]) for r in state)
+
+
+def test_geojson_tags_that_no_class_draws_are_refused_up_front(tmp_path: Path, imagery_tif: Path) -> None:
+    (tmp_path / "f.geojson").write_text('{"type": "FeatureCollection", "features": []}')
+    args = build_args(tmp_path / "ds", imagery_tif, samples=1)
+    args[args.index(str(TINYCITY))] = f"geojson:{tmp_path / 'f.geojson'}:shop=bakery"
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 2 and "no class of osm13 has a rule for these tags" in result.output
+    assert not (tmp_path / "ds").exists()
 
 
 def test_malformed_osm_file_fails_with_one_line(tmp_path: Path, imagery_tif: Path) -> None:

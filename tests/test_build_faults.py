@@ -33,6 +33,7 @@ import signal
 import subprocess
 import sys
 import threading
+import zlib
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -304,7 +305,7 @@ def test_a_missing_tile_rejects_the_attempt_and_the_slot_tries_another_centre(
     assert not any(blank)
 
 
-def test_malformed_osm_xml_stops_with_one_line_keeping_finished_samples(
+def test_osm_xml_that_stays_malformed_fails_that_sample_only_and_a_rerun_finishes(
         services: Services, clean: Clean, tmp_path: Path) -> None:
     services.fault(MAP, lambda n: Reply(200, BROKEN_XML, {"Content-Type": "text/xml"}) if n > 1 else None)
     out, cache = tmp_path / "ds", tmp_path / "cache"
@@ -312,10 +313,13 @@ def test_malformed_osm_xml_stops_with_one_line_keeping_finished_samples(
 
     failed = run_cli(*args)
 
-    message = assert_one_error_line(failed, "OSM API", "map?bbox=", "not valid OSM data")
+    message = assert_one_error_line(failed, "OSM API", "map?bbox=", "not valid OSM data", "1 of 2 samples")
     assert "run the same command again" in message  # says what to do
+    assert services.seen[MAP] == 1 + 6  # the good first answer, then the broken one and its 5 retries
     assert assert_nothing_half_written(out) == [clean.manifest["samples"][0]["name"]]
     assert not (out / "manifest.json").exists()
+    reasons = [json.loads(p.read_text()) for p in (out / ".osmseg-build" / "failures").glob("*.json")]
+    assert [(r["slot"], r["attempt"]) for r in reasons] == [(1, 0)] and "not valid OSM data" in reasons[0]["reason"]
 
     # the API is fixed: the same command finishes (the bad answer was not kept in the cache)
     services.reset()
@@ -342,7 +346,7 @@ def test_a_rerun_after_a_bad_answer_asks_the_fixed_server_again(
     assert tree_bytes(tmp_path / "ds") == clean.files
 
 
-def test_a_tile_that_keeps_failing_stops_the_build_and_a_rerun_finishes(
+def test_a_tile_that_keeps_failing_fails_its_sample_only_and_a_rerun_finishes(
         services: Services, clean: Clean, tmp_path: Path) -> None:
     tile = clean.tile_only_in_second()
     # Retry-After: 0 lets the client use up its retries without sleeping through the backoff
@@ -352,7 +356,7 @@ def test_a_tile_that_keeps_failing_stops_the_build_and_a_rerun_finishes(
 
     failed = run_cli(*args)
 
-    assert_one_error_line(failed, "HTTP 500", tile, "again")
+    assert_one_error_line(failed, "HTTP 500", tile, "again", "1 of 2 samples could not be fetched")
     assert services.seen[tile] == 6  # the first try and 5 retries
     assert assert_nothing_half_written(out) == [clean.manifest["samples"][0]["name"]]
     assert not (out / "manifest.json").exists()
@@ -431,3 +435,74 @@ def test_ctrl_c_stops_cleanly_and_the_same_command_resumes(services: Services, c
     rerun = run_cli(*args)
     assert rerun.exit_code == 0, rerun.output
     assert tree_bytes(out) == clean.files
+
+
+# -- a flaky network: every kind of fault at once ------------------------------------------------
+
+#: the kinds of fault a real server, proxy or network gives, each as a Reply for a good answer
+FAULT_KINDS: dict[str, Callable[[str, Reply], Reply]] = {
+    "429": lambda path, good: Reply(429, "slow down\n", {"Retry-After": "0"}),
+    "500": lambda path, good: Reply(500, "internal error\n"),
+    "502": lambda path, good: Reply(502, "bad gateway\n"),
+    "503": lambda path, good: Reply(503, "unavailable\n", {"Retry-After": "0"}),
+    "504": lambda path, good: Reply(504, "gateway timeout\n"),
+    "cut body": lambda path, good: Reply(good.status, good.body, good.headers, truncate=len(good.data) // 2),
+    "dropped": lambda path, good: Reply(good.status, good.body, good.headers, truncate=0),
+    "slow": lambda path, good: Reply(good.status, good.body, good.headers, delay=1.5),
+    # a 200 with a corrupt body: a proxy's HTML page, a PNG cut short with a correct length, bad XML
+    "html page": lambda path, good: Reply(200, "<html><body>Service temporarily unavailable</body></html>",
+                                          {"Content-Type": "text/html"}),
+    "broken body": lambda path, good: Reply(200, BROKEN_XML if path == MAP else good.data[: len(good.data) // 3],
+                                            good.headers),
+}
+
+
+def flaky(services: Services, rate: float, seed: int) -> Counter[str]:
+    """Make every request fail with probability ``rate``, with a fault drawn from every kind.
+
+    The draw depends only on (seed, path, n-th request of that path), so a run is repeatable
+    whatever the order the build's threads ask in. Returns the faults served, by kind.
+    """
+    served: Counter[str] = Counter()
+    kinds = sorted(FAULT_KINDS)
+
+    for path, good in services.good.items():
+        def fault(n: int, path: str = path, good: Reply = good) -> Reply | None:
+            rng = np.random.default_rng([seed, zlib.crc32(path.encode()), n])
+            if rng.random() >= rate:
+                return None
+            kind = kinds[int(rng.integers(len(kinds)))]
+            served[kind] += 1
+            return FAULT_KINDS[kind](path, good)
+        services.fault(path, fault)
+    return served
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_a_build_through_ten_percent_faults_of_every_kind_finishes_in_one_run(
+        services: Services, tmp_path: Path, seed: int) -> None:
+    samples = 8
+    reference = tmp_path / "clean"
+    assert run_cli(*build_args(services.server, reference, tmp_path / "clean-cache", samples=samples)).exit_code == 0
+    services.reset()
+    served = flaky(services, 0.10, seed)
+
+    result = run_cli(*build_args(services.server, tmp_path / "ds", tmp_path / "cache", "--timeout", "0.5",
+                                 samples=samples))
+
+    assert result.exit_code == 0, result.output
+    assert sum(served.values()) >= 3, served  # the build really went through faults
+    assert tree_bytes(tmp_path / "ds") == tree_bytes(reference)
+
+
+@pytest.mark.slow
+def test_a_long_build_through_ten_percent_faults_finishes_in_one_run(services: Services, tmp_path: Path) -> None:
+    reference = tmp_path / "clean"
+    assert run_cli(*build_args(services.server, reference, tmp_path / "clean-cache", samples=60)).exit_code == 0
+    services.reset()
+    served = flaky(services, 0.10, 7)
+    result = run_cli(*build_args(services.server, tmp_path / "ds", tmp_path / "cache", "--timeout", "0.5",
+                                 samples=60))
+    assert result.exit_code == 0, result.output
+    assert len(served) >= 5, served
+    assert tree_bytes(tmp_path / "ds") == tree_bytes(reference)

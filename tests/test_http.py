@@ -27,9 +27,11 @@ from servers import Reply, ScriptedServer, Seen
 from osmseg.errors import (
     AuthError,
     ConfigError,
+    CorruptResponse,
     HTTPStatusError,
     NetworkError,
     OfflineCacheMiss,
+    RetriesExhausted,
 )
 from osmseg.net.http import CACHE_FILE, DEFAULT_USER_AGENT, HttpClient, HttpConfig
 from osmseg.net.redact import redact
@@ -488,3 +490,48 @@ def test_cassettes_are_vcrpy_cassettes_both_ways(tmp_path: Path) -> None:
         assert http.get(url).content == live
     with client(tmp_path / "cache", offline=True) as http:
         assert http.get(url).content == live
+
+
+# -- answers whose body cannot be used ------------------------------------------------------------
+
+
+def _ints(response: object) -> list[int]:
+    """A tiny 'parser': the body must be comma-separated integers, else the answer is corrupt."""
+    try:
+        return [int(v) for v in response.content.decode().split(",")]  # type: ignore[attr-defined]
+    except ValueError:
+        raise CorruptResponse("not a list of integers") from None
+
+
+def test_a_corrupt_200_is_fetched_again_and_never_cached(http_server: ScriptedServer, tmp_path: Path) -> None:
+    http_server.script("/data", Reply(200, "1,2,<html>"), Reply(200, "1,2,3"))
+    with client(tmp_path) as c:
+        response, value = c.fetch(http_server.url("/data"), _ints)
+        assert value == [1, 2, 3] and http_server.count("/data") == 2
+    with client(tmp_path, offline=True) as c:  # what the cache holds is the good answer
+        assert c.fetch(http_server.url("/data"), _ints)[1] == [1, 2, 3]
+
+
+def test_a_body_that_stays_corrupt_ends_in_one_line_after_the_retries(http_server: ScriptedServer,
+                                                                        tmp_path: Path) -> None:
+    http_server.script("/data", Reply(200, "<html>oops</html>"))
+    with client(tmp_path, retries=3) as c, pytest.raises(RetriesExhausted) as exc:
+        c.fetch(http_server.url("/data"), _ints)
+    assert http_server.count("/data") == 4
+    assert "4 unusable answers in a row" in one_line(exc) and "not a list of integers" in str(exc.value)
+    with client(tmp_path, offline=True) as c, pytest.raises(OfflineCacheMiss):
+        c.fetch(http_server.url("/data"), _ints)  # nothing broken was kept
+
+
+def test_an_answer_the_caller_refuses_for_good_is_not_retried_nor_cached(http_server: ScriptedServer,
+                                                                         tmp_path: Path) -> None:
+    http_server.script("/data", Reply(200, "1,2"))
+
+    def refuse(response: object) -> None:
+        raise ConfigError("the box is too large")
+
+    with client(tmp_path) as c, pytest.raises(ConfigError):
+        c.fetch(http_server.url("/data"), refuse)
+    assert http_server.count("/data") == 1
+    with client(tmp_path, offline=True) as c, pytest.raises(OfflineCacheMiss):
+        c.get(http_server.url("/data"))

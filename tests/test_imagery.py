@@ -26,7 +26,7 @@ import rasterio
 from PIL import Image
 from pyproj import Transformer
 
-from osmseg.errors import AuthError, ConfigError, ImageryError
+from osmseg.errors import AuthError, ConfigError, ImageryError, RetriesExhausted
 from osmseg.grid import TILE_SIZE, SampleGrid, sample_grid
 from osmseg.imagery import (
     BingProvider,
@@ -315,13 +315,14 @@ def test_xyz_http_tiles_land_at_their_offsets(grid, client, caplog):
     )
 
 
-def test_xyz_corrupt_tile_is_an_imagery_error_naming_the_tile(client):
+def test_xyz_corrupt_tile_is_retried_then_an_error_naming_the_tile(client):
+    """An HTML page answered as a tile: fetched again like a 5xx; when it stays broken, one line."""
     corrupt = sample_grid(*mercantile.ul(140827, 85970, ZOOM), ZOOM, size=1)
     assert corrupt.tiles[0] == mercantile.Tile(140827, 85970, ZOOM)
     with replay("xyz.yaml") as client:
         provider = XYZProvider(MAPBOX, client, env={"MAPBOX_TOKEN": MAPBOX_TOKEN})
         with pytest.raises(
-            ImageryError, match=r"tile 18/140827/85970 .* is not a readable image"
+            RetriesExhausted, match=r"unusable answers in a row, the last: tile 18/140827/85970 .* is not a readable image"
         ) as bad:
             provider.fetch(corrupt)
     assert "\n" not in str(bad.value) and MAPBOX_TOKEN not in str(bad.value)

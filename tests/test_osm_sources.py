@@ -22,7 +22,7 @@ from conftest import TEST_DATA, shared_path
 from servers import Reply, http_server  # noqa: F401  (pytest fixture)
 
 from osmseg.classes import load_class_table
-from osmseg.errors import ConfigError, NetworkError, OSMDataError, OSMLimitError
+from osmseg.errors import ConfigError, NetworkError, OSMDataError, OSMLimitError, RetriesExhausted
 from osmseg.grid import LngLatBBox, pad_bbox, sample_grid
 from osmseg.net.http import HttpClient, HttpConfig
 from osmseg.osm.api import OsmApiSource
@@ -133,12 +133,21 @@ def one_line(exc: pytest.ExceptionInfo) -> str:
     return text
 
 
-def test_api_malformed_xml_is_a_one_line_error_and_leaves_nothing(tmp_path, http_server):
+def test_api_malformed_xml_is_retried_then_a_one_line_error_and_leaves_nothing(tmp_path, http_server):
     http_server.script("/api/0.6/map", Reply(200, '<?xml version="1.0"?>\n<osm version="0.6"><node id="1" lat=', XML))
-    with HttpClient(FAST) as client, pytest.raises(OSMDataError) as exc:
+    with HttpClient(FAST) as client, pytest.raises(RetriesExhausted) as exc:
         OsmApiSource(client, tmp_path, base_url=http_server.url("/api/0.6")).fetch(LngLatBBox(0, 0, 0.01, 0.01))
     assert "OSM API answer to map?bbox=" in one_line(exc) and "not valid OSM data" in str(exc.value)
+    assert http_server.count("/api/0.6/map") == FAST.retries + 1  # a broken 200 is retried like a 5xx
     assert not [p for p in tmp_path.rglob("*") if p.is_file()]  # no half file, no done marker
+
+
+def test_api_malformed_xml_once_is_fetched_again_and_kept(tmp_path, http_server):
+    http_server.script("/api/0.6/map", Reply(200, '<?xml version="1.0"?>\n<osm version="0.6"><node id="1" lat=', XML),
+                       Reply(200, VALID, XML))
+    with HttpClient(FAST) as client:
+        extract = OsmApiSource(client, tmp_path, base_url=http_server.url("/api/0.6")).fetch(LngLatBBox(0, 0, 0.01, 0.01))
+    assert http_server.count("/api/0.6/map") == 2 and extract.paths[0].read_bytes() == VALID.encode()
 
 
 def test_api_splits_on_node_limit_and_gives_up_after_depth(tmp_path, http_server):
@@ -197,10 +206,10 @@ def test_overpass_malformed_xml_and_retry_after_429(tmp_path, http_server):
     url = http_server.url("/api/interpreter")
     http_server.script("/api/interpreter", Reply(429, "rate limited", {"Retry-After": "0"}),
                        Reply(200, "<osm><node id='1' lat='0' lon='0'>", {"Content-Type": "application/osm3s+xml"}))
-    with HttpClient(FAST) as client, pytest.raises(OSMDataError) as exc:
+    with HttpClient(FAST) as client, pytest.raises(RetriesExhausted) as exc:
         OverpassSource(client, tmp_path, TABLE, url=url).fetch(BOX)
     assert "Overpass" in one_line(exc) and "not valid OSM data" in str(exc.value)
-    assert http_server.count("/api/interpreter") == 2
+    assert http_server.count("/api/interpreter") == FAST.retries + 1  # the 429, then the broken 200 again
     sent = http_server.requests("/api/interpreter")[-1]
     assert b"out%3Axml" in sent.body and b"building" in sent.body  # the class-table query
 

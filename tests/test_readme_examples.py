@@ -151,7 +151,28 @@ def test_a_city_build_reruns_resumes_and_gives_identical_bytes(tmp_path: Path) -
     """``--city``: the demo's Helsinki build, Bing and OSM API traffic replayed from its recording."""
     def args(out: Path) -> list[str]:
         return ["build", "--city", "Helsinki", "--samples", "4", "--seed", "0", "--imagery", "bing", "--osm", "api",
+                "--no-overlap",
                 "--replay", str(DEMO_CASSETTE), "--out", str(out), "--cache-dir", str(out.parent / "cache")]
 
     whole = check_three_ways(args, tmp_path, DEMO_ENV)
     assert json.loads(whole["manifest.json"])["area"]["name"] == "Helsinki"
+
+
+@pytest.mark.parametrize("given", [[], ["--imagery", "bing"]])
+def test_without_a_bing_key_the_error_prints_a_complete_command_that_works(
+        given: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Bing Basic keys no longer exist: the error rewrites the user's command to a keyless provider."""
+    monkeypatch.delenv("BING_MAPS_KEY", raising=False)
+    monkeypatch.chdir(tmp_path)
+    refused = CliRunner().invoke(cli, ["build", "--city", "Berlin", "--samples", "30", "--zoom", "18", *given,
+                                       "--out", "data/berlin"])
+    assert refused.exit_code == 2, refused.output
+    error = next(line for line in refused.output.splitlines() if line.startswith("Error:"))
+    assert "BING_MAPS_KEY" in error and "no longer exist" in error
+    suggested = shlex.split(error.split("run instead: ", 1)[1].split("  (", 1)[0])
+    assert suggested[:2] == ["osmseg", "build"] and "--imagery" in suggested
+    assert suggested[suggested.index("--samples") + 1] == "30" and "Berlin" in suggested  # the user's own options
+    assert not (tmp_path / "data").exists()
+    # the suggested command passes every check and goes on to fetch (here: offline, empty cache)
+    ran = CliRunner().invoke(cli, [*suggested[1:], "--offline", "--cache-dir", str(tmp_path / "cache")])
+    assert ran.exit_code == 1 and "--offline" in ran.output, ran.output

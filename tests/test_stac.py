@@ -5,7 +5,8 @@ painted from it, as in ``test_build.py``). The catalog is then read only with py
 jsonschema, rasterio, PIL and numpy: validated against the STAC 1.1 core schemas pystac
 bundles (offline: a schema that is not bundled makes the check fail, never fetches), its
 extension fields read through pystac's extension APIs and compared with the files
-themselves (GeoTIFF grid, pixel counts by class id, SHA-256 of every asset).
+themselves (COG grid, pixel counts by class id, SHA-256 of every asset), and walked the
+way Raster Vision's ``parse_stac`` walks a catalog (:func:`parse_stac_like_raster_vision`).
 """
 
 from __future__ import annotations
@@ -29,9 +30,11 @@ from PIL import Image
 from pystac.extensions.classification import ClassificationExtension
 from pystac.extensions.file import FileExtension
 from pystac.extensions.projection import ProjectionExtension
+from pystac.utils import make_absolute_href
 from pystac.validation.local_validator import get_local_schema_cache
 from rasterio.warp import calculate_default_transform, reproject, transform_bounds
 from referencing import Registry, Resource
+from shapely.geometry import box
 
 with warnings.catch_warnings():  # pystac flags the label extension as unmaintained
     warnings.simplefilter("ignore", DeprecationWarning)
@@ -62,8 +65,8 @@ REGISTRY = Registry(retrieve=_not_bundled).with_resources(  # type: ignore[call-
 
 
 def core_errors(doc: dict[str, Any]) -> list[str]:
-    """Messages of every violation of the STAC core schema (item or collection) of ``doc``."""
-    kind = {"Feature": "item", "Collection": "collection"}[doc["type"]]
+    """Messages of every violation of the STAC core schema (item, collection, catalog) of ``doc``."""
+    kind = {"Feature": "item", "Collection": "collection", "Catalog": "catalog"}[doc["type"]]
     schema = SCHEMAS[f"https://schemas.stacspec.org/v{doc['stac_version']}/{kind}-spec/json-schema/{kind}.json"]
     validator = Draft7Validator(schema, registry=REGISTRY)
     return [f"{list(e.absolute_path)}: {e.message}" for e in validator.iter_errors(doc)]
@@ -100,24 +103,72 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict[st
     return first, second, manifest
 
 
-def items_of(out: Path) -> tuple[pystac.Collection, list[pystac.Item]]:
+LABEL_SCHEMA = LabelExtension.get_schema_uri()
+LABEL_ASSETS = ["labels", "labels_png", "segmented", "image"]  # the order of a label item's assets
+
+
+def items_of(out: Path) -> tuple[pystac.Collection, list[pystac.Item], dict[str, pystac.Item]]:
+    """The Collection, its label items in order, and its image items by id."""
     collection = pystac.Collection.from_file(str(out / "stac" / "collection.json"))
-    return collection, list(collection.get_items())
+    items = list(collection.get_items())
+    labels = [i for i in items if LabelExtension.has_extension(i)]
+    return collection, labels, {i.id: i for i in items if not LabelExtension.has_extension(i)}
 
 
-def test_collection_and_items_are_valid_stac_core(built: tuple[Path, Path, dict[str, Any]]) -> None:
+def parse_stac_like_raster_vision(catalog_json: Path) -> list[dict[str, Any]]:
+    """Raster Vision's ``parse_stac`` (``rastervision.core.utils.stac``), step by step, with pystac alone.
+
+    Two differences, both offline stand-ins: a label item is one listing the label extension's
+    schema (Raster Vision downloads every schema of ``stac_extensions`` and looks for the title
+    "Label Extension"), and each entry also keeps the ``image_item`` it found.
+    """
+    cat = pystac.Catalog.from_file(str(catalog_json))
+    cat.make_all_asset_hrefs_absolute()
+    with warnings.catch_warnings():  # pystac 1.x deprecates get_all_items (for get_items(recursive=True))
+        warnings.simplefilter("ignore", DeprecationWarning)
+        label_items = [item for item in cat.get_all_items() if LABEL_SCHEMA in item.stac_extensions]
+    if not label_items:
+        raise ValueError("Unable to find any label items in STAC catalog.")
+    out = []
+    for label_item in label_items:
+        links = [link for link in label_item.links if link.rel.lower() == "source"]
+        if len(links) > 1:
+            raise NotImplementedError()
+        image_item = links[0].resolve_stac_object().target if links else None
+        label_bbox = box(*label_item.bbox)
+        assert isinstance(image_item, pystac.Item), label_item.id
+        image_bbox = box(*image_item.bbox)
+        out.append({
+            "label_uri": list(label_item.assets.values())[0].href,
+            "image_uris": [a.href for a in image_item.get_assets().values()
+                           if "image" in a.media_type],  # type: ignore[operator]  # None raises, as in RV
+            "label_bbox": label_bbox, "image_bbox": image_bbox,
+            "bboxes_intersect": label_bbox.intersects(image_bbox), "aoi_geometry": label_item.geometry,
+            "image_item": image_item})
+    return out
+
+
+def test_catalog_collection_and_items_are_valid_stac_core(built: tuple[Path, Path, dict[str, Any]]) -> None:
     out, _, manifest = built
-    collection, items = items_of(out)
-    assert [i.id for i in items] == [s["name"] for s in manifest["samples"]] and len(items) == 3
+    collection, items, images = items_of(out)
+    names = [s["name"] for s in manifest["samples"]]
+    assert [i.id for i in items] == names and len(items) == 3 and sorted(images) == [f"{n}_image" for n in names]
+    assert [i.id for i in collection.get_items()] == [i for n in names for i in (n, f"{n}_image")]
     docs = [json.loads(p.read_text()) for p in sorted((out / "stac").rglob("*.json"))]
-    assert len(docs) == 4
+    assert len(docs) == 8 and [d["type"] for d in docs[:2]] == ["Catalog", "Collection"]
     for doc in docs:
         assert core_errors(doc) == [], doc["id"]
     broken = copy.deepcopy(next(d for d in docs if d["type"] == "Feature"))
     del broken["properties"]["datetime"]
     broken["bbox"] = broken["bbox"][:3]
     assert len(core_errors(broken)) >= 2  # the check itself can fail
-    assert all(i.collection_id == collection.id for i in items)
+    assert all(i.collection_id == collection.id for i in [*items, *images.values()])
+    catalog = pystac.Catalog.from_file(str(out / "stac" / "catalog.json"))
+    assert [c.id for c in catalog.get_children()] == [collection.id]
+    root_link = collection.get_root_link()
+    assert root_link is not None and Path(root_link.get_absolute_href() or "") == out / "stac" / "catalog.json"
+    with pytest.raises(pystac.STACTypeError):  # why the root is a Catalog: readers such as Raster Vision need one
+        pystac.Catalog.from_file(str(out / "stac" / "collection.json"))
     assert collection.license == "other"
     licences = [Path(link.get_absolute_href() or "") for link in collection.get_links("license")]
     assert any(p.name == "ATTRIBUTION.md" and p.is_file() for p in licences)
@@ -125,9 +176,9 @@ def test_collection_and_items_are_valid_stac_core(built: tuple[Path, Path, dict[
     assert roles["OpenStreetMap contributors"] == ["licensor", "producer"] and roles["osmseg"] == ["processor"]
 
 
-def test_items_describe_the_labels_and_the_grid_of_the_geotiffs(built: tuple[Path, Path, dict[str, Any]]) -> None:
+def test_items_describe_the_labels_and_the_grid_of_the_cogs(built: tuple[Path, Path, dict[str, Any]]) -> None:
     out, _, manifest = built
-    collection, items = items_of(out)
+    collection, items, images = items_of(out)
     ids = sorted(c["id"] for c in manifest["classes"]["classes"])
     by_name = {s["name"]: s for s in manifest["samples"]}
     for item in items:
@@ -138,13 +189,13 @@ def test_items_describe_the_labels_and_the_grid_of_the_geotiffs(built: tuple[Pat
         proj = ProjectionExtension.ext(item)
         assert proj.code == "EPSG:3857"
         assert item.bbox is not None and item.datetime is not None
-        with rasterio.open(item.assets["geo"].get_absolute_href() or "") as src:
-            assert src.crs.to_epsg() == 3857
+        with rasterio.open(item.assets["labels"].get_absolute_href() or "") as src:
+            assert src.crs.to_epsg() == 3857 and src.tags(ns="IMAGE_STRUCTURE")["LAYOUT"] == "COG"
             assert proj.shape == [src.height, src.width] == [1280, 1280]
             assert proj.transform == pytest.approx(list(src.transform)[:6], rel=0, abs=1e-6)
             assert proj.bbox == pytest.approx(list(src.bounds), rel=0, abs=1e-6)
             assert item.bbox == pytest.approx(list(transform_bounds(src.crs, "EPSG:4326", *src.bounds)), abs=1e-9)
-        with Image.open(item.assets["labels"].get_absolute_href() or "") as im:
+        with Image.open(item.assets["labels_png"].get_absolute_href() or "") as im:
             assert list(im.size) == proj.shape[::-1]
         stamp = by_name[item.id]["osm"]["timestamp"]
         assert item.datetime == datetime.fromisoformat(stamp.replace("Z", "+00:00"))
@@ -152,24 +203,37 @@ def test_items_describe_the_labels_and_the_grid_of_the_geotiffs(built: tuple[Pat
         assert west <= item.bbox[0] and south <= item.bbox[1] and item.bbox[2] <= east and item.bbox[3] <= north
         start, end = collection.extent.temporal.intervals[0]
         assert start is not None and end is not None and start <= item.datetime <= end
+        image = images[f"{item.id}_image"]  # the imagery: same place, time and grid, no labels
+        assert (image.geometry, image.bbox, image.datetime) == (item.geometry, item.bbox, item.datetime)
+        assert {k: v for k, v in image.properties.items() if k.startswith("proj:")} == \
+            {k: v for k, v in item.properties.items() if k.startswith("proj:")}
+        assert not any(k.startswith("label:") for k in image.properties)
 
 
 def test_every_asset_is_a_file_with_the_recorded_checksum(built: tuple[Path, Path, dict[str, Any]]) -> None:
     out, _, manifest = built
-    collection, items = items_of(out)
+    collection, items, images = items_of(out)
     listed = {(out / rel).resolve() for s in manifest["samples"] for rel in s["files"]}
     seen = set()
-    for item in items:
+    for item in [*items, *images.values()]:
         for key, asset in item.assets.items():
             path = Path(asset.get_absolute_href() or "").resolve()
             assert path.is_file(), f"{item.id} {key}: {asset.href}"
             digest = hashlib.sha256(path.read_bytes()).hexdigest()
             assert FileExtension.ext(asset).checksum == "1220" + digest
             seen.add(path)
-        assert item.assets["image"].media_type == "image/png" and "data" in (item.assets["image"].roles or [])
-        assert item.assets["geo"].media_type == "image/tiff; application=geotiff"
-        assert item.assets["labels"].roles == ["labels"] and item.assets["geo"].roles == ["labels"]
+    for item in items:
+        assert list(item.assets) == LABEL_ASSETS
+        image = images[f"{item.id}_image"]
+        assert list(image.assets) == ["image"] and image.assets["image"].to_dict() == item.assets["image"].to_dict()
+        assert item.assets["image"].media_type == "image/png" and item.assets["image"].roles == ["data"]
+        assert item.assets["labels"].media_type == pystac.MediaType.COG == "image/tiff; application=geotiff; " \
+                                                                              "profile=cloud-optimized"
+        assert item.assets["labels_png"].media_type == "image/png"
+        assert item.assets["labels"].roles == ["labels"] and item.assets["labels_png"].roles == ["labels"]
+        assert Path(item.assets["labels"].href).parts[-2:] == ("geo", f"{item.id}.tif")
     assert seen == listed
+    assert list(collection.item_assets) == LABEL_ASSETS
     for asset in collection.assets.values():
         assert Path(asset.get_absolute_href() or "").is_file()
 
@@ -178,25 +242,51 @@ def test_overviews_count_the_label_pixels_of_each_class_id(built: tuple[Path, Pa
     out, _, manifest = built
     listed = [c["id"] for c in manifest["classes"]["classes"]]
     assert listed != sorted(listed)  # classes13 lists dirt road (12) second: position is not id
-    _, items = items_of(out)
+    _, items, _ = items_of(out)
     for item in items:
-        labels = item.assets["labels"]
-        classes = ClassificationExtension.ext(labels).classes or []
-        geo_classes = ClassificationExtension.ext(item.assets["geo"]).classes or []
-        assert [c.to_dict() for c in classes] == [c.to_dict() for c in geo_classes]
+        png = item.assets["labels_png"]
+        classes = ClassificationExtension.ext(png).classes or []
+        cog_classes = ClassificationExtension.ext(item.assets["labels"]).classes or []
+        assert [c.to_dict() for c in classes] == [c.to_dict() for c in cog_classes]
         id_of = {c.title: c.value for c in classes}
         assert id_of["dirt road"] == 12 and id_of["unlabeled"] == 0
         overviews = LabelExtension.ext(item).label_overviews or []
         counts = {c.name: c.count for c in overviews[0].counts or []}
-        pixels = np.asarray(Image.open(labels.get_absolute_href() or ""))
+        pixels = np.asarray(Image.open(png.get_absolute_href() or ""))
         per_id = np.bincount(pixels.ravel(), minlength=256)
         assert {id_of[name]: n for name, n in counts.items()} == {i: int(per_id[i]) for i in id_of.values()}
         assert sum(counts.values()) == pixels.size and sum(n > 0 for n in counts.values()) >= 3
-        with rasterio.open(item.assets["geo"].get_absolute_href() or "") as src:  # names, colours as in the file
+        with rasterio.open(item.assets["labels"].get_absolute_href() or "") as src:  # names, colours as in the file
             colours, tags = src.colormap(1), src.tags(1)
+            assert np.array_equal(src.read(1), pixels)
         for c in classes:
             assert tags[f"CLASS_{c.value}"] == c.title
             assert "%02X%02X%02X" % colours[c.value][:3] == c.color_hint
+
+
+def test_raster_vision_finds_label_cog_and_image_of_every_sample(built: tuple[Path, Path, dict[str, Any]]) -> None:
+    out, _, manifest = built
+    assert list(out.glob("**/catalog.json")) == [out / "stac" / "catalog.json"]  # what read_stac looks for in a zip
+    parsed = parse_stac_like_raster_vision(out / "stac" / "catalog.json")
+    samples = manifest["samples"]
+    assert len(parsed) == len(samples) == 3
+    ids = sorted(c["id"] for c in manifest["classes"]["classes"])
+    for entry, sample in zip(parsed, samples):
+        name = sample["name"]
+        assert Path(entry["label_uri"]) == out.resolve() / "geo" / f"{name}.tif"  # absolute: parse_stac made it so
+        with rasterio.open(entry["label_uri"]) as src:
+            assert (src.count, src.dtypes, src.crs.to_epsg()) == (1, ("uint8",), 3857)
+            assert src.tags(ns="IMAGE_STRUCTURE")["LAYOUT"] == "COG" and src.nodata is None
+            assert set(np.unique(src.read(1))) <= set(ids)
+        image_item = entry["image_item"]
+        assert image_item.id == f"{name}_image" and not LabelExtension.has_extension(image_item)
+        # parse_stac re-reads the linked image item, after making hrefs absolute: its hrefs stay
+        # relative to that item's file (stac/items/), so they resolve against it, as pystac does
+        files = [Path(make_absolute_href(uri, image_item.get_self_href())) for uri in entry["image_uris"]]
+        image_rel = next(rel for rel in sample["files"] if rel.startswith("images/"))
+        assert files == [out.resolve() / image_rel]
+        assert entry["bboxes_intersect"] and entry["label_bbox"].equals(entry["image_bbox"])
+        assert entry["aoi_geometry"] == image_item.geometry
 
 
 def test_same_dataset_gives_identical_stac_bytes_and_the_folder_moves(built: tuple[Path, Path, dict[str, Any]],
@@ -204,14 +294,15 @@ def test_same_dataset_gives_identical_stac_bytes_and_the_folder_moves(built: tup
     first, second, _ = built
     tree, again = ({p.relative_to(root).as_posix(): p.read_bytes() for p in sorted((root / "stac").rglob("*"))
                     if p.is_file()} for root in (first, second))
-    assert tree == again and len(tree) == 4
+    assert tree == again and len(tree) == 8
     assert not any(str(first).encode() in data or str(second).encode() in data for data in tree.values())
     moved = tmp_path / "moved"
     shutil.copytree(first, moved)
-    _, items = items_of(moved)
-    for item in items:
+    _, items, images = items_of(moved)
+    for item in [*items, *images.values()]:
         for asset in item.assets.values():
             assert Path(asset.get_absolute_href() or "").resolve().is_relative_to(moved.resolve())
+    assert len(parse_stac_like_raster_vision(moved / "stac" / "catalog.json")) == 3
 
 
 # -- write_stac on hand-written manifests ------------------------------------------------------
@@ -241,37 +332,55 @@ def sample(name: str, timestamp: str | None, newest: str | None = None) -> dict[
 def test_an_undated_sample_spans_the_dates_the_manifest_knows(tmp_path: Path) -> None:
     manifest = manifest_of(sample("a_1", None, newest="2019-04-21T09:50:14Z"), sample("a_2", "2024-05-01T12:00:00Z"))
     manifest["imagery"].update(terms="no redistribution", url="https://t.example/{z}/{x}/{y}.png")
-    path = write_stac(tmp_path, manifest)
+    assert write_stac(tmp_path, manifest) == (tmp_path / "stac" / "catalog.json").resolve()
+    path = tmp_path / "stac" / "collection.json"
     imagery = json.loads(path.read_text())["providers"][1]
     assert imagery == {"name": "xyz", "description": "© Example Aerial; no redistribution",
                        "roles": ["licensor", "producer"]}  # a tile URL is not the provider's page
     undated = json.loads((tmp_path / "stac" / "items" / "a_1.json").read_text())
     assert core_errors(undated) == [] and core_errors(json.loads(path.read_text())) == []
-    props = undated["properties"]
-    assert props["datetime"] is None
-    assert (props["start_datetime"], props["end_datetime"]) == ("2019-04-21T09:50:14Z", "2024-05-01T12:00:00Z")
-    assert undated["assets"]["image"]["type"] == "image/tiff; application=geotiff; profile=cloud-optimized"
-    names = {c["title"]: c["name"] for c in undated["assets"]["labels"]["classification:classes"]}
-    assert names == {"unlabeled": "unlabeled", "dirt road": "dirt_road"}
+    image_item = json.loads((tmp_path / "stac" / "items" / "a_1_image.json").read_text())
+    assert core_errors(image_item) == []
+    for props in (undated["properties"], image_item["properties"]):
+        assert props["datetime"] is None
+        assert (props["start_datetime"], props["end_datetime"]) == ("2019-04-21T09:50:14Z", "2024-05-01T12:00:00Z")
+    cog = "image/tiff; application=geotiff; profile=cloud-optimized"  # images/*.tif (--image-format cog), geo/*.tif
+    assert undated["assets"]["image"]["type"] == image_item["assets"]["image"]["type"] == cog
+    assert undated["assets"]["labels"]["type"] == cog and undated["assets"]["labels"]["href"] == "../../geo/a_1.tif"
+    for key in ("labels", "labels_png"):
+        names = {c["title"]: c["name"] for c in undated["assets"][key]["classification:classes"]}
+        assert names == {"unlabeled": "unlabeled", "dirt road": "dirt_road"}
     interval = json.loads(path.read_text())["extent"]["temporal"]["interval"]
     assert interval == [["2019-04-21T09:50:14Z", "2024-05-01T12:00:00Z"]]
 
 
 def test_write_stac_is_repeatable_and_drops_items_of_removed_samples(tmp_path: Path) -> None:
     manifest = manifest_of(sample("a_1", "2024-05-01T12:00:00Z"), sample("a_2", "2024-05-01T12:00:00Z"))
+    manifest["samples"][0]["files"]["extra/a_1.txt"] = hashlib.sha256(b"extra").hexdigest()
     write_stac(tmp_path, manifest)
     before = {p.name: p.read_bytes() for p in (tmp_path / "stac").rglob("*.json")}
+    assert len(before) == 6
     write_stac(tmp_path, copy.deepcopy(manifest))
     assert {p.name: p.read_bytes() for p in (tmp_path / "stac").rglob("*.json")} == before
+    doc = json.loads(before["a_1.json"])  # keys sorted, but the assets in their order: the label raster first
+    assert list(doc) == sorted(doc) and list(doc["properties"]) == sorted(doc["properties"])
+    assert list(doc["assets"]) == ["labels", "labels_png", "segmented", "extra", "image"]
+    assert all(list(a) == sorted(a) for a in doc["assets"].values())
+    assert [link["rel"] for link in doc["links"]].count("source") == 1
+    collection = json.loads(before["collection.json"])
+    assert list(collection["item_assets"]) == list(doc["assets"])
+    assert list(collection["assets"]) == ["manifest", "datasheet", "attribution", "overview"]
     write_stac(tmp_path, manifest_of(manifest["samples"][1]))
-    assert sorted(p.name for p in (tmp_path / "stac" / "items").iterdir()) == ["a_2.json"]
+    assert sorted(p.name for p in (tmp_path / "stac" / "items").iterdir()) == ["a_2.json", "a_2_image.json"]
 
 
 @pytest.mark.parametrize(("damage", "says"), [
     (lambda m: m["samples"][0].update(bbox_wgs84=[1, 2, 3]), "bbox_wgs84"),
     (lambda m: m["samples"][0]["files"].update({"labels/a_1.png": "not-a-digest"}), "sha256"),
     (lambda m: m["samples"][0]["class_histogram"].update(lava=3), "class_histogram"),
-    (lambda m: m["samples"][0]["files"].pop("labels/a_1.png"), "labels/"),
+    (lambda m: m["samples"][0]["files"].pop("geo/a_1.tif"), "0 geo/ files"),
+    (lambda m: m["samples"][0]["files"].update({"images/a_1.png": "0" * 64}), "2 images/ files"),
+    (lambda m: m["samples"].append(sample("a_1_image", None)), "image item id of sample 'a_1'"),
     (lambda m: m["samples"][0]["osm"].update(timestamp="yesterday"), "ISO 8601"),
     (lambda m: m["samples"][0].update(name="../escape"), "file stem"),
     (lambda m: m.pop("samples"), "missing keys"),
@@ -283,4 +392,4 @@ def test_a_malformed_manifest_gives_one_line(tmp_path: Path, damage: Any, says: 
     with pytest.raises(DatasetError) as info:
         write_stac(tmp_path, manifest)
     assert says in str(info.value) and "\n" not in str(info.value)
-    assert not (tmp_path / "stac" / "collection.json").exists()
+    assert not (tmp_path / "stac" / "collection.json").exists() and not (tmp_path / "stac" / "catalog.json").exists()

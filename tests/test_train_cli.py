@@ -218,6 +218,46 @@ def test_predict_writes_a_mask_of_the_input_size_in_the_model_classes(trained: t
     assert np.array_equal(colour, palette[mask])
 
 
+def test_predict_compares_the_input_resolution_with_the_training_data_and_resamples_on_request(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A checkpoint records its training resolution (0.3 m here); a 0.9 m GeoTIFF gets a warning
+    without --resolution, and --resolution model predicts at 0.3 m and writes the mask on the
+    input's own grid. GeoTIFF inputs give NAME.tif and NAME_color.tif, as --help says."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    data = copy_tinyseg(tmp_path)
+    manifest = json.loads((data / "manifest.json").read_text())
+    for sample in manifest["samples"]:
+        sample["ground_resolution_m"] = 0.3
+    (data / "manifest.json").write_text(json.dumps(manifest))
+    run = tmp_path / "run"
+    assert osmseg("train", data, "--out", run, "--config", CONFIGS / "tiny.yaml", "--epochs", 1).exit_code == 0
+    assert load_checkpoint(run / "best.pt")["spec"]["resolution_m"] == 0.3
+
+    rgb = np.asarray(Image.open(TINYSEG / "images" / "tinyseg_000.png").convert("RGB"))
+    src = tmp_path / "coarse.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=160, height=128, count=3, dtype="uint8",
+                       crs="EPSG:32633", transform=from_origin(400000, 5800000, 0.9, 0.9)) as dst:
+        dst.write(rgb.transpose(2, 0, 1))
+    with caplog.at_level("WARNING"):
+        plain = osmseg("predict", run / "best.pt", src, "--out", tmp_path / "plain")
+    assert plain.exit_code == 0, plain.output
+    warned = [r.getMessage() for r in caplog.records if "trained on" in r.getMessage()]
+    assert len(warned) == 1 and "0.9 m pixels" in warned[0] and "--resolution model" in warned[0]
+    assert sorted(p.name for p in (tmp_path / "plain").iterdir()) == ["coarse.tif", "coarse_color.tif"]
+
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        resampled = osmseg("predict", run / "best.pt", src, "--resolution", "model", "--out", tmp_path / "fine")
+    assert resampled.exit_code == 0, resampled.output
+    assert not [r for r in caplog.records if "trained on" in r.getMessage()]
+    with rasterio.open(tmp_path / "fine" / "coarse.tif") as mask, rasterio.open(src) as image:
+        assert (mask.width, mask.height) == (160, 128) and mask.transform == image.transform
+    bad = osmseg("predict", run / "best.pt", src, "--resolution", "fine", "--out", tmp_path / "bad")
+    assert bad.exit_code == 2 and "'model'" in bad.output
+
+
 # ---------------------------------------------------------------------------- learnability
 def test_training_learns_tinyseg(tmp_path: Path) -> None:
     """SegNet from random weights learns tinyseg's colour-coded classes in 12 short epochs.

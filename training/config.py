@@ -57,6 +57,7 @@ class TrainConfig:
     augment: bool = True
     test_fraction: float = 1 / 3
     val_fraction: float = 0.15
+    split_by: str = "groups"  # groups: overlapping samples share a split | image: each image alone
     seed: int = 0
     workers: int = 2
     device: str = "auto"  # auto | cpu | cuda | cuda:N
@@ -75,6 +76,7 @@ class TrainConfig:
             (self.class_weights in ("median-frequency", "none"), "class_weights must be median-frequency or none"),
             (0 < self.test_fraction < 1 and 0 <= self.val_fraction < 1, "test/val fractions must be in (0, 1)"),
             (self.patch_height >= 32 and self.patch_width >= 32, "patches must be at least 32x32"),
+            (self.split_by in ("groups", "image"), "split_by must be groups or image"),
         ]
         for ok, message in checks:
             if not ok:

@@ -14,6 +14,7 @@ on (seed, epoch, index), so a resumed CPU run ends with the same weights as one 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import io
 import logging
@@ -43,6 +44,7 @@ from training.data import (
     files_by_name,
     make_splits,
     read_splits,
+    sample_groups,
     validate,
     weights_from_histograms,
     write_splits,
@@ -175,7 +177,9 @@ def check_resumable(saved: dict[str, Any], config: TrainConfig) -> None:
     """Refuse to resume a run made with other settings (other than RESUMABLE_CHANGES)."""
     now = config.to_dict()
     then = saved.get("config", {})
-    changed = sorted(k for k in now if k not in RESUMABLE_CHANGES and then.get(k) != now[k])
+    # a setting added after the run began was, for that run, its default
+    defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig) if f.default is not dataclasses.MISSING}
+    changed = sorted(k for k in now if k not in RESUMABLE_CHANGES and then.get(k, defaults.get(k)) != now[k])
     if saved.get("dataset_sha256") != dataset_fingerprint(config.dataset):
         changed.append("the dataset's manifest.json")
     if changed:
@@ -188,12 +192,21 @@ def prepare_splits(config: TrainConfig, names: list[str], d: Dist) -> dict[str, 
     path = config.out_dir / "splits.json"
     if path.exists():
         return read_splits(path)
-    splits = make_splits(names, config.seed, config.test_fraction, config.val_fraction)
+    groups = sample_groups(config.dataset, names) if config.split_by == "groups" else None
+    splits = make_splits(names, config.seed, config.test_fraction, config.val_fraction, groups=groups)
     if not splits["train"] or not splits["val"]:
+        areas = len(set(groups.values())) if groups else len(names)
+        if groups and areas < len(names):
+            raise DatasetError(
+                f"{config.dataset}: its {len(names)} samples overlap on the ground in {areas} separate areas, too few "
+                "to keep a test and a validation area apart from the training ones; build with --no-overlap or a "
+                "larger area, or train with --split-by image (test images then share pixels with training ones)")
         raise DatasetError(f"{config.dataset}: {len(names)} images are too few to split into train, val and test; "
                            "build more samples or lower --val-fraction/--test-fraction")
+    if groups is None and d.is_main:
+        logger.warning("splitting by image (--split-by image): overlapping samples may share pixels across splits")
     if d.is_main:
-        write_splits(path, splits, config.seed)
+        write_splits(path, splits, config.seed, config.split_by, groups)
     return splits
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 from dataclasses import replace
 import sys
@@ -15,7 +16,8 @@ from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.filters import FilterConfig
 from osmseg.output import command_line
-from osmseg.cli.common import report_errors
+from osmseg.cli.common import command_line_of, report_errors
+from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT
 from osmseg.places import Area, find_preset, parse_bbox
 
 
@@ -53,11 +55,14 @@ class ProgressBar:
         self.bar = tqdm(total=total, unit="sample", disable=not enabled, file=sys.stderr, dynamic_ncols=True)
         self.accepted = 0
         self.rejected = 0
+        self.failed = 0
 
     def __call__(self, slot: int, outcome: dict[str, Any]) -> None:
         self.accepted += outcome["status"] == "accepted"
+        self.failed += outcome["status"] == "failed"
         self.rejected += len(outcome["rejected"])
-        self.bar.set_postfix(accepted=self.accepted, rejected=self.rejected, refresh=False)
+        counts = {"accepted": self.accepted, "rejected": self.rejected, **({"failed": self.failed} if self.failed else {})}
+        self.bar.set_postfix(counts, refresh=False)
         self.bar.update(1)
 
     def close(self) -> None:
@@ -69,13 +74,25 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
     bar = ProgressBar(len(config.my_slots()), enabled=progress)
     try:
         summary = build(config, env=env, progress=bar, command_line=command_line(config.command()))
+    except OSError as exc:
+        if exc.errno != errno.ENOSPC:
+            raise
+        where = exc.filename or f"{config.out_dir} or the cache {config.cache_dir}"
+        raise DatasetError(f"the disk is full (writing {where}): free disk space, or give --out/--cache-dir on a "
+                           "disk with room, then run the same command again (finished samples are kept)") from None
     finally:
         bar.close()
     if verbosity >= 0:
         for line in summary.lines():
             click.echo(line, err=True)
-        if not summary.finalized:
+        if not summary.finalized and not summary.failed:
             click.echo("manifest not written yet: it is written when every shard has finished", err=True)
+    if summary.failed:
+        slot, reason = summary.failed[0]
+        done = summary.accepted + summary.gave_up
+        raise DatasetError(f"{len(summary.failed)} of {done + len(summary.failed)} samples could not be fetched "
+                           f"(sample {slot}: {reason}); the other {done} are done: run the same command again "
+                           "to retry the rest")
     click.echo(str(config.out_dir / "manifest.json") if summary.finalized else str(config.out_dir))
     if summary.finalized and summary.accepted == 0:
         raise DatasetError("no sample was accepted (see the rejection reasons above and in manifest.json): "
@@ -93,7 +110,8 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed for every random choice (recorded).")
 @click.option("--zoom", type=click.IntRange(1, 23), default=DEFAULT_ZOOM, show_default=True,
               help="Tile zoom. 18 = ~0.6 m/px at the equator, ~0.37 m/px at 52°N (see docs).")
-@click.option("--imagery", help="bing (needs BING_MAPS_KEY) | xyz:TEMPLATE | geotiff:PATH [bing if BING_MAPS_KEY is set].")
+@click.option("--imagery", help="A provider name (Esri.WorldImagery, GeoportailFrance.orthos, USGS.USImagery, ...; "
+              "docs/imagery.md) | xyz:TEMPLATE | geotiff:PATH | bing (needs BING_MAPS_KEY) [bing].")
 @click.option("--osm", default="api", show_default=True, help="api | overpass | PATH.osm(.pbf) | geojson:PATH (see docs/osm.md).")
 @click.option("--classes", default="classes13.toml", show_default=True, help="Class table: classes13.toml or classes6.toml or a path.")
 @click.option("--image-format", type=click.Choice(["png", "jpg", "cog"]), default="png", show_default=True,
@@ -108,6 +126,8 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
 @click.option("--max-placeholder-tiles", type=click.IntRange(0, None), default=0, show_default=True,
               help="Reject samples with more provider 'no imagery' tiles than this.")
 @click.option("--max-tries", type=click.IntRange(min=1), default=10, show_default=True, help="Centres tried per sample before giving up on it.")
+@click.option("--no-overlap", is_flag=True,
+              help="Samples never share a pixel: each attempt takes its own block of the area's tile grid (seeded).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="Output folder (rerun to resume).")
 @click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="HTTP/OSM cache [~/.cache/osmseg].")
 @click.option("--timeout", "http_timeout", type=click.FloatRange(min=0.1), default=30.0, show_default=True,
@@ -123,26 +143,30 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
                   bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, osm: str, classes: str,
                   image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float, max_missing_imagery: float,
                   max_placeholder_tiles: int,
-                  max_tries: int, out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool, shard: str | None,
+                  max_tries: int, no_overlap: bool, out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool, shard: str | None,
                   make_zip: bool, record: Path | None, replay: Path | None) -> None:
     """Build a segmentation dataset: aerial images + OSM label masks + manifest.
 
     \b
     Examples:
-      osmseg build --city Berlin --samples 30 --out data/berlin
+      osmseg build --city Paris --imagery GeoportailFrance.orthos --samples 30 --out data/paris
+      osmseg build --city Berlin --imagery Esri.WorldImagery --samples 30 --out data/berlin
       osmseg build --lat 0.35 --lon 32.59 --zoom 21 --imagery 'xyz:file:///data/tiles/{z}/{x}/{y}.png' \\
                    --osm buildings.osm.pbf --out data/kampala
     """
-    from osmseg.imagery import default_imagery_spec
-
     area = resolve_area(city, lat, lon, bbox, radius_km)
+    if (imagery or "bing").strip().lower().split(":")[0] == "bing" and not os.environ.get(BING_KEY_ENV):
+        # Bing Maps Basic keys no longer exist: say so, and give a command that works as it is
+        raise ConfigError(f"{'--imagery bing needs' if imagery else 'no --imagery given, and the default, Bing Maps, needs'} "
+                          f"{BING_KEY_ENV} (Bing Maps Basic keys no longer exist); run instead: "
+                          f"{command_line_of(ctx, imagery=KEYLESS_DEFAULT)}  (keyless; other providers: docs/imagery.md)")
     filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes, min_contrast=min_contrast,
                            max_invalid_imagery=max_missing_imagery, max_placeholder_tiles=max_placeholder_tiles)
     config = BuildConfig(
-        out_dir=out_dir, area=area, imagery=imagery or default_imagery_spec(os.environ), osm=osm,
+        out_dir=out_dir, area=area, imagery=imagery or "bing", osm=osm,
         samples=samples, seed=seed, zoom=zoom, classes=classes, image_format=image_format, filters=filters,
         max_tries=max_tries, cache_dir=cache_dir or default_cache_dir(), offline=offline, http_timeout=http_timeout,
-        shard=Shard.parse(shard) if shard else None, zip=make_zip,
+        shard=Shard.parse(shard) if shard else None, zip=make_zip, no_overlap=no_overlap,
     )
     if record and replay:
         raise ConfigError("--record and --replay exclude each other")

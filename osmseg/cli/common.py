@@ -13,6 +13,7 @@ from tqdm import tqdm
 
 from osmseg.errors import ConfigError, OsmsegError
 from osmseg.net.redact import RedactingFilter
+from osmseg.output.manifest import command_line
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -99,6 +100,33 @@ def report_errors(func: F) -> F:
             sys.exit(130)
 
     return wrapper  # type: ignore[return-value]
+
+
+def command_line_of(ctx: click.Context, **overrides: Any) -> str:
+    """The command the user ran, rebuilt from the command's own option table (not from argv),
+    with ``overrides`` (parameter name -> value) applied: what an error prints as "run instead".
+
+    Options the user did not give are left out, so the line is the one they typed, corrected.
+    """
+    words = ["osmseg", *ctx.command_path.split()[1:]]
+    params = {**ctx.params, **overrides}
+    for param in ctx.command.params:
+        value = params.get(param.name)  # type: ignore[arg-type]
+        if isinstance(param, click.Argument):
+            words += [str(v) for v in (value if isinstance(value, (list, tuple)) else [value]) if v is not None]
+            continue
+        given = param.name in overrides or ctx.get_parameter_source(param.name) in (  # type: ignore[arg-type]
+            click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)
+        if not isinstance(param, click.Option) or not given or value is None or value == ():
+            continue
+        name = max(param.opts, key=len)
+        if param.is_flag:
+            if value:
+                words.append(name)
+            continue
+        for v in (value if param.multiple else [value]):
+            words += [name, *(str(x) for x in (v if isinstance(v, tuple) else [v]))]
+    return command_line(words)
 
 
 def require_torch() -> None:

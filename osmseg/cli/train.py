@@ -29,6 +29,8 @@ from osmseg.cli.common import report_errors, require_torch
 @click.option("--lr", type=float, help="Initial learning rate (default 0.1, poly decay).")
 @click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=None,
               help="Train 'unlabeled' as a class instead of ignoring it (default: ignored).")
+@click.option("--split-by", type=click.Choice(["groups", "image"]),
+              help="groups (default): samples that overlap on the ground stay in one split; image: each image alone.")
 @click.option("--seed", type=int)
 @click.option("--workers", type=int, help="DataLoader worker processes.")
 @click.option("--device", help="auto | cpu | cuda | cuda:N")

@@ -23,7 +23,7 @@ from typing import Any
 
 import mercantile
 
-from osmseg.errors import AuthError, ConfigError, HTTPStatusError, ImageryError
+from osmseg.errors import AuthError, ConfigError, CorruptResponse, HTTPStatusError, ImageryError
 from osmseg.grid import SampleGrid
 from osmseg.imagery.base import Imagery
 from osmseg.imagery.mosaic import (
@@ -161,8 +161,8 @@ class BingProvider:
         }
         # Error answers are not declared ok_statuses on purpose: the HTTP cache would keep a
         # 401 and (its key ignoring ``key``) replay it after the user fixed BING_MAPS_KEY.
-        try:
-            response = self._client.get(url, params=params)
+        try:  # an answer that is not JSON (a proxy's error page) is fetched again like a 5xx
+            response, body = self._client.fetch(url, _json_object, params=params)
         except AuthError as exc:
             raise AuthError(AUTH_MESSAGE, exc.status) from None
         except HTTPStatusError as exc:
@@ -172,10 +172,6 @@ class BingProvider:
                 f"Bing Maps does not know imagery set {self.imagery_set!r} (HTTP {exc.status}):"
                 " use --imagery bing or bing:Aerial"
             ) from None
-        try:
-            body = response.json()
-        except ValueError:
-            body = None
         if not isinstance(body, dict):
             raise ImageryError("Bing Maps metadata is not JSON: try again later")
         if str(body.get("authenticationResultCode", "")) in REFUSED_CODES:
@@ -221,14 +217,21 @@ class BingProvider:
     def fetch_tile(self, tile: mercantile.Tile) -> TilePixels:
         """Pixels of one tile; :data:`NO_IMAGERY` for Bing's "no imagery" placeholder."""
         url = self.tile_url(tile)
-        response = self._client.get(url, ok_statuses=(404,))
-        if is_no_tile(response.headers) or response.status_code == 404 or not response.content:
+        what = f"Bing tile {tile_name(tile)} ({redact(url)})"
+
+        def parse(response: Any) -> TilePixels:
+            if is_no_tile(response.headers) or not response.content:
+                return NO_IMAGERY
+            return decode_tile(response.content, what)
+
+        # a 200 whose bytes are not an image is fetched again like a 5xx before it fails the sample
+        response, pixels = self._client.fetch(url, parse, ok_statuses=(404,), corrupt=(ImageryError,))
+        if pixels is None or pixels is NO_IMAGERY:
             logger.debug(
                 "Bing has no imagery for tile %s (HTTP %s)", tile_name(tile), response.status_code
             )
             return NO_IMAGERY
-        with self._client.usable(response):
-            return decode_tile(response.content, f"Bing tile {tile_name(tile)} ({redact(url)})")
+        return pixels
 
     def fetch(self, grid: SampleGrid) -> Imagery:
         """The sample's tiles merged into one image on ``grid``."""
@@ -268,3 +271,14 @@ class BingProvider:
             "copyright": meta["copyright"],
             "attribution": self.attribution,
         }
+
+
+def _json_object(response: Any) -> dict[str, Any]:
+    """The JSON object of an answer; CorruptResponse when the body is not one."""
+    try:
+        body = response.json()
+    except ValueError:
+        body = None
+    if not isinstance(body, dict):
+        raise CorruptResponse("Bing Maps metadata is not a JSON object")
+    return body

@@ -264,16 +264,19 @@ class XYZProvider:
             assert self._client is not None
             url = fill_template(self.template, tile, self._secrets)
             try:
-                response = self._client.get(url, ok_statuses=(204, 404))
+                # a 200 whose bytes are not an image (an HTML error page, a PNG cut short by a
+                # proxy) is fetched again like a 5xx before it fails the sample
+                response, pixels = self._client.fetch(
+                    url, lambda r: decode_tile(r.content, what) if r.content else NO_IMAGERY,
+                    ok_statuses=(204, 404), corrupt=(ImageryError,))
             except HTTPStatusError as exc:
                 raise type(exc)(self._scrub(str(exc)), exc.status) from None
             except NetworkError as exc:
                 raise type(exc)(self._scrub(str(exc))) from None
-            if response.status_code in (204, 404) or not response.content:
+            if pixels is None or not response.content:
                 logger.debug("server has no %s (HTTP %s)", what, response.status_code)
                 return NO_IMAGERY
-            with self._client.usable(response):
-                return decode_tile(response.content, what)
+            return pixels
         return decode_tile(data, what)
 
     def fetch(self, grid: SampleGrid) -> Imagery:

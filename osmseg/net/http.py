@@ -9,8 +9,9 @@ Every remote call (Bing, XYZ tiles, the OSM API, Overpass) goes through :class:`
   ``Cache-Control`` is ignored.  A non-2xx answer is cached only if the caller listed it in
   ``ok_statuses``: the caller declared it valid (a tile server's 404 for "no tile here"), and
   an ``--offline`` rebuild must see the same answer.
-* **Retries** with exponential backoff on 429/500/502/503/504, connection errors, timeouts and
-  truncated bodies, honouring ``Retry-After`` (seconds or HTTP date) up to ``max_retry_after``;
+* **Retries** with exponential backoff on 429/500/502/503/504, connection errors, timeouts,
+  truncated bodies and (:meth:`HttpClient.fetch`) 200 answers whose body the caller cannot
+  use, honouring ``Retry-After`` (seconds or HTTP date) up to ``max_retry_after``;
   a ``Retry-After`` pauses the whole host.  Hand-written, not ``urllib3.util.Retry``: urllib3
   cannot see failures after it hands the response to requests (a body cut short, a read
   timeout mid-body), and it does not cap ``Retry-After``.
@@ -30,31 +31,44 @@ under a millisecond; network time is not serialised).
 
 from __future__ import annotations
 
+import errno
 import logging
 import re
+import sqlite3
 import threading
 import time
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Callable, Collection, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 from urllib.parse import urlsplit
 
 import requests
 from requests.adapters import HTTPAdapter
 from requests_cache import NEVER_EXPIRE, CachedSession
-from requests_cache.backends.sqlite import SQLiteCache
+from requests_cache.backends.sqlite import SQLiteCache, SQLiteDict
 from requests_cache.cache_keys import redact_response
 from requests_cache.models.response import CachedResponse
 from urllib3.exceptions import InvalidHeader
 from urllib3.util import Retry
 
 from osmseg import __version__
-from osmseg.errors import AuthError, ConfigError, HTTPStatusError, NetworkError, OfflineCacheMiss
+from osmseg.errors import (
+    AuthError,
+    CacheError,
+    ConfigError,
+    CorruptResponse,
+    HTTPStatusError,
+    NetworkError,
+    OfflineCacheMiss,
+    RetriesExhausted,
+    ServiceUnavailable,
+)
 from osmseg.net.redact import SECRET_HEADERS, SECRET_PARAMS, install_log_redaction, redact
 
 logger = logging.getLogger(__name__)
+T = TypeVar("T")
 
 #: Statuses worth retrying: rate limits and server-side trouble.
 RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
@@ -146,19 +160,61 @@ class _HostGate:
             time.sleep(delay)
 
 
+class _StrictSQLiteDict(SQLiteDict):
+    """requests-cache's SQLite table, with write errors raised instead of swallowed.
+
+    requests-cache 1.x rolls a failed write back and carries on as if it had worked: with the
+    disk full, a response is silently not cached and a later delete dies with an
+    ``UnboundLocalError``. Here the transaction is rolled back and the error raised, for
+    :class:`_LockedSQLiteCache` to turn into one line.
+    """
+
+    @contextmanager
+    def _acquire_sqlite_lock(self) -> Iterator[None]:
+        with self._lock:
+            self._connection.execute("BEGIN IMMEDIATE")  # waits up to busy_timeout for other writers
+            self._active_transaction = True
+            try:
+                yield
+                self._connection.commit()
+            except BaseException:
+                self._connection.rollback()
+                raise
+            finally:
+                self._active_transaction = False
+
+
 class _LockedSQLiteCache(SQLiteCache):
     """requests-cache's SQLite backend with every database access behind one lock.
 
-    It also redacts secrets from redirect history, which requests-cache stores unredacted.
+    It also redacts secrets from redirect history, which requests-cache stores unredacted, and
+    reports a database it cannot read or write (a full disk) as one :class:`CacheError` line.
     """
 
     def __init__(self, db_path: Path, **kwargs: Any) -> None:
-        super().__init__(db_path, **kwargs)
+        try:
+            super().__init__(db_path, **kwargs)
+            for table in (self.responses, self.redirects):
+                table.__class__ = _StrictSQLiteDict  # same state, writes that report their errors
+        except (sqlite3.Error, OSError) as exc:
+            raise _cache_error(db_path, exc) from None
         self._db_lock = threading.RLock()
+        self._path = Path(db_path)
 
     def get_response(self, key: str, default: Any = None) -> CachedResponse | None:
-        with self._db_lock:
+        with self._db_lock, self._reporting():
             return super().get_response(key, default)
+
+    def delete(self, *keys: str, **kwargs: Any) -> None:
+        with self._db_lock, self._reporting():
+            super().delete(*keys, **kwargs)
+
+    @contextmanager
+    def _reporting(self) -> Iterator[None]:
+        try:
+            yield
+        except (sqlite3.Error, OSError) as exc:
+            raise _cache_error(self._path, exc) from None
 
     def save_response(
         self, response: requests.Response, cache_key: str | None = None, expires: Any = None
@@ -170,7 +226,7 @@ class _LockedSQLiteCache(SQLiteCache):
             if "Location" in hop.headers:
                 hop.headers["Location"] = redact(hop.headers["Location"])
             hop._next = None  # the next request's URL: may hold a key, never needed again
-        with self._db_lock:
+        with self._db_lock, self._reporting():
             key = cache_key or self.create_key(response.request)
             self.responses[key] = cached
             for hop_response in response.history:
@@ -179,6 +235,21 @@ class _LockedSQLiteCache(SQLiteCache):
     def close(self) -> None:
         with self._db_lock:
             super().close()  # type: ignore[no-untyped-call]
+
+
+def _cache_error(path: Path | str, exc: BaseException) -> CacheError:
+    """One line for a cache database that fails (``database or disk is full``, read-only, corrupt)."""
+    reason = _first_line(exc)
+    full = "full" in reason.lower() or getattr(exc, "errno", None) == errno.ENOSPC
+    advice = ("free disk space, or give --cache-dir on a disk with room" if full else
+              "check the folder's permissions and free space, or give another --cache-dir")
+    return CacheError(f"the HTTP cache {path} cannot be used ({reason}): {advice}, then run the same command again "
+                      "(finished samples are kept)")
+
+
+def _first_line(exc: BaseException, limit: int = 300) -> str:
+    text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 def _retry_after(response: requests.Response) -> float | None:
@@ -258,12 +329,14 @@ class HttpClient:
         """Fetch ``url``; a fully read response for 2xx and ``ok_statuses``, else an error.
 
         Raises:
-            HTTPStatusError: another status after retries (``AuthError`` for 401/403).
-            NetworkError: no usable answer after ``retries`` more attempts.
+            ServiceUnavailable: still 429/5xx after ``retries`` more attempts.
+            RetriesExhausted: no answer (timeouts, dropped connections) after the retries.
+            HTTPStatusError: another error status (``AuthError`` for 401/403).
             OfflineCacheMiss: offline and not cached.
             ConfigError: the URL is malformed.
         """
-        return self._request("GET", url, params=params, headers=headers, ok_statuses=ok_statuses)
+        response, _ = self._request("GET", url, params=params, headers=headers, ok_statuses=ok_statuses)
+        return response
 
     def post(
         self,
@@ -278,7 +351,32 @@ class HttpClient:
         POSTs are cached too, keyed by their body: an Overpass query for a box is as stable
         as a tile.
         """
-        return self._request("POST", url, data=data, headers=headers, ok_statuses=ok_statuses)
+        response, _ = self._request("POST", url, data=data, headers=headers, ok_statuses=ok_statuses)
+        return response
+
+    def fetch(
+        self,
+        url: str,
+        parse: Callable[[requests.Response], T],
+        *,
+        method: str = "GET",
+        params: Mapping[str, Any] | None = None,
+        data: Mapping[str, Any] | str | bytes | None = None,
+        headers: Mapping[str, str] | None = None,
+        ok_statuses: Collection[int] = (),
+        corrupt: tuple[type[Exception], ...] = (CorruptResponse,),
+    ) -> tuple[requests.Response, T | None]:
+        """Fetch ``url`` and ``parse`` its 2xx answer; an unusable body is fetched again.
+
+        Real servers and proxies sometimes answer 200 with a broken body: a PNG cut short by a
+        cache, an HTML error page instead of a tile, OSM XML that stops mid-element. When
+        ``parse`` raises one of ``corrupt``, the answer is forgotten (never replayed from the
+        cache) and the request is retried with the same backoff and bound as a 5xx; after the
+        last retry :class:`~osmseg.errors.RetriesExhausted` says what was wrong. Returns the
+        response and the parsed value (None for a non-2xx status listed in ``ok_statuses``).
+        """
+        return self._request(method, url, params=params, data=data, headers=headers, ok_statuses=ok_statuses,
+                             parse=parse, corrupt=corrupt)
 
     def forget(self, response: requests.Response) -> None:
         """Drop ``response`` from the cache: a 200 the caller could not use must not be replayed.
@@ -372,7 +470,9 @@ class HttpClient:
         data: Mapping[str, Any] | str | bytes | None = None,
         headers: Mapping[str, str] | None = None,
         ok_statuses: Collection[int] = (),
-    ) -> requests.Response:
+        parse: Callable[[requests.Response], Any] | None = None,
+        corrupt: tuple[type[Exception], ...] = (),
+    ) -> tuple[requests.Response, Any]:
         cfg = self.config
         full_url = self._full_url(url, params)
         shown = redact(full_url)
@@ -391,7 +491,16 @@ class HttpClient:
             if isinstance(outcome, str):
                 problem, last_status = outcome, None
             elif self._accept(method, shown, outcome, ok_statuses):
-                return outcome
+                if parse is None or not 200 <= outcome.status_code < 300:
+                    return outcome, None
+                try:
+                    return outcome, parse(outcome)
+                except corrupt as exc:  # a 200 with a body nobody can use: like a 5xx, not the end
+                    self.forget(outcome)
+                    problem, last_status = f"unusable answer: {_first_line(exc)}", None
+                except Exception:  # the caller refuses the answer for good: never replay it from the cache
+                    self.forget(outcome)
+                    raise
             else:  # a status worth retrying
                 problem, last_status = f"HTTP {outcome.status_code}", outcome.status_code
                 asked = _retry_after(outcome)
@@ -405,12 +514,14 @@ class HttpClient:
                 )
                 time.sleep(wait)
         if last_status is not None:
-            raise HTTPStatusError(
+            raise ServiceUnavailable(
                 f"{method} {shown} failed with HTTP {last_status} after {attempts} attempts: "
                 f"{_status_hint(last_status)}",
                 last_status,
             )
-        raise NetworkError(
+        if problem.startswith("unusable answer"):
+            raise RetriesExhausted(f"{method} {shown}: {attempts} unusable answers in a row, the last: {problem[17:]}")
+        raise RetriesExhausted(
             f"{method} {shown} failed after {attempts} attempts ({problem}): check the network "
             "connection, or run the same command again later (finished work is kept)"
         )

@@ -34,6 +34,7 @@ from __future__ import annotations
 import logging
 from email.utils import parsedate_to_datetime
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import requests
@@ -187,9 +188,12 @@ class OsmApiSource:
 
     # -- internals ------------------------------------------------------------------------------
 
-    def _get(self, url: str, params: dict[str, str] | None = None) -> requests.Response:
+    def _get(self, url: str, params: dict[str, str] | None = None,
+             store: Callable[[requests.Response], OsmScan] | None = None) -> tuple[requests.Response, OsmScan | None]:
+        """GET an API call; ``store`` keeps a 200's OSM XML, and XML it cannot read is fetched again."""
         try:
-            return self.client.get(url, params=params, ok_statuses=(400, 404, 410))
+            return self.client.fetch(url, store or (lambda r: None), params=params, ok_statuses=(400, 404, 410),
+                                     corrupt=(OSMDataError,))
         except HTTPStatusError as exc:
             if exc.status == 509:
                 raise NetworkError(f"the OSM API says this client downloaded too much (HTTP 509, bandwidth "
@@ -202,7 +206,9 @@ class OsmApiSource:
         """Fetch one box into ``parts``, quartering it while the API says it is too big."""
         path = folder / f"map_{bbox_label(box)}.osm"
         url = f"{self.base_url}/map"
-        response = self._get(url, {"bbox": bbox_param(box)})
+        origin = f"the OSM API answer to map?bbox={bbox_param(box)}"
+        response, scan = self._get(url, {"bbox": bbox_param(box)},
+                                   lambda r: store_osm_xml(r.content, path, origin, _ADVICE))
         if response.status_code != 200:
             text = response.text.strip()
             if response.status_code == 400 and is_limit_answer(text):
@@ -216,14 +222,15 @@ class OsmApiSource:
                 return
             raise OSMDataError(f"the OSM API refused map?bbox={bbox_param(box)} with HTTP {response.status_code} "
                                f"({_one_line(text)}): check the box, or use --osm overpass or a local .osm.pbf")
-        with self.client.usable(response):
-            scan = store_osm_xml(response.content, path, f"the OSM API answer to map?bbox={bbox_param(box)}", _ADVICE)
+        assert scan is not None  # a 200: stored by _get
         parts.append((path, scan, _date(response)))
 
     def _fetch_relation(self, rid: int, folder: Path) -> tuple[Path, OsmScan, str | None] | None:
         """The full relation ``rid`` (members and their nodes), None if it is gone (404/410)."""
         path = folder / f"relation_{rid}.osm"
-        response = self._get(f"{self.base_url}/relation/{rid}/full")
+        origin = f"the OSM API answer to relation/{rid}/full"
+        response, scan = self._get(f"{self.base_url}/relation/{rid}/full",
+                                   store=lambda r: store_osm_xml(r.content, path, origin, _ADVICE))
         if response.status_code in (404, 410):
             logger.warning("OSM API: multipolygon relation %d is gone (HTTP %d); drawing it from what the map "
                            "call returned", rid, response.status_code)
@@ -231,8 +238,7 @@ class OsmApiSource:
         if response.status_code != 200:
             raise OSMDataError(f"the OSM API refused relation/{rid}/full with HTTP {response.status_code} "
                                f"({_one_line(response.text)}): {_ADVICE}")
-        with self.client.usable(response):
-            scan = store_osm_xml(response.content, path, f"the OSM API answer to relation/{rid}/full", _ADVICE)
+        assert scan is not None
         return path, scan, _date(response)
 
 

@@ -14,9 +14,20 @@ extract's edge) a line is split and an area is drawn through the nodes that rema
 polygons (self-intersections) go through ``shapely.make_valid``; a multipolygon osmium cannot
 assemble (missing or unclosed members) is rebuilt from its closed rings (even-odd) or
 skipped.  Warnings are only given for objects that reach the sample box, and are also kept in
-:attr:`FeatureSet.problems`.  An unreadable file (truncated, HTML instead of XML, not OSM)
-raises :class:`~osmseg.errors.OSMDataError`.  Several files (a split download) are merged
-with osmium first, keeping one copy (the newest version) of each object.
+:attr:`FeatureSet.problems`; they are logged once reading is done.  Classified objects that
+cannot be placed at all, anywhere (no node of theirs has a location in the file: an extract
+without its nodes) are summed up in one more warning and counted in
+:attr:`FeatureSet.unplaced`, so that an empty result is never silent.  An unreadable file
+(truncated, HTML instead of XML, not OSM) raises :class:`~osmseg.errors.OSMDataError`.
+Several files (a split download) are merged with osmium first, keeping one copy (the newest
+version) of each object.
+
+Negative ids (what JOSM writes for objects not yet uploaded, e.g. labels a user drew): osmium's
+node location cache ignores them.  A file is read as usual and only when that pass meets a
+negative node ref it cannot locate, or a multipolygon with a negative id or member ref, it is
+read again from a renumbered temporary copy (:mod:`osmseg.osm.renumber`); files without
+negative ids cost nothing extra.  Problems and :attr:`Feature.osm_id` name objects by their
+original ids ("way -201", "w-201"), as JOSM shows them.
 
 Geometry decisions (also documented in ``data_manifests/classes13.toml``): a closed way that
 matches a "line" rule is a line unless tagged ``area=yes``; ``area=no`` forces a line; the
@@ -29,6 +40,7 @@ import contextlib
 import logging
 import math
 import tempfile
+from collections import Counter
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from functools import reduce
@@ -45,6 +57,7 @@ from osmseg.classes import ClassDef, ClassTable
 from osmseg.errors import OSMDataError
 from osmseg.grid import SampleGrid, XYBounds
 from osmseg.osm.coastline import sea_polygon
+from osmseg.osm.renumber import original_id, write_renumbered
 
 logger = logging.getLogger(__name__)
 
@@ -63,7 +76,8 @@ class Feature:
         class_id: id in the class table it was read with.
         order: draw order of its class (higher is drawn on top).
         geometry: Polygon or MultiPolygon in EPSG:3857, clipped to the sample box (+ margin).
-        osm_id: "n<id>", "w<id>" or "r<id>"; "coastline" for sea built from coastline ways.
+        osm_id: "n<id>", "w<id>" or "r<id>" with the id in the file (negative for objects JOSM
+            has not uploaded); "coastline" for sea built from coastline ways.
         kind: how it was drawn: "area", "line" (buffered way), "point" (buffered node), "sea".
     """
 
@@ -81,12 +95,16 @@ class FeatureSet:
     Attributes:
         features: in file order (the rasteriser sorts by draw order).
         bounds: the EPSG:3857 box the features were clipped to (sample box + margin).
-        problems: the warnings logged for broken OSM objects in or near the box.
+        problems: the warnings logged for broken OSM objects in or near the box, and one
+            summing up the unplaced objects if there are any.
+        unplaced: how many classified objects (anywhere in the file) were not drawn because
+            no node of theirs has a location in the file.
     """
 
     features: tuple[Feature, ...]
     bounds: XYBounds
     problems: tuple[str, ...] = ()
+    unplaced: int = 0
 
     def __iter__(self) -> Iterator[Feature]:
         return iter(self.features)
@@ -110,7 +128,13 @@ def read_features(paths: Sequence[Path | str], grid: SampleGrid, table: ClassTab
     collector = _Collector(table, grid)
     with _one_file(files) as (source, name):
         collector.stream(source, name)
-        collector.repair_relations(source, name)
+        if not collector.negative:
+            collector.repair_relations(source, name)
+        if collector.negative:  # JOSM's negative ids: read everything again, renumbered
+            with _renumbered(source, name) as copy:
+                collector = _Collector(table, grid, renumbered=True)
+                collector.stream(copy, name)
+                collector.repair_relations(copy, name)
     return collector.finish()
 
 
@@ -163,6 +187,20 @@ def _one_file(files: list[Path]) -> Iterator[tuple[osmium.io.File, str]]:
         yield osmium.io.File(str(merged)), " + ".join(str(f) for f in files)
 
 
+@contextlib.contextmanager
+def _renumbered(source: osmium.io.File, name: str) -> Iterator[osmium.io.File]:
+    """A temporary copy of ``source`` with its negative ids made positive (streamed)."""
+    with tempfile.TemporaryDirectory(prefix="osmseg-renumber-") as tmp:
+        copy = Path(tmp) / "renumbered.osm.pbf"
+        try:
+            changed = write_renumbered(source, copy, name)
+        except RuntimeError as exc:
+            raise OSMDataError(_read_error(name, exc)) from None
+        logger.info("%s has negative ids (objects not uploaded from JOSM): read it renumbered (%d objects)",
+                    name, changed)
+        yield osmium.io.File(str(copy))
+
+
 def _suffix_format(path: Path) -> str:
     """osmium format string from a file name ("osm", "pbf", "osm.gz", ...)."""
     suffixes = [s.lstrip(".").lower() for s in path.suffixes[-2:]]
@@ -204,9 +242,12 @@ def _runs(nodes: Any) -> tuple[list[list[tuple[float, float]]], int]:
 class _Collector:
     """Gathers classified geometries (lon/lat) while streaming, then projects and clips them."""
 
-    def __init__(self, table: ClassTable, grid: SampleGrid) -> None:
+    def __init__(self, table: ClassTable, grid: SampleGrid, renumbered: bool = False) -> None:
         self.table = table
         self.grid = grid
+        self.renumbered = renumbered  # reading a renumbered copy: name objects by original_id()
+        self.negative = False  # met a negative id osmium cannot locate or assemble: read renumbered
+        self.unplaced: Counter[tuple[str, str]] = Counter()  # (class name, "way"/"relation")
         self.sea_class = table.coastline_class
         self.wkb = osmium.geom.WKBFactory()
         # (kind, class, osm id, lon/lat geometry, width in ground metres or nan, note or None)
@@ -264,12 +305,15 @@ class _Collector:
         cls = self.classify(tags, "point")
         if cls is None or not n.location.valid():
             return
-        self.add("point", cls, f"n{n.id}", shapely.Point(n.location.lon, n.location.lat), cls.width_for(tags, "point"))
+        point = shapely.Point(n.location.lon, n.location.lat)
+        self.add("point", cls, f"n{self.oid(n.id)}", point, cls.width_for(tags, "point"))
 
     def way(self, w: Any) -> None:
         tags = _tags(w)
         if self.sea_class is not None and tags.get("natural") == "coastline":
             runs, _ = self.runs_of(w)
+            if not runs:
+                self.unplaced["coastline", "way"] += 1
             self.coast.extend(shapely.LineString(r) for r in runs if len(r) >= 2)
             return
         line_cls = self.classify(tags, "line")
@@ -279,8 +323,11 @@ class _Collector:
         if cls is None:
             return
         runs, missing = self.runs_of(w)
+        if not runs:
+            self.unplaced[cls.name, "way"] += 1
         located = np.concatenate(runs) if runs else np.empty((0, 2))
-        name = f"way {w.id} ({cls.name})"
+        wid = self.oid(w.id)
+        name = f"way {wid} ({cls.name})"
         notes = [f"{missing} of its {len(w.nodes)} nodes are missing from the file: drew it without them"] if missing else []
         if not as_area:
             lines = [r for r in runs if len(r) >= 2]
@@ -288,7 +335,7 @@ class _Collector:
                 self.warn_near(f"{name}: fewer than 2 of its nodes have a location in the file: skipped", located)
                 return
             geom = shapely.LineString(lines[0]) if len(lines) == 1 else shapely.MultiLineString(lines)
-            self.add("line", cls, f"w{w.id}", geom, cls.width_for(tags, "line"), name, notes)
+            self.add("line", cls, f"w{wid}", geom, cls.width_for(tags, "line"), name, notes)
             return
         ring = [tuple(c) for c in located]
         if ring and ring[0] != ring[-1]:
@@ -298,7 +345,7 @@ class _Collector:
         if len(set(ring)) < 3:
             self.warn_near(f"{name}: fewer than 3 of its nodes have a location in the file: skipped", located)
             return
-        self.add("area", cls, f"w{w.id}", shapely.Polygon(ring), None, name, notes)
+        self.add("area", cls, f"w{wid}", shapely.Polygon(ring), None, name, notes)
 
     def add(self, kind: str, cls: ClassDef, osm_id: str, geom: BaseGeometry, width: float | None,
             name: str = "", notes: Sequence[str] = ()) -> None:
@@ -311,7 +358,18 @@ class _Collector:
         try:
             return [shapely.get_coordinates(shapely.from_wkb(self.wkb.create_linestring(w)))], 0
         except (osmium.InvalidLocationError, RuntimeError):
-            return _runs(w.nodes)
+            runs, missing = _runs(w.nodes)
+            self.note_negative(w, missing)
+            return runs, missing
+
+    def note_negative(self, w: Any, missing: int) -> None:
+        """Remember a way with a node missing because its id is negative (osmium never locates those)."""
+        if missing and not self.negative:
+            self.negative = any(n.ref < 0 for n in w.nodes)
+
+    def oid(self, osm_id: int) -> int:
+        """The id the user's file gives the object (differs when reading a renumbered copy)."""
+        return original_id(osm_id) if self.renumbered else osm_id
 
     def relation(self, r: Any) -> None:
         tags = _tags(r)
@@ -319,7 +377,10 @@ class _Collector:
             return
         cls = self.classify(tags, "area")
         if cls is not None:
-            self.relations[r.id] = (cls, tuple(m.ref for m in r.members if m.type == "w"))
+            refs = tuple(m.ref for m in r.members if m.type == "w")
+            self.relations[r.id] = (cls, refs)
+            if r.id < 0 or any(ref < 0 for ref in refs):
+                self.negative = True
 
     def area(self, a: Any) -> None:
         cls = self.classify(_tags(a), "area")
@@ -330,7 +391,7 @@ class _Collector:
         except (osmium.InvalidLocationError, RuntimeError):
             return  # osmium could not assemble it (an empty area): repaired in repair_relations
         self.assembled.add(a.orig_id())
-        self.add("area", cls, f"r{a.orig_id()}", geom, None)
+        self.add("area", cls, f"r{self.oid(a.orig_id())}", geom, None)
 
     # -- repair ----------------------------------------------------------------------------
     def repair_relations(self, source: osmium.io.File, name: str) -> None:
@@ -340,12 +401,16 @@ class _Collector:
             return
         wanted = {ref for _, refs in broken.values() for ref in refs}
         lines: dict[int, BaseGeometry] = {}
+        located: set[int] = set()  # member ways with a node that has a location
         fp = (osmium.FileProcessor(source, osmium.osm.NODE | osmium.osm.WAY).with_locations()
               .with_filter(osmium.filter.EntityFilter(osmium.osm.WAY))
               .with_filter(osmium.filter.IdFilter(wanted).enable_for(osmium.osm.WAY)))
         try:
             for w in fp:
-                runs, _ = _runs(w.nodes)
+                runs, missing = _runs(w.nodes)
+                self.note_negative(w, missing)
+                if runs:
+                    located.add(w.id)
                 coords = [c for run in runs for c in run]
                 if len(coords) >= 2:
                     lines[w.id] = shapely.LineString(coords)
@@ -354,14 +419,17 @@ class _Collector:
         for rid, (cls, refs) in sorted(broken.items()):
             present = [lines[ref] for ref in refs if ref in lines]
             missing = len(refs) - len(present)
-            name = f"relation {rid} ({cls.name})"
+            name = f"relation {self.oid(rid)} ({cls.name})"
             why = f"{missing} of its {len(refs)} member ways are missing from the file" if missing else "its rings do not close"
             geom = _even_odd(present)
+            if located.isdisjoint(refs):
+                self.unplaced[cls.name, "relation"] += 1
             if geom is None:
                 self.warn_near(f"{name}: osmium could not assemble it ({why}) and no member ring closes: skipped",
                                [c for line in present for c in line.coords])
             else:
-                self.add("area", cls, f"r{rid}", geom, None, name, [f"osmium could not assemble it ({why}): drew its closed rings"])
+                self.add("area", cls, f"r{self.oid(rid)}", geom, None, name,
+                         [f"osmium could not assemble it ({why}): drew its closed rings"])
 
     def warn_near(self, message: str, coords: Any) -> None:
         """Warn about a skipped object if one of its known (lon, lat) points is in the box (else debug)."""
@@ -373,7 +441,7 @@ class _Collector:
             logger.debug(message)
 
     def warn(self, message: str) -> None:
-        logger.warning(message)
+        """Keep a problem; :meth:`finish` logs them (a pass that is read again logs nothing)."""
         self.problems.append(message)
 
     # -- projection, buffering, clipping -----------------------------------------------------
@@ -390,7 +458,12 @@ class _Collector:
             sea = sea_polygon(list(_to_mercator(np.array(self.coast, dtype=object))), clip, warn=self.warn)
             if sea is not None:
                 features.append(Feature(self.sea_class.id, self.sea_class.order, sea, "coastline", "sea"))
-        return FeatureSet(features=tuple(features), bounds=clip, problems=tuple(self.problems))
+        if self.unplaced:
+            self.warn(_unplaced_message(self.unplaced))
+        for message in self.problems:
+            logger.warning(message)
+        return FeatureSet(features=tuple(features), bounds=clip, problems=tuple(self.problems),
+                          unplaced=sum(self.unplaced.values()))
 
     def _project(self, clip: XYBounds) -> list[Feature]:
         kinds, classes, ids, geoms, widths, notes = zip(*self.items)
@@ -424,6 +497,22 @@ class _Collector:
 
 
 _KINDS = {"n": "node", "w": "way", "r": "relation"}
+
+
+def _unplaced_message(counts: Counter[tuple[str, str]]) -> str:
+    """One line on the objects no node of which has a location, most numerous first.
+
+    >>> _unplaced_message(Counter({("highway", "way"): 3, ("building", "way"): 12, ("water", "relation"): 1}))[:75]
+    '12 building ways, 3 highway ways and 1 water relation have no node with a l'
+    >>> _unplaced_message(Counter({("building", "way"): 1}))[:50]
+    '1 building way has no node with a location in the '
+    """
+    parts = [f"{n} {label} {kind}{'' if n == 1 else 's'}"
+             for (label, kind), n in sorted(counts.items(), key=lambda item: (-item[1], item[0]))]
+    text = parts[0] if len(parts) == 1 else f"{', '.join(parts[:-1])} and {parts[-1]}"
+    verb = "has" if sum(counts.values()) == 1 else "have"
+    return (f"{text} {verb} no node with a location in the file "
+            "(an extract without its nodes, e.g. an Overpass answer without '>;'?): not drawn")
 
 
 def _describe(osm_id: str) -> str:

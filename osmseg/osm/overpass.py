@@ -41,12 +41,12 @@ from pathlib import Path
 from typing import Any
 
 from osmseg.classes import ClassTable, load_class_table
-from osmseg.errors import OSMDataError, OSMLimitError
+from osmseg.errors import CorruptResponse, OSMDataError, OSMLimitError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
 from osmseg.net.redact import redact
 from osmseg.osm.base import OsmExtract
-from osmseg.osm.localfile import OSM_ATTRIBUTION, cache_name, check_bbox, read_done, store_osm_xml, write_done
+from osmseg.osm.localfile import OSM_ATTRIBUTION, OsmScan, cache_name, check_bbox, read_done, store_osm_xml, write_done
 
 logger = logging.getLogger(__name__)
 
@@ -258,19 +258,27 @@ class OverpassSource:
         if done is not None:
             return done
         where = f"Overpass ({redact(self.url)}) for box {','.join(f'{v:.7f}' for v in bbox)}"
-        response = self.client.post(self.url, data={"data": query})
-        with self.client.usable(response):  # a time-out remark or bad XML must not stay cached
+        path = self.workdir / f"{stem}.osm"
+
+        def store(response: Any) -> OsmScan:
             body = response.content
             error = remark_error(body)
             if error is not None:
                 if re.search(r"timed out|out of memory|run out of memory", error, re.IGNORECASE):
                     raise OSMLimitError(f"{where} gave up: {error}; use smaller boxes, a longer Overpass timeout, "
                                         "or a local .osm.pbf (--osm PATH)")
-                raise OSMDataError(f"{where} failed: {error}; run the same command again later or use --osm api")
-            self.workdir.mkdir(parents=True, exist_ok=True)
-            path = self.workdir / f"{stem}.osm"
-            scan = store_osm_xml(body, path, f"the answer of {where}",
-                                 "run the same command again later, or use --osm api or a local .osm.pbf")
+                raise CorruptResponse(f"{where} failed: {error}; run the same command again later or use --osm api")
+            try:
+                return store_osm_xml(body, path, f"the answer of {where}",
+                                     "run the same command again later, or use --osm api or a local .osm.pbf")
+            except OSMDataError as exc:
+                raise CorruptResponse(str(exc)) from None
+
+        # bad XML or a runtime-error remark is fetched again like a 5xx (and never kept in the cache);
+        # a time-out or out-of-memory remark is the box's size, which retrying does not change
+        response, scan = self.client.fetch(self.url, store, method="POST", data={"data": query})
+        assert scan is not None
+        body = response.content
         info: dict[str, Any] = {
             "source": "overpass",
             "url": redact(self.url),

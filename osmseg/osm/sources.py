@@ -80,6 +80,12 @@ def make_osm_source(spec: str, client: HttpClient, workdir: Path, table: ClassTa
     if kind == "overpass":
         return OverpassSource(client, workdir, table=table, url=target)
     if kind == "geojson":
+        if all(table.classify(tags, kind) is None for kind in ("area", "line", "point")):
+            # every feature would be read and none drawn: an all-unlabeled mask, said up front
+            given = ",".join(f"{k}={v}" for k, v in sorted(tags.items()))
+            raise ConfigError(f"--osm geojson:{target}:{given}: no class of {table.name} has a rule for these tags, "
+                              "so nothing would be drawn; give tags a class uses, e.g. :building=yes or "
+                              ":landuse=grass")
         return GeoJsonSource(Path(target).expanduser(), workdir, tags)
     path = Path(target).expanduser()
     if not path.is_file():

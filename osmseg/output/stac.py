@@ -1,14 +1,20 @@
-"""A STAC catalog of the dataset, so that STAC tools read it without osmseg.
+"""A STAC catalog of the dataset, readable by pystac, STAC Browser and Raster Vision without osmseg.
 
 :func:`write_stac` writes a self-contained STAC 1.1 catalog, all hrefs relative (the dataset
-folder can be moved or zipped): ``OUT/stac/collection.json`` and ``OUT/stac/items/NAME.json``.
+folder can be moved or zipped): ``OUT/stac/catalog.json`` (root Catalog; its child is the
+Collection), ``OUT/stac/collection.json`` and, per sample, two Items in ``OUT/stac/items/``,
+as the label extension (and Radiant MLHub, Raster Vision's ``read_stac``) has them:
 
-An **Item** per sample (id = name) holds the WGS84 footprint, ``gsd``, ``osmseg:zoom``, the
-grid its rasters share (``proj:code`` EPSG:3857, ``proj:bbox``, ``proj:shape``,
-``proj:transform``), the label extension (``label:type`` raster, ``label:tasks``
-segmentation, ``label:classes`` = class ids, ``label:overviews`` = pixels per class name)
-and one asset per file of the sample (``image``, ``labels``, ``geo``, ``segmented``) with
-its ``file:checksum`` (multihash: ``1220`` + the manifest's SHA-256). The **Collection**:
+* the **label item** ``NAME``: the label extension (``label:type`` raster, ``label:tasks``
+  segmentation, ``label:classes`` = class ids, ``label:overviews`` = pixels per class name),
+  assets in this order: ``labels`` (``geo/NAME.tif``, the class-id COG: *first*, as readers
+  take the first asset for the label raster), ``labels_png``, ``segmented``, ``image`` (last,
+  so that one item still shows every file); one ``source`` link to the image item;
+* the **image item** ``NAME_image``: the imagery, asset ``image`` only (role ``data``).
+
+Both hold the WGS84 footprint, ``gsd``, ``osmseg:zoom`` and the grid the rasters share
+(``proj:code`` EPSG:3857, ``proj:bbox``, ``proj:shape``, ``proj:transform``); every asset
+has its ``file:checksum`` (multihash: ``1220`` + the manifest's SHA-256). The **Collection**:
 licence ``other`` (labels ODbL-1.0, images the provider's terms; ``license`` links to
 ATTRIBUTION.md and the ODbL), providers (OSM contributors, the imagery provider, osmseg),
 the union of footprints and dates, ``item_assets``, ``summaries``.
@@ -16,14 +22,15 @@ the union of footprints and dates, ``item_assets``, ``summaries``.
 **Class table.** For raster labels the label extension lists pixel values only, no names or
 colours; so the id -> name -> colour table goes where the classification extension puts
 it: ``classification:classes`` (``value`` = id, ``title`` = class name, ``name`` = the same
-made machine-safe, as that extension requires, ``color_hint``) on the ``labels`` and ``geo``
-assets, in ``item_assets`` and in the summaries.
+made machine-safe, as that extension requires, ``color_hint``) on the ``labels`` and
+``labels_png`` assets, in ``item_assets`` and in the summaries.
 
 **Datetime** = the date of the labels, the one date the manifest knows: the sample's OSM
 data timestamp. Without one, ``datetime`` is null and ``start_datetime``..``end_datetime``
 spans what the manifest knows: from the newest element edited in the box (else the earliest
 OSM date of the manifest) to its latest OSM date. Never the time of writing: the same
-manifest gives the same bytes (JSON as the manifest's: sorted keys, indent 2, atomic).
+manifest gives the same bytes (JSON as the manifest's: sorted keys, except that assets keep
+their order; indent 2; atomic).
 """
 
 from __future__ import annotations
@@ -57,19 +64,21 @@ from osmseg.output.manifest import MANIFEST_NAME, validate_manifest
 from osmseg.output.pictures import OVERVIEW_NAME
 
 STAC_DIR = "stac"
+CATALOG_NAME = "catalog.json"
 COLLECTION_NAME = "collection.json"
 ITEMS_DIR = "items"
+IMAGE_ITEM_SUFFIX = "_image"  # id of a sample's image item: NAME_image
 CRS = "EPSG:3857"
 LABEL_LICENSE = "ODbL-1.0"  # SPDX id of the OSM data's licence
 MARKDOWN = "text/markdown"
 TASKS, METHODS = ("segmentation",), ("automated",)  # label:tasks, label:methods (rasterised, not hand-drawn)
 UNLABELED_TEXT = "no OSM feature covers the pixel (not background: unmapped things may be there)"
-#: sample folder -> (asset key, roles, title)
+#: sample folder -> (asset key, roles, title), in the order of the label item's assets (label raster first)
 ASSET_KINDS = {
-    "images": ("image", ["data"], "Aerial image, RGB"),
-    "labels": ("labels", ["labels"], "Class ids, 8-bit greyscale (0 = unlabeled)"),
-    "geo": ("geo", ["labels"], "Class ids as a GeoTIFF in EPSG:3857 with a colour table"),
+    "geo": ("labels", ["labels"], "Class ids, Cloud-Optimized GeoTIFF in EPSG:3857 with a colour table"),
+    "labels": ("labels_png", ["labels"], "Class ids, 8-bit greyscale PNG (0 = unlabeled)"),
     "segmented": ("segmented", ["visual"], "Labels in class colours, RGB"),
+    "images": ("image", ["data"], "Aerial image, RGB"),
 }
 #: dataset-level files, as Collection assets: key -> (file, media type, role)
 COLLECTION_ASSETS = {
@@ -80,6 +89,7 @@ COLLECTION_ASSETS = {
 }
 #: folders whose pixel values are class ids (they carry classification:classes)
 CLASS_ID_FOLDERS = ("labels", "geo")
+COG_FOLDERS = ("images", "geo")  # their .tif files are Cloud-Optimized GeoTIFFs
 _MEDIA_TYPES = {".png": pystac.MediaType.PNG, ".jpg": pystac.MediaType.JPEG, ".jpeg": pystac.MediaType.JPEG,
                 ".tif": pystac.MediaType.GEOTIFF, ".tiff": pystac.MediaType.GEOTIFF}
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
@@ -89,12 +99,12 @@ _HEX64 = re.compile(r"[0-9a-f]{64}")
 def media_type(rel: str) -> str | None:
     """Media type of a sample file from its suffix and folder (None when unknown: no ``type``).
 
-    >>> media_type("images/a.tif"), media_type("geo/a.tif"), media_type("images/a.jpg")
-    ('image/tiff; application=geotiff; profile=cloud-optimized', 'image/tiff; application=geotiff', 'image/jpeg')
+    >>> media_type("geo/a.tif"), media_type("images/a.jpg"), media_type("other/a.tif")
+    ('image/tiff; application=geotiff; profile=cloud-optimized', 'image/jpeg', 'image/tiff; application=geotiff')
     """
     path = PurePosixPath(rel)
     known = _MEDIA_TYPES.get(path.suffix.lower())
-    if known == pystac.MediaType.GEOTIFF and path.parts[0] == "images":  # written as COGs (--image-format cog)
+    if known == pystac.MediaType.GEOTIFF and path.parts[0] in COG_FOLDERS:  # osmseg.output.geotiff writes COGs
         known = pystac.MediaType.COG
     return str(known) if known else None
 
@@ -153,21 +163,27 @@ def _sample_dates(sample: dict[str, Any], known: list[datetime]) -> tuple[dateti
     return None, start, max(start, known[-1])
 
 
-def _item(sample: dict[str, Any], table: ClassTable, classes: list[Classification], pixels: int,
-          known: list[datetime]) -> pystac.Item:
+def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classification], pixels: int,
+           known: list[datetime]) -> tuple[pystac.Item, pystac.Item]:
+    """The (label item, image item) of a sample; the label item links the image item (rel ``source``)."""
     name = sample["name"]
     if not (isinstance(name, str) and _NAME.fullmatch(name)):
         raise DatasetError(f"manifest: sample name {name!r} is not a file stem ([A-Za-z0-9][A-Za-z0-9_.-]*)")
     w, s, e, n = _numbers(sample["bbox_wgs84"], 4, f"sample {name} bbox_wgs84")
     left, bottom, right, top = _numbers(sample["bounds_3857"], 4, f"sample {name} bounds_3857")
     when, start, end = _sample_dates(sample, known)
-    footprint = {"type": "Polygon", "coordinates": [[[w, s], [e, s], [e, n], [w, n], [w, s]]]}
-    item = pystac.Item(id=name, geometry=footprint, bbox=[w, s, e, n], datetime=when, start_datetime=start,
-                       end_datetime=end, properties={"gsd": float(sample["ground_resolution_m"]),
-                                                     "osmseg:zoom": int(sample["zoom"])})
     res = (right - left) / pixels  # as osmseg.grid.SampleGrid.transform: square pixels, north up
-    ProjectionExtension.ext(item, add_if_missing=True).apply(
-        code=CRS, bbox=[left, bottom, right, top], shape=[pixels, pixels], transform=[res, 0.0, left, 0.0, -res, top])
+    pair = []
+    for item_id in (name, name + IMAGE_ITEM_SUFFIX):
+        footprint = {"type": "Polygon", "coordinates": [[[w, s], [e, s], [e, n], [w, n], [w, s]]]}
+        item = pystac.Item(id=item_id, geometry=footprint, bbox=[w, s, e, n], datetime=when, start_datetime=start,
+                           end_datetime=end, properties={"gsd": float(sample["ground_resolution_m"]),
+                                                         "osmseg:zoom": int(sample["zoom"])})
+        ProjectionExtension.ext(item, add_if_missing=True).apply(
+            code=CRS, bbox=[left, bottom, right, top], shape=[pixels, pixels],
+            transform=[res, 0.0, left, 0.0, -res, top])
+        pair.append(item)
+    label_item, image_item = pair
     histogram = sample["class_histogram"]
     by_name = table.by_name
     if not isinstance(histogram, dict) or not set(histogram) <= set(by_name):
@@ -175,36 +191,45 @@ def _item(sample: dict[str, Any], table: ClassTable, classes: list[Classificatio
     overview = LabelOverview({})
     overview.counts = [LabelCount.create(c, int(histogram[c])) for c in sorted(histogram, key=lambda c: by_name[c].id)]
     when_text = f"as of {when:%Y-%m-%d %H:%M} UTC" if when else f"edited {start:%Y-%m-%d} or later"
-    LabelExtension.ext(item, add_if_missing=True).apply(
+    LabelExtension.ext(label_item, add_if_missing=True).apply(
         label_description=f"Class ids ({table.name}) rasterised by osmseg from OpenStreetMap data {when_text} "
                           f"(© OpenStreetMap contributors, ODbL 1.0); 0 = unlabeled, not background.",
         label_type=LabelType.RASTER, label_properties=None,
         label_classes=[LabelClasses.create(sorted(table.by_id), None)],
         label_tasks=list(TASKS), label_methods=list(METHODS), label_overviews=[overview])
-    _add_assets(item, sample["files"], classes)
-    return item
+    _add_assets(label_item, image_item, sample["files"], classes)
+    label_item.add_link(pystac.Link("source", image_item, pystac.MediaType.JSON, "Imagery of the labels"))
+    return label_item, image_item
 
 
-def _add_assets(item: pystac.Item, files: dict[str, str], classes: list[Classification]) -> None:
-    """One asset per file; key by folder (``image``, ``labels``, ...; ``image_tif`` when a folder has two)."""
+def _add_assets(label_item: pystac.Item, image_item: pystac.Item, files: dict[str, str],
+                classes: list[Classification]) -> None:
+    """One asset per file in the label item, :data:`ASSET_KINDS` order (other files before ``images/``);
+    the ``images/`` one in the image item too. Keys by folder (``image_tif`` when a folder has two files)."""
     folders = Counter(PurePosixPath(rel).parts[0] for rel in files)
-    for rel, digest in sorted(files.items()):
+    for folder in ("geo", "images"):  # the label raster (first asset) and the image item's asset
+        if folders[folder] != 1:
+            raise DatasetError(f"manifest: sample {label_item.id} lists {folders[folder]} {folder}/ files, not one")
+    rank = {folder: i for i, folder in enumerate(ASSET_KINDS)}
+    for rel, digest in sorted(files.items(), key=lambda f: (rank.get(PurePosixPath(f[0]).parts[0], 2.5), f[0])):
         path = PurePosixPath(rel)
         if not _HEX64.fullmatch(digest):
-            raise DatasetError(f"manifest: sample {item.id} {rel}: {digest!r} is not a sha256 hex digest")
+            raise DatasetError(f"manifest: sample {label_item.id} {rel}: {digest!r} is not a sha256 hex digest")
         folder = path.parts[0] if len(path.parts) > 1 else ""
         key, roles, title = ASSET_KINDS.get(folder, (path.stem if not folder else folder, [], None))
         if folders[path.parts[0]] > 1:
             key = f"{key}_{path.suffix.lstrip('.').lower()}"
+        if key in label_item.assets:
+            raise DatasetError(f"manifest: sample {label_item.id}: two files make asset {key!r}, one is {rel}")
         asset = pystac.Asset(href=f"../../{rel}", title=title, media_type=media_type(rel), roles=list(roles))
-        item.add_asset(key, asset)
-        FileExtension.ext(asset, add_if_missing=True).checksum = "1220" + digest
-        if folder in ASSET_KINDS and folder != "images":
-            asset.extra_fields["license"] = LABEL_LICENSE
-        if folder in CLASS_ID_FOLDERS:
-            ClassificationExtension.ext(asset, add_if_missing=True).classes = classes
-    if "labels" not in item.assets:
-        raise DatasetError(f"manifest: sample {item.id} lists no labels/ file")
+        for item in (label_item, image_item) if folder == "images" else (label_item,):
+            copy = asset.clone()
+            item.add_asset(key, copy)
+            FileExtension.ext(copy, add_if_missing=True).checksum = "1220" + digest
+            if folder in ASSET_KINDS and folder != "images":
+                copy.extra_fields["license"] = LABEL_LICENSE
+            if folder in CLASS_ID_FOLDERS:
+                ClassificationExtension.ext(copy, add_if_missing=True).classes = classes
 
 
 def _providers(manifest: dict[str, Any]) -> list[pystac.Provider]:
@@ -269,27 +294,34 @@ def _collection(manifest: dict[str, Any], table: ClassTable, classes: list[Class
         gsd = [float(i.properties["gsd"]) for i in items]
         collection.summaries.add("gsd", pystac.RangeSummary(min(gsd), max(gsd)))
         collection.summaries.add("osmseg:zoom", sorted({int(i.properties["osmseg:zoom"]) for i in items}))
-    for item in items:
-        collection.add_item(item)
     return collection
 
 
+def _canonical(value: Any, keep_order: bool = False) -> Any:
+    """``value`` with every mapping's keys sorted, except the top one when ``keep_order``."""
+    if isinstance(value, dict):
+        return {k: _canonical(value[k]) for k in (value if keep_order else sorted(value))}
+    return [_canonical(v) for v in value] if isinstance(value, list) else value
+
+
 def _json_text(stac: dict[str, Any]) -> str:
-    """Deterministic JSON (as the manifest's), extension URIs sorted."""
+    """Deterministic JSON (as the manifest's), extension URIs sorted; assets keep their order."""
     if "stac_extensions" in stac:
         stac["stac_extensions"] = sorted(stac["stac_extensions"])
     try:
-        return json.dumps(stac, sort_keys=True, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+        doc = {k: _canonical(stac[k], keep_order=k in ("assets", "item_assets")) for k in sorted(stac)}
+        return json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
     except (TypeError, ValueError) as exc:
         raise DatasetError(f"manifest: a value cannot be written as STAC JSON ({exc})") from None
 
 
 def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
-    """Write ``OUT/stac/collection.json`` and ``OUT/stac/items/NAME.json``; return the Collection's path.
+    """Write ``OUT/stac/catalog.json``, ``collection.json`` and ``items/*.json``; return the Catalog's path.
 
     A pure function of ``manifest`` (reads no file); raises a one-line
     :class:`~osmseg.errors.DatasetError` when the manifest lacks what STAC needs. Items are
-    written before the Collection that lists them; items of samples no longer listed are removed.
+    written before the Collection that lists them, the Collection before the Catalog; items
+    of samples no longer listed are removed.
     """
     validate_manifest(manifest)
     table = ClassTable.from_dict(manifest["classes"], where="manifest classes")
@@ -297,21 +329,29 @@ def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
     try:
         pixels = int(manifest["grid_size"]) * TILE_SIZE
         known = _known_dates(manifest)
-        items = [_item(s, table, classes, pixels, known) for s in manifest["samples"]]
-        collection = _collection(manifest, table, classes, items, pixels)
+        pairs = [_items(s, table, classes, pixels, known) for s in manifest["samples"]]
+        collection = _collection(manifest, table, classes, [label for label, _ in pairs], pixels)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise DatasetError(f"manifest cannot be described as STAC: {type(exc).__name__} {exc}") from None
+    items = [item for pair in pairs for item in pair]
+    if clash := sorted(i for i, count in Counter(item.id for item in items).items() if count > 1):
+        raise DatasetError(f"manifest: sample name {clash[0]!r} is the image item id of sample "
+                           f"{clash[0].removesuffix(IMAGE_ITEM_SUFFIX)!r}: rename one")
+    catalog = pystac.Catalog(f"{collection.id}-catalog", title=collection.title,
+                             description=f"osmseg dataset: Collection {collection.id}; per sample a label item NAME "
+                                         f"whose source link is its image item NAME{IMAGE_ITEM_SUFFIX}.",
+                             catalog_type=pystac.CatalogType.SELF_CONTAINED)
     root = Path(out_dir).resolve() / STAC_DIR
+    catalog.set_self_href(str(root / CATALOG_NAME))
+    catalog.add_child(collection)
     collection.set_self_href(str(root / COLLECTION_NAME))
-    written = set()
     for item in items:
-        path = root / ITEMS_DIR / f"{item.id}.json"
-        item.set_self_href(str(path))
-        atomic_write_text(path, _json_text(item.to_dict(include_self_link=False, transform_hrefs=True)))
-        written.add(path.name)
-    collection_json = _json_text(collection.to_dict(include_self_link=False, transform_hrefs=True))
-    atomic_write_text(root / COLLECTION_NAME, collection_json)
+        collection.add_item(item)
+        item.set_self_href(str(root / ITEMS_DIR / f"{item.id}.json"))
+    for obj in (*items, collection, catalog):  # what a file lists is written before it
+        atomic_write_text(Path(obj.self_href), _json_text(obj.to_dict(include_self_link=False, transform_hrefs=True)))
+    written = {f"{item.id}.json" for item in items}
     for stale in sorted((root / ITEMS_DIR).glob("*.json")):  # items of samples the manifest no longer has
         if stale.name not in written:
             stale.unlink()
-    return root / COLLECTION_NAME
+    return root / CATALOG_NAME

@@ -1,0 +1,132 @@
+"""Where samples fall relative to each other: overlap groups, and sampling that never overlaps.
+
+**Overlap.** Two samples overlap when their tile blocks share pixels (boxes that only touch
+along an edge do not). Random centres drawn independently (what keeps ``--shard`` exact) can
+land near each other, and in a small area often do. Samples that overlap show the same ground,
+so a test split that holds one of them and a training split that holds the other measures
+memory, not generalisation: :func:`overlap_groups` gives the connected groups of overlapping
+samples, which training keeps together in one split.
+
+**Non-overlapping sampling** (``osmseg build --no-overlap``). The area's tile grid is cut into
+blocks of ``grid_size x grid_size`` tiles aligned on multiples of ``grid_size``; a block is a
+candidate when its centre lies in the area. The candidates are shuffled once by the seed, and
+attempt ``a`` of slot ``s`` takes candidate ``a * samples + s``: every attempt of every slot
+gets its own block, so no two samples (nor a sample and a rejected draw) ever share a pixel,
+and an attempt's block still depends only on (seed, slot, attempt), which keeps shards and
+resumed builds exact. Blocks are equally likely (uniform over the Web Mercator plane, which
+over a city or a region is uniform over the ground within a fraction of a percent).
+
+>>> overlap_groups([(0, 0, 2, 2), (1, 1, 3, 3), (2.5, 0, 4, 1.5), (3, 3, 4, 4)])  # the last only touches
+[0, 0, 0, 1]
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+
+import mercantile
+import numpy as np
+
+from osmseg.errors import ConfigError
+from osmseg.grid import LngLatBBox
+from osmseg.places import Area, haversine_m
+
+#: Enumerating more candidate blocks than this is refused (an area too large for --no-overlap at
+#: this zoom; random sampling rarely overlaps there anyway).
+MAX_BLOCKS = 20_000_000
+
+
+def overlap_groups(boxes: Sequence[Sequence[float]]) -> list[int]:
+    """Group index of each box (left, bottom, right, top): boxes sharing area are in one group.
+
+    Groups are numbered in order of their first box. Touching edges are not overlap.
+    """
+    n = len(boxes)
+    parent = list(range(n))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    arr = np.asarray(boxes, dtype=float).reshape(n, 4) if n else np.zeros((0, 4))
+    order = np.argsort(arr[:, 0], kind="stable")
+    for k, i in enumerate(order):  # sweep along x: only boxes starting before i ends can overlap it
+        for j in order[k + 1:]:
+            if arr[j, 0] >= arr[i, 2]:
+                break
+            if arr[j, 1] < arr[i, 3] and arr[i, 1] < arr[j, 3]:
+                parent[root(int(j))] = root(int(i))
+    labels: dict[int, int] = {}
+    return [labels.setdefault(root(i), len(labels)) for i in range(n)]
+
+
+def block_centre(bx: int, by: int, zoom: int, grid_size: int) -> tuple[float, float]:
+    """(lon, lat) of the centre of tile block (bx, by): the middle tile's centre.
+
+    >>> [round(v, 6) for v in block_centre(0, 0, 1, 1)]
+    [-90.0, 66.51326]
+    """
+    half = grid_size // 2
+    west, south, east, north = mercantile.bounds(bx * grid_size + half, by * grid_size + half, zoom)
+    lat = math.degrees(math.atan(math.sinh((math.atanh(math.sin(math.radians(north))) +
+                                            math.atanh(math.sin(math.radians(south)))) / 2)))
+    return (west + east) / 2, lat
+
+
+@functools.lru_cache(maxsize=8)
+def candidate_blocks(area: Area, zoom: int, grid_size: int, seed: int) -> np.ndarray:
+    """The area's candidate blocks ``(k, 2)`` as (bx, by), in the seed's shuffled order."""
+    if area.bbox is not None:
+        box = area.bbox
+    else:
+        assert area.radius_km is not None
+        dlat = area.radius_km / 111.32
+        dlon = area.radius_km / (111.32 * max(math.cos(math.radians(area.lat)), 1e-6))
+        box = LngLatBBox(area.lon - dlon, max(area.lat - dlat, -85.05), area.lon + dlon, min(area.lat + dlat, 85.05))
+    nw = mercantile.tile(box.west, box.north, zoom)
+    se = mercantile.tile(box.east, box.south, zoom)
+    full = 2**zoom // grid_size  # whole blocks only: a partial block at the world's edge is not a sample
+    x0, x1 = nw.x // grid_size, min(se.x // grid_size, full - 1)
+    y0, y1 = nw.y // grid_size, min(se.y // grid_size, full - 1)
+    count = (x1 - x0 + 1) * (y1 - y0 + 1)
+    if count > MAX_BLOCKS:
+        raise ConfigError(f"--no-overlap: the area holds {count:,} tile blocks at zoom {zoom}, too many to enumerate; "
+                          "sample a smaller area, or drop --no-overlap (overlaps are rare in areas this large)")
+    bx, by = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1), indexing="xy")
+    blocks = np.column_stack([bx.ravel(), by.ravel()])
+    centres = np.array([block_centre(int(x), int(y), zoom, grid_size) for x, y in blocks]).reshape(-1, 2)
+    if area.bbox is not None:
+        b = area.bbox
+        inside = ((centres[:, 0] >= b.west) & (centres[:, 0] <= b.east) &
+                  (centres[:, 1] >= b.south) & (centres[:, 1] <= b.north))
+    else:
+        assert area.radius_km is not None
+        inside = haversine_m(area.lon, area.lat, centres[:, 0], centres[:, 1]) <= area.radius_km * 1000.0
+    kept = blocks[inside]
+    order = np.random.default_rng([seed, 0x6E6F6F76]).permutation(len(kept))  # "noov": its own stream
+    return kept[order]
+
+
+def block_attempt_centre(area: Area, zoom: int, grid_size: int, seed: int, samples: int,
+                         slot: int, attempt: int) -> tuple[float, float] | None:
+    """Centre of the block of attempt ``attempt`` of slot ``slot``; None when the area has no more blocks."""
+    blocks = candidate_blocks(area, zoom, grid_size, seed)
+    index = attempt * samples + slot
+    if index >= len(blocks):
+        return None
+    bx, by = blocks[index]
+    return block_centre(int(bx), int(by), zoom, grid_size)
+
+
+def check_room(area: Area, zoom: int, grid_size: int, seed: int, samples: int) -> int:
+    """The number of non-overlapping blocks in the area; ConfigError when fewer than ``samples``."""
+    available = len(candidate_blocks(area, zoom, grid_size, seed))
+    if available < samples:
+        raise ConfigError(f"--no-overlap: the area holds only {available} non-overlapping samples of {grid_size}x"
+                          f"{grid_size} tiles at zoom {zoom}; ask for at most {available} --samples, a larger area, "
+                          "or a higher --zoom")
+    return available

@@ -1,0 +1,80 @@
+"""``osmseg build`` with its HTTP cache on a disk that fills up, on a real (tmpfs) file system.
+
+The cache folder is a small tmpfs mounted in a private mount namespace (``unshare``; as root,
+or as any user where user namespaces are allowed), filled nearly to the brim by a filler file.
+The build must stop with one ``Error:`` line naming the cache and what to do, exit 1, keep
+what it finished; once space is freed (the filler removed) the same command finishes the
+build, byte-identical to a build that never saw a full disk. The build replays the demo's
+recorded traffic, so no server is needed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import REPO_ROOT
+
+CASSETTE = REPO_ROOT / "osmseg" / "demo" / "helsinki.yaml.gz"
+
+
+def can_mount_tmpfs(tmp_path: Path) -> list[str] | None:
+    """The command prefix that runs a shell in a private mount namespace, or None."""
+    if shutil.which("unshare") is None:
+        return None
+    prefix = ["unshare", "-m"] if os.geteuid() == 0 else ["unshare", "-Urm"]
+    probe = tmp_path / "probe"
+    probe.mkdir()
+    ok = subprocess.run([*prefix, "sh", "-c", f"mount -t tmpfs -o size=64k tmpfs {probe}"],
+                        capture_output=True).returncode == 0
+    return prefix if ok else None
+
+
+def tree_bytes(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and ".osmseg-build" not in p.parts}
+
+
+def test_a_full_cache_disk_stops_in_one_line_and_the_rerun_after_freeing_space_finishes(tmp_path: Path) -> None:
+    prefix = can_mount_tmpfs(tmp_path)
+    if prefix is None:
+        pytest.skip("cannot mount a tmpfs here (needs root or user namespaces)")
+    build = [sys.executable, "-m", "osmseg", "-q", "build", "--city", "Helsinki", "--samples", "4", "--seed", "0", "--no-overlap",
+             "--imagery", "bing", "--osm", "api", "--replay", str(CASSETTE)]
+    env = dict(os.environ, BING_MAPS_KEY="demo-key-not-secret")
+    clean = tmp_path / "clean"
+    done = subprocess.run([*build, "--out", str(clean), "--cache-dir", str(tmp_path / "clean-cache")], env=env,
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+    disk, out = tmp_path / "disk", tmp_path / "ds"
+    disk.mkdir()
+    command = " ".join(f"'{a}'" for a in [*build, "--out", str(out), "--cache-dir", str(disk / "cache")])
+    script = f"""
+        mount -t tmpfs -o size=16m tmpfs {disk}
+        head -c 13000k /dev/zero > {disk}/filler       # leaves ~3 MB: the cache needs ~10.5 MB
+        {command} 2> {tmp_path}/first.err; echo $? > {tmp_path}/first.code
+        ls -A {out} > {tmp_path}/first.ls
+        rm {disk}/filler                               # the user frees space
+        {command} 2> {tmp_path}/second.err; echo $? > {tmp_path}/second.code
+    """
+    subprocess.run([*prefix, "sh", "-c", script], env=env, check=True, timeout=600)
+
+    first = (tmp_path / "first.err").read_text()
+    assert (tmp_path / "first.code").read_text().strip() == "1", first
+    lines = first.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error:"), first
+    assert "Traceback" not in first and "cache" in lines[0] and ("full" in lines[0] or "space" in lines[0])
+    assert "run the same command again" in lines[0]
+    assert "manifest.json" not in (tmp_path / "first.ls").read_text().split()  # not finished, nothing faked
+
+    second = (tmp_path / "second.err").read_text()
+    assert (tmp_path / "second.code").read_text().strip() == "0", second
+    assert tree_bytes(out) == tree_bytes(clean)
+    assert json.loads((out / "manifest.json").read_text())["summary"]["accepted"] == 4

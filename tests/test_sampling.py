@@ -1,0 +1,194 @@
+"""Honest samples and splits: overlap reported, sampling that never overlaps, splits by area.
+
+Overlap is checked here with shapely on the manifest's EPSG:3857 boxes, independently of
+``osmseg.sampling``. The builds use a GeoJSON source with one large grass polygon (every
+sample has a label) and an empty tile folder as imagery (no tile at all: the filters are
+opened for it), so a build of a few samples takes a second.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+from click.testing import CliRunner, Result
+
+from osmseg.cli.main import cli
+from osmseg.grid import LngLatBBox, sample_grid
+from osmseg.places import Area
+from osmseg.sampling import block_centre, candidate_blocks, overlap_groups
+
+from conftest import TEST_DATA
+
+LON, LAT = 24.94, 60.17
+
+
+def brute_groups(boxes: list[tuple[float, float, float, float]]) -> list[set[int]]:
+    """Connected groups of boxes sharing area, by shapely and breadth-first search."""
+    shapes = [shapely.box(*b) for b in boxes]
+    linked = {i: {j for j in range(len(boxes)) if j != i and shapes[i].intersection(shapes[j]).area > 0}
+              for i in range(len(boxes))}
+    seen: set[int] = set()
+    groups = []
+    for start in range(len(boxes)):
+        if start in seen:
+            continue
+        group, todo = set(), [start]
+        while todo:
+            i = todo.pop()
+            if i not in group:
+                group.add(i)
+                todo.extend(linked[i] - group)
+        seen |= group
+        groups.append(group)
+    return groups
+
+
+def test_overlap_groups_are_the_connected_groups_of_boxes_that_share_area() -> None:
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        corners = rng.integers(0, 40, size=(25, 2)).astype(float)
+        boxes = [(x, y, x + 5, y + 5) for x, y in corners]  # integer corners: many boxes only touch
+        ids = overlap_groups(boxes)
+        found = sorted(sorted(i for i, g in enumerate(ids) if g == k) for k in set(ids))
+        assert found == sorted(sorted(g) for g in brute_groups(boxes))
+
+
+@pytest.mark.parametrize("area", [Area("disc", LAT, LON, radius_km=1.5),
+                                  Area("box", LAT, LON, bbox=LngLatBBox(24.90, 60.15, 24.98, 60.19))])
+def test_candidate_blocks_tile_the_area_without_overlap(area: Area) -> None:
+    blocks = candidate_blocks(area, 18, 5, seed=3)
+    assert len(blocks) > 10 and len({tuple(b) for b in blocks}) == len(blocks)
+    grids = [sample_grid(*block_centre(int(x), int(y), 18, 5), 18, 5) for x, y in blocks]
+    for grid, (bx, by) in zip(grids, blocks):  # the sample grid of a block is the block itself
+        assert grid.tiles[0].x == bx * 5 and grid.tiles[0].y == by * 5
+    boxes = [tuple(g.xy_bounds) for g in grids]
+    assert all(len(g) == 1 for g in brute_groups(boxes))
+    assert candidate_blocks(area, 18, 5, seed=3).tolist() == blocks.tolist()  # the seed decides the order
+    assert candidate_blocks(area, 18, 5, seed=4).tolist() != blocks.tolist()
+
+
+# -- through the command line ----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def grass(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A GeoJSON polygon of 6 km around the centre: every sample holds one class."""
+    path = tmp_path_factory.mktemp("grass") / "grass.geojson"
+    d = 0.05
+    ring = [[LON - d, LAT - d / 2], [LON + d, LAT - d / 2], [LON + d, LAT + d / 2], [LON - d, LAT + d / 2],
+            [LON - d, LAT - d / 2]]
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {}, "geometry": {"type": "Polygon", "coordinates": [ring]}}]}))
+    return path
+
+
+def build(out: Path, grass: Path, *extra: str, samples: int = 6, radius: str = "0.8") -> Result:
+    tiles = grass.parent / "no-tiles"  # one empty folder for every build, so their commands match
+    tiles.mkdir(exist_ok=True)
+    return CliRunner().invoke(cli, [
+        "build", "--lat", str(LAT), "--lon", str(LON), "--radius-km", radius, "--samples", str(samples),
+        "--seed", "2", "--osm", f"geojson:{grass}:landuse=grass", "--min-classes", "1",
+        "--imagery", f"xyz:file://{tiles}/{{z}}/{{x}}/{{y}}.png", "--max-missing-imagery", "1",
+        "--max-placeholder-tiles", "25", "--min-contrast", "0", "--out", str(out),
+        "--cache-dir", str(out.parent / "cache"), *extra])
+
+
+def boxes_of(out: Path) -> tuple[list[tuple[float, float, float, float]], dict]:
+    manifest = json.loads((out / "manifest.json").read_text())
+    return [tuple(s["bounds_3857"]) for s in manifest["samples"]], manifest
+
+
+def tree(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and ".osmseg-build" not in p.parts}
+
+
+def test_random_sampling_reports_overlap_and_no_overlap_sampling_has_none(tmp_path: Path, grass: Path) -> None:
+    random = build(tmp_path / "random" / "ds", grass)
+    assert random.exit_code == 0, random.output
+    boxes, manifest = boxes_of(tmp_path / "random" / "ds")
+    groups = brute_groups(boxes)
+    overlapping = sum(len(g) for g in groups if len(g) > 1)
+    assert overlapping > 0, "pick another seed: these random samples happen not to overlap"
+    assert manifest["summary"]["overlapping_samples"] == overlapping
+    assert manifest["summary"]["overlap_groups"] == len(groups)
+    assert f"{overlapping} of 6 samples overlap another ({len(groups)} spatial groups" in random.stderr
+    assert "--no-overlap" in random.stderr
+
+    single = build(tmp_path / "blocks" / "ds", grass, "--no-overlap")
+    assert single.exit_code == 0, single.output
+    boxes, manifest = boxes_of(tmp_path / "blocks" / "ds")
+    assert len(boxes) == 6 and all(len(g) == 1 for g in brute_groups(boxes))
+    assert manifest["summary"]["overlapping_samples"] == 0 and "overlap another" not in single.stderr
+    assert "--no-overlap" in manifest["command"]
+
+    # exact under --shard: two shards into one folder give the single run's bytes
+    sharded = tmp_path / "sharded" / "ds"
+    assert build(sharded, grass, "--no-overlap", "--shard", "2/2").exit_code == 0
+    assert build(sharded, grass, "--no-overlap", "--shard", "1/2").exit_code == 0
+    assert tree(sharded) == tree(tmp_path / "blocks" / "ds")
+
+
+def test_no_overlap_refuses_an_area_too_small_for_the_samples(tmp_path: Path, grass: Path) -> None:
+    result = build(tmp_path / "ds", grass, "--no-overlap", samples=40, radius="0.5")
+    assert result.exit_code == 2, result.output
+    assert "holds only" in result.output and "--samples" in result.output
+    assert not (tmp_path / "ds").exists()
+
+
+torch = pytest.importorskip("torch")
+
+
+def train(dataset: Path, out: Path, *extra: str) -> Result:
+    return CliRunner().invoke(cli, ["-q", "train", str(dataset), "--out", str(out), "--config",
+                                    str(TEST_DATA / "train" / "tiny.yaml"), "--model", "airsegnet13",
+                                    "--epochs", "1", "--max-steps-per-epoch", "1", *extra])
+
+
+def test_training_keeps_overlapping_samples_in_one_split(tmp_path: Path, grass: Path) -> None:
+    data = tmp_path / "ds"
+    assert build(data, grass, samples=12, radius="1.2").exit_code == 0
+    boxes, manifest = boxes_of(data)
+    names = [s["name"] for s in manifest["samples"]]
+    groups = [{names[i] for i in g} for g in brute_groups(boxes)]
+    assert any(len(g) > 1 for g in groups) and len(groups) >= 3
+
+    result = train(data, tmp_path / "run")
+    assert result.exit_code == 0, result.output
+    doc = json.loads((tmp_path / "run" / "splits.json").read_text())
+    where = {n: split for split, members in doc["splits"].items() for n in members}
+    assert set(where) == set(names) and doc["split_by"] == "groups"
+    for group in groups:  # every group of samples that share ground sits in one split
+        assert len({where[n] for n in group}) == 1, (group, where)
+    assert sorted(map(sorted, doc["overlap_groups"])) == sorted(sorted(g) for g in groups if len(g) > 1)
+    assert all(doc["splits"][k] for k in ("train", "val", "test"))
+
+
+def test_samples_that_all_overlap_cannot_be_split_honestly(tmp_path: Path, grass: Path) -> None:
+    data = tmp_path / "ds"
+    assert build(data, grass, samples=4, radius="0.05").exit_code == 0
+    boxes, _ = boxes_of(data)
+    assert len(brute_groups(boxes)) == 1
+    refused = train(data, tmp_path / "run")
+    assert refused.exit_code == 1
+    assert "overlap on the ground in 1 separate areas" in refused.output and "--no-overlap" in refused.output
+    assert not (tmp_path / "run" / "splits.json").exists()
+    # asked for explicitly, the old split by image still works, and says what it is
+    by_image = train(data, tmp_path / "run-image", "--split-by", "image")
+    assert by_image.exit_code == 0, by_image.output
+    assert json.loads((tmp_path / "run-image" / "splits.json").read_text())["split_by"] == "image"
+
+
+def test_splits_of_a_dataset_without_footprints_are_by_image() -> None:
+    from training.data import make_splits, sample_groups
+
+    names = [f"tinyseg_{i:03d}" for i in range(12)]
+    groups = sample_groups(TEST_DATA / "tinyseg", names)  # its manifest has no bounds
+    assert len(set(groups.values())) == 12
+    assert make_splits(names, 0, groups=groups) == make_splits(names, 0)
+    assert list(itertools.chain(*make_splits(names, 0).values()))
