@@ -23,16 +23,14 @@ from training.data import (
     discover_camvid,
     discover_dataset,
     files_by_name,
-    make_splits,
     median_frequency_weights,
     patch_boxes,
     read_image,
     read_label,
-    read_splits,
     validate,
     weights_from_histograms,
-    write_splits,
 )
+from training.splits import make_splits, read_splits, write_splits
 
 torch.set_num_threads(1)
 TINY = TEST_DATA / "tinyseg"

@@ -16,6 +16,7 @@ import shapely
 import osmseg.classes
 import osmseg.osm.coastline
 import osmseg.osm.features
+import osmseg.osm.geometry
 import osmseg.osm.renumber
 from osmseg.classes import load_class_table
 from osmseg.errors import OSMDataError
@@ -313,7 +314,7 @@ def josm_file(tmp_path: Path, sign: int = -1, nodes: bool = True) -> Path:
 
 def box_mask(box: tuple[float, float, float, float]) -> np.ndarray:
     """Pixels of JOSM_GRID whose centre lies inside a lon/lat rectangle (the rasteriser's rule)."""
-    (x0, y0), (x1, y1) = osmseg.osm.features.lonlat_to_mercator(np.array([box[:2], box[2:]]))
+    (x0, y0), (x1, y1) = osmseg.osm.geometry.lonlat_to_mercator(np.array([box[:2], box[2:]]))
     res, left, top = JOSM_GRID.transform.a, JOSM_GRID.transform.c, JOSM_GRID.transform.f
     xs = left + (np.arange(JOSM_GRID.width) + 0.5) * res
     ys = top - (np.arange(JOSM_GRID.height) + 0.5) * res
@@ -348,7 +349,7 @@ def test_josm_file_with_negative_ids_is_drawn(tmp_path: Path, caplog: pytest.Log
 
 
 def lonlat_pixel(point: tuple[float, float]) -> tuple[float, float]:
-    xy = osmseg.osm.features.lonlat_to_mercator(np.array([point]))[0]
+    xy = osmseg.osm.geometry.lonlat_to_mercator(np.array([point]))[0]
     return ~JOSM_GRID.transform * tuple(xy)
 
 

@@ -329,3 +329,26 @@ def test_make_osm_source_specs(tmp_path):
     with pytest.raises(ConfigError) as exc:
         make_osm_source("bing", client, tmp_path, TABLE)
     assert "unknown OSM source" in one_line(exc)
+
+
+def test_a_josm_file_leaves_out_what_the_user_deleted_and_reads_new_objects(tmp_path, caplog):
+    """JOSM keeps deleted objects in the saved file (action="delete") and gives new ones negative ids."""
+    grid = sample_grid(24.9405, 60.17025, 18)
+    def square(way_id: int, first: int, lon: float, action: str) -> str:
+        corners = [(lon, 60.1700), (lon + 0.0004, 60.1700), (lon + 0.0004, 60.1703), (lon, 60.1703)]
+        nodes = "".join(f"<node id='{first - i}' action='{action}' visible='true' lat='{la}' lon='{lo}'/>"
+                        for i, (lo, la) in enumerate(corners))
+        refs = "".join(f"<nd ref='{first - i}'/>" for i in (0, 1, 2, 3, 0))
+        return f"{nodes}<way id='{way_id}' action='{action}' visible='true'>{refs}<tag k='building' v='yes'/></way>"
+    path = tmp_path / "edit.osm"
+    path.write_text("<?xml version='1.0' encoding='UTF-8'?>\n<osm version='0.6' upload='never' generator='JOSM'>"
+                    + square(-201, -101, 24.9395, "modify") + square(-202, -111, 24.9410, "delete") + "</osm>")
+    with caplog.at_level("WARNING"):
+        extract = LocalFileSource(path, tmp_path / "work").fetch(pad_bbox(grid.bbox, 60))
+    labels = mask(extract.paths, grid)
+    cols = np.flatnonzero((labels == IDS["building"]).any(axis=0))
+    west = grid.transform.c + cols.min() * grid.transform.a
+    assert cols.size and abs(west - mercantile.xy(24.9395, 60.17)[0]) < 1.0  # the live square, where it is
+    east = mercantile.xy(24.9410, 60.17)[0]
+    assert grid.transform.c + cols.max() * grid.transform.a < east  # nothing of the deleted one
+    assert any("marked deleted" in r.getMessage() and "left out" in r.getMessage() for r in caplog.records)

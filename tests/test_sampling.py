@@ -185,7 +185,7 @@ def test_samples_that_all_overlap_cannot_be_split_honestly(tmp_path: Path, grass
 
 
 def test_splits_of_a_dataset_without_footprints_are_by_image() -> None:
-    from training.data import make_splits, sample_groups
+    from training.splits import make_splits, sample_groups
 
     names = [f"tinyseg_{i:03d}" for i in range(12)]
     groups = sample_groups(TEST_DATA / "tinyseg", names)  # its manifest has no bounds

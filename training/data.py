@@ -1,4 +1,4 @@
-"""Datasets for training: image/label pairs, patches, splits by image, class weights.
+"""Datasets for training: image/label pairs, patches, class weights.
 
 A dataset is a folder of RGB images, single-band label images of class ids with the same
 file stems, and a class table saying what the ids mean (``manifest.json``'s ``classes`` as
@@ -13,8 +13,7 @@ Patches
     (100 px top and bottom, 160 px left and right) rather than all lost on one side.
 
 Splits
-    By image, never by patch, so no part of a test image is seen in training
-    (:func:`make_splits`); the trainer writes them to ``splits.json`` and eval reads them back.
+    By area, never by patch or image: see :mod:`training.splits`.
 
 Loading speed
     Decoding a 1280x1280 PNG takes ~50 ms, six times the label's decode and much more than
@@ -32,7 +31,7 @@ import json
 import logging
 import warnings
 from collections import OrderedDict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,9 +46,7 @@ from torchvision.transforms.v2 import functional as F
 
 from osmseg.classes import ClassDef, ClassTable, load_class_table
 from osmseg.grid import ground_pixel_size
-from osmseg.sampling import overlap_groups
 from osmseg.errors import DatasetError
-from osmseg.output.atomic import atomic_write_bytes
 from training.augment import OVERHEAD, AugmentConfig, draw, item_rng, jitter, orient
 
 logger = logging.getLogger(__name__)
@@ -372,118 +369,6 @@ def median_frequency_weights(labels: Iterable[np.ndarray], num_classes: int, ign
     """
     hist = [label_histogram(np.asarray(lab), num_classes) for lab in labels]
     return weights_from_histograms(np.stack(hist) if hist else np.zeros((0, num_classes)), ignore_index)
-
-
-# ------------------------------------------------------------------------------------ splits
-def make_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3,
-                val_fraction: float = 0.15, groups: Mapping[str, int] | None = None) -> dict[str, list[str]]:
-    """Split sample names into ``train``, ``val`` and ``test`` (each sorted), keeping groups together.
-
-    ``groups`` (name -> group id; names not in it are alone) are samples that overlap on the
-    ground (:func:`osmseg.sampling.overlap_groups`): a group always lands in one split, so no
-    pixel of a test image was seen in training. ``round(n * test_fraction)`` images are the test
-    target and ``round(m * val_fraction)`` of the remaining ``m`` the validation target
-    (rounding half up; at least one each when there are enough images, ``n >= 3`` for a test
-    image and ``m >= 2`` for a validation one; always at least one for training). Groups sorted
-    by their first name are shuffled by a numpy Generator seeded with ``seed`` and dealt in that
-    order: to test until its target is met, then to validation, then to training; a group may
-    overshoot a target. With no groups this is a split by image, and the result does not depend
-    on the input order.
-
-    >>> s = make_splits([f"s{i}" for i in range(12)], seed=0)
-    >>> [len(s[k]) for k in ("train", "val", "test")]
-    [7, 1, 4]
-    >>> g = make_splits([f"s{i}" for i in range(12)], seed=0, groups={"s1": 0, "s2": 0, "s3": 0})
-    >>> len({k for k in g for n in g[k] if n in ("s1", "s2", "s3")})
-    1
-    """
-    unique = sorted(set(names))
-    if len(unique) != len(names):
-        raise DatasetError("sample names must be unique to split by image")
-    if not (0 <= test_fraction < 1 and 0 <= val_fraction < 1):
-        raise DatasetError(f"split fractions must be in [0, 1), got test {test_fraction}, val {val_fraction}")
-    n = len(unique)
-    n_test = int(np.floor(n * test_fraction + 0.5))
-    if test_fraction > 0 and n >= 3:
-        n_test = max(n_test, 1)
-    n_test = min(n_test, max(n - 1, 0))
-    m = n - n_test
-    n_val = int(np.floor(m * val_fraction + 0.5))
-    if val_fraction > 0 and m >= 2:
-        n_val = max(n_val, 1)
-    n_val = min(n_val, max(m - 1, 0))
-    members: dict[object, list[str]] = {}
-    for name in unique:
-        key = ("group", groups[name]) if groups and name in groups else ("alone", name)
-        members.setdefault(key, []).append(name)
-    units = sorted(members.values(), key=lambda u: u[0])
-    order = np.random.default_rng(seed).permutation(len(units))
-    out: dict[str, list[str]] = {"train": [], "val": [], "test": []}
-    for i in order:
-        target = "test" if len(out["test"]) < n_test else "val" if len(out["val"]) < n_val else "train"
-        out[target].extend(units[i])
-    return {k: sorted(v) for k, v in out.items()}
-
-
-def sample_groups(root: Path, names: Iterable[str]) -> dict[str, int]:
-    """Which of a dataset's samples overlap on the ground: name -> group id (every name listed).
-
-    From ``manifest.json``'s ``bounds_3857`` (``osmseg build`` output), else from the extents of
-    georeferenced images (``images/*.tif``); samples whose footprint is unknown are alone.
-    """
-    names = sorted(set(names))
-    boxes: dict[str, tuple[float, ...]] = {}
-    manifest = Path(root) / "manifest.json"
-    if manifest.is_file():
-        try:
-            raw = json.loads(manifest.read_text(encoding="utf-8"))
-            for s in raw.get("samples", ()):
-                b = s.get("bounds_3857")
-                if isinstance(b, list) and len(b) == 4 and all(isinstance(v, (int, float)) for v in b):
-                    boxes[str(s["name"])] = tuple(float(v) for v in b)
-        except (OSError, ValueError, TypeError, KeyError, AttributeError):
-            boxes = {}
-    known = [n for n in names if n in boxes]
-    ids = overlap_groups([boxes[n] for n in known])
-    groups = dict(zip(known, ids))
-    base = len(set(ids))
-    for i, name in enumerate(n for n in names if n not in groups):
-        groups[name] = base + i
-    return groups
-
-
-def write_splits(path: Path, splits: dict[str, list[str]], seed: int, split_by: str = "image",
-                 groups: Mapping[str, int] | None = None) -> Path:
-    """Write the splits to ``path`` as JSON (atomically), with the seed and the rule that drew
-    them and, for a split by overlap groups, the groups of more than one sample."""
-    doc: dict[str, Any] = {"format": "osmseg-splits", "format_version": 1, "seed": seed, "split_by": split_by,
-                           "counts": {k: len(v) for k, v in splits.items()}, "splits": splits}
-    if groups:
-        together: dict[int, list[str]] = {}
-        for name, group in groups.items():
-            together.setdefault(group, []).append(name)
-        doc["overlap_groups"] = sorted(sorted(g) for g in together.values() if len(g) > 1)
-    return atomic_write_bytes(Path(path), (json.dumps(doc, indent=2, sort_keys=True) + "\n").encode())
-
-
-def read_splits(path: Path) -> dict[str, list[str]]:
-    """The splits written by :func:`write_splits`; DatasetError if missing, corrupt or overlapping."""
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-        splits = doc["splits"]
-        result = {str(k): [str(n) for n in v] for k, v in splits.items() if isinstance(v, list)}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        raise DatasetError(f"{path}: not a readable splits file; delete it to draw the splits again") from None
-    if len(result) != len(splits):
-        raise DatasetError(f"{path}: every split must be a list of sample names")
-    seen: dict[str, str] = {}
-    for split, names in result.items():
-        for name in names:
-            if name in seen:
-                raise DatasetError(f"{path}: {name!r} is in both {seen[name]} and {split}; splits must not overlap")
-            seen[name] = split
-    return result
 
 
 # ----------------------------------------------------------------------------------- dataset

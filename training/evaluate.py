@@ -29,7 +29,8 @@ from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_bytes
 from training.checkpoint import ModelSpec, load_checkpoint, model_from_checkpoint
 from training.data import SampleFiles, dataset_class_table, discover_dataset, read_image, read_label
-from training.infer import check_resolution, input_resolution, predict_array, resolution_factor, target_resolution
+from training.infer import predict_array
+from training.predict import check_resolution, input_resolution, resolution_factor, target_resolution
 from training.metrics import ConfusionMatrix, format_table, load_class_mapping
 from training.pictures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
 from training.train import dataset_fingerprint, has_class_table, model_classes

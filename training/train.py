@@ -42,16 +42,13 @@ from training.data import (
     dataset_resolution,
     discover_dataset,
     files_by_name,
-    make_splits,
-    read_splits,
-    sample_groups,
     validate,
     weights_from_histograms,
-    write_splits,
 )
 from training.distributed import Dist, barrier, cleanup, setup
 from training.engine import StepOptions, evaluate, train_one_epoch
 from training.model import PRESETS, build_model, load_encoder_weights, model_spec
+from training.splits import make_splits, read_splits, sample_groups, write_splits
 
 logger = logging.getLogger(__name__)
 

@@ -36,7 +36,7 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
     """Write a class mask (and a colour mask) for every INPUT image."""
     require_torch()
     from training.checkpoint import model_from_checkpoint
-    from training.infer import predict_file, target_resolution
+    from training.predict import predict_file, target_resolution
 
     model, spec = model_from_checkpoint(checkpoint, device=device)
     resolution_m = target_resolution(resolution, spec)

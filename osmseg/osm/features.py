@@ -43,7 +43,6 @@ import tempfile
 from collections import Counter
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from functools import reduce
 from pathlib import Path
 from typing import Any
 
@@ -57,12 +56,11 @@ from osmseg.classes import ClassDef, ClassTable
 from osmseg.errors import OSMDataError
 from osmseg.grid import SampleGrid, XYBounds
 from osmseg.osm.coastline import sea_polygon
+from osmseg.osm.geometry import even_odd, polygonal, to_mercator
 from osmseg.osm.renumber import original_id, write_renumbered
 
 logger = logging.getLogger(__name__)
 
-EARTH_RADIUS = 6378137.0
-MAX_LAT = 85.0511287798
 
 #: Features are clipped to the sample box grown by this many pixels (no edge effects).
 CLIP_MARGIN_PX = 2
@@ -136,20 +134,6 @@ def read_features(paths: Sequence[Path | str], grid: SampleGrid, table: ClassTab
                 collector.stream(copy, name)
                 collector.repair_relations(copy, name)
     return collector.finish()
-
-
-def lonlat_to_mercator(coords: np.ndarray) -> np.ndarray:
-    """``(N, 2)`` lon/lat degrees to EPSG:3857 metres (spherical Web Mercator, exact).
-
-    >>> lonlat_to_mercator(np.array([[180.0, 45.0]])).round(1).tolist()
-    [[20037508.3, 5621521.5]]
-    >>> import mercantile; x, y = mercantile.xy(24.94, 60.17)
-    >>> bool(np.allclose(lonlat_to_mercator(np.array([[24.94, 60.17]])), [[x, y]]))
-    True
-    """
-    lon = np.radians(coords[:, 0])
-    lat = np.radians(np.clip(coords[:, 1], -MAX_LAT, MAX_LAT))
-    return np.column_stack([EARTH_RADIUS * lon, EARTH_RADIUS * np.log(np.tan(math.pi / 4 + lat / 2))])
 
 
 #: File name endings osmium recognises; any other file is sniffed (XML starts with "<").
@@ -421,7 +405,7 @@ class _Collector:
             missing = len(refs) - len(present)
             name = f"relation {self.oid(rid)} ({cls.name})"
             why = f"{missing} of its {len(refs)} member ways are missing from the file" if missing else "its rings do not close"
-            geom = _even_odd(present)
+            geom = even_odd(present)
             if located.isdisjoint(refs):
                 self.unplaced[cls.name, "relation"] += 1
             if geom is None:
@@ -455,7 +439,7 @@ class _Collector:
         if self.items:
             features.extend(self._project(clip))
         if self.coast and self.sea_class is not None:
-            sea = sea_polygon(list(_to_mercator(np.array(self.coast, dtype=object))), clip, warn=self.warn)
+            sea = sea_polygon(list(to_mercator(np.array(self.coast, dtype=object))), clip, warn=self.warn)
             if sea is not None:
                 features.append(Feature(self.sea_class.id, self.sea_class.order, sea, "coastline", "sea"))
         if self.unplaced:
@@ -467,7 +451,7 @@ class _Collector:
 
     def _project(self, clip: XYBounds) -> list[Feature]:
         kinds, classes, ids, geoms, widths, notes = zip(*self.items)
-        geom = _to_mercator(np.array(geoms, dtype=object))
+        geom = to_mercator(np.array(geoms, dtype=object))
         # ground metres -> Web Mercator metres: divide by cos(lat), the grid's pixel-size ratio
         half = np.array(widths, dtype=float) / 2 * (self.grid.pixel_size / self.grid.ground_resolution)
         pad = np.nan_to_num(half, nan=0.0)
@@ -488,7 +472,7 @@ class _Collector:
         shape = shapely.intersection(shape, shapely.box(*clip))
         out: list[Feature] = []
         for j, i in enumerate(idx):
-            polygon = _polygonal(shape[j])
+            polygon = polygonal(shape[j])
             if note[j]:
                 (self.warn if polygon is not None else logger.debug)(note[j])
             if polygon is not None:
@@ -518,32 +502,3 @@ def _unplaced_message(counts: Counter[tuple[str, str]]) -> str:
 def _describe(osm_id: str) -> str:
     """How warnings name an OSM object: "w12" -> "way 12"."""
     return f"{_KINDS.get(osm_id[:1], 'object')} {osm_id[1:]}"
-
-
-def _to_mercator(geoms: np.ndarray) -> np.ndarray:
-    return shapely.transform(geoms, lonlat_to_mercator)
-
-
-def _polygonal(geom: BaseGeometry) -> BaseGeometry | None:
-    """The polygon parts of ``geom`` (make_valid and clipping can leave lines and points)."""
-    if geom is None or geom.is_empty:
-        return None
-    if geom.geom_type in ("Polygon", "MultiPolygon"):
-        return geom
-    parts = [p for p in shapely.get_parts(geom) if p.geom_type in ("Polygon", "MultiPolygon") and not p.is_empty]
-    if not parts:
-        return None
-    return parts[0] if len(parts) == 1 else shapely.union_all(parts)
-
-
-def _even_odd(lines: Sequence[BaseGeometry]) -> BaseGeometry | None:
-    """Polygon from member lines: join them, keep the closed rings, combine even-odd."""
-    if not lines:
-        return None
-    merged = shapely.line_merge(shapely.MultiLineString(lines))
-    rings = [p for p in shapely.get_parts(merged) if p.is_closed and len(p.coords) >= 4]
-    polys = [shapely.make_valid(shapely.Polygon(r.coords)) for r in rings]
-    polys = [p for p in polys if not p.is_empty]
-    if not polys:
-        return None
-    return _polygonal(reduce(shapely.symmetric_difference, polys))

@@ -58,6 +58,7 @@ import osmium
 from osmseg.errors import ConfigError, OSMDataError
 from osmseg.grid import LngLatBBox, pad_bbox
 from osmseg.osm.base import OsmExtract
+from osmseg.osm.josm import count_deleted, has_deletions, without_deleted
 from osmseg.output.atomic import atomic_path, atomic_write_text
 
 logger = logging.getLogger(__name__)
@@ -382,6 +383,22 @@ class LocalFileSource:
         self._identity = (str(self.path.resolve()), str(stat.st_size), str(stat.st_mtime_ns), f"reach={self.reach:g}")
         self._timestamp: tuple[str | None, str] | None = None
         self._regions: list[tuple[tuple[LngLatBBox, ...], Path]] = []
+        self._readable: Path | None = None
+
+    def readable(self) -> Path:
+        """The file to cut from: the input, or (an XML file saved by JOSM with objects marked
+        ``action="delete"``) a copy without them in the work folder (:mod:`osmseg.osm.josm`)."""
+        if self._readable is None:
+            self._readable = self.path
+            if self.path.suffix.lower() in (".osm", ".xml") and has_deletions(self.path):
+                digest = hashlib.sha256("\n".join(self._identity).encode()).hexdigest()[:16]
+                kept = self.workdir / f"josm-live_{digest}.osm"
+                if not kept.exists():
+                    without_deleted(self.path, kept)
+                logger.warning("--osm %s: %d objects are marked deleted (action=delete, a JOSM edit not uploaded): "
+                               "left out, as in JOSM", self.path, count_deleted(self.path))
+                self._readable = kept
+        return self._readable
 
     def timestamp(self) -> tuple[str | None, str]:
         """The input file's data timestamp and its origin (see :func:`osm_file_timestamp`)."""
@@ -404,7 +421,7 @@ class LocalFileSource:
         region = self.workdir / f"region_{len(boxes)}boxes_{digest}.osm.pbf"
         if not region.exists():
             self.workdir.mkdir(parents=True, exist_ok=True)
-            counts = write_extract(self.path, boxes, region, self.reach)
+            counts = write_extract(self.readable(), boxes, region, self.reach)
             logger.info("cut %s from %s for %d boxes: %s", region.name, self.path, len(boxes), counts)
         if all(r != region for _, r in self._regions):
             self._regions.append((boxes, region))
@@ -419,7 +436,7 @@ class LocalFileSource:
         if done is not None:
             return done
         source = next((region for boxes, region in self._regions
-                       if any(bbox_contains(b, bbox) for b in boxes)), self.path)
+                       if any(bbox_contains(b, bbox) for b in boxes)), self.readable())
         out = self.workdir / f"{stem}.osm.pbf"
         self.workdir.mkdir(parents=True, exist_ok=True)
         counts = write_extract(source, [bbox], out, self.reach)

@@ -1,0 +1,124 @@
+"""The HTTP client's on-disk cache: requests-cache's SQLite backend, made safe to share and to fail.
+
+Three things on top of requests-cache 1.x's ``SQLiteCache``:
+
+* every database access behind one lock (its SQLite backend shares one connection between
+  threads and serialises only writes);
+* secrets removed from stored redirect history, which requests-cache keeps unredacted;
+* errors reported: requests-cache rolls back a failed write (a full disk) and carries on, so a
+  response is silently not cached and a later delete dies with ``UnboundLocalError``. Here a
+  cache that cannot be read or written is one :class:`~osmseg.errors.CacheError` line that
+  names the file and what to do.
+
+Imports: osmseg.errors and osmseg.net.redact only.
+"""
+
+from __future__ import annotations
+
+import errno
+import sqlite3
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import requests
+from requests_cache.backends.sqlite import SQLiteCache, SQLiteDict
+from requests_cache.cache_keys import redact_response
+from requests_cache.models.response import CachedResponse
+
+from osmseg.errors import CacheError
+from osmseg.net.redact import redact
+
+
+class _StrictSQLiteDict(SQLiteDict):
+    """requests-cache's SQLite table, with write errors raised instead of swallowed.
+
+    requests-cache 1.x rolls a failed write back and carries on as if it had worked: with the
+    disk full, a response is silently not cached and a later delete dies with an
+    ``UnboundLocalError``. Here the transaction is rolled back and the error raised, for
+    :class:`LockedSQLiteCache` to turn into one line.
+    """
+
+    @contextmanager
+    def _acquire_sqlite_lock(self) -> Iterator[None]:
+        with self._lock:
+            self._connection.execute("BEGIN IMMEDIATE")  # waits up to busy_timeout for other writers
+            self._active_transaction = True
+            try:
+                yield
+                self._connection.commit()
+            except BaseException:
+                self._connection.rollback()
+                raise
+            finally:
+                self._active_transaction = False
+
+
+class LockedSQLiteCache(SQLiteCache):
+    """requests-cache's SQLite backend with every database access behind one lock.
+
+    It also redacts secrets from redirect history, which requests-cache stores unredacted, and
+    reports a database it cannot read or write (a full disk) as one :class:`CacheError` line.
+    """
+
+    def __init__(self, db_path: Path, **kwargs: Any) -> None:
+        try:
+            super().__init__(db_path, **kwargs)
+            for table in (self.responses, self.redirects):
+                table.__class__ = _StrictSQLiteDict  # same state, writes that report their errors
+        except (sqlite3.Error, OSError) as exc:
+            raise _cache_error(db_path, exc) from None
+        self._db_lock = threading.RLock()
+        self._path = Path(db_path)
+
+    def get_response(self, key: str, default: Any = None) -> CachedResponse | None:
+        with self._db_lock, self._reporting():
+            return super().get_response(key, default)
+
+    def delete(self, *keys: str, **kwargs: Any) -> None:
+        with self._db_lock, self._reporting():
+            super().delete(*keys, **kwargs)
+
+    @contextmanager
+    def _reporting(self) -> Iterator[None]:
+        try:
+            yield
+        except (sqlite3.Error, OSError) as exc:
+            raise _cache_error(self._path, exc) from None
+
+    def save_response(
+        self, response: requests.Response, cache_key: str | None = None, expires: Any = None
+    ) -> None:
+        ignored = self._settings.ignored_parameters
+        cached = redact_response(CachedResponse.from_response(response, expires=expires), ignored)
+        for hop in cached.history:
+            redact_response(hop, ignored)
+            if "Location" in hop.headers:
+                hop.headers["Location"] = redact(hop.headers["Location"])
+            hop._next = None  # the next request's URL: may hold a key, never needed again
+        with self._db_lock, self._reporting():
+            key = cache_key or self.create_key(response.request)
+            self.responses[key] = cached
+            for hop_response in response.history:
+                self.redirects[self.create_key(hop_response.request)] = key
+
+    def close(self) -> None:
+        with self._db_lock:
+            super().close()  # type: ignore[no-untyped-call]
+
+
+def _cache_error(path: Path | str, exc: BaseException) -> CacheError:
+    """One line for a cache database that fails (``database or disk is full``, read-only, corrupt)."""
+    reason = _first_line(exc)
+    full = "full" in reason.lower() or getattr(exc, "errno", None) == errno.ENOSPC
+    advice = ("free disk space, or give --cache-dir on a disk with room" if full else
+              "check the folder's permissions and free space, or give another --cache-dir")
+    return CacheError(f"the HTTP cache {path} cannot be used ({reason}): {advice}, then run the same command again "
+                      "(finished samples are kept)")
+
+
+def _first_line(exc: BaseException, limit: int = 300) -> str:
+    text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return text if len(text) <= limit else text[: limit - 1] + "…"

@@ -1,0 +1,290 @@
+"""Predict image files of any size and CRS into class masks (``osmseg predict``, ``osmseg eval``).
+
+:func:`predict_file` reads a PNG/JPEG or any GDAL raster and writes the class ids as an 8-bit
+PNG or as a Cloud-Optimized GeoTIFF with the source's CRS and transform and the class metadata
+every osmseg GeoTIFF carries (:mod:`osmseg.output.geotiff`), block by block for big rasters
+(:mod:`training.infer` runs the model). With a target ground resolution the input is seen
+through a bilinear WarpedVRT at that pixel size and the classes are brought back onto the
+input's own grid with nearest neighbour, so a 0.1 m drone mosaic reaches a model trained on
+0.3 m pixels at the size it learnt objects; :func:`check_resolution` warns when an input is far
+from the training data's resolution and nothing resamples it. Imports: osmseg core and
+:mod:`training.infer`.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import rasterio
+import torch
+from affine import Affine
+from PIL import Image
+from rasterio.enums import Resampling
+from rasterio.errors import NotGeoreferencedWarning, RasterioError
+from rasterio.vrt import WarpedVRT
+from rasterio.windows import Window
+
+from osmseg.errors import ConfigError, ImageryError
+from osmseg.grid import ground_pixel_size
+from osmseg.output.atomic import temp_path_for
+from osmseg.output.geotiff import cog_file, write_class_metadata
+from training.infer import (
+    DEFAULT_BLOCK,
+    PIL_SUFFIXES,
+    ArraySink,
+    ArraySource,
+    InferenceOptions,
+    Progress,
+    RasterSink,
+    RasterSource,
+    Source,
+    error_reason,
+    run_model,
+)
+from training.tiling import pixel_blocks
+
+if TYPE_CHECKING:
+    from training.checkpoint import ModelSpec
+
+logger = logging.getLogger(__name__)
+
+
+@contextmanager
+def _atomic(dst: Path) -> Iterator[Path]:
+    """A hidden temporary path beside ``dst`` that replaces it (mode 0644) only on success."""
+    tmp = temp_path_for(dst)
+    try:
+        yield tmp
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, dst)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+@contextmanager
+def _staging(tmp: Path) -> Iterator[Path]:
+    """A hidden file beside ``tmp`` to write a tiled GeoTIFF into block by block before its COG copy."""
+    stage = tmp.with_name(tmp.name + ".stage.tif")
+    try:
+        yield stage
+    finally:
+        stage.unlink(missing_ok=True)
+
+
+def _kind(path: Path, what: str) -> str:
+    suffix = path.suffix.lower()
+    if suffix == ".png":
+        return "png"
+    if suffix in (".tif", ".tiff"):
+        return "tif"
+    raise ConfigError(f"{path}: {what} must end in .png or .tif, got {suffix or 'no suffix'!r}")
+
+
+@contextmanager
+def _open_source(src: Path) -> Iterator[tuple[Source, dict[str, Any]]]:
+    """The image as a source plus its georeferencing (``crs``, ``transform``; empty for PNG/JPEG)."""
+    if not src.is_file():
+        raise ImageryError(f"{src}: no such file; check the path")
+    if src.suffix.lower() in PIL_SUFFIXES:
+        try:
+            with Image.open(src) as image:
+                image.load()
+                if image.mode == "CMYK":
+                    image = image.convert("RGB")
+                elif image.mode in ("P", "PA"):
+                    image = image.convert("RGBA" if "transparency" in image.info or image.mode == "PA" else "RGB")
+                pixels = np.asarray(image)
+        except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+            raise ImageryError(f"{src}: cannot read image ({error_reason(exc)}); give a PNG, JPEG or GeoTIFF") from None
+        if pixels.dtype == bool:
+            pixels = pixels.astype(np.uint8) * 255
+        yield ArraySource(pixels, str(src)), {}
+        return
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            dataset = rasterio.open(src)
+    except RasterioError as exc:
+        raise ImageryError(f"{src}: cannot open raster ({error_reason(exc)}); give a PNG, JPEG or GeoTIFF") from None
+    with dataset:
+        yield RasterSource(dataset, str(src)), {"crs": dataset.crs, "transform": dataset.transform}
+
+
+def input_resolution(src: str | Path) -> float | None:
+    """Ground metres per pixel of an image file (geodesic, any CRS); None without georeferencing."""
+    path = Path(src)
+    if path.suffix.lower() in PIL_SUFFIXES:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                return ground_pixel_size(ds.crs, ds.transform, ds.width, ds.height) if ds.crs else None
+    except RasterioError:
+        return None
+
+
+def resolution_factor(pixel_m: float | None, target_m: float | None) -> float:
+    """How much to enlarge an image with ``pixel_m`` pixels so they become ``target_m`` (1.0: leave it).
+
+    >>> resolution_factor(0.6, 0.3), resolution_factor(None, 0.3), resolution_factor(0.3, 0.31)
+    (2.0, 1.0, 1.0)
+    """
+    if pixel_m is None or target_m is None:
+        return 1.0
+    factor = pixel_m / target_m
+    return 1.0 if abs(factor - 1.0) < 0.05 else factor
+
+
+def target_resolution(asked: float | str | None, spec: ModelSpec) -> float | None:
+    """``--resolution``'s metres: a number, ``"model"`` (the training data's, from the checkpoint) or None."""
+    if asked is None or isinstance(asked, (int, float)):
+        return None if asked is None else float(asked)
+    if str(asked).strip().lower() == "model":
+        if spec.resolution_m is None:
+            raise ConfigError("--resolution model: this checkpoint does not record the ground resolution of its "
+                              "training data; give it in metres, e.g. --resolution 0.3")
+        return spec.resolution_m
+    try:
+        value = float(asked)
+    except ValueError:
+        raise ConfigError(f"--resolution {asked!r}: give metres per pixel (e.g. 0.3) or 'model'") from None
+    if not value > 0:
+        raise ConfigError(f"--resolution {asked!r}: must be > 0 metres per pixel")
+    return value
+
+
+def check_resolution(pixel_m: float | None, spec: ModelSpec, name: str, asked: float | None) -> None:
+    """Warn when an input's pixels are far (> 1.5x) from the training data's and nothing resamples them."""
+    trained = spec.resolution_m
+    if asked is not None or pixel_m is None or trained is None:
+        return
+    if max(pixel_m / trained, trained / pixel_m) > 1.5:
+        logger.warning("%s has %.3g m pixels but the model was trained on %.3g m pixels: objects look %.1fx %s "
+                       "than it learnt them; pass --resolution model to resample the input first", name, pixel_m,
+                       trained, max(pixel_m / trained, trained / pixel_m),
+                       "smaller" if pixel_m > trained else "larger")
+
+
+def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: str | Path, *,
+                 colour_dst: str | Path | None = None, mode: str = "split-join", join: str = "blend",
+                 overlap: int | tuple[int, int] | None = None, tta: bool = False, batch_size: int = 4,
+                 device: str = "cpu", block_size: int | None = DEFAULT_BLOCK,
+                 progress: Progress | None = None, resolution_m: float | None = None) -> Path:
+    """Predict ``src`` (PNG/JPEG/GeoTIFF or any GDAL raster) into a class-id mask at ``dst``.
+
+    ``dst`` ending in .png gets an 8-bit greyscale PNG of class ids (the whole mask is held in
+    memory); ending in .tif a Cloud-Optimized GeoTIFF with the source's CRS and transform, the
+    class colour table and names (:mod:`osmseg.output.geotiff`), predicted block by block.
+    ``colour_dst`` (.png, or .tif beside a .tif mask) gets an RGB picture in the class colours.
+    ``resolution_m``: a georeferenced input is first resampled (bilinear, on the fly) to pixels of
+    that ground size, predicted there, and the classes brought back onto the input's own grid
+    (nearest), so the mask always matches the input pixel for pixel. Writes are atomic.
+    Returns ``dst``.
+    """
+    options = InferenceOptions(mode, join, overlap, tta, batch_size, device, block_size)
+    src, dst = Path(src), Path(dst)
+    out_kind = _kind(dst, "the mask")
+    colour = Path(colour_dst) if colour_dst is not None else None
+    if colour is not None and _kind(colour, "the colour mask") == "tif" and out_kind != "tif":
+        raise ConfigError(f"{colour}: a GeoTIFF colour mask needs a GeoTIFF mask (dst ending in .tif)")
+    if src.exists() and any(p is not None and p.resolve() == src.resolve() for p in (dst, colour)):
+        raise ConfigError(f"{dst}: the output would overwrite the input image; choose another path")
+    lut = spec.palette()
+    with _open_source(src) as (source, georef):
+        pixel_m = (ground_pixel_size(georef["crs"], georef["transform"], source.width, source.height)
+                   if georef.get("crs") else None)
+        check_resolution(pixel_m, spec, str(src), resolution_m)
+        if resolution_m is not None and pixel_m is None:
+            logger.warning("%s is not georeferenced: --resolution cannot apply, predicted at its own pixel size", src)
+        factor = resolution_factor(pixel_m, resolution_m)
+        logger.info("%s: %dx%d, %s, resampled x%.3g", src, source.width, source.height, options.mode, factor)
+        with _resampled(source, georef, factor) as (work, work_georef):
+            if out_kind == "png":
+                sink = ArraySink(work.height, work.width)
+                run_model(model, spec, work, sink, options, progress)
+                classes = sink.array
+                if work is not source:
+                    classes = np.asarray(Image.fromarray(classes).resize((source.width, source.height),
+                                                                          Image.Resampling.NEAREST))
+                with _atomic(dst) as tmp:
+                    Image.fromarray(classes).save(tmp, format="PNG")
+            else:
+                profile = {"driver": "GTiff", "height": work.height, "width": work.width, "count": 1,
+                           "dtype": "uint8", "compress": "deflate", "tiled": True, "blockxsize": 256,
+                           "blockysize": 256, **work_georef}
+                with _atomic(dst) as tmp, _staging(tmp) as stage:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                        with rasterio.open(stage, "w", **profile) as out:
+                            run_model(model, spec, work, RasterSink(out), options, progress)
+                            write_class_metadata(out, spec.table)  # the one convention of every osmseg GeoTIFF
+                        if work is not source:  # the classes back onto the input's grid, nearest neighbour
+                            _regrid(stage, dict(profile, height=source.height, width=source.width, **georef),
+                                    spec, block_size)
+                        cog_file(stage, tmp, classes=True)
+    if colour is not None:
+        _write_colour(dst, colour, lut, block_size)
+    return dst
+
+
+def _regrid(stage: Path, profile: dict[str, Any], spec: ModelSpec, block_size: int | None) -> None:
+    """Replace the class mask at ``stage`` by its nearest-neighbour copy on ``profile``'s grid, block by block."""
+    regridded = stage.with_name(stage.name + ".grid.tif")
+    try:
+        with rasterio.open(stage) as staged, WarpedVRT(staged, crs=profile["crs"], transform=profile["transform"],
+                                                       width=profile["width"], height=profile["height"],
+                                                       resampling=Resampling.nearest) as back, \
+                rasterio.open(regridded, "w", **profile) as out:
+            for r0, r1, c0, c1 in pixel_blocks(out.height, out.width, block_size):
+                window = Window(c0, r0, c1 - c0, r1 - r0)
+                out.write(back.read(1, window=window), 1, window=window)
+            write_class_metadata(out, spec.table)
+        os.replace(regridded, stage)
+    finally:
+        regridded.unlink(missing_ok=True)
+
+
+@contextmanager
+def _resampled(source: Source, georef: dict[str, Any], factor: float) -> Iterator[tuple[Source, dict[str, Any]]]:
+    """``source`` seen through a bilinear WarpedVRT enlarged ``factor`` times (itself when 1)."""
+    if factor == 1.0 or not isinstance(source, RasterSource):
+        yield source, georef
+        return
+    width, height = max(1, round(source.width * factor)), max(1, round(source.height * factor))
+    transform = georef["transform"] * Affine.scale(source.width / width, source.height / height)
+    with WarpedVRT(source.dataset, crs=georef["crs"], transform=transform, width=width, height=height,
+                   resampling=Resampling.bilinear) as vrt:
+        yield RasterSource(vrt, source.name), {"crs": georef["crs"], "transform": transform}
+
+
+def _write_colour(mask: Path, colour: Path, lut: np.ndarray, block_size: int | None) -> None:
+    """Colour picture of a written mask: whole for PNG, block by block for GeoTIFF."""
+    if _kind(colour, "the colour mask") == "png":
+        if mask.suffix.lower() == ".png":
+            with Image.open(mask) as image:
+                ids = np.asarray(image)
+        else:
+            with rasterio.open(mask) as ds:
+                ids = ds.read(1)
+        with _atomic(colour) as tmp:
+            Image.fromarray(lut[ids]).save(tmp, format="PNG")
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(mask) as ds, _atomic(colour) as tmp, _staging(tmp) as stage:
+            profile = {"driver": "GTiff", "height": ds.height, "width": ds.width, "count": 3, "dtype": "uint8",
+                       "crs": ds.crs, "transform": ds.transform, "tiled": True, "blockxsize": 256,
+                       "blockysize": 256, "photometric": "RGB"}
+            with rasterio.open(stage, "w", **profile) as out:
+                for r0, r1, c0, c1 in pixel_blocks(ds.height, ds.width, block_size):
+                    window = Window(c0, r0, c1 - c0, r1 - r0)
+                    out.write(lut[ds.read(1, window=window)].transpose(2, 0, 1), window=window)
+            cog_file(stage, tmp, classes=True)  # class colours: nearest-neighbour overviews
