@@ -203,6 +203,7 @@ class BuildSummary:
     overlapping: int = 0  # samples sharing pixels with another sample
     groups: int = 0  # groups of overlapping samples (a sample alone is a group)
     no_overlap: bool = False
+    exhausted: int = 0  # slots that ran out of tile blocks of the area (--no-overlap)
 
     def lines(self) -> list[str]:
         reasons = ", ".join(f"{n} {r}" for r, n in sorted(self.rejected.items())) or "none"
@@ -222,8 +223,11 @@ class BuildSummary:
             out.append(f"{self.overlapping} of {self.accepted} samples overlap another ({self.groups} spatial groups"
                        f"{repeat}): training keeps each group in one split; --no-overlap draws samples that never "
                        "overlap")
-        if self.gave_up:
-            out.append(f"{self.gave_up} slots hit --max-tries without an accepted sample")
+        if self.exhausted:
+            out.append(f"{self.exhausted} slots ran out of tile blocks of the area (--no-overlap gives every attempt "
+                       "its own): widen the area, or ask for fewer --samples")
+        if self.gave_up - self.exhausted > 0:
+            out.append(f"{self.gave_up - self.exhausted} slots hit --max-tries without an accepted sample")
         if self.failed:
             out.append(f"{len(self.failed)} samples could not be fetched (services kept failing through every retry); "
                        "their reasons are in .osmseg-build/failures/")
@@ -315,6 +319,7 @@ def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int) 
                 state.record_failure(slot, attempt, reason)
                 return {"slot": slot, "status": "failed", "attempt": attempt, "reason": reason, "rejected": rejections}
             if record["status"] == "exhausted":  # --no-overlap: no block of the area is left for this attempt
+                outcome = {**outcome, "exhausted": True}
                 break
             state.record_attempt(slot, attempt, record)
         if record["status"] == "accepted":
@@ -331,6 +336,9 @@ def open_pipeline(config: BuildConfig, client: HttpClient, env: dict[str, str]) 
     rules = table.base or table
     workdir = (config.cache_dir or config.out_dir / ".osmseg-build") / "osm"
     imagery = make_provider(config.imagery, client, env)
+    check_zoom = getattr(imagery, "check_zoom", None)
+    if callable(check_zoom):  # a provider that knows its zoom range says so before anything is written
+        check_zoom(config.zoom)
     osm = make_osm_source(config.osm, client, workdir, rules)
     return Pipeline(imagery=imagery, osm=osm, table=table, rules=rules)
 
@@ -385,9 +393,7 @@ def build(
     outcomes = [state.slot(s) for s in range(config.samples)]
     summary.pending_other_shards = sum(o is None for o in outcomes)
     if summary.pending_other_shards == 0:
-        if state.recorded_config() != config.identity():  # another command took the folder over meanwhile
-            raise DatasetError(f"{config.out_dir} was taken over by a build with other options while this one ran; "
-                               "use a new --out for one of them")
+        state.check_owner()  # another command took the folder over meanwhile
         manifest = finalize(config, pipe.table, [o for o in outcomes if o], imagery_info, osm_info, command_line)
         summary.duplicates = manifest["summary"]["duplicate_samples"]
         summary.overlapping = manifest["summary"]["overlapping_samples"]
@@ -434,6 +440,7 @@ def _count(summary: BuildSummary, outcome: dict[str, Any]) -> None:
     summary.unplaced += sum(int(r.get("osm_unplaced", 0)) for r in outcome["rejected"])
     if outcome["status"] == "accepted":
         summary.unplaced += int(outcome["sample"].get("osm_unplaced", 0))
+    summary.exhausted += bool(outcome.get("exhausted"))
     if outcome["status"] == "failed":
         summary.failed.append((outcome["slot"], outcome["reason"]))
     elif outcome["status"] == "accepted":

@@ -23,6 +23,7 @@ from typing import Any, NamedTuple
 import mercantile
 from affine import Affine
 from pyproj import CRS, Geod, Transformer
+from pyproj.exceptions import CRSError, ProjError
 
 TILE_SIZE = 256
 EARTH_CIRCUMFERENCE = 2 * math.pi * 6378137.0
@@ -166,7 +167,7 @@ def ground_pixel_size(crs: Any, transform: Affine, width: int, height: int) -> f
     The geodesic (WGS84) distances to the next pixel right and down, averaged: for a projected
     CRS with true metres (UTM, national grids) that is the pixel size; for Web Mercator it is the
     pixel size times cos(latitude), not the CRS's own "metres"; for lon/lat degrees it converts.
-    None when ``crs`` is None.
+    None when ``crs`` is None or not tied to the Earth (a local engineering CRS).
 
     >>> g = sample_grid(13.4050, 52.5200, zoom=18)
     >>> round(ground_pixel_size("EPSG:3857", g.transform, g.width, g.height), 3)  # spherical 0.363
@@ -178,8 +179,13 @@ def ground_pixel_size(crs: Any, transform: Affine, width: int, height: int) -> f
         return None
     col, row = width / 2, height / 2
     xs, ys = zip(transform * (col, row), transform * (col + 1, row), transform * (col, row + 1))
-    lon, lat = Transformer.from_crs(CRS.from_user_input(crs), "EPSG:4326", always_xy=True).transform(xs, ys)
+    try:
+        to_lonlat = Transformer.from_crs(CRS.from_user_input(crs), "EPSG:4326", always_xy=True)
+        lon, lat = to_lonlat.transform(xs, ys, errcheck=True)
+    except (ProjError, CRSError):  # a local/engineering CRS (drone software writes these): not on the Earth
+        return None
     geod = Geod(ellps="WGS84")
     right = geod.inv(lon[0], lat[0], lon[1], lat[1])[2]
     down = geod.inv(lon[0], lat[0], lon[2], lat[2])[2]
-    return round((right + down) / 2, 4)
+    size = (right + down) / 2
+    return round(size, 4) if math.isfinite(size) and size > 0 else None

@@ -35,7 +35,7 @@ from osmseg.places import Area, haversine_m
 
 #: Enumerating more candidate blocks than this is refused (an area too large for --no-overlap at
 #: this zoom; random sampling rarely overlaps there anyway).
-MAX_BLOCKS = 20_000_000
+MAX_BLOCKS = 5_000_000
 
 
 def overlap_groups(boxes: Sequence[Sequence[float]]) -> list[int]:
@@ -70,11 +70,28 @@ def block_centre(bx: int, by: int, zoom: int, grid_size: int) -> tuple[float, fl
     >>> [round(v, 6) for v in block_centre(0, 0, 1, 1)]
     [-90.0, 66.51326]
     """
+    lon, lat = block_centres(np.array([bx]), np.array([by]), zoom, grid_size)[0]
+    return float(lon), float(lat)
+
+
+def block_centres(bx: np.ndarray, by: np.ndarray, zoom: int, grid_size: int) -> np.ndarray:
+    """``(k, 2)`` (lon, lat) centres of many tile blocks at once (as :func:`block_centre`)."""
+    n = 2.0**zoom
     half = grid_size // 2
-    west, south, east, north = mercantile.bounds(bx * grid_size + half, by * grid_size + half, zoom)
-    lat = math.degrees(math.atan(math.sinh((math.atanh(math.sin(math.radians(north))) +
-                                            math.atanh(math.sin(math.radians(south)))) / 2)))
-    return (west + east) / 2, lat
+    x = (np.asarray(bx) * grid_size + half + 0.5) / n
+    y = (np.asarray(by) * grid_size + half + 0.5) / n
+    return np.column_stack([x * 360.0 - 180.0, np.degrees(np.arctan(np.sinh(np.pi * (1.0 - 2.0 * y))))])
+
+
+def _lon_ranges(west: float, east: float) -> list[tuple[float, float]]:
+    """A longitude interval as one or two within [-180, 180] (a disc across the antimeridian)."""
+    if east - west >= 360.0:
+        return [(-180.0, 180.0)]
+    if west < -180.0:
+        return [(west + 360.0, 180.0), (-180.0, east)]
+    if east > 180.0:
+        return [(west, 180.0), (-180.0, east - 360.0)]
+    return [(west, east)]
 
 
 @functools.lru_cache(maxsize=8)
@@ -85,20 +102,25 @@ def candidate_blocks(area: Area, zoom: int, grid_size: int, seed: int) -> np.nda
     else:
         assert area.radius_km is not None
         dlat = area.radius_km / 111.32
-        dlon = area.radius_km / (111.32 * max(math.cos(math.radians(area.lat)), 1e-6))
+        dlon = area.radius_km / (111.32 * max(math.cos(math.radians(min(abs(area.lat) + dlat, 89.9))), 1e-6))
         box = LngLatBBox(area.lon - dlon, max(area.lat - dlat, -85.05), area.lon + dlon, min(area.lat + dlat, 85.05))
-    nw = mercantile.tile(box.west, box.north, zoom)
-    se = mercantile.tile(box.east, box.south, zoom)
     full = 2**zoom // grid_size  # whole blocks only: a partial block at the world's edge is not a sample
-    x0, x1 = nw.x // grid_size, min(se.x // grid_size, full - 1)
-    y0, y1 = nw.y // grid_size, min(se.y // grid_size, full - 1)
-    count = (x1 - x0 + 1) * (y1 - y0 + 1)
+    ranges = []
+    for west, east in _lon_ranges(box.west, box.east):
+        nw = mercantile.tile(west, box.north, zoom)
+        se = mercantile.tile(east, box.south, zoom)
+        ranges.append((nw.x // grid_size, min(se.x // grid_size, full - 1),
+                       nw.y // grid_size, min(se.y // grid_size, full - 1)))
+    count = sum((x1 - x0 + 1) * (y1 - y0 + 1) for x0, x1, y0, y1 in ranges)
     if count > MAX_BLOCKS:
         raise ConfigError(f"--no-overlap: the area holds {count:,} tile blocks at zoom {zoom}, too many to enumerate; "
                           "sample a smaller area, or drop --no-overlap (overlaps are rare in areas this large)")
-    bx, by = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1), indexing="xy")
-    blocks = np.column_stack([bx.ravel(), by.ravel()])
-    centres = np.array([block_centre(int(x), int(y), zoom, grid_size) for x, y in blocks]).reshape(-1, 2)
+    parts = []
+    for x0, x1, y0, y1 in ranges:
+        bx, by = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1), indexing="xy")
+        parts.append(np.column_stack([bx.ravel(), by.ravel()]))
+    blocks = np.unique(np.concatenate(parts), axis=0)  # sorted, and a block counted once
+    centres = block_centres(blocks[:, 0], blocks[:, 1], zoom, grid_size)
     if area.bbox is not None:
         b = area.bbox
         inside = ((centres[:, 0] >= b.west) & (centres[:, 0] <= b.east) &

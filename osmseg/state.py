@@ -31,28 +31,34 @@ class BuildState:
 
     def __init__(self, out_dir: Path) -> None:
         self.root = out_dir / STATE_DIR
+        self.identity: dict[str, Any] | None = None  # set by check_config
 
     def check_config(self, config: dict[str, Any]) -> None:
         """Record the build's identity, or refuse to mix two different builds in one folder.
 
         ``config`` holds only what decides the dataset's content (seed, area, zoom, sources,
         classes, thresholds), in its JSON form; options such as ``--offline`` or ``--shard``
-        may change freely. A folder whose recorded build never finished an attempt (the
-        command failed at its first request: a wrong key, a typo in a URL) holds nothing of
-        that build, so a corrected command takes it over instead of being refused.
+        may change freely. A folder whose recorded build has no accepted sample yet (the command
+        failed early: a wrong key, a typo in a URL, a zoom the provider lacks) holds nothing a
+        user would miss, so a corrected command takes it over: the old build's rejected attempts
+        and failure notes are cleared (they belong to the old options), then the new identity is
+        recorded.
         """
-        path = self.config_path
+        self.identity = config
         recorded = self.recorded_config()
         if recorded is not None and recorded != config:
-            if self.has_work():
+            if self.has_samples():
                 changed = sorted(k for k in set(recorded) | set(config) if recorded.get(k) != config.get(k))
                 raise DatasetError(
                     f"{self.root.parent} holds a different build (differs in: {', '.join(changed)}); "
                     "use a new --out, or the same options to resume it"
                 )
-            recorded = None  # nothing was built with it: the new command takes the folder over
+            for folder in ("attempts", "slots", "failures"):  # the old options' work: not this build's
+                for record in (self.root / folder).glob("*.json"):
+                    record.unlink(missing_ok=True)
+            recorded = None
         if recorded is None:
-            atomic_write_json(path, config)
+            atomic_write_json(self.config_path, config)
 
     @property
     def config_path(self) -> Path:
@@ -66,14 +72,32 @@ class BuildState:
         try:
             recorded = json.loads(path.read_text())
         except (OSError, ValueError):
-            if not self.has_work():
-                return None  # a torn file with nothing built after it: start afresh
-            raise DatasetError(f"{path} is unreadable; delete {self.root} to start the build over") from None
-        return recorded if isinstance(recorded, dict) else None
+            recorded = None
+        if not isinstance(recorded, dict):
+            if not self.has_samples():
+                return None  # a torn or foreign file with nothing built after it: start afresh
+            raise DatasetError(f"{path} is unreadable; delete {self.root} to start the build over")
+        return recorded
 
-    def has_work(self) -> bool:
-        """True once any attempt or slot of this folder's build has finished."""
-        return any(any((self.root / d).glob("*.json")) for d in ("attempts", "slots"))
+    def has_samples(self) -> bool:
+        """True once any attempt of this folder's build was accepted (sample files were written)."""
+        for record in (self.root / "attempts").glob("*.json"):
+            try:
+                if json.loads(record.read_text()).get("status") == "accepted":
+                    return True
+            except (OSError, ValueError, AttributeError):
+                return True  # unreadable: assume the worst, never throw work away
+        return False
+
+    def check_owner(self) -> None:
+        """Refuse to go on when another command (other options) took the folder over meanwhile.
+
+        Called before each record: a shard started with other options cannot then leave its
+        samples in a folder whose manifest will describe another build.
+        """
+        if self.identity is not None and self.recorded_config() != self.identity:
+            raise DatasetError(f"{self.root.parent} was taken over by a build with other options while this one "
+                               "ran; use a new --out for one of them")
 
     def _attempt_path(self, slot: int, attempt: int) -> Path:
         return self.root / "attempts" / f"{slot:05d}-{attempt:02d}.json"
@@ -86,6 +110,7 @@ class BuildState:
         return _read_json(self._attempt_path(slot, attempt))
 
     def record_attempt(self, slot: int, attempt: int, outcome: dict[str, Any]) -> None:
+        self.check_owner()
         atomic_write_json(self._attempt_path(slot, attempt), outcome)
         (self.root / "failures" / f"{slot:05d}-{attempt:02d}.json").unlink(missing_ok=True)  # it worked now
 
@@ -99,6 +124,7 @@ class BuildState:
         return _read_json(self._slot_path(slot))
 
     def record_slot(self, slot: int, outcome: dict[str, Any]) -> None:
+        self.check_owner()
         atomic_write_json(self._slot_path(slot), outcome)
 
 

@@ -199,6 +199,36 @@ def test_rerun_into_a_folder_of_another_build_is_refused(tmp_path: Path, imagery
     assert tree_bytes(out) == before
 
 
+def test_a_folder_with_no_accepted_sample_is_taken_over_by_the_corrected_command(
+        tmp_path: Path, imagery_tif: Path) -> None:
+    """Filters too strict: every attempt rejected, no sample. The corrected command is not refused,
+    and the old options' records are gone (the result equals a build into a fresh folder)."""
+    out = tmp_path / "ds"
+    strict = CliRunner().invoke(cli, ["-q", *build_args(out, imagery_tif, "--min-classes", "30", "--max-tries", "2",
+                                                         samples=1)])
+    assert strict.exit_code == 1 and "no sample was accepted" in strict.output
+    assert any((out / ".osmseg-build" / "attempts").glob("*.json"))
+    fixed = run_cli(*build_args(out, imagery_tif, samples=1))
+    assert fixed.exit_code == 0, fixed.output
+    fresh = tmp_path / "fresh" / "ds"
+    assert run_cli(*build_args(fresh, imagery_tif, samples=1)).exit_code == 0
+    assert tree_bytes(out) == tree_bytes(fresh)
+
+
+def test_a_build_stops_when_another_command_takes_its_folder_over(tmp_path: Path) -> None:
+    """Two commands with other options on one folder (say, shards started with a typo): the one
+    that lost the folder stops at its next record instead of mixing its samples in."""
+    from osmseg.errors import DatasetError
+    from osmseg.state import BuildState
+
+    first, second = BuildState(tmp_path), BuildState(tmp_path)
+    first.check_config({"seed": 1})
+    second.check_config({"seed": 2})  # nothing accepted yet: the folder is taken over
+    with pytest.raises(DatasetError, match="taken over by a build with other options"):
+        first.record_attempt(0, 0, {"status": "rejected", "reason": "unlabeled"})
+    second.record_attempt(0, 0, {"status": "rejected", "reason": "unlabeled"})
+
+
 @pytest.mark.parametrize(
     ("args", "code", "says"),
     [
@@ -209,6 +239,10 @@ def test_rerun_into_a_folder_of_another_build_is_refused(tmp_path: Path, imagery
           "--imagery", "xyz:file:///tmp/{z}/{x}/{y}.png"], 2, "not found"),
         (["build", "--city", "Berlin", "--out", "x", "--imagery", "bing"], 2, "BING_MAPS_KEY"),
         (["build", "--city", "Berlin", "--out", "x", "--imagery", "carrier-pigeon"], 2, "imagery"),
+        (["build", "--city", "Berlin", "--radius-km", "nan", "--out", "x", "--imagery", "Esri.WorldImagery"], 2,
+         "finite radius"),
+        (["build", "--city", "Paris", "--zoom", "20", "--out", "x", "--imagery", "GeoportailFrance.orthos"], 2,
+         "use --zoom 19 or lower"),
     ],
 )
 def test_bad_input_gives_one_line_and_a_usage_exit(tmp_path: Path, args: list[str], code: int, says: str,

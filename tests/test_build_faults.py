@@ -415,8 +415,11 @@ def test_ctrl_c_stops_cleanly_and_the_same_command_resumes(services: Services, c
             services.fault(path, lambda n, good=good: Reply(good.status, good.body, good.headers, delay=0.1))
     out = tmp_path / "ds"
     args = build_args(services.server, out, tmp_path / "cache")
+    # a background job of a non-interactive shell (CI, `make test &`) inherits SIGINT ignored, and
+    # Python then never turns it into KeyboardInterrupt: give the build the terminal's default
     proc = subprocess.Popen([sys.executable, "-m", "osmseg", "-q", *args], env={**os.environ, "TILE_KEY": SECRET},
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     first_slot = out / ".osmseg-build" / "slots" / "00000.json"
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and proc.poll() is None and not first_slot.exists():

@@ -535,3 +535,15 @@ def test_an_answer_the_caller_refuses_for_good_is_not_retried_nor_cached(http_se
     assert http_server.count("/data") == 1
     with client(tmp_path, offline=True) as c, pytest.raises(OfflineCacheMiss):
         c.get(http_server.url("/data"))
+
+
+def test_offline_a_cached_answer_that_is_unusable_is_kept_and_said(http_server: ScriptedServer,
+                                                                    tmp_path: Path) -> None:
+    http_server.script("/data", Reply(200, "<html>cached by an old version</html>"))
+    with client(tmp_path) as c:
+        c.get(http_server.url("/data"))  # a plain GET caches whatever came
+    with client(tmp_path, offline=True) as c, pytest.raises(RetriesExhausted) as exc:
+        c.fetch(http_server.url("/data"), _ints)
+    assert "cached answer is unusable" in one_line(exc) and "without --offline" in one_line(exc)
+    with client(tmp_path, offline=True) as c:  # still there: offline, nothing is deleted
+        assert c.get(http_server.url("/data")).status_code == 200

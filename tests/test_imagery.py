@@ -32,7 +32,6 @@ from osmseg.imagery import (
     BingProvider,
     GeoTiffProvider,
     XYZProvider,
-    default_imagery_spec,
     make_provider,
 )
 from osmseg.imagery.bing import AUTH_MESSAGE
@@ -150,13 +149,10 @@ def test_bing_zoom_outside_metadata_range_is_a_config_error(client):
 
 
 def test_bing_needs_a_key(client):
-    with pytest.raises(
-        ConfigError, match=re.escape("set BING_MAPS_KEY or use --imagery xyz:... / geotiff:...")
-    ):
+    with pytest.raises(ConfigError, match=re.escape("--imagery bing needs BING_MAPS_KEY")) as err:
         make_provider("bing", client, env={})
-    with pytest.raises(ConfigError, match="BING_MAPS_KEY"):
-        default_imagery_spec({})
-    assert default_imagery_spec({"BING_MAPS_KEY": BING_KEY}) == "bing"
+    assert "no longer exist" in str(err.value) and "Esri.WorldImagery" in str(err.value)
+    assert isinstance(make_provider("bing", client, env={"BING_MAPS_KEY": BING_KEY}), BingProvider)
 
 
 def synthetic_tile(tile: mercantile.Tile, fmt: str) -> bytes:

@@ -460,3 +460,14 @@ def test_manila_orthophoto_blockwise_equals_whole_and_keeps_georeference(tmp_pat
     predict_file(model, spec, src, tmp_path / "rescale.tif", mode="rescale")
     with rasterio.open(tmp_path / "rescale.tif") as r:
         assert r.crs == CRS.from_epsg(3395) and r.shape == (2048, 2048)
+
+
+def test_a_geotiff_in_a_local_engineering_crs_is_predicted_without_a_ground_resolution(tmp_path) -> None:
+    """Drone software writes rasters in a LOCAL_CS: not on the Earth, so no ground pixel size, no error."""
+    spec = make_spec()
+    image, truth = blocky(200, 300, 20, list(COLOURS), seed=2)
+    local = 'LOCAL_CS["site grid",UNIT["metre",1],AXIS["X",EAST],AXIS["Y",NORTH]]'
+    write_tif(tmp_path / "site.tif", image, crs=CRS.from_wkt(local))
+    out = predict_file(ColourModel(spec), spec, tmp_path / "site.tif", tmp_path / "site_mask.tif", resolution_m=0.3)
+    with rasterio.open(out) as ds:
+        assert np.array_equal(ds.read(1), truth)

@@ -29,7 +29,7 @@ from vcr.serializers import yamlserializer
 from osmseg.cli.main import cli
 from osmseg.errors import ConfigError
 from osmseg.grid import TILE_SIZE, sample_grid
-from osmseg.imagery import KEYLESS_DEFAULT, NamedProvider, default_imagery_spec, make_provider
+from osmseg.imagery import KEYLESS_DEFAULT, NamedProvider, make_provider
 from osmseg.imagery.providers import (
     AERIAL_PROVIDERS,
     aerial_providers,
@@ -147,7 +147,7 @@ def test_key_needing_provider_without_its_variable_is_a_usage_error(tmp_path: Pa
 
 def test_no_imagery_and_no_bing_key_names_a_keyless_provider() -> None:
     with pytest.raises(ConfigError) as err:
-        default_imagery_spec({})
+        make_provider("bing", None, env={})
     message = str(err.value)
     assert "\n" not in message and "BING_MAPS_KEY" in message and "Basic keys no longer exist" in message
     assert f"--imagery {KEYLESS_DEFAULT}" in message

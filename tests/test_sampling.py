@@ -192,3 +192,27 @@ def test_splits_of_a_dataset_without_footprints_are_by_image() -> None:
     assert len(set(groups.values())) == 12
     assert make_splits(names, 0, groups=groups) == make_splits(names, 0)
     assert list(itertools.chain(*make_splits(names, 0).values()))
+
+
+def test_georeferenced_images_without_a_manifest_are_grouped_by_their_extents(tmp_path: Path) -> None:
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from training.splits import sample_groups
+
+    paths = {}
+    for name, x0 in (("a", 400000.0), ("b", 400150.0), ("c", 401000.0)):  # a and b overlap by half
+        paths[name] = tmp_path / f"{name}.tif"
+        with rasterio.open(paths[name], "w", driver="GTiff", width=1000, height=1000, count=3, dtype="uint8",
+                           crs="EPSG:32633", transform=from_origin(x0, 5800000.0, 0.3, 0.3)) as dst:
+            dst.write(np.zeros((3, 1000, 1000), np.uint8))
+    groups = sample_groups(tmp_path, paths, paths)
+    assert groups["a"] == groups["b"] != groups["c"]
+
+
+def test_no_overlap_blocks_wrap_across_the_antimeridian() -> None:
+    east = candidate_blocks(Area("east", 0.0, 179.99, radius_km=5.0), 16, 5, seed=0)
+    columns = {int(x) for x in east[:, 0]}
+    assert 0 in columns and max(columns) == 2**16 // 5 - 1  # both sides of the 180th meridian
+    centres = [block_centre(int(x), int(y), 16, 5) for x, y in east]
+    assert all(abs(abs(lon) - 180.0) < 0.1 for lon, _ in centres)

@@ -29,8 +29,8 @@ from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_bytes
 from training.checkpoint import ModelSpec, load_checkpoint, model_from_checkpoint
 from training.data import SampleFiles, dataset_class_table, discover_dataset, read_image, read_label
-from training.infer import predict_array
-from training.predict import check_resolution, input_resolution, resolution_factor, target_resolution
+from training.infer import InferenceOptions
+from training.predict import predict_image, target_resolution
 from training.metrics import ConfusionMatrix, format_table, load_class_mapping
 from training.pictures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
 from training.train import dataset_fingerprint, has_class_table, model_classes
@@ -71,27 +71,6 @@ def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequen
     return files, f"all {len(files)} images (not the dataset the model was trained on)"
 
 
-def predict_at_scale(model: torch.nn.Module, rgb: np.ndarray, spec: ModelSpec, opts: EvalOptions,
-                     scale: float) -> np.ndarray:
-    """Predict on ``rgb`` enlarged by ``scale`` (bilinear), then bring the classes back (nearest).
-
-    A model trained on 0.075 m pixels sees 0.3 m imagery four times too small; enlarging the
-    input shows it objects at the size it learnt them. Class ids are never interpolated.
-    """
-    from PIL import Image
-
-    h, w = rgb.shape[:2]
-    if abs(scale - 1.0) < 0.05:
-        big = rgb
-    else:
-        big = np.asarray(Image.fromarray(rgb).resize((round(w * scale), round(h * scale)), Image.BILINEAR))
-    pred = predict_array(model, big, spec, mode=opts.mode, join=opts.join, tta=opts.tta,
-                         batch_size=opts.batch_size, device=opts.device)
-    if big is rgb:
-        return pred
-    return np.asarray(Image.fromarray(pred).resize((w, h), Image.NEAREST))
-
-
 def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[SampleFiles], opts: EvalOptions,
                     label_lut: np.ndarray | None = None,
                     ) -> tuple[dict[str, Any], list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], dict[str, Any]]:
@@ -110,6 +89,7 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
     # names indexed by evaluation id: a mapping's classes are numbered by position, a model's by id
     class_names = list(mapping.classes) if mapping is not None else spec.class_names
     target_m = target_resolution(opts.resolution_m, spec)
+    inference = InferenceOptions(opts.mode, opts.join, None, opts.tta, opts.batch_size, opts.device)
     panels = []
     for f in tqdm(files, desc="evaluate", leave=False, disable=not opts.progress):
         rgb = read_image(f.image)
@@ -117,9 +97,7 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
         if truth.shape != rgb.shape[:2]:
             raise DatasetError(f"{f.label}: label is {truth.shape[1]}x{truth.shape[0]} but the image is "
                                f"{rgb.shape[1]}x{rgb.shape[0]}; give labels on the image's grid")
-        pixel_m = input_resolution(f.image)
-        check_resolution(pixel_m, spec, str(f.image), target_m)
-        pred = predict_at_scale(model, rgb, spec, opts, resolution_factor(pixel_m, target_m))
+        pred = predict_image(model, spec, f.image, inference, target_m)  # exactly what `osmseg predict` writes
         if mapping is not None:
             truth, pred = mapping.map_gt(truth), mapping.map_pred(pred, names)
         elif label_lut is not None:

@@ -29,6 +29,7 @@ from PIL import Image
 from rasterio.enums import Resampling
 from rasterio.errors import NotGeoreferencedWarning, RasterioError
 from rasterio.vrt import WarpedVRT
+from rasterio.warp import reproject
 from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError
@@ -198,25 +199,14 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
     if src.exists() and any(p is not None and p.resolve() == src.resolve() for p in (dst, colour)):
         raise ConfigError(f"{dst}: the output would overwrite the input image; choose another path")
     lut = spec.palette()
-    with _open_source(src) as (source, georef):
-        pixel_m = (ground_pixel_size(georef["crs"], georef["transform"], source.width, source.height)
-                   if georef.get("crs") else None)
-        check_resolution(pixel_m, spec, str(src), resolution_m)
-        if resolution_m is not None and pixel_m is None:
-            logger.warning("%s is not georeferenced: --resolution cannot apply, predicted at its own pixel size", src)
-        factor = resolution_factor(pixel_m, resolution_m)
-        logger.info("%s: %dx%d, %s, resampled x%.3g", src, source.width, source.height, options.mode, factor)
-        with _resampled(source, georef, factor) as (work, work_georef):
-            if out_kind == "png":
-                sink = ArraySink(work.height, work.width)
-                run_model(model, spec, work, sink, options, progress)
-                classes = sink.array
-                if work is not source:
-                    classes = np.asarray(Image.fromarray(classes).resize((source.width, source.height),
-                                                                          Image.Resampling.NEAREST))
-                with _atomic(dst) as tmp:
-                    Image.fromarray(classes).save(tmp, format="PNG")
-            else:
+    if out_kind == "png":
+        classes = predict_image(model, spec, src, options, resolution_m, progress)
+        with _atomic(dst) as tmp:
+            Image.fromarray(classes).save(tmp, format="PNG")
+    else:
+        with _open_source(src) as (source, georef):
+            factor = _factor(source, georef, spec, src, resolution_m, options)
+            with _resampled(source, georef, factor) as (work, work_georef):
                 profile = {"driver": "GTiff", "height": work.height, "width": work.width, "count": 1,
                            "dtype": "uint8", "compress": "deflate", "tiled": True, "blockxsize": 256,
                            "blockysize": 256, **work_georef}
@@ -233,6 +223,40 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
     if colour is not None:
         _write_colour(dst, colour, lut, block_size)
     return dst
+
+
+def predict_image(model: torch.nn.Module, spec: ModelSpec, src: str | Path, options: InferenceOptions,
+                  resolution_m: float | None = None, progress: Progress | None = None) -> np.ndarray:
+    """Class ids ``(H, W)`` uint8 of an image file, on the file's own grid, held in memory.
+
+    What :func:`predict_file` writes as a PNG mask and what ``osmseg eval`` scores: the same
+    resampling (a bilinear WarpedVRT to ``resolution_m``, GDAL's nearest neighbour back), so
+    ``predict`` and ``eval`` of one image with one ``--resolution`` give the same classes.
+    """
+    with _open_source(Path(src)) as (source, georef):
+        factor = _factor(source, georef, spec, Path(src), resolution_m, options)
+        with _resampled(source, georef, factor) as (work, work_georef):
+            sink = ArraySink(work.height, work.width)
+            run_model(model, spec, work, sink, options, progress)
+            if work is source:
+                return sink.array
+            back = np.zeros((source.height, source.width), dtype=np.uint8)
+            reproject(sink.array, back, src_transform=work_georef["transform"], src_crs=work_georef["crs"],
+                      dst_transform=georef["transform"], dst_crs=georef["crs"], resampling=Resampling.nearest)
+            return back
+
+
+def _factor(source: Source, georef: dict[str, Any], spec: ModelSpec, src: Path, resolution_m: float | None,
+            options: InferenceOptions) -> float:
+    """How much to enlarge ``source`` for ``resolution_m`` (warning when it is far from the training's)."""
+    pixel_m = (ground_pixel_size(georef["crs"], georef["transform"], source.width, source.height)
+               if georef.get("crs") else None)
+    check_resolution(pixel_m, spec, str(src), resolution_m)
+    if resolution_m is not None and pixel_m is None:
+        logger.warning("%s is not georeferenced: --resolution cannot apply, predicted at its own pixel size", src)
+    factor = resolution_factor(pixel_m, resolution_m)
+    logger.info("%s: %dx%d, %s, resampled x%.3g", src, source.width, source.height, options.mode, factor)
+    return factor
 
 
 def _regrid(stage: Path, profile: dict[str, Any], spec: ModelSpec, block_size: int | None) -> None:
@@ -282,7 +306,7 @@ def _write_colour(mask: Path, colour: Path, lut: np.ndarray, block_size: int | N
         with rasterio.open(mask) as ds, _atomic(colour) as tmp, _staging(tmp) as stage:
             profile = {"driver": "GTiff", "height": ds.height, "width": ds.width, "count": 3, "dtype": "uint8",
                        "crs": ds.crs, "transform": ds.transform, "tiled": True, "blockxsize": 256,
-                       "blockysize": 256, "photometric": "RGB"}
+                       "blockysize": 256, "photometric": "RGB", "compress": "deflate"}
             with rasterio.open(stage, "w", **profile) as out:
                 for r0, r1, c0, c1 in pixel_blocks(ds.height, ds.width, block_size):
                     window = Window(c0, r0, c1 - c0, r1 - r0)

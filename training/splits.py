@@ -9,11 +9,15 @@ together, so that no pixel of a test image was seen in training; :func:`write_sp
 from __future__ import annotations
 
 import json
+import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import rasterio
+import rasterio.errors
+from rasterio.warp import transform_bounds
 
 from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_bytes
@@ -31,9 +35,10 @@ def make_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3,
     (rounding half up; at least one each when there are enough images, ``n >= 3`` for a test
     image and ``m >= 2`` for a validation one; always at least one for training). Groups sorted
     by their first name are shuffled by a numpy Generator seeded with ``seed`` and dealt in that
-    order: to test until its target is met, then to validation, then to training; a group may
-    overshoot a target. With no groups this is a split by image, and the result does not depend
-    on the input order.
+    order: to test while it stays within its target, else to validation likewise, else to
+    training; a split still empty then takes the smallest group of training (or of the other
+    held-out split) that leaves its donor at least one image. With no groups this is exactly a split by image, and the result does
+    not depend on the input order. Too few separate areas leave a split empty.
 
     >>> s = make_splits([f"s{i}" for i in range(12)], seed=0)
     >>> [len(s[k]) for k in ("train", "val", "test")]
@@ -41,6 +46,9 @@ def make_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3,
     >>> g = make_splits([f"s{i}" for i in range(12)], seed=0, groups={"s1": 0, "s2": 0, "s3": 0})
     >>> len({k for k in g for n in g[k] if n in ("s1", "s2", "s3")})
     1
+    >>> big = make_splits([f"s{i:02d}" for i in range(12)], seed=0, groups={f"s{i:02d}": 0 for i in range(8)})
+    >>> [len(big[k]) for k in ("train", "val", "test")]
+    [8, 1, 3]
     """
     unique = sorted(set(names))
     if len(unique) != len(names):
@@ -64,17 +72,37 @@ def make_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3,
     units = sorted(members.values(), key=lambda u: u[0])
     order = np.random.default_rng(seed).permutation(len(units))
     out: dict[str, list[str]] = {"train": [], "val": [], "test": []}
-    for i in order:
-        target = "test" if len(out["test"]) < n_test else "val" if len(out["val"]) < n_val else "train"
-        out[target].extend(units[i])
+    for i in order:  # a group goes where it fits without passing the target; the rest trains
+        unit = units[i]
+        if len(out["test"]) + len(unit) <= n_test:
+            out["test"].extend(unit)
+        elif len(out["val"]) + len(unit) <= n_val:
+            out["val"].extend(unit)
+        else:
+            out["train"].extend(unit)
+    # groups too large for a target can leave a split empty: it then takes the smallest group of
+    # training, or of the other held-out split, whose donor keeps at least one image
+    dealt = [units[i] for i in order]
+    for split, wanted in (("test", n_test), ("val", n_val)):
+        if not wanted or out[split]:
+            continue
+        other = "val" if split == "test" else "test"
+        for donor in ("train", other):
+            owned = sorted((u for u in dealt if u[0] in out[donor]), key=len)
+            unit = next((u for u in owned if len(out[donor]) - len(u) >= 1), None)
+            if unit is not None:
+                out[split].extend(unit)
+                out[donor] = [n for n in out[donor] if n not in unit]
+                break
     return {k: sorted(v) for k, v in out.items()}
 
 
-def sample_groups(root: Path, names: Iterable[str]) -> dict[str, int]:
+def sample_groups(root: Path, names: Iterable[str], images: Mapping[str, Path] | None = None) -> dict[str, int]:
     """Which of a dataset's samples overlap on the ground: name -> group id (every name listed).
 
     From ``manifest.json``'s ``bounds_3857`` (``osmseg build`` output), else from the extents of
-    georeferenced images (``images/*.tif``); samples whose footprint is unknown are alone.
+    georeferenced ``images`` (name -> file; GeoTIFFs in any CRS, compared in EPSG:3857); samples
+    whose footprint is unknown are alone.
     """
     names = sorted(set(names))
     boxes: dict[str, tuple[float, ...]] = {}
@@ -88,6 +116,18 @@ def sample_groups(root: Path, names: Iterable[str]) -> dict[str, int]:
                     boxes[str(s["name"])] = tuple(float(v) for v in b)
         except (OSError, ValueError, TypeError, KeyError, AttributeError):
             boxes = {}
+    for name in names:
+        path = (images or {}).get(name)
+        if name in boxes or path is None or Path(path).suffix.lower() not in (".tif", ".tiff"):
+            continue
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # NotGeoreferencedWarning
+                with rasterio.open(path) as ds:
+                    if ds.crs is not None:
+                        boxes[name] = tuple(transform_bounds(ds.crs, "EPSG:3857", *ds.bounds))
+        except (rasterio.errors.RasterioError, ValueError):
+            continue  # unreadable here: validation names the file; unknown footprint meanwhile
     known = [n for n in names if n in boxes]
     ids = overlap_groups([boxes[n] for n in known])
     groups = dict(zip(known, ids))

@@ -38,6 +38,7 @@ from training.checkpoint import ModelSpec, load_checkpoint, save_checkpoint
 from training.config import TrainConfig
 from training.data import (
     PatchDataset,
+    SampleFiles,
     dataset_class_table,
     dataset_resolution,
     discover_dataset,
@@ -184,12 +185,14 @@ def check_resumable(saved: dict[str, Any], config: TrainConfig) -> None:
                           "use a new --out, or the same settings to resume it")
 
 
-def prepare_splits(config: TrainConfig, names: list[str], d: Dist) -> dict[str, list[str]]:
+def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist) -> dict[str, list[str]]:
     """The run's image splits: read back on resume, else drawn from the seed and written down."""
     path = config.out_dir / "splits.json"
     if path.exists():
         return read_splits(path)
-    groups = sample_groups(config.dataset, names) if config.split_by == "groups" else None
+    names = sorted(f.name for f in files)
+    images = {f.name: f.image for f in files}
+    groups = sample_groups(config.dataset, names, images) if config.split_by == "groups" else None
     splits = make_splits(names, config.seed, config.test_fraction, config.val_fraction, groups=groups)
     if not splits["train"] or not splits["val"]:
         areas = len(set(groups.values())) if groups else len(names)
@@ -237,7 +240,7 @@ def _run(config: TrainConfig, d: Dist, progress: bool = True) -> dict[str, Any]:
         for litter in config.out_dir.glob(".*.tmp"):  # a checkpoint save cut short by a kill
             litter.unlink(missing_ok=True)
     barrier()
-    splits = given_splits or prepare_splits(config, sorted(f.name for f in files), d)
+    splits = given_splits or prepare_splits(config, list(files), d)
     train_files = files_by_name(files, splits["train"])
     val_files = files_by_name(files, splits["val"])
     common = dict(mean=spec.mean, std=spec.std, ignore_index=spec.ignore_index, seed=config.seed,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import math
 import os
 from dataclasses import replace
 import sys
@@ -17,7 +18,7 @@ from osmseg.errors import ConfigError, DatasetError
 from osmseg.filters import FilterConfig
 from osmseg.output import command_line
 from osmseg.cli.common import command_line_of, report_errors
-from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT
+from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT, missing_bing_key
 from osmseg.places import Area, find_preset, parse_bbox
 
 
@@ -34,6 +35,8 @@ def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: s
     given = sum(x is not None for x in (city, bbox)) + (lat is not None or lon is not None)
     if given != 1:
         raise ConfigError("give exactly one of --city NAME, --lat/--lon, or --bbox W,S,E,N")
+    if radius_km is not None and not math.isfinite(radius_km):
+        raise ConfigError(f"--radius-km {radius_km}: give a finite radius in kilometres, e.g. 5")
     if city is not None:
         p = find_preset(city)
         return Area(name=p.name, lat=p.lat, lon=p.lon, radius_km=radius_km or p.radius_km, kind=p.kind)
@@ -95,8 +98,9 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
                            "to retry the rest")
     click.echo(str(config.out_dir / "manifest.json") if summary.finalized else str(config.out_dir))
     if summary.finalized and summary.accepted == 0:
+        more = "widen the area (--no-overlap ran out of tile blocks)" if summary.exhausted else "raise --max-tries"
         raise DatasetError("no sample was accepted (see the rejection reasons above and in manifest.json): "
-                           "loosen the filters, raise --max-tries, or sample another area")
+                           f"loosen the filters, {more}, or sample another area")
     return summary
 
 
@@ -157,8 +161,7 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
     area = resolve_area(city, lat, lon, bbox, radius_km)
     if (imagery or "bing").strip().lower().split(":")[0] == "bing" and not os.environ.get(BING_KEY_ENV):
         # Bing Maps Basic keys no longer exist: say so, and give a command that works as it is
-        raise ConfigError(f"{'--imagery bing needs' if imagery else 'no --imagery given, and the default, Bing Maps, needs'} "
-                          f"{BING_KEY_ENV} (Bing Maps Basic keys no longer exist); run instead: "
+        raise ConfigError(f"{missing_bing_key(imagery is not None)}; run instead: "
                           f"{command_line_of(ctx, imagery=KEYLESS_DEFAULT)}  (keyless; other providers: docs/imagery.md)")
     filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes, min_contrast=min_contrast,
                            max_invalid_imagery=max_missing_imagery, max_placeholder_tiles=max_placeholder_tiles)

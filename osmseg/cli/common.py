@@ -108,7 +108,12 @@ def command_line_of(ctx: click.Context, **overrides: Any) -> str:
 
     Options the user did not give are left out, so the line is the one they typed, corrected.
     """
-    words = ["osmseg", *ctx.command_path.split()[1:]]
+    names = []  # the subcommand names: the program may have been started as `python -m osmseg`
+    node: click.Context | None = ctx
+    while node is not None and node.parent is not None:
+        names.insert(0, str(node.info_name))
+        node = node.parent
+    words = ["osmseg", *names]
     params = {**ctx.params, **overrides}
     for param in ctx.command.params:
         value = params.get(param.name)  # type: ignore[arg-type]

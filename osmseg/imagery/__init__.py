@@ -13,7 +13,7 @@ Traceback (most recent call last):
 osmseg.errors.ConfigError: GeoTIFF /no/such/file.tif does not exist: check the geotiff:PATH
 >>> make_provider("bing", None, env={})
 Traceback (most recent call last):
-osmseg.errors.ConfigError: --imagery bing needs a Bing Maps key: set BING_MAPS_KEY or use --imagery xyz:... / geotiff:...
+osmseg.errors.ConfigError: --imagery bing needs BING_MAPS_KEY (Bing Maps Basic keys no longer exist): use --imagery Esri.WorldImagery, which needs no key, another provider name, xyz:TEMPLATE or geotiff:PATH
 >>> make_provider("Esri.WorldImagry", None)  # doctest: +ELLIPSIS
 Traceback (most recent call last):
 osmseg.errors.ConfigError: unknown imagery 'Esri.WorldImagry': use bing (with BING_MAPS_KEY), a provider name such as Esri.WorldImagery, xyz:TEMPLATE or geotiff:PATH; close names: Esri.WorldImagery, ...
@@ -49,7 +49,7 @@ __all__ = [
     "NamedProvider",
     "XYZProvider",
     "aerial_providers",
-    "default_imagery_spec",
+    "missing_bing_key",
     "make_provider",
 ]
 
@@ -60,24 +60,14 @@ CHOICES = (
 )
 
 
-def default_imagery_spec(env: Mapping[str, str] = os.environ) -> str:
-    """``"bing"`` when ``BING_MAPS_KEY`` is set, else a one-line :class:`ConfigError`.
+def missing_bing_key(asked: bool) -> str:
+    """The one phrase for Bing without ``BING_MAPS_KEY`` (``asked``: ``--imagery bing`` was given).
 
-    The error names a provider that needs no key, since new Bing Maps keys cannot be had.
-
-    >>> default_imagery_spec({"BING_MAPS_KEY": "k"})
-    'bing'
-    >>> default_imagery_spec({})
-    Traceback (most recent call last):
-    osmseg.errors.ConfigError: no imagery chosen and BING_MAPS_KEY is not set (Bing Maps Basic keys no longer exist): use --imagery Esri.WorldImagery, which needs no key, or another provider name, xyz:TEMPLATE or geotiff:PATH
+    >>> missing_bing_key(False)
+    'no --imagery given, and the default, Bing Maps, needs BING_MAPS_KEY (Bing Maps Basic keys no longer exist)'
     """
-    if env.get(BING_KEY_ENV):
-        return "bing"
-    raise ConfigError(
-        f"no imagery chosen and {BING_KEY_ENV} is not set (Bing Maps Basic keys no longer exist):"
-        f" use --imagery {KEYLESS_DEFAULT}, which needs no key, or another provider name,"
-        " xyz:TEMPLATE or geotiff:PATH"
-    )
+    who = "--imagery bing needs" if asked else "no --imagery given, and the default, Bing Maps, needs"
+    return f"{who} {BING_KEY_ENV} (Bing Maps Basic keys no longer exist)"
 
 
 def make_provider(
@@ -96,10 +86,8 @@ def make_provider(
     if kind == "bing":
         key = env.get(BING_KEY_ENV, "")
         if not key:
-            raise ConfigError(
-                f"--imagery bing needs a Bing Maps key: set {BING_KEY_ENV}"
-                " or use --imagery xyz:... / geotiff:..."
-            )
+            raise ConfigError(f"{missing_bing_key(True)}: use --imagery {KEYLESS_DEFAULT}, which needs no key, "
+                              "another provider name, xyz:TEMPLATE or geotiff:PATH")
         if client is None:
             raise ConfigError("--imagery bing needs an HTTP client")
         return BingProvider(client, key, imagery_set=arg or "Aerial")

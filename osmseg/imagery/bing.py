@@ -161,8 +161,8 @@ class BingProvider:
         }
         # Error answers are not declared ok_statuses on purpose: the HTTP cache would keep a
         # 401 and (its key ignoring ``key``) replay it after the user fixed BING_MAPS_KEY.
-        try:  # an answer that is not JSON (a proxy's error page) is fetched again like a 5xx
-            response, body = self._client.fetch(url, _json_object, params=params)
+        try:  # an answer that is not JSON (a proxy's error page) or a throttled, empty one is fetched again
+            response, body = self._client.fetch(url, _metadata_answer, params=params)
         except AuthError as exc:
             raise AuthError(AUTH_MESSAGE, exc.status) from None
         except HTTPStatusError as exc:
@@ -174,16 +174,8 @@ class BingProvider:
             ) from None
         if not isinstance(body, dict):
             raise ImageryError("Bing Maps metadata is not JSON: try again later")
-        if str(body.get("authenticationResultCode", "")) in REFUSED_CODES:
-            raise AuthError(AUTH_MESSAGE, response.status_code)
-        try:
-            resource = body["resourceSets"][0]["resources"][0]
-            template = str(resource["imageUrl"])
-        except (KeyError, IndexError, TypeError):
-            # Bing answers a throttled session with empty results (header X-MS-BM-WS-INFO: 1)
-            raise ImageryError(
-                "Bing Maps metadata has no imageUrl (throttled?): try again later"
-            ) from None
+        resource = body["resourceSets"][0]["resources"][0]
+        template = str(resource["imageUrl"])
         if "{quadkey}" not in template:
             raise ImageryError(
                 f"Bing Maps imageUrl {redact(template)} has no {{quadkey}}: cannot address tiles"
@@ -273,12 +265,19 @@ class BingProvider:
         }
 
 
-def _json_object(response: Any) -> dict[str, Any]:
-    """The JSON object of an answer; CorruptResponse when the body is not one."""
+def _metadata_answer(response: Any) -> dict[str, Any]:
+    """The Imagery Metadata JSON; AuthError for a refused key, CorruptResponse for an unusable answer."""
     try:
         body = response.json()
     except ValueError:
         body = None
     if not isinstance(body, dict):
         raise CorruptResponse("Bing Maps metadata is not a JSON object")
+    if str(body.get("authenticationResultCode", "")) in REFUSED_CODES:
+        raise AuthError(AUTH_MESSAGE, response.status_code)
+    try:
+        str(body["resourceSets"][0]["resources"][0]["imageUrl"])
+    except (KeyError, IndexError, TypeError):
+        # Bing answers a throttled session with empty results (header X-MS-BM-WS-INFO: 1): wait, ask again
+        raise CorruptResponse("Bing Maps metadata has no imageUrl (throttled?)") from None
     return body

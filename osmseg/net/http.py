@@ -56,6 +56,7 @@ from osmseg.errors import (
     HTTPStatusError,
     NetworkError,
     OfflineCacheMiss,
+    OsmsegError,
     RetriesExhausted,
     ServiceUnavailable,
 )
@@ -404,11 +405,18 @@ class HttpClient:
                 try:
                     return outcome, parse(outcome)
                 except corrupt as exc:  # a 200 with a body nobody can use: like a 5xx, not the end
+                    if cfg.offline:  # the cache is all there is: keep it, and say what to do
+                        raise RetriesExhausted(f"{method} {shown}: the cached answer is unusable "
+                                               f"({_first_line(exc)}): run once without --offline to fetch "
+                                               "it again") from None
                     self.forget(outcome)
                     problem, last_status = f"unusable answer: {_first_line(exc)}", None
-                except Exception:  # the caller refuses the answer for good: never replay it from the cache
-                    self.forget(outcome)
+                except OsmsegError:  # the caller refuses the answer itself: never replay it from the cache
+                    if not cfg.offline:
+                        self.forget(outcome)
                     raise
+                # anything else (a full disk while storing what was parsed) is not the answer's fault:
+                # it propagates, and the good answer stays cached
             else:  # a status worth retrying
                 problem, last_status = f"HTTP {outcome.status_code}", outcome.status_code
                 asked = _retry_after(outcome)
