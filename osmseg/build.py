@@ -26,7 +26,7 @@ import numpy as np
 
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
-from osmseg.errors import ConfigError, DatasetError, RetriesExhausted
+from osmseg.errors import ConfigError, RetriesExhausted
 from osmseg.filters import FilterConfig, check_imagery, check_labels
 from osmseg.grid import TILE_SIZE, LngLatBBox, SampleGrid, ground_resolution, pad_bbox, sample_grid
 from osmseg.imagery import make_provider
@@ -204,11 +204,14 @@ class BuildSummary:
     groups: int = 0  # groups of overlapping samples (a sample alone is a group)
     no_overlap: bool = False
     exhausted: int = 0  # slots that ran out of tile blocks of the area (--no-overlap)
+    dataset_accepted: int = 0  # samples in the finished dataset (all shards), once the manifest is written
 
     def lines(self) -> list[str]:
         reasons = ", ".join(f"{n} {r}" for r, n in sorted(self.rejected.items())) or "none"
+        whole = (f"; the dataset holds {self.dataset_accepted}" if self.finalized
+                 and self.dataset_accepted != self.accepted else "")
         out = [
-            f"accepted {self.accepted} samples; rejected {sum(self.rejected.values())} attempts ({reasons})",
+            f"accepted {self.accepted} samples{whole}; rejected {sum(self.rejected.values())} attempts ({reasons})",
             f"time {self.seconds:.1f} s",
         ]
         if self.unplaced:
@@ -220,9 +223,9 @@ class BuildSummary:
                        "(listed per sample in manifest.json as osm_problems; -v prints them)")
         if self.overlapping:
             repeat = f", {self.duplicates} of them the very tiles of another" if self.duplicates else ""
-            out.append(f"{self.overlapping} of {self.accepted} samples overlap another ({self.groups} spatial groups"
-                       f"{repeat}): training keeps each group in one split; --no-overlap draws samples that never "
-                       "overlap")
+            groups = f"{self.groups} spatial group{'s' if self.groups != 1 else ''}"
+            out.append(f"{self.overlapping} of {self.dataset_accepted} samples overlap another ({groups}{repeat}): training "
+                       "keeps each group in one split; --no-overlap draws samples that never overlap")
         if self.exhausted:
             out.append(f"{self.exhausted} slots ran out of tile blocks of the area (--no-overlap gives every attempt "
                        "its own): widen the area, or ask for fewer --samples")
@@ -339,6 +342,9 @@ def open_pipeline(config: BuildConfig, client: HttpClient, env: dict[str, str]) 
     check_zoom = getattr(imagery, "check_zoom", None)
     if callable(check_zoom):  # a provider that knows its zoom range says so before anything is written
         check_zoom(config.zoom)
+    check_covers = getattr(imagery, "check_covers", None)
+    if callable(check_covers):  # a local raster that misses the area: every sample would be rejected
+        check_covers(*sampling_box(config))
     osm = make_osm_source(config.osm, client, workdir, rules)
     return Pipeline(imagery=imagery, osm=osm, table=table, rules=rules)
 
@@ -395,6 +401,7 @@ def build(
     if summary.pending_other_shards == 0:
         state.check_owner()  # another command took the folder over meanwhile
         manifest = finalize(config, pipe.table, [o for o in outcomes if o], imagery_info, osm_info, command_line)
+        summary.dataset_accepted = manifest["summary"]["accepted"]  # every shard's samples, not only ours
         summary.duplicates = manifest["summary"]["duplicate_samples"]
         summary.overlapping = manifest["summary"]["overlapping_samples"]
         summary.groups = manifest["summary"]["overlap_groups"]

@@ -71,6 +71,11 @@ class ImageryError(OsmsegError, IOError):
     """Imagery could not be read, decoded or reprojected."""
 
 
+class UnusableImagery(ConfigError, ImageryError):
+    """An imagery file named by an option cannot serve (no CRS, 16-bit, not a raster): a usage
+    error (exit 2) that is also an :class:`ImageryError` for callers that catch those."""
+
+
 class OSMDataError(OsmsegError, ValueError):
     """OpenStreetMap data is malformed or could not be read."""
 

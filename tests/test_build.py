@@ -175,6 +175,15 @@ def test_shards_together_give_the_single_run_dataset(tmp_path: Path, imagery_tif
     assert tree_bytes(sharded) == tree_bytes(single)
 
 
+def test_the_last_shard_to_finish_reports_the_dataset_not_its_own_share(tmp_path: Path, imagery_tif: Path) -> None:
+    """Shard 2/2 of a 1-sample build owns no slot: it finishes the dataset and exits 0."""
+    out = tmp_path / "ds"
+    assert run_cli(*build_args(out, imagery_tif, "--shard", "1/2", samples=1)).exit_code == 0
+    last = CliRunner().invoke(cli, build_args(out, imagery_tif, "--shard", "2/2", samples=1))
+    assert last.exit_code == 0, last.output
+    assert "the dataset holds 1" in last.stderr and (out / "manifest.json").exists()
+
+
 def test_classes6_build_maps_the_13_classes_and_zips(tmp_path: Path, imagery_tif: Path) -> None:
     out = tmp_path / "ds6"
     assert run_cli(*build_args(out, imagery_tif, "--classes", "classes6.toml", "--zip", samples=1)).exit_code == 0
@@ -243,6 +252,8 @@ def test_a_build_stops_when_another_command_takes_its_folder_over(tmp_path: Path
          "finite radius"),
         (["build", "--city", "Paris", "--zoom", "20", "--out", "x", "--imagery", "GeoportailFrance.orthos"], 2,
          "use --zoom 19 or lower"),
+        (["build", "--city", "Paris", "--out", "x", "--imagery", f"geotiff:{TEST_DATA}/imagery/utm-rgb.tif"], 2,
+         "misses the sampling area"),
     ],
 )
 def test_bad_input_gives_one_line_and_a_usage_exit(tmp_path: Path, args: list[str], code: int, says: str,

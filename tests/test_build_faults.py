@@ -507,5 +507,5 @@ def test_a_long_build_through_ten_percent_faults_finishes_in_one_run(services: S
     result = run_cli(*build_args(services.server, tmp_path / "ds", tmp_path / "cache", "--timeout", "0.5",
                                  samples=60))
     assert result.exit_code == 0, result.output
-    assert len(served) >= 5, served
+    assert sum(served.values()) >= 5, served
     assert tree_bytes(tmp_path / "ds") == tree_bytes(reference)

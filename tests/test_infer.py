@@ -387,9 +387,10 @@ def test_band_counts(tmp_path) -> None:
     grey = image[:, :, 1]
     alpha = np.random.default_rng(0).integers(0, 256, size=grey.shape, dtype=np.uint8)
     expected_grey = predict_array(model, np.repeat(grey[:, :, None], 3, axis=2), spec)
+    opaque = np.where(alpha >= 128, truth, 0)  # transparent pixels get class 0: no image there
     cases = {
-        "grey.tif": (grey, expected_grey), "rgba.tif": (np.dstack([image, alpha]), truth),
-        "grey.png": (grey, expected_grey), "rgba.png": (np.dstack([image, alpha]), truth),
+        "grey.tif": (grey, expected_grey), "rgba.tif": (np.dstack([image, alpha]), opaque),
+        "grey.png": (grey, expected_grey), "rgba.png": (np.dstack([image, alpha]), opaque),
     }
     for name, (pixels, expected) in cases.items():
         if name.endswith(".tif"):
@@ -471,3 +472,27 @@ def test_a_geotiff_in_a_local_engineering_crs_is_predicted_without_a_ground_reso
     out = predict_file(ColourModel(spec), spec, tmp_path / "site.tif", tmp_path / "site_mask.tif", resolution_m=0.3)
     with rasterio.open(out) as ds:
         assert np.array_equal(ds.read(1), truth)
+
+
+@pytest.mark.parametrize("kind", ["nodata", "alpha-png"])
+def test_pixels_the_input_marks_empty_get_class_0(tmp_path, kind: str) -> None:
+    """An orthophoto's nodata collar or a transparent PNG area: no image there, so no class (0)."""
+    spec = make_spec()
+    image, truth = blocky(240, 320, 20, [3, 4, 7, 8], seed=5)  # 0 is never one of the true classes
+    if kind == "nodata":
+        image[:, :100] = 0
+        write_tif(tmp_path / "in.tif", image, nodata=0)
+        src, dst = tmp_path / "in.tif", tmp_path / "out.tif"
+    else:
+        alpha = np.full(image.shape[:2], 255, np.uint8)
+        alpha[:, :100] = 0
+        Image.fromarray(np.dstack([image, alpha])).save(tmp_path / "in.png")
+        src, dst = tmp_path / "in.png", tmp_path / "out.png"
+    for resolution in (None, 1.0):
+        out = predict_file(ColourModel(spec), spec, src, dst, resolution_m=resolution)
+        mask = rasterio.open(out).read(1) if kind == "nodata" else np.asarray(Image.open(out))
+        assert (mask[:, :100] == 0).all()
+        if resolution is None:
+            assert np.array_equal(mask[:, 100:], truth[:, 100:])
+        else:  # predicted at half the size: the same classes, but for a pixel's width at the edges
+            assert (mask[:, 102:] == truth[:, 102:]).mean() > 0.95

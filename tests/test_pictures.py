@@ -149,7 +149,7 @@ def test_training_curves_bad_input(tmp_path: Path) -> None:
 
 def test_per_class_iou_bars_in_class_colours(tmp_path: Path) -> None:
     metrics = metrics_from_matrix([[0, 0, 0, 0], [0, 8, 2, 0], [0, 1, 9, 0], [0, 0, 0, 0]],
-                                  [c["name"] for c in TABLE["classes"]])
+                                  [c["name"] for c in TABLE["classes"]], ignore_index=0)  # unlabeled: not scored
     pixels = _pixels(per_class_iou_png(metrics, TABLE, tmp_path / "iou.png"))
     assert _count(pixels, (255, 255, 0)) > 500 and _count(pixels, (50, 50, 255)) > 500
     assert _count(pixels, (119, 242, 242)) == 0  # water is absent from the ground truth: no bar

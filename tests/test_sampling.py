@@ -117,8 +117,17 @@ def test_random_sampling_reports_overlap_and_no_overlap_sampling_has_none(tmp_pa
     assert overlapping > 0, "pick another seed: these random samples happen not to overlap"
     assert manifest["summary"]["overlapping_samples"] == overlapping
     assert manifest["summary"]["overlap_groups"] == len(groups)
-    assert f"{overlapping} of 6 samples overlap another ({len(groups)} spatial groups" in random.stderr
+    assert f"{overlapping} of 6 samples overlap another ({len(groups)} spatial group" in random.stderr
     assert "--no-overlap" in random.stderr
+
+    # labels from a GeoJSON file of unknown origin: no OpenStreetMap/ODbL claim anywhere
+    ds = tmp_path / "random" / "ds"
+    attribution = (ds / "ATTRIBUTION.md").read_text()
+    assert "are made from OpenStreetMap data" not in attribution and "does not know where" in attribution
+    assert "derive from OpenStreetMap" not in (ds / "DATASHEET.md").read_text()
+    item = json.loads(next((ds / "stac" / "items").glob("*[0-9].json")).read_text())
+    assert item["assets"]["labels"]["license"] == "other" and "OpenStreetMap data" not in item["properties"][
+        "label:description"]
 
     single = build(tmp_path / "blocks" / "ds", grass, "--no-overlap")
     assert single.exit_code == 0, single.output
@@ -176,7 +185,7 @@ def test_samples_that_all_overlap_cannot_be_split_honestly(tmp_path: Path, grass
     assert len(brute_groups(boxes)) == 1
     refused = train(data, tmp_path / "run")
     assert refused.exit_code == 1
-    assert "overlap on the ground in 1 separate areas" in refused.output and "--no-overlap" in refused.output
+    assert "overlap on the ground in 1 separate area," in refused.output and "--no-overlap" in refused.output
     assert not (tmp_path / "run" / "splits.json").exists()
     # asked for explicitly, the old split by image still works, and says what it is
     by_image = train(data, tmp_path / "run-image", "--split-by", "image")

@@ -32,6 +32,9 @@ from typing import Any
 
 from osmseg.errors import ConfigError
 
+#: the AirSegNet presets (training.model.PRESETS gives their class tables)
+PRESET_NAMES = ("airsegnet6", "airsegnet13")
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -67,6 +70,12 @@ class TrainConfig:
     tensorboard: bool = True  # write TensorBoard events when the package is installed
 
     def __post_init__(self) -> None:
+        preset = self.model.strip().lower().replace("-", "").replace("_", "")
+        if preset in PRESET_NAMES:
+            object.__setattr__(self, "model", preset)  # AirSegNet6, airsegnet-6: the preset
+        elif preset.startswith("airsegnet"):
+            raise ConfigError(f"--model {self.model}: not a preset; use {' or '.join(PRESET_NAMES)} (or a name of "
+                              "your own, not starting with airsegnet, to train on the dataset's class table)")
         checks = [
             (self.epochs >= 1, "epochs must be >= 1"),
             (self.batch_size >= 1, "batch_size must be >= 1"),
@@ -92,6 +101,26 @@ class TrainConfig:
 
 
 FIELDS = {f.name: f for f in fields(TrainConfig)}
+
+
+#: the settings files shipped with osmseg (``--config cpu.yaml`` finds them from any folder)
+CONFIGS_DIR = Path(__file__).resolve().parent / "configs"
+
+
+def find_config_file(value: str | Path) -> Path:
+    """``--config``'s file: a path, or the name of a shipped one (``cpu``, ``cpu.yaml``, ``gpu.yaml``).
+
+    >>> find_config_file("cpu").name
+    'cpu.yaml'
+    """
+    path = Path(value).expanduser()
+    if path.is_file():
+        return path
+    for candidate in (CONFIGS_DIR / path.name, CONFIGS_DIR / f"{path.name}.yaml"):
+        if not path.parent.parts and candidate.is_file():
+            return candidate
+    shipped = ", ".join(sorted(p.name for p in CONFIGS_DIR.glob("*.yaml")))
+    raise ConfigError(f"--config {value}: no such file; give a .yaml/.toml path, or one of osmseg's: {shipped}")
 
 
 def read_config_file(path: Path) -> dict[str, Any]:

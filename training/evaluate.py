@@ -67,7 +67,13 @@ def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequen
     if same and split != "all":
         wanted = set(checkpoint["splits"][split])
         chosen = [f for f in files if f.name in wanted]
+        if (checkpoint.get("config") or {}).get("split_by") == "image" and split == "test":
+            logger.warning("the model's splits were drawn by image (--split-by image): test images may share "
+                           "ground with training images, so these numbers can be optimistic")
         return chosen, f"the '{split}' split the model was trained with ({len(chosen)} images)"
+    if split != "all":
+        logger.warning("%s is not the dataset the model was trained on: evaluating all its %d images "
+                       "(--split applies to the training dataset only)", dataset, len(files))
     return files, f"all {len(files)} images (not the dataset the model was trained on)"
 
 

@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import torch
 from PIL import Image
-from rasterio.enums import Resampling
+from rasterio.enums import MaskFlags, Resampling
 from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
@@ -188,6 +188,11 @@ class Source(Protocol):
 
     def read_resized(self, height: int, width: int) -> np.ndarray: ...  # whole image, resampled
 
+    @property
+    def has_mask(self) -> bool: ...  # whether some pixels may be marked empty
+
+    def valid(self, box: Box) -> np.ndarray: ...  # (h, w) bool: True where the box has image data
+
 
 def _rgb(pixels: np.ndarray, name: str) -> np.ndarray:
     """(h, w), (h, w, 1|3|4) uint8 -> (h, w, 3): grey replicated, alpha dropped."""
@@ -220,6 +225,15 @@ class ArraySource:
         image = Image.fromarray(np.ascontiguousarray(self.read((0, self.height, 0, self.width))))
         return np.asarray(image.resize((width, height), Image.Resampling.BILINEAR))
 
+    @property
+    def has_mask(self) -> bool:
+        return self.pixels.ndim == 3 and self.pixels.shape[2] == 4
+
+    def valid(self, box: Box) -> np.ndarray:
+        """Opaque pixels (alpha >= 128) of an RGBA image; everything otherwise."""
+        part = self.pixels[box[0]:box[1], box[2]:box[3]]
+        return part[:, :, 3] >= 128 if self.has_mask else np.ones(part.shape[:2], dtype=bool)
+
 
 class RasterSource:
     def __init__(self, dataset: Any, name: str) -> None:
@@ -245,6 +259,18 @@ class RasterSource:
     def read_resized(self, height: int, width: int) -> np.ndarray:
         resampling = Resampling.average if height <= self.height else Resampling.bilinear
         return self._read(out_shape=(3, height, width), resampling=resampling)
+
+    @property
+    def has_mask(self) -> bool:
+        """True when GDAL knows empty pixels (nodata, alpha band, internal or side-car mask)."""
+        return MaskFlags.all_valid not in self.dataset.mask_flag_enums[0]
+
+    def valid(self, box: Box) -> np.ndarray:
+        window = Window(box[2], box[0], box[3] - box[2], box[1] - box[0])
+        try:
+            return self.dataset.read_masks(1, window=window) >= 128  # an alpha band: as the builder, half opaque
+        except RasterioError as exc:
+            raise ImageryError(f"{self.name}: cannot read its mask ({error_reason(exc)})") from None
 
 
 class ArraySink:
@@ -352,10 +378,23 @@ def _rescale(runner: _Runner, source: Source, sink: Any, options: InferenceOptio
 @torch.inference_mode()
 def run_model(model: torch.nn.Module, spec: ModelSpec, source: Source, sink: Any,
              options: InferenceOptions, progress: Progress | None) -> None:
+    """Predict ``source`` into ``sink``. Pixels the source marks as empty (nodata, an alpha band, a
+    GDAL mask, transparent PNG pixels) get class 0 (unlabeled): the model saw no image there."""
     runner = _Runner(model, spec, options)
     size = (int(spec.input_size[0]), int(spec.input_size[1]))
     run = _rescale if options.mode == "rescale" else _split_join
-    run(runner, source, sink, options, size, progress)
+    run(runner, source, _MaskedSink(sink, source) if source.has_mask else sink, options, size, progress)
+
+
+class _MaskedSink:
+    """Writes class 0 where the source has no valid pixel."""
+
+    def __init__(self, sink: Any, source: Source) -> None:
+        self.sink, self.source = sink, source
+
+    def write(self, top: int, left: int, classes: np.ndarray) -> None:
+        valid = self.source.valid((top, top + classes.shape[0], left, left + classes.shape[1]))
+        self.sink.write(top, left, np.where(valid, classes, 0).astype(classes.dtype))
 
 
 def predict_array(model: torch.nn.Module, rgb: np.ndarray, spec: ModelSpec, mode: str = "split-join", *,

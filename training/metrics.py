@@ -125,7 +125,8 @@ class ConfusionMatrix:
         if lo < 0 or hi >= n:
             bad = lo if lo < 0 else hi
             raise DatasetError(f"ground-truth class id {bad} is outside 0..{n - 1}; the labels do not match "
-                               f"the {n}-class table (use a class mapping or the right --classes)")
+                               f"the model's {n}-class table: for foreign labels give a class mapping "
+                               "(osmseg eval --mapping, e.g. inria-buildings)")
         plo, phi = int(pred.min()), int(pred.max())
         if plo < 0 or phi >= n:
             raise DatasetError(f"predicted class id {plo if plo < 0 else phi} is outside 0..{n - 1}")
@@ -199,6 +200,7 @@ def metrics_from_matrix(matrix: np.ndarray | Sequence[Sequence[int]], class_name
         recalls.append(recall)
         per_class[name] = {
             "id": i,
+            **({"ignored": True} if i == ignore_index else {}),  # not scored (unlabeled: an OSM gap)
             "iou": iou,
             "precision": _ratio(t, p),
             "recall": recall,
@@ -248,14 +250,18 @@ def format_table(metrics: Mapping[str, Any]) -> str:
     rule = "-" * len(header)
     lines = [header, rule]
     for name, c in per_class.items():
+        if c.get("ignored"):
+            lines.append(f"{name:<{name_w}}  {'ignored (not scored)':^{len(header) - name_w - 2}}")
+            continue
         lines.append(f"{name:<{name_w}}  {_fmt(c['iou'], 6)}  {_fmt(c['precision'], 9)}  {_fmt(c['recall'], 7)}  "
                      f"{_fmt(c['f1'], 7)}  {c['support']:>{support_w},}")
     lines.append(rule)
     present = metrics.get("classes_present", sum(1 for c in per_class.values() if c["iou"] is not None))
+    scored = sum(1 for c in per_class.values() if not c.get("ignored"))
     lines += [
         f"pixel accuracy  {_fmt(metrics['pixel_accuracy'], 6)}  ({metrics.get('num_pixels', 0):,} pixels)",
         f"mean accuracy   {_fmt(metrics['mean_accuracy'], 6)}",
-        f"mIoU            {_fmt(metrics['miou'], 6)}  (over {present} of {len(per_class)} classes present in the ground truth)",
+        f"mIoU            {_fmt(metrics['miou'], 6)}  (over {present} of {scored} classes present in the ground truth)",
         f"FWIoU           {_fmt(metrics['fwiou'], 6)}",
     ]
     return "\n".join(lines)

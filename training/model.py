@@ -41,6 +41,7 @@ from torch import Tensor, nn
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError
 from training.checkpoint import IMAGENET_MEAN, IMAGENET_STD, ModelSpec
+from training.config import PRESET_NAMES
 
 logger = logging.getLogger(__name__)
 
@@ -51,7 +52,7 @@ VGG16_STAGES: tuple[tuple[int, ...], ...] = ((64, 64), (128, 128), (256, 256, 25
 MIN_SIZE = 32
 
 #: Model presets: name -> class table in ``data_manifests/`` (outputs = its classes + unlabeled).
-PRESETS: dict[str, str] = {"airsegnet6": "classes6.toml", "airsegnet13": "classes13.toml"}
+PRESETS: dict[str, str] = dict(zip(PRESET_NAMES, ("classes6.toml", "classes13.toml"), strict=True))
 
 
 def scaled(channels: int, width: float) -> int:

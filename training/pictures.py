@@ -286,8 +286,9 @@ def per_class_iou_png(metrics: Mapping[str, Any], class_table: Mapping[str, Any]
         for y, (name, c) in zip(ys, items):
             rgb = colours.get(name, by_id.get(int(c.get("id", -1)), (128, 128, 128)))
             iou = c.get("iou")
-            if iou is None:
-                ax.text(0.01, y, "absent from ground truth", va="center", fontsize=8, color="0.4")
+            if c.get("ignored") or iou is None:
+                ax.text(0.01, y, "ignored (not scored)" if c.get("ignored") else "absent from ground truth",
+                        va="center", fontsize=8, color="0.4")
                 continue
             ax.barh(y, iou, color=_rgb01(rgb), edgecolor="0.2", linewidth=0.6, height=0.75)
             ax.text(min(iou + 0.01, 0.9), y, f"{iou:.3f}", va="center", fontsize=8)

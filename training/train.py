@@ -198,7 +198,8 @@ def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist) -> di
         areas = len(set(groups.values())) if groups else len(names)
         if groups and areas < len(names):
             raise DatasetError(
-                f"{config.dataset}: its {len(names)} samples overlap on the ground in {areas} separate areas, too few "
+                f"{config.dataset}: its {len(names)} samples overlap on the ground in {areas} separate "
+                f"area{'s' if areas != 1 else ''}, too few "
                 "to keep a test and a validation area apart from the training ones; build with --no-overlap or a "
                 "larger area, or train with --split-by image (test images then share pixels with training ones)")
         raise DatasetError(f"{config.dataset}: {len(names)} images are too few to split into train, val and test; "

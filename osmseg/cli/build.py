@@ -93,11 +93,12 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
     if summary.failed:
         slot, reason = summary.failed[0]
         done = summary.accepted + summary.gave_up
-        raise DatasetError(f"{len(summary.failed)} of {done + len(summary.failed)} samples could not be fetched "
-                           f"(sample {slot}: {reason}); the other {done} are done: run the same command again "
-                           "to retry the rest")
+        failed = len(summary.failed)
+        raise DatasetError(f"{failed} of {done + failed} sample{'s' if done + failed != 1 else ''} could not be "
+                           f"fetched (sample {slot}: {reason}); {done} done: run the same command again to retry "
+                           f"{'it' if failed == 1 else 'them'}")
     click.echo(str(config.out_dir / "manifest.json") if summary.finalized else str(config.out_dir))
-    if summary.finalized and summary.accepted == 0:
+    if summary.finalized and summary.dataset_accepted == 0:
         more = "widen the area (--no-overlap ran out of tile blocks)" if summary.exhausted else "raise --max-tries"
         raise DatasetError("no sample was accepted (see the rejection reasons above and in manifest.json): "
                            f"loosen the filters, {more}, or sample another area")
@@ -159,7 +160,10 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
                    --osm buildings.osm.pbf --out data/kampala
     """
     area = resolve_area(city, lat, lon, bbox, radius_km)
-    if (imagery or "bing").strip().lower().split(":")[0] == "bing" and not os.environ.get(BING_KEY_ENV):
+    env = dict(os.environ)
+    if replay and not env.get(BING_KEY_ENV):
+        env[BING_KEY_ENV] = "replayed-without-key"  # recorded requests are matched without their key
+    if (imagery or "bing").strip().lower().split(":")[0] == "bing" and not env.get(BING_KEY_ENV):
         # Bing Maps Basic keys no longer exist: say so, and give a command that works as it is
         raise ConfigError(f"{missing_bing_key(imagery is not None)}; run instead: "
                           f"{command_line_of(ctx, imagery=KEYLESS_DEFAULT)}  (keyless; other providers: docs/imagery.md)")
@@ -175,4 +179,4 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
         raise ConfigError("--record and --replay exclude each other")
     if record or replay:
         config = replace(config, cassette=record or replay, cassette_mode="record" if record else "replay")
-    run_build(config, ctx.obj["verbosity"], ctx.obj.get("progress", False))
+    run_build(config, ctx.obj["verbosity"], ctx.obj.get("progress", False), env=env)

@@ -47,5 +47,6 @@ def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pai
     metrics = run_eval(checkpoint, dataset, out_dir, opts, pairs)
     if ctx.obj["verbosity"] >= 0:
         click.echo(format_table(metrics), err=True)
-        click.echo(f"pictures in {out_dir}/: confusion_matrix.png, per_class_iou.png, panels.png", err=True)
+        pictures = sorted(p.name for p in out_dir.glob("*.png"))
+        click.echo(f"pictures in {out_dir}/: {', '.join(pictures)}", err=True)
     click.echo(str(out_dir / "metrics.json"))

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import click
 
 from osmseg.cli.common import report_errors, require_torch
+from osmseg.errors import ConfigError
 
 
 @click.command("predict")
@@ -34,6 +36,10 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
                     join: str, overlap: int | None, block_size: int, tta: bool, resolution: str | None,
                     batch_size: int, device: str) -> None:
     """Write a class mask (and a colour mask) for every INPUT image."""
+    stems = Counter(src.stem for src in inputs)
+    if clash := sorted(stem for stem, n in stems.items() if n > 1):
+        raise ConfigError(f"{stems[clash[0]]} inputs are named {clash[0]}.*: their masks would overwrite each other "
+                          f"in {out_dir}; predict them into separate --out folders")
     require_torch()
     from training.checkpoint import model_from_checkpoint
     from training.predict import predict_file, target_resolution

@@ -18,8 +18,8 @@ from osmseg.cli.common import report_errors, require_torch
 @click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Run folder: checkpoints, log.csv, curves.png, splits.json (rerun to resume).")
-@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="YAML or TOML file of settings (see training/configs/); options override it.")
+@click.option("--config", "config_file",
+              help="YAML or TOML file of settings, or a shipped one by name (cpu.yaml, gpu.yaml); options override it.")
 @click.option("--model", help="airsegnet6 | airsegnet13 (default airsegnet13; the class table decides the outputs).")
 @click.option("--classes", help="Class table TOML when the dataset has no manifest.json (e.g. classes6.toml).")
 @click.option("--width", type=float, help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU.")
@@ -37,22 +37,22 @@ from osmseg.cli.common import report_errors, require_torch
 @click.option("--max-steps-per-epoch", type=int, help="Cap batches per epoch (smoke tests).")
 @click.pass_context
 @report_errors
-def train_command(ctx: click.Context, dataset: Path, out_dir: Path, config_file: Path | None,
+def train_command(ctx: click.Context, dataset: Path, out_dir: Path, config_file: str | None,
                   keep_unlabeled: bool | None, **options: object) -> None:
     """Train a SegNet on DATASET (a folder made by `osmseg build`, or images/ + labels/)."""
     require_torch()
-    from training.config import make_config
+    from training.config import find_config_file, make_config
     from training.train import run
 
     overrides = dict(options)
     overrides["ignore_unlabeled"] = None if keep_unlabeled is None else not keep_unlabeled
-    config = make_config(dataset, out_dir, config_file, overrides)
+    config = make_config(dataset, out_dir, find_config_file(config_file) if config_file else None, overrides)
     summary = run(config, progress=ctx.obj.get("progress", False))
     if summary.get("rank", 0) != 0:  # under torchrun only rank 0 reports, as only it writes
         return
     if summary.get("best") is not None and ctx.obj["verbosity"] >= 0:
         b = summary["best"]
-        click.echo(f"best epoch {b['epoch']}: val mIoU {b['val_miou']}, val pixel accuracy "
-                   f"{b['val_pixel_accuracy']}; checkpoints in {out_dir}/ (best.pt, last.pt)", err=True)
+        click.echo(f"best epoch {b['epoch']}: val mIoU {b['val_miou']:.4f}, val pixel accuracy "
+                   f"{b['val_pixel_accuracy']:.4f}; checkpoints in {out_dir}/ (best.pt, last.pt)", err=True)
     click.echo(json.dumps({"best": str(out_dir / "best.pt"), "last": str(out_dir / "last.pt"),
                            "log": str(out_dir / "log.csv")}))

@@ -47,6 +47,10 @@ def verify_command(ctx: click.Context, dataset: Path, align_class: str | None) -
                 continue  # already reported as a problem
             rgb = read_rgb(dataset / image)
             mask = np.asarray(Image.open(dataset / label)) == ids[align_class]
+            if not mask.any():  # nothing to align: say so instead of a (0, 0) that reads as "lined up"
+                offsets[sample["name"]] = {"dx": None, "dy": None, "outline_pixels": 0,
+                                           "note": f"no {align_class} pixels in this sample"}
+                continue
             fit = edge_alignment(rgb, mask)
             offsets[sample["name"]] = {"dx": fit.best[0], "dy": fit.best[1], "edge_at_zero": round(fit.at_zero, 1),
                                        "edge_far": round(fit.far, 1), "outline_pixels": fit.outline_pixels}

@@ -16,6 +16,7 @@ how to convert.
 from __future__ import annotations
 
 import logging
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -23,10 +24,11 @@ import numpy as np
 import rasterio
 from rasterio.crs import CRS
 from rasterio.enums import ColorInterp, Resampling
-from rasterio.errors import RasterioError
+from rasterio.errors import NotGeoreferencedWarning, RasterioError
 from rasterio.vrt import WarpedVRT
+from rasterio.warp import transform_bounds
 
-from osmseg.errors import ConfigError, ImageryError
+from osmseg.errors import ConfigError, ImageryError, UnusableImagery
 from osmseg.grid import SampleGrid
 from osmseg.imagery.base import Imagery
 from osmseg.imagery.mosaic import ALPHA_VALID
@@ -74,7 +76,10 @@ class GeoTiffProvider:
         if not self.path.exists():
             raise ConfigError(f"GeoTIFF {self.path} does not exist: check the geotiff:PATH")
         try:
-            with rasterio.open(self.path) as src:
+            with warnings.catch_warnings():  # a raster without CRS is refused below, in one line
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                src = rasterio.open(self.path)
+            with src:
                 self.crs = src.crs
                 self.bounds = tuple(src.bounds)
                 self.size = (src.width, src.height)
@@ -83,20 +88,20 @@ class GeoTiffProvider:
                 colorinterp = tuple(src.colorinterp)
                 palette = ColorInterp.palette in colorinterp
         except RasterioError:
-            raise ImageryError(
+            raise UnusableImagery(
                 f"{self.path} is not a raster GDAL can read: give a GeoTIFF/COG"
             ) from None
         if self.crs is None:
-            raise ImageryError(
+            raise UnusableImagery(
                 f"{self.path} has no CRS: georeference it first (gdal_edit.py -a_srs EPSG:...)"
             )
         if dtypes != {"uint8"}:
-            raise ImageryError(
+            raise UnusableImagery(
                 f"{self.path} is {'/'.join(sorted(dtypes))}, not 8-bit: convert it first"
                 " (gdal_translate -ot Byte -scale ...)"
             )
         if palette:
-            raise ImageryError(
+            raise UnusableImagery(
                 f"{self.path} is a paletted raster: expand it first (gdal_translate -expand rgb)"
             )
         self.bands = rgb_bands(colorinterp)
@@ -104,6 +109,19 @@ class GeoTiffProvider:
 
     def __repr__(self) -> str:
         return f"GeoTiffProvider({str(self.path)!r})"
+
+    def check_covers(self, west: float, south: float, east: float, north: float) -> None:
+        """ConfigError when the raster's footprint misses the sampling area (lon/lat degrees) entirely:
+        every sample would be rejected as missing imagery, so say it before the build."""
+        try:
+            left, bottom, right, top = transform_bounds(self.crs, "EPSG:4326", *self.bounds, densify_pts=21)
+        except (ValueError, RasterioError):  # a CRS with no lon/lat: nothing to compare
+            return
+        if right < west or left > east or top < south or bottom > north:
+            raise UnusableImagery(
+                f"{self.path} covers lon {left:.5f}..{right:.5f}, lat {bottom:.5f}..{top:.5f}, which misses the "
+                f"sampling area (lon {west:.5f}..{east:.5f}, lat {south:.5f}..{north:.5f}): sample where the "
+                "imagery is (--bbox/--lat/--lon), or give the GeoTIFF of this area")
 
     def fetch(self, grid: SampleGrid) -> Imagery:
         """The raster warped (bilinear) onto ``grid``; outside its footprint is invalid."""

@@ -81,6 +81,9 @@ _RETRY_EXCEPTIONS = (
     requests.exceptions.ChunkedEncodingError,
     requests.exceptions.ContentDecodingError,
 )
+#: how :func:`_describe` names failures to connect at all (as opposed to a broken answer)
+_NO_CONNECTION = ("connection failed", "no connection within")
+
 _BAD_URL_EXCEPTIONS = (
     requests.exceptions.MissingSchema,
     requests.exceptions.InvalidSchema,
@@ -185,6 +188,8 @@ def _describe(exc: BaseException, timeout: float) -> str:
     text = str(exc)
     if "IncompleteRead" in text or "Connection broken" in text:
         return "connection dropped mid-response (truncated body)"
+    if "RemoteDisconnected" in text or "Connection aborted" in text or "Connection reset" in text:
+        return "connection dropped before the answer"  # the host was reached: not a connection failure
     match = re.search(r"\[Errno -?\d+\] ([^'\")\]]+)", text)
     return f"connection failed ({match.group(1).strip()})" if match else "connection failed"
 
@@ -218,6 +223,8 @@ class HttpClient:
         self._session = self._make_session()
         self._gates: dict[str, _HostGate] = {}
         self._gates_lock = threading.Lock()
+        self._answered: set[str] = set()  # hosts that have answered (any HTTP status) in this client's life
+        self._warned: set[str] = set()  # hosts whose retries were already said at WARNING
 
     # -- public API ---------------------------------------------------------------------------
 
@@ -390,7 +397,8 @@ class HttpClient:
                 f"{method} {shown}: --offline needs an HTTP cache folder and none was given: "
                 "set the cache folder, or drop --offline"
             )
-        gate = self._gate(urlsplit(full_url).hostname or "")
+        host = urlsplit(full_url).hostname or ""
+        gate = self._gate(host)
         attempts = cfg.retries + 1
         problem, last_status = "", None
         for attempt in range(attempts):
@@ -399,7 +407,15 @@ class HttpClient:
             outcome = self._send(method, full_url, shown, gate, data=data, headers=headers)
             if isinstance(outcome, str):
                 problem, last_status = outcome, None
+                if attempt >= 1 and host not in self._answered and outcome.startswith(_NO_CONNECTION):
+                    # a host that has never answered and cannot be reached twice: no network, a wrong
+                    # host name or port. Say so now rather than after minutes of backoff per sample.
+                    raise NetworkError(
+                        f"{method} {shown}: no connection to {host} ({outcome}): check the network connection "
+                        "and the URL, or build from the cache with --offline"
+                    )
             elif self._accept(method, shown, outcome, ok_statuses):
+                self._answered.add(host)
                 if parse is None or not 200 <= outcome.status_code < 300:
                     return outcome, None
                 try:
@@ -418,16 +434,21 @@ class HttpClient:
                 # anything else (a full disk while storing what was parsed) is not the answer's fault:
                 # it propagates, and the good answer stays cached
             else:  # a status worth retrying
+                self._answered.add(host)
                 problem, last_status = f"HTTP {outcome.status_code}", outcome.status_code
                 asked = _retry_after(outcome)
                 if asked is not None:
                     wait = min(asked, cfg.max_retry_after)
                     gate.pause(wait)
             if attempt + 1 < attempts:
-                logger.info(
-                    "%s %s: %s; retry %d/%d in %.1f s",
-                    *(method, shown, problem, attempt + 1, cfg.retries, wait),
-                )
+                first = host not in self._warned
+                self._warned.add(host)
+                # the first retry of a host is said at WARNING (a user sees why a build slows down),
+                # the rest at INFO (-v): a flaky server must not flood a log
+                logger.log(logging.WARNING if first else logging.INFO,
+                           "%s %s: %s; retry %d/%d in %.1f s%s",
+                           *(method, shown, problem, attempt + 1, cfg.retries, wait,
+                             " (further retries of this host: -v)" if first else ""))
                 time.sleep(wait)
         if last_status is not None:
             raise ServiceUnavailable(

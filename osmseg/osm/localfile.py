@@ -212,8 +212,10 @@ def osm_file_timestamp(path: Path) -> tuple[str | None, str]:
 
     The replication timestamp in the file header (``osmosis_replication_timestamp``, set by
     Geofabrik, planet and osmium extracts) is the state of OSM the file reflects. Files
-    without one (hand-made or old extracts) get their modification time, marked as such:
-    the data is at least that old.
+    without one (JOSM saves, hand-made or old extracts) get the time of their newest edited
+    element ("newest element"): the data is at least that new, and a copy's modification time
+    would say nothing about the data. Only a file whose elements carry no timestamps at all
+    gets its modification time, marked as such.
     """
     try:
         with osmium.io.Reader(str(path), osmium.osm.NOTHING) as reader:
@@ -223,6 +225,9 @@ def osm_file_timestamp(path: Path) -> tuple[str | None, str]:
         raise OSMDataError(f"--osm {path}: cannot read the file header ({_first_line(exc)}); is it an OSM file?") from None
     if stamp:
         return stamp, "file header"
+    newest = scan_osm(path, f"--osm {path}", "give a valid .osm/.osm.pbf file").newest
+    if newest is not None:
+        return newest, "newest element"
     return iso_utc(datetime.fromtimestamp(path.stat().st_mtime, tz=timezone.utc)), "file modification time"
 
 

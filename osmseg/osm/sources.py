@@ -62,6 +62,9 @@ def parse_spec(spec: str) -> tuple[str, str, dict[str, str]]:
         path, colon, tail = rest.rpartition(":")
         if colon and _TAGS.match(tail):
             return "geojson", path, parse_tags(tail)
+        if colon and path and not Path(rest).expanduser().exists() and Path(path).expanduser().exists():
+            raise ConfigError(f"--osm {spec}: {tail!r} is not key=value tags; write e.g. "
+                              f"geojson:{path}:building=yes (several: key=value,key=value)")
         return "geojson", rest, dict(DEFAULT_GEOJSON_TAGS)
     if is_osm_path(text):
         return "file", text, {}

@@ -14,6 +14,7 @@ guidance, not legal advice.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,11 +43,66 @@ def _imagery_lines(imagery: dict[str, Any]) -> list[str]:
     return lines
 
 
+@dataclass(frozen=True)
+class LabelSource:
+    """Where a dataset's labels come from, for every text that states their licence.
+
+    OSM sources (the API, Overpass, OSM files) give OpenStreetMap data under the ODbL. A
+    ``geojson:`` source gives features of unknown origin: osmseg cannot tell their licence and
+    must not claim the ODbL (they may be OSM-derived, an agency's footprints, hand-drawn).
+    """
+
+    is_osm: bool
+    name: str  # "OpenStreetMap data" or "the GeoJSON features of PATH"
+    notice: str  # the line to keep with the labels
+    spdx: str | None  # SPDX licence id of the labels, None when unknown
+
+    @classmethod
+    def of(cls, manifest: dict[str, Any]) -> LabelSource:
+        """The label source a manifest records (``manifest["osm"]``).
+
+        >>> LabelSource.of({"osm": {"source": "geojson", "path": "f.geojson"}}).spdx is None
+        True
+        """
+        osm = manifest.get("osm") or {}
+        if osm.get("source") == "geojson":
+            where = f"the GeoJSON features of `{osm.get('path', '?')}`"
+            return cls(False, where, f"labels made by osmseg from {where}: keep the licence and attribution of "
+                       "that file's source (if it was exported from OpenStreetMap: © OpenStreetMap contributors, "
+                       "ODbL 1.0)", None)
+        return cls(True, "OpenStreetMap data", f"{OSM_NOTICE}, ODbL 1.0", "ODbL-1.0")
+
+
+def _geojson_section(source: LabelSource) -> list[str]:
+    return [
+        f"## Labels: {source.name}",
+        "",
+        f"`segmented/`, `labels/` and `geo/` are rasterised from {source.name} (`--osm geojson:`).",
+        "osmseg does not know where those features come from, so it states no licence for the labels:",
+        "they carry the licence of the file's source. If it was exported from OpenStreetMap (a HOT",
+        f"export, an Overpass query saved as GeoJSON), the labels are {OSM_NOTICE}'s data under the",
+        f"ODbL 1.0 ({ODBL_URL}) and the OpenStreetMap guidance of an osmseg OSM build applies:",
+        "attribute, and share the label files under the ODbL. Otherwise follow the source's own terms.",
+        "",
+    ]
+
+
 def render_attribution(manifest: dict[str, Any]) -> str:
     """The ATTRIBUTION.md text for ``manifest`` (pure function of the manifest)."""
     imagery = manifest.get("imagery") or {}
     osm = manifest.get("osm") or {}
     osm_extra = osm.get("attribution")
+    source = LabelSource.of(manifest)
+    if not source.is_osm:
+        return "\n".join([
+            "# Attribution and licences", "",
+            "This dataset combines two sources under different terms. Keep this file with any copy.", "",
+            *_geojson_section(source),
+            "## Images: imagery provider's terms", "",
+            "`images/` come from the provider below and remain under its terms of use, which may",
+            "restrict redistribution. Check them before you publish the images.", "",
+            *_imagery_lines(imagery), "",
+        ])
     out = [
         "# Attribution and licences",
         "",

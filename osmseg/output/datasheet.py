@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from osmseg.output.atomic import atomic_write_text
+from osmseg.output.attribution import LabelSource
 from osmseg.output.manifest import class_totals
 
 DATASHEET_NAME = "DATASHEET.md"
@@ -110,6 +111,7 @@ def render_datasheet(manifest: dict[str, Any]) -> str:
     imagery = manifest.get("imagery") or {}
     osm = manifest.get("osm") or {}
     n_classes = len(classes) - 1
+    labels = LabelSource.of(manifest)
 
     out: list[str] = [f"# Datasheet: {title}", ""]
     out += [
@@ -212,8 +214,11 @@ def render_datasheet(manifest: dict[str, Any]) -> str:
         "",
         "## Distribution",
         "",
-        "- Labels (`segmented/`, `labels/`, `geo/`) derive from OpenStreetMap: © OpenStreetMap",
-        "  contributors, ODbL 1.0. Images follow the imagery provider's terms. See `ATTRIBUTION.md`.",
+        *(["- Labels (`segmented/`, `labels/`, `geo/`) derive from OpenStreetMap: © OpenStreetMap",
+           "  contributors, ODbL 1.0. Images follow the imagery provider's terms. See `ATTRIBUTION.md`."]
+          if labels.is_osm else
+          [f"- Labels (`segmented/`, `labels/`, `geo/`) derive from {labels.name}, whose licence osmseg does",
+           "  not know: keep the source's terms. Images follow the imagery provider's terms. See `ATTRIBUTION.md`."]),
         "- `osmseg build --zip` packs the folder into a deterministic zip archive.",
         "",
         "## Maintenance",

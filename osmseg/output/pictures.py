@@ -82,6 +82,9 @@ def overview_image(
     font = _font()
     for col, title in enumerate(("image", "labels", "overlay 50%")):
         draw.text((MARGIN + col * (thumb + MARGIN), MARGIN), title, fill=INK, font=font)
+    if len(samples) > len(shown):  # say that the sheet is not the whole dataset
+        note = f"first {len(shown)} of {len(samples)} samples"
+        draw.text((width - MARGIN - int(draw.textlength(note, font=font)), MARGIN), note, fill=INK, font=font)
     for row, sample in enumerate(shown):
         image = Image.fromarray(read_rgb(_file(out_dir, sample, "images"))).resize((thumb, thumb), Image.Resampling.BOX)
         with Image.open(_file(out_dir, sample, "labels")) as im:

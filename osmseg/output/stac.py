@@ -58,7 +58,7 @@ from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from osmseg.grid import TILE_SIZE
 from osmseg.output.atomic import atomic_write_text
-from osmseg.output.attribution import ATTRIBUTION_NAME, ODBL_URL, OSM_COPYRIGHT_URL
+from osmseg.output.attribution import ATTRIBUTION_NAME, ODBL_URL, OSM_COPYRIGHT_URL, LabelSource
 from osmseg.output.datasheet import DATASHEET_NAME
 from osmseg.output.manifest import MANIFEST_NAME, validate_manifest
 from osmseg.output.pictures import OVERVIEW_NAME
@@ -69,7 +69,6 @@ COLLECTION_NAME = "collection.json"
 ITEMS_DIR = "items"
 IMAGE_ITEM_SUFFIX = "_image"  # id of a sample's image item: NAME_image
 CRS = "EPSG:3857"
-LABEL_LICENSE = "ODbL-1.0"  # SPDX id of the OSM data's licence
 MARKDOWN = "text/markdown"
 TASKS, METHODS = ("segmentation",), ("automated",)  # label:tasks, label:methods (rasterised, not hand-drawn)
 UNLABELED_TEXT = "no OSM feature covers the pixel (not background: unmapped things may be there)"
@@ -164,7 +163,7 @@ def _sample_dates(sample: dict[str, Any], known: list[datetime]) -> tuple[dateti
 
 
 def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classification], pixels: int,
-           known: list[datetime]) -> tuple[pystac.Item, pystac.Item]:
+           known: list[datetime], source: LabelSource) -> tuple[pystac.Item, pystac.Item]:
     """The (label item, image item) of a sample; the label item links the image item (rel ``source``)."""
     name = sample["name"]
     if not (isinstance(name, str) and _NAME.fullmatch(name)):
@@ -190,20 +189,25 @@ def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classificati
         raise DatasetError(f"manifest: sample {name} class_histogram names classes the class table lacks")
     overview = LabelOverview({})
     overview.counts = [LabelCount.create(c, int(histogram[c])) for c in sorted(histogram, key=lambda c: by_name[c].id)]
-    when_text = f"as of {when:%Y-%m-%d %H:%M} UTC" if when else f"edited {start:%Y-%m-%d} or later"
+    origin = str(sample["osm"].get("timestamp_from", ""))
+    when_text = (f"edited up to {when:%Y-%m-%d %H:%M} UTC (its newest element)" if when and origin == "newest element"
+                 else f"of a file dated {when:%Y-%m-%d} (no edit times in it)" if when and "modification" in origin
+                 else f"as of {when:%Y-%m-%d %H:%M} UTC" if when else f"edited {start:%Y-%m-%d} or later")
+    origin_text = (f"OpenStreetMap data {when_text} (© OpenStreetMap contributors, ODbL 1.0)" if source.is_osm else
+              f"{source.name.replace('`', '')} (licence: the file's source's)")
     LabelExtension.ext(label_item, add_if_missing=True).apply(
-        label_description=f"Class ids ({table.name}) rasterised by osmseg from OpenStreetMap data {when_text} "
-                          f"(© OpenStreetMap contributors, ODbL 1.0); 0 = unlabeled, not background.",
+        label_description=f"Class ids ({table.name}) rasterised by osmseg from {origin_text}; 0 = unlabeled, "
+                          "not background.",
         label_type=LabelType.RASTER, label_properties=None,
         label_classes=[LabelClasses.create(sorted(table.by_id), None)],
         label_tasks=list(TASKS), label_methods=list(METHODS), label_overviews=[overview])
-    _add_assets(label_item, image_item, sample["files"], classes)
+    _add_assets(label_item, image_item, sample["files"], classes, source.spdx)
     label_item.add_link(pystac.Link("source", image_item, pystac.MediaType.JSON, "Imagery of the labels"))
     return label_item, image_item
 
 
 def _add_assets(label_item: pystac.Item, image_item: pystac.Item, files: dict[str, str],
-                classes: list[Classification]) -> None:
+                classes: list[Classification], label_licence: str | None) -> None:
     """One asset per file in the label item, :data:`ASSET_KINDS` order (other files before ``images/``);
     the ``images/`` one in the image item too. Keys by folder (``image_tif`` when a folder has two files)."""
     folders = Counter(PurePosixPath(rel).parts[0] for rel in files)
@@ -227,7 +231,7 @@ def _add_assets(label_item: pystac.Item, image_item: pystac.Item, files: dict[st
             item.add_asset(key, copy)
             FileExtension.ext(copy, add_if_missing=True).checksum = "1220" + digest
             if folder in ASSET_KINDS and folder != "images":
-                copy.extra_fields["license"] = LABEL_LICENSE
+                copy.extra_fields["license"] = label_licence or "other"  # a GeoJSON source: its own terms
             if folder in CLASS_ID_FOLDERS:
                 ClassificationExtension.ext(copy, add_if_missing=True).classes = classes
 
@@ -236,9 +240,14 @@ def _providers(manifest: dict[str, Any]) -> list[pystac.Provider]:
     imagery, osm, version = manifest["imagery"], manifest["osm"], manifest["tool"].get("version", "")
     url = imagery.get("terms_url")  # not "url"/"template": those are tile URLs
     notes = dict.fromkeys(str(imagery[k]) for k in ("attribution", "copyright", "terms") if imagery.get(k))
+    source = LabelSource.of(manifest)
+    labels = (pystac.Provider("OpenStreetMap contributors", osm.get("attribution") or "labels: OpenStreetMap data, "
+                              "ODbL 1.0", roles=[pystac.ProviderRole.LICENSOR, pystac.ProviderRole.PRODUCER],
+                              url=OSM_COPYRIGHT_URL) if source.is_osm else
+              pystac.Provider(f"label source: {osm.get('path', 'GeoJSON file')}", source.notice,
+                              roles=[pystac.ProviderRole.LICENSOR, pystac.ProviderRole.PRODUCER]))
     return [
-        pystac.Provider("OpenStreetMap contributors", osm.get("attribution") or "labels: OpenStreetMap data, ODbL 1.0",
-                        roles=[pystac.ProviderRole.LICENSOR, pystac.ProviderRole.PRODUCER], url=OSM_COPYRIGHT_URL),
+        labels,
         pystac.Provider(str(imagery.get("name") or imagery.get("provider") or "imagery provider"),
                         "; ".join(notes) or f"see {ATTRIBUTION_NAME}",
                         roles=[pystac.ProviderRole.LICENSOR, pystac.ProviderRole.PRODUCER],
@@ -252,6 +261,7 @@ def _collection(manifest: dict[str, Any], table: ClassTable, classes: list[Class
                 items: list[pystac.Item], pixels: int) -> pystac.Collection:
     area = manifest["area"]
     place = str(area.get("name") or "area")
+    labels = LabelSource.of(manifest)
     identity = json.dumps(manifest.get("config") or manifest["command"], sort_keys=True, ensure_ascii=False)
     slug = re.sub(r"[^0-9a-z]+", "-", place.lower()).strip("-") or "area"
     boxes = [i.bbox for i in items if i.bbox] or [_numbers(area.get("bbox") or [-180, -90, 180, 90], 4, "area.bbox")]
@@ -268,13 +278,15 @@ def _collection(manifest: dict[str, Any], table: ClassTable, classes: list[Class
         id=f"osmseg-{slug}-{hashlib.sha256(identity.encode()).hexdigest()[:8]}",
         title=f"osmseg: {place}, zoom {manifest['zoom']}, {len(items)} samples",
         description=(f"{len(items)} aerial images of {place} ({pixels}x{pixels} px, zoom {manifest['zoom']}) with "
-                     f"per-pixel class ids rasterised by osmseg from OpenStreetMap (class table {table.name}). "
-                     f"Labels © OpenStreetMap contributors, ODbL 1.0; images under the imagery provider's terms "
+                     f"per-pixel class ids rasterised by osmseg from {labels.name.replace('`', '')} (class table "
+                     f"{table.name}). Labels: {labels.notice}; images under the imagery provider's terms "
                      f"(see {ATTRIBUTION_NAME}). How it was built: {MANIFEST_NAME}, {DATASHEET_NAME}."),
         extent=extent, license="other", providers=_providers(manifest), catalog_type=pystac.CatalogType.SELF_CONTAINED,
         keywords=["OpenStreetMap", "semantic segmentation", "aerial imagery", "training data"])
-    collection.add_links([pystac.Link("license", f"../{ATTRIBUTION_NAME}", MARKDOWN, "Labels ODbL 1.0; images"),
-                          pystac.Link("license", ODBL_URL, "text/html", "Open Database License 1.0 (labels)")])
+    collection.add_links([pystac.Link("license", f"../{ATTRIBUTION_NAME}", MARKDOWN,
+                                      "Labels ODbL 1.0; images" if labels.is_osm else "Labels and images")])
+    if labels.is_osm:
+        collection.add_link(pystac.Link("license", ODBL_URL, "text/html", "Open Database License 1.0 (labels)"))
     for key, (rel, kind, role) in COLLECTION_ASSETS.items():
         collection.add_asset(key, pystac.Asset(f"../{rel}", media_type=str(kind), roles=[role]))
     definitions: dict[str, pystac.ItemAssetDefinition | dict[str, Any]] = {}
@@ -329,7 +341,8 @@ def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
     try:
         pixels = int(manifest["grid_size"]) * TILE_SIZE
         known = _known_dates(manifest)
-        pairs = [_items(s, table, classes, pixels, known) for s in manifest["samples"]]
+        source = LabelSource.of(manifest)
+        pairs = [_items(s, table, classes, pixels, known, source) for s in manifest["samples"]]
         collection = _collection(manifest, table, classes, [label for label, _ in pairs], pixels)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise DatasetError(f"manifest cannot be described as STAC: {type(exc).__name__} {exc}") from None
