@@ -18,6 +18,7 @@ demo: $(VENV)/.installed
 	$(BIN)/osmseg demo --out demo-out
 
 test: $(VENV)/.installed
+	$(BIN)/lint-imports
 	$(BIN)/pytest -q
 
 test-slow: $(VENV)/.installed

@@ -53,7 +53,7 @@ from PIL import Image
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from training.checkpoint import ModelSpec  # noqa: E402
+from training.spec import ModelSpec  # noqa: E402
 from training.infer import DEFAULT_OVERLAP_FRACTION, predict_array  # noqa: E402
 from training.predict import predict_file  # noqa: E402
 from training.model import SegNet, build_model, model_spec  # noqa: E402
@@ -250,7 +250,7 @@ def main() -> None:
         work = Path(tmp)
         if args.image is None:
             from osmseg.build import build
-            from osmseg.cli.demo import demo_config
+            from osmseg.demo import demo_config
 
             build(demo_config(work / "demo"), env=dict(os.environ, BING_MAPS_KEY="demo-key-not-secret"))
             args.image = sorted((work / "demo" / "images").glob("*.png"))[0]

@@ -110,7 +110,7 @@ def worker_peak_rss_mb() -> float:
 def demo_dataset(folder: Path) -> Path:
     """The 4-sample 1280x1280 ``osmseg demo`` dataset, built offline from its recorded fixtures."""
     from osmseg.build import build
-    from osmseg.cli.demo import demo_config
+    from osmseg.demo import demo_config
 
     out = folder / "dataset"
     build(demo_config(out), env=dict(os.environ, BING_MAPS_KEY="demo-key-not-secret"))

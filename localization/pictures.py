@@ -29,7 +29,7 @@ from matplotlib.patches import Rectangle
 from localization.landmarks import Landmarks
 from localization.match import Localization
 from osmseg.errors import ConfigError
-from osmseg.output.figures import DPI, figure as _figure, save_png as _save
+from osmseg.output.figures import figure as _figure, save_png as _save
 
 __all__ = ["CANDIDATE", "TOP_K", "TRUTH", "class_colours", "graph_png", "localization_png"]
 

@@ -32,7 +32,7 @@ from osmseg.grid import TILE_SIZE, LngLatBBox, SampleGrid, ground_resolution, pa
 from osmseg.imagery import make_provider
 from osmseg.imagery.base import ImageryProvider
 from osmseg.net.http import DEFAULT_HOST_LIMITS, HttpClient, HttpConfig
-from osmseg.net.redact import redact
+from osmseg.redact import redact
 from osmseg.osm.base import OsmSource
 from osmseg.osm.features import read_features
 from osmseg.osm.sources import make_osm_source

@@ -15,7 +15,8 @@ import torch
 import torch.nn.functional as F
 
 from osmseg.errors import CheckpointError, ConfigError
-from training.checkpoint import ModelSpec, load_checkpoint, model_from_checkpoint, save_checkpoint
+from training.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
+from training.spec import ModelSpec
 from training.model import SegNet, build_model, model_spec
 
 

@@ -10,7 +10,8 @@ from click.testing import CliRunner
 from PIL import Image
 
 from osmseg import __version__
-from osmseg.cli.demo import DEMO_CASSETTE, DEMO_SAMPLES, DEMO_VIEWPOINTS
+from localization.demo import DEMO_VIEWPOINTS
+from osmseg.demo import DEMO_CASSETTE, DEMO_SAMPLES
 from osmseg.cli.main import cli
 
 

@@ -34,7 +34,7 @@ from osmseg.errors import (
     RetriesExhausted,
 )
 from osmseg.net.http import CACHE_FILE, DEFAULT_USER_AGENT, HttpClient, HttpConfig
-from osmseg.net.redact import redact
+from osmseg.redact import redact
 
 SECRET = "s3cr3t-K3Y-0123456789"
 FAST = {"backoff": 0.01, "timeout": 5.0}

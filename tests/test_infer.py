@@ -23,7 +23,7 @@ from torch import nn
 
 from osmseg.errors import ConfigError, ImageryError
 from osmseg.output.geotiff import read_class_table
-from training.checkpoint import ModelSpec
+from training.spec import ModelSpec
 from training.infer import predict_array
 from training.predict import predict_file
 from training.tiling import WindowGrid, blend_weight, letterbox

@@ -26,7 +26,7 @@ from localization.match import (
 from localization.refine import feature_edge_mask, inherit, localize_hierarchical
 from localization.pictures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
 from osmseg.classes import load_class_table
-from osmseg.cli.localize import localize_command
+from localization.cli import localize_command
 from osmseg.errors import ConfigError
 
 NAMES = ("building", "road", "vegetation", "footway")

@@ -17,7 +17,7 @@ from PIL import Image
 
 from localization.match import localize
 from localization.pairs import PairsConfig, load_pairs, run_pairs
-from osmseg.cli.localize_bench import localize_bench_command
+from localization.cli import localize_bench_command
 from osmseg.errors import DatasetError
 
 AERIAL = (400, 400)

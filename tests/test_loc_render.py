@@ -25,7 +25,7 @@ from localization.visible import landmark_cells, visible_landmarks
 from localization.render import (NoiseConfig, RenderConfig, apply_noise, azimuth_to_column, elevation_to_row,
                                  panorama_table, render_panorama, render_view)
 from osmseg.classes import load_class_table
-from osmseg.cli.localize_bench import localize_bench_command
+from localization.cli import localize_bench_command
 from osmseg.errors import ConfigError
 
 TABLE = load_class_table("classes13.toml")

@@ -42,7 +42,7 @@ from osmseg.imagery.providers import (
 from osmseg.imagery.xyz import fill_template
 from osmseg.net.cassette import clean_url
 from osmseg.net.http import HttpClient, HttpConfig
-from osmseg.net.redact import redact
+from osmseg.redact import redact
 
 from conftest import TEST_DATA
 

@@ -34,7 +34,6 @@ from collections import OrderedDict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import rasterio
@@ -44,7 +43,7 @@ from PIL import Image, UnidentifiedImageError
 from torch.utils.data import Dataset
 from torchvision.transforms.v2 import functional as F
 
-from osmseg.classes import ClassDef, ClassTable, load_class_table
+from osmseg.classes import ClassTable, load_class_table
 from osmseg.grid import ground_pixel_size
 from osmseg.errors import DatasetError
 from training.augment import OVERHEAD, AugmentConfig, draw, item_rng, jitter, orient

@@ -27,7 +27,8 @@ from tqdm import tqdm
 
 from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_bytes
-from training.checkpoint import ModelSpec, load_checkpoint, model_from_checkpoint
+from training.checkpoint import load_checkpoint, model_from_checkpoint
+from training.spec import ModelSpec
 from training.data import SampleFiles, dataset_class_table, discover_dataset, read_image, read_label
 from training.infer import InferenceOptions
 from training.predict import predict_image, target_resolution

@@ -51,7 +51,7 @@ from training.distributed import pick_device
 from training.tiling import Box, WindowGrid, blend_weight, letterbox, nearest_index, pixel_blocks
 
 if TYPE_CHECKING:
-    from training.checkpoint import ModelSpec
+    from training.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
 

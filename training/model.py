@@ -40,7 +40,7 @@ from torch import Tensor, nn
 
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError
-from training.checkpoint import IMAGENET_MEAN, IMAGENET_STD, ModelSpec
+from training.spec import IMAGENET_MEAN, IMAGENET_STD, ModelSpec
 from training.config import PRESET_NAMES
 
 logger = logging.getLogger(__name__)

@@ -26,7 +26,7 @@ import numpy as np
 from matplotlib.patches import Patch
 
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.output.figures import DPI, figure as _figure, save_png as _save
+from osmseg.output.figures import figure as _figure, save_png as _save
 
 __all__ = ["confusion_matrix_png", "qualitative_panels", "training_curves_png", "per_class_iou_png"]
 

@@ -52,7 +52,7 @@ from training.infer import (
 from training.tiling import pixel_blocks
 
 if TYPE_CHECKING:
-    from training.checkpoint import ModelSpec
+    from training.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
 

@@ -34,7 +34,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_bytes
-from training.checkpoint import ModelSpec, load_checkpoint, save_checkpoint
+from training.checkpoint import load_checkpoint, save_checkpoint
 from training.config import TrainConfig
 from training.data import (
     PatchDataset,
@@ -49,6 +49,7 @@ from training.data import (
 from training.distributed import Dist, barrier, cleanup, setup
 from training.engine import StepOptions, evaluate, train_one_epoch
 from training.model import PRESETS, build_model, load_encoder_weights, model_spec
+from training.spec import ModelSpec
 from training.splits import make_splits, read_splits, sample_groups, write_splits
 
 logger = logging.getLogger(__name__)

@@ -12,7 +12,7 @@ import click
 from tqdm import tqdm
 
 from osmseg.errors import ConfigError, OsmsegError
-from osmseg.net.redact import RedactingFilter
+from osmseg.redact import RedactingFilter
 from osmseg.output.manifest import command_line
 
 F = TypeVar("F", bound=Callable[..., Any])

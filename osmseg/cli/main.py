@@ -1,4 +1,10 @@
-"""The ``osmseg`` command: a click group with one module per subcommand (as rasterio's ``rio``).
+"""The ``osmseg`` command: a click group, with each package's commands as plugins (as rasterio's ``rio``).
+
+The core's own commands (``build``, ``verify``) are added here; ``train``, ``predict`` and
+``eval`` (:mod:`training.cli`), ``localize``, ``localize-bench`` (:mod:`localization.cli`)
+and ``demo`` (:mod:`localization.demo`) register themselves through the ``osmseg.commands``
+entry points of pyproject.toml and are loaded by click-plugins, so the core never imports the
+packages above it. A plugin that fails to load shows up as a command that says why.
 
 Only the CLI configures logging. Data (paths, JSON) goes to stdout; logs, progress and
 summaries go to stderr. Exit status: 0 success, 1 failure, 2 usage error.
@@ -6,20 +12,21 @@ summaries go to stderr. Exit status: 0 success, 1 failure, 2 usage error.
 
 from __future__ import annotations
 
+from importlib.metadata import entry_points
+
 import click
+from click_plugins import with_plugins
 
 from osmseg import __version__
 from osmseg.cli.build import build_command
 from osmseg.cli.common import configure_logging, show_progress
-from osmseg.cli.demo import demo_command
-from osmseg.cli.eval import eval_command
-from osmseg.cli.localize import localize_command
-from osmseg.cli.localize_bench import localize_bench_command
-from osmseg.cli.predict import predict_command
-from osmseg.cli.train import train_command
 from osmseg.cli.verify import verify_command
 
+#: the entry-point group other packages register ``osmseg`` subcommands in
+PLUGIN_GROUP = "osmseg.commands"
 
+
+@with_plugins(sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name))
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, "--version", prog_name="osmseg")
 @click.option("-v", "--verbose", count=True, help="More log output on stderr (-vv for debug).")
@@ -35,13 +42,7 @@ def cli(ctx: click.Context, verbose: int, quiet: int, progress: bool | None) -> 
 
 
 cli.add_command(build_command)
-cli.add_command(demo_command)
 cli.add_command(verify_command)
-cli.add_command(train_command)
-cli.add_command(predict_command)
-cli.add_command(eval_command)
-cli.add_command(localize_command)
-cli.add_command(localize_bench_command)
 
 if __name__ == "__main__":  # pragma: no cover
     cli()

@@ -16,7 +16,7 @@ What is in the cassette, and where it comes from:
   per quadkey tile. The tile pixels are *rendered from the same OSM data* by
   :func:`osmseg.demo.render.render_aerial`: real Bing imagery may not be redistributed.
 
-How: the real build (:func:`osmseg.cli.demo.demo_config`) runs against an in-process emulator
+How: the real build (:func:`osmseg.demo.demo_config`) runs against an in-process emulator
 of those three endpoints, mounted as the HTTP client's transport adapter, and
 :class:`osmseg.net.cassette.RecordAdapter` records every request exactly as the build sent it.
 """
@@ -45,7 +45,7 @@ from urllib3._collections import HTTPHeaderDict
 import osmseg.build
 from osmseg.build import build
 from osmseg.classes import load_class_table
-from osmseg.cli.demo import DEMO_CASSETTE, demo_config
+from osmseg.demo import DEMO_CASSETTE, demo_config
 from osmseg.demo.render import render_aerial
 from osmseg.grid import LngLatBBox, sample_grid
 from osmseg.net.cassette import RecordAdapter

@@ -35,7 +35,7 @@ from osmseg.imagery.mosaic import (
     tile_name,
 )
 from osmseg.net.http import HttpClient
-from osmseg.net.redact import redact
+from osmseg.redact import redact
 
 logger = logging.getLogger(__name__)
 

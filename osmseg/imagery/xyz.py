@@ -12,7 +12,7 @@ from disk; ``file://`` followed by an absolute or relative path).  Keys come onl
 ``{env:NAME}``: the expanded value lives in memory, while messages, logs and the manifest
 show the template with ``{env:NAME}`` left in.  ``{env:NAME}`` is accepted only as the
 value of a query parameter the HTTP client redacts and keeps out of its cache
-(:data:`osmseg.net.redact.SECRET_PARAMS`: ``key``, ``access_token``, ``subscription-key``,
+(:data:`osmseg.redact.SECRET_PARAMS`: ``key``, ``access_token``, ``subscription-key``,
 ``api_key``, ``apikey``, ``token``, ``apiKey``, ...), which is where Mapbox, Azure Maps,
 Esri, MapTiler and HERE take keys.
 
@@ -51,7 +51,7 @@ from osmseg.imagery.mosaic import (
     tile_name,
 )
 from osmseg.net.http import HttpClient
-from osmseg.net.redact import SECRET_PARAMS
+from osmseg.redact import SECRET_PARAMS
 
 logger = logging.getLogger(__name__)
 

@@ -10,7 +10,7 @@ Three things on top of requests-cache 1.x's ``SQLiteCache``:
   cache that cannot be read or written is one :class:`~osmseg.errors.CacheError` line that
   names the file and what to do.
 
-Imports: osmseg.errors and osmseg.net.redact only.
+Imports: osmseg.errors and osmseg.redact only.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from requests_cache.cache_keys import redact_response
 from requests_cache.models.response import CachedResponse
 
 from osmseg.errors import CacheError
-from osmseg.net.redact import redact
+from osmseg.redact import redact
 
 
 class _StrictSQLiteDict(SQLiteDict):

@@ -39,9 +39,12 @@ from vcr.serialize import deserialize, serialize
 from vcr.serializers import yamlserializer
 
 from osmseg.errors import ConfigError, OfflineCacheMiss
-from osmseg.net.http import RETRY_STATUSES
-from osmseg.net.redact import SECRET_HEADERS, SECRET_PARAMS, redact
+from osmseg.redact import SECRET_HEADERS, SECRET_PARAMS, redact
 from osmseg.output.atomic import atomic_write_bytes
+
+#: Statuses worth retrying: rate limits and server-side trouble (the HTTP client retries them;
+#: a recording keeps only the answer that finally came).
+RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
 
 Mode = Literal["record", "replay"]
 _SECRETS = {p.lower() for p in SECRET_PARAMS}

