@@ -33,4 +33,7 @@ step:
 
 Coordinates are pixels throughout: ``x`` is the column, ``y`` the row. numpy and scipy do
 the work; only :mod:`localization.features` runs a network, with torch (the ``train`` extra).
+:func:`localization.pipeline.run` localizes one query given a :class:`LocalizeConfig`; the
+command line (:mod:`localization.cli`), the rendered benchmark and the annotated pairs all
+call it. Imports: osmseg core and training (the top layer: nothing imports localization).
 """

@@ -28,7 +28,6 @@ import itertools
 import json
 import logging
 import math
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -36,12 +35,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from localization.bench_plots import plot_classes, plot_errors
-from localization.graph import Cliques, cliques_fast, window_size_auto
+from localization.graph import cliques_fast
 from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
-from localization.match import DEFAULT_P, Localization, match_cliques, unanswered
+from localization.match import DEFAULT_P, Localization
+from localization.pipeline import AerialGraph, LocalizeConfig, aerial_graph, run
 from localization.render import (NoiseConfig, RenderConfig, RenderedView, render_view,
                                  save_panorama_png)
 from localization.visible import landmark_cells, visible_landmarks
@@ -49,6 +48,8 @@ from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_text
+from osmseg.progress import Progress, track
+from osmseg.output.manifest import manifest_path, read_manifest
 
 logger = logging.getLogger(__name__)
 
@@ -155,15 +156,12 @@ def load_mask_scene(path: Path, table: ClassTable | str, resolution_m: float) ->
 def load_dataset_scenes(folder: Path) -> list[Scene]:
     """The label masks of a dataset made by ``osmseg build`` (labels/ + manifest.json)."""
     folder = Path(folder)
-    try:
-        manifest = json.loads((folder / "manifest.json").read_text(encoding="utf-8"))
-        table = ClassTable.from_dict(manifest["classes"], f"{folder / 'manifest.json'} classes")
-        samples = [(s["name"], float(s["ground_resolution_m"])) for s in manifest["samples"]]
-    except FileNotFoundError:
+    if not manifest_path(folder).is_file():
         raise DatasetError(f"{folder}: no manifest.json; give a dataset made by `osmseg build`, "
-                           "or a mask file with --table and --resolution") from None
-    except (KeyError, TypeError, ValueError):
-        raise DatasetError(f"{folder}/manifest.json: not an osmseg dataset manifest (rerun `osmseg build`)") from None
+                           "or a mask file with --table and --resolution")
+    manifest = read_manifest(folder)
+    table = ClassTable.from_dict(manifest["classes"], f"{manifest_path(folder)} classes")
+    samples = [(s["name"], float(s["ground_resolution_m"])) for s in manifest["samples"]]
     if not samples:
         raise DatasetError(f"{folder}: the dataset has no samples")
     return [Scene(name, _read_mask(folder / "labels" / f"{name}.png"), table, res) for name, res in samples]
@@ -316,37 +314,10 @@ def by_num_classes(subsets: Sequence[tuple[str, ...]], records: Sequence[dict[st
 # --------------------------------------------------------------------------- the run
 
 
-@dataclass
-class _AerialGraph:
-    """An aerial mask's landmarks and cliques for one class subset, built once per run."""
-
-    landmarks: Landmarks
-    window: int
-    cliques: Cliques | None
-
-
-def _aerial_graph(lm: Landmarks, window: int | None) -> _AerialGraph:
-    """The graph of ``lm`` with the given window, or the automatic one (no graph without landmarks)."""
-    if len(lm.xy) == 0:
-        return _AerialGraph(lm, 0, None)
-    w = int(window) if window is not None else window_size_auto(lm)  # one landmark: the image size
-    return _AerialGraph(lm, w, cliques_fast(lm, w))
-
-
-def _localize(graph: _AerialGraph, query: Landmarks, p: float, top_k: int) -> Localization:
-    """:func:`localize` with a prebuilt aerial graph (same defaults: the query window is its height)."""
-    if graph.cliques is None:
-        return unanswered("the aerial image has no landmarks", p=p)
-    if len(query.xy) == 0:
-        return unanswered("the query has no landmarks", p=p)
-    qw = query.height if query.panorama else graph.window
-    return match_cliques(graph.landmarks, graph.cliques, query, cliques_fast(query, qw), p=p,
-                         top_k=top_k, window=graph.window, query_window=qw)
-
-
 def aerial_graphs(lm: Landmarks, subsets: Sequence[tuple[str, ...]], window: int | None) -> dict[tuple[str, ...], Any]:
     """The aerial landmarks' graph for every class subset, each with its own automatic window."""
-    return {s: _aerial_graph(lm.of_classes(s), window) for s in subsets}
+    config = LocalizeConfig(window=window)
+    return {s: aerial_graph(lm.of_classes(s), config) for s in subsets}
 
 
 def localize_subsets(graphs: dict[tuple[str, ...], Any], query: Landmarks, truth: tuple[float, float], scale: float,
@@ -357,7 +328,7 @@ def localize_subsets(graphs: dict[tuple[str, ...], Any], query: Landmarks, truth
     seconds = 0.0
     for s in subsets:
         t0 = time.perf_counter()
-        loc = _localize(graphs[s], query.of_classes(s), p, top_k)
+        loc = run(LocalizeConfig(p=p, top_k=top_k), graphs[s], query.of_classes(s))
         if s == subsets[0]:
             seconds = time.perf_counter() - t0
         by_subset["+".join(s)] = score(loc, truth, scale)
@@ -380,7 +351,7 @@ def subsets_of(classes: LandmarkClasses, all_subsets: bool) -> list[tuple[str, .
     return [full] + ([s for s in class_subsets(full) if len(s) < len(full)] if all_subsets else [])
 
 
-def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, progress: bool = False,
+def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, progress: Progress | None = None,
               plots: bool = True, source: str = "") -> dict[str, Any]:
     """Run the benchmark over ``scenes`` (viewpoints spread round-robin) and write results.json + plots."""
     if not scenes:
@@ -390,7 +361,7 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     out_dir = Path(out_dir)
     classes = landmark_classes_for(scenes[0].table, config.landmarks)
     subsets = subsets_of(classes, config.subsets)
-    graphs: list[dict[tuple[str, ...], _AerialGraph]] = []
+    graphs: list[dict[tuple[str, ...], AerialGraph]] = []
     placements: list[np.ndarray] = []
     counts = [config.viewpoints // len(scenes) + (i < config.viewpoints % len(scenes)) for i in range(len(scenes))]
     place_rng = np.random.default_rng([config.seed, 0])
@@ -413,8 +384,7 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
 
     records: list[dict[str, Any]] = []
     t_start = time.perf_counter()
-    for index, (si, xy) in enumerate(tqdm(jobs, desc="viewpoints", unit="view", disable=not progress,
-                                          file=sys.stderr, dynamic_ncols=True)):
+    for index, (si, xy) in enumerate(track(jobs, progress, "viewpoints", unit="view")):
         scene = scenes[si]
         truth = (float(xy[0]), float(xy[1]))
         seq = np.random.SeedSequence([config.seed, config.noise.seed, index])  # each view its own noise
@@ -449,12 +419,12 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     return results
 
 
-def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: _AerialGraph, config: BenchConfig) -> list[Path]:
+def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, config: BenchConfig) -> list[Path]:
     """``STEM_map.png`` (the mask with candidates, top-k and truth) and ``STEM_panorama.png`` (its graph)."""
     from localization.graph import adjacency
     from localization.pictures import graph_png, localization_png
 
-    loc = _localize(graph, view.landmarks, config.p, config.top_k)
+    loc = run(LocalizeConfig(p=config.p, top_k=config.top_k), graph, view.landmarks)
     query = view.landmarks
     pano_graph = adjacency(cliques_fast(query, query.height)) if len(query) else np.zeros((0, 0), bool)
     return [localization_png(stem.with_name(stem.name + "_map.png"), loc, graph.landmarks,
@@ -464,7 +434,7 @@ def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: _AerialGraph,
                       title=f"rendered panorama at ({view.truth[0]:.0f}, {view.truth[1]:.0f}): {len(query)} landmarks")]
 
 
-def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], _AerialGraph]],
+def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], AerialGraph]],
              subsets: list[tuple[str, ...]], records: list[dict[str, Any]], config: BenchConfig,
              classes: LandmarkClasses, source: str, total_s: float) -> dict[str, Any]:
     """The results.json document (errors in metres)."""

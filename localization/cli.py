@@ -29,16 +29,14 @@ from __future__ import annotations
 import json
 import logging
 import math
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import click
-import numpy as np
 
-from osmseg.cli.common import parse_size, report_errors
-from localization.inputs import Side, SideOptions, load_side, with_photo
-from osmseg.errors import ConfigError, DatasetError
+from osmseg.cli.common import parse_size, progress_bars, report_errors
+from localization.inputs import SideOptions
+from osmseg.errors import ConfigError
 
 logger = logging.getLogger(__name__)
 
@@ -97,47 +95,12 @@ def _windows(value: str) -> tuple[int, ...]:
 # --------------------------------------------------------------------------- checks and output
 
 
-def _check_inputs(aerial: Side, ground: Side, aerial_path: Path, ground_path: Path) -> None:
-    """One-line errors for inputs no localization can use."""
-    for side, path, name in ((aerial, aerial_path, "aerial"), (ground, ground_path, "ground")):
-        lm = side.landmarks
-        if len(lm) == 0:
-            raise DatasetError(f"{path}: no landmarks of classes {', '.join(lm.classes)} found; check "
-                               f"--{name}-classes and --{name}-table (or lower --min-size)")
-    aerial_classes = {aerial.landmarks.classes[c] for c in np.unique(aerial.landmarks.cls)}
-    ground_classes = {ground.landmarks.classes[c] for c in np.unique(ground.landmarks.cls)}
-    if len(aerial_classes) == 1 and ground_classes <= aerial_classes:
-        raise DatasetError(f"both images have landmarks of one class only ({aerial_classes.pop()}): every place would "
-                           "match equally; use masks or landmark files with more classes")
-
-
 def _table(result: Any) -> str:
     """The top-k as a fixed-width table."""
     lines = [f"{'rank':>4}  {'x':>8}  {'y':>8}  {'posterior':>10}  {'likelihood':>10}"]
     for rank, ((x, y, post), i) in enumerate(zip(result.top_k, result.order), start=1):
         lines.append(f"{rank:>4}  {x:>8.1f}  {y:>8.1f}  {post:>10.4f}  {float(result.likelihoods[i]):>10.4f}")
     return "\n".join(lines)
-
-
-def _pictures(out_dir: Path, result: Any, aerial: Side, ground: Side, truth: tuple[float, float] | None,
-              resolution: float | None, fast: bool, stride: int) -> list[Path]:
-    """localization.png, aerial_graph.png and ground_graph.png in ``out_dir``."""
-    try:
-        from localization import pictures
-    except ImportError:
-        raise ConfigError("pictures need matplotlib: pip install matplotlib (or leave out --out)") from None
-    from localization.graph import adjacency, cliques_fast, cliques_reference
-
-    build = cliques_fast if fast else cliques_reference
-    paths = [pictures.localization_png(out_dir / "localization.png", result, aerial.landmarks,
-                                       image=aerial.picture(), truth=truth, resolution=resolution)]
-    for name, side, w in (("aerial", aerial, result.window), ("ground", ground, result.query_window)):
-        if w:
-            graph = adjacency(build(side.landmarks, w, stride))
-            title = f"{name}: {len(side.landmarks)} landmarks, window {w} px"
-            paths.append(pictures.graph_png(out_dir / f"{name}_graph.png", side.landmarks, graph,
-                                            image=side.picture(), title=title))
-    return paths
 
 
 @click.command("localize")
@@ -212,68 +175,35 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                      feature_components: int, feature_checkpoint: Path | None) -> None:
     """Find where the GROUND panorama was taken in the AERIAL image by matching landmark graphs."""
     from localization.features import FeatureEdges
-    from localization.match import localize
-    from localization.refine import localize_hierarchical
+    from localization.pipeline import LocalizeConfig, LocalizeFiles, localize_files
 
     verbosity = (ctx.obj or {}).get("verbosity", 0)
     window, windows, truth = _window(window_text), _windows(windows_text), _point(truth_text)
-    common = {"mode": mode, "min_size": min_size, "grid_stride": grid_stride}
-    aerial = load_side(aerial_path, SideOptions("aerial", aerial_classes, aerial_table,
-                                                parse_size(aerial_size, "--aerial-size"), aerial_checkpoint, False,
-                                                **common))
-    ground = load_side(ground_path, SideOptions("ground", ground_classes, ground_table,
-                                                parse_size(ground_size, "--ground-size"), ground_checkpoint, panorama,
-                                                **common))
-    _check_inputs(aerial, ground, aerial_path, ground_path)
-    aerial, ground = with_photo(aerial, aerial_image, "aerial"), with_photo(ground, ground_image, "ground")
-    a = aerial.landmarks
-    if window is not None and not hierarchical and window >= max(a.width, a.height):
-        raise ConfigError(f"--window {window} is not smaller than the aerial image ({a.width}x{a.height}): every "
-                          f"landmark would be in one window; give less than {max(a.width, a.height)}, or auto")
-    if truth is not None and not (0 <= truth[0] < a.width and 0 <= truth[1] < a.height):
-        raise ConfigError(f"--truth {truth[0]:g},{truth[1]:g} is outside the aerial image ({a.width}x{a.height})")
-    settings = {"query_window": ground_window, "p": p, "stride": stride, "top_k": top_k, "fast": not reference}
-    edges, drops = None, {}
-    if feature_threshold is None:
-        from click.core import ParameterSource
+    if feature_threshold is None and (stray := _given(ctx, ("feature_checkpoint", "feature_metric", "feature_reduce",
+                                                            "feature_components"))):
+        raise ConfigError(f"{', '.join(stray)} set how --feature-threshold removes edges: add --feature-threshold "
+                          "T, or leave them out")
+    features = (None if feature_threshold is None else
+                FeatureEdges(feature_threshold, feature_metric, feature_reduce, feature_components))
+    config = LocalizeConfig(window=window, query_window=ground_window, p=p, stride=stride, top_k=top_k,
+                            fast=not reference, hierarchical=hierarchical, windows=windows, features=features)
 
-        stray = [f"--{n.replace('_', '-')}" for n in ("feature_checkpoint", "feature_metric", "feature_reduce",
-                                                      "feature_components")
-                 if ctx.get_parameter_source(n) == ParameterSource.COMMANDLINE]
-        if stray:
-            raise ConfigError(f"{', '.join(stray)} set how --feature-threshold removes edges: add --feature-threshold "
-                              "T, or leave them out")
-    else:
-        edges = FeatureEdges(feature_threshold, feature_metric, feature_reduce, feature_components)
-        drops = edges.masks({"aerial": (aerial.photo, a, feature_checkpoint or aerial_checkpoint),
-                             "ground": (ground.photo, ground.landmarks, feature_checkpoint or ground_checkpoint)})
-        settings.update(aerial_drop=drops["aerial"], query_drop=drops["ground"])
-    if hierarchical:
-        result = localize_hierarchical(a, ground.landmarks, windows, **settings)
-    else:
-        result = localize(a, ground.landmarks, window=window, **settings)
-        if window is None and not result.unanswered and result.window >= max(a.width, a.height):
-            logger.warning("the automatic window (%d px) covers the whole aerial image, so there is one candidate: "
-                           "give a smaller --window", result.window)
-    if edges is not None:
-        graphs = {"aerial": (a, result.window), "ground": (ground.landmarks, result.query_window)}
-        result = replace(result, feature_edges=edges.summary(drops, graphs, fast=not reference, stride=stride))
-    resolution = resolution or aerial.resolution
-    error_px, error_m = result.error(truth, resolution)
-    summary: dict[str, Any] = {"aerial": str(aerial_path), "ground": str(ground_path),
-                               "aerial_landmarks": len(a), "ground_landmarks": len(ground.landmarks)}
-    if truth is not None:
-        summary["truth"] = {"x": truth[0], "y": truth[1], "error_px": error_px, "error_m": error_m}
-    pictures: list[Path] = []
-    if out_dir is not None:
-        from osmseg.output.atomic import atomic_write_text
+    def side(name: str, classes: str, table: str | None, size: str | None, checkpoint: Path | None,
+             is_panorama: bool) -> SideOptions:
+        return SideOptions(name, classes, table, parse_size(size, f"--{name}-size"), checkpoint, is_panorama,
+                           mode=mode, min_size=min_size, grid_stride=grid_stride)
 
-        pictures = _pictures(out_dir, result, aerial, ground, truth, resolution, not reference, stride)
-        full = {**summary, **result.to_dict(all_candidates=True)}
-        pictures.append(atomic_write_text(out_dir / "result.json", json.dumps(full, indent=2, sort_keys=True) + "\n"))
+    request = LocalizeFiles(
+        aerial=aerial_path, ground=ground_path,
+        aerial_options=side("aerial", aerial_classes, aerial_table, aerial_size, aerial_checkpoint, False),
+        ground_options=side("ground", ground_classes, ground_table, ground_size, ground_checkpoint, panorama),
+        aerial_image=aerial_image, ground_image=ground_image, feature_checkpoint=feature_checkpoint,
+        truth=truth, resolution_m=resolution)
+    report = localize_files(request, config, out_dir)
+    result = report.result
     if as_json:
-        click.echo(json.dumps({**summary, **result.to_dict(all_candidates=False),
-                               "files": [str(f) for f in pictures]}, indent=2, sort_keys=True))
+        click.echo(json.dumps({**report.summary, **result.to_dict(all_candidates=False),
+                               "files": [str(f) for f in report.written]}, indent=2, sort_keys=True))
     elif result.unanswered:
         click.echo(f"unanswered: {result.reason}")
     else:
@@ -285,11 +215,11 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                     else f"window {result.window} px{' (auto)' if window is None else ''}")
             click.echo(f"{used}, ground window {result.query_window} px, {result.n_cliques} cliques, "
                        f"{len(result.candidates)} candidates{ties}", err=True)
-        if error_px is not None:
-            click.echo(f"error of the best location: {error_px:.1f} px"
-                       + (f" ({error_m:.1f} m)" if error_m is not None else ""), err=True)
-        if pictures:
-            click.echo(f"written: {', '.join(f.name for f in pictures)} in {out_dir}/", err=True)
+        if report.error_px is not None:
+            click.echo(f"error of the best location: {report.error_px:.1f} px"
+                       + (f" ({report.error_m:.1f} m)" if report.error_m is not None else ""), err=True)
+        if report.written:
+            click.echo(f"written: {', '.join(f.name for f in report.written)} in {out_dir}/", err=True)
 
 
 def _heights(values: tuple[str, ...]) -> dict[str, float]:
@@ -403,7 +333,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     from localization.render import NoiseConfig, RenderConfig
 
     verbosity = ctx.obj["verbosity"] if ctx.obj else 0
-    progress = bool(ctx.obj.get("progress", False)) if ctx.obj else False
+    bars = bool(ctx.obj.get("progress", False)) if ctx.obj else False
     pairs = source.is_dir() and is_pairs_folder(source)
     misplaced = _given(ctx, RENDER_ONLY if pairs else PAIRS_ONLY)
     if misplaced:
@@ -414,8 +344,9 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         pairs_config = PairsConfig(landmarks=landmark_dict or "camvid", window=window, p=p, top_k=top_k,
                                    subsets=subsets, resolution_m=resolution, aerial_size=parse_size(aerial_size, "--aerial-size"),
                                    ground_size=parse_size(ground_size, "--ground-size"))
-        results = run_pairs(load_pairs(source, pairs_config), pairs_config, out_dir, progress=progress,
-                            plots=plots, source=str(source))
+        with progress_bars(bars) as progress:
+            results = run_pairs(load_pairs(source, pairs_config), pairs_config, out_dir, progress=progress,
+                                plots=plots, source=str(source))
         if verbosity >= 0:
             click.echo(format_summary(results), err=True)
         click.echo(str(out_dir / "results.json"))
@@ -439,7 +370,8 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         if resolution is None:
             raise ConfigError(f"{source} is a mask file: give its ground resolution with --resolution (m/px)")
         scenes = [load_mask_scene(source, table, resolution)]
-    results = run_bench(scenes, config, out_dir, progress=progress, plots=plots, source=str(source))
+    with progress_bars(bars) as progress:
+        results = run_bench(scenes, config, out_dir, progress=progress, plots=plots, source=str(source))
     if verbosity >= 0:
         click.echo(format_summary(results), err=True)
     click.echo(str(out_dir / "results.json"))

@@ -16,14 +16,15 @@ from pathlib import Path
 import click
 
 from osmseg.cli.build import run_build
-from osmseg.cli.common import report_errors
+from osmseg.cli.common import progress_bars, report_errors
 from osmseg.demo import DEMO_CASSETTE, demo_config
+from osmseg.progress import Progress
 
 #: The demo's training run: the dissertation's recipe at 1/8 of SegNet's width, a few epochs on the CPU.
 DEMO_TRAINING = {"model": "airsegnet13", "width": 0.125, "epochs": 3, "batch_size": 4, "workers": 0, "seed": 0}
 
 
-def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, progress: bool) -> None:
+def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, progress: Progress | None) -> None:
     """Train the demo model briefly on the demo dataset, then evaluate it on its test split."""
     from training.config import make_config
     from training.evaluate import EvalOptions, run_eval
@@ -37,8 +38,8 @@ def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, pro
     run(make_config(dataset, run_dir, None, settings), progress=progress)
     if verbosity >= 0:
         click.echo(f"evaluating {run_dir / 'best.pt'} on the test split into {eval_dir}/", err=True)
-    opts = EvalOptions(split="test", device="cpu", progress=progress)
-    metrics = run_eval(run_dir / "best.pt", dataset, eval_dir, opts)
+    opts = EvalOptions(split="test", device="cpu")
+    metrics = run_eval(run_dir / "best.pt", dataset, eval_dir, opts, progress=progress)
     if verbosity >= 0:
         click.echo(f"test mIoU {metrics['miou']:.3f}, pixel accuracy {metrics['pixel_accuracy']:.3f} "
                    f"(a tiny model after {epochs} epochs: a smoke test, not a result)", err=True)
@@ -50,7 +51,7 @@ def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, pro
 DEMO_VIEWPOINTS = 12
 
 
-def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: bool) -> None:
+def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: Progress | None) -> None:
     """Render panoramas in the demo masks and localize them (localize-bench with a few viewpoints)."""
     from localization.bench import BenchConfig, load_dataset_scenes, run_bench
     from localization.cli import format_summary
@@ -83,21 +84,22 @@ def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: bo
 def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int, localize: bool) -> None:
     """Build a small dataset offline from embedded recorded fixtures, localize panoramas rendered
     from its masks, then train and evaluate a tiny model on it."""
-    verbosity, progress = ctx.obj["verbosity"], ctx.obj.get("progress", False)
+    verbosity, bars = ctx.obj["verbosity"], ctx.obj.get("progress", False)
     if verbosity >= 0:
         click.echo(f"osmseg demo: replaying {DEMO_CASSETTE.name} (Helsinki, OSM API + Bing wire formats; "
                    "OSM © OpenStreetMap contributors, ODbL; imagery rendered from OSM by osmseg)", err=True)
     dataset = out_dir / "dataset"
     env = dict(os.environ, BING_MAPS_KEY="demo-key-not-secret")
-    summary = run_build(demo_config(dataset), verbosity, progress, env=env)
+    summary = run_build(demo_config(dataset), verbosity, bars, env=env)
     if verbosity >= 0:
         click.echo(f"dataset in {dataset}/: images/, segmented/, labels/, geo/, manifest.json, DATASHEET.md, "
                    f"overview.png ({summary.accepted} samples)", err=True)
-    if localize:
-        demo_localization(dataset, out_dir, verbosity, progress)
-    if not train:
-        return
-    if importlib.util.find_spec("torch") is None:
-        click.echo("training skipped: PyTorch is not installed (pip install 'osmseg[train]')", err=True)
-        return
-    demo_training(dataset, out_dir, epochs, verbosity, progress)
+    with progress_bars(bars) as progress:
+        if localize:
+            demo_localization(dataset, out_dir, verbosity, progress)
+        if not train:
+            return
+        if importlib.util.find_spec("torch") is None:
+            click.echo("training skipped: PyTorch is not installed (pip install 'osmseg[train]')", err=True)
+            return
+        demo_training(dataset, out_dir, epochs, verbosity, progress)

@@ -31,6 +31,7 @@ from localization.graph import Cliques, adjacency, cliques_fast, cliques_referen
 from localization.landmarks import Landmarks
 from localization.refine import feature_edge_mask
 from osmseg.errors import ConfigError
+from osmseg.images import as_rgb
 
 __all__ = ["DEEPEST", "FeatureEdges", "dropped_edges", "fitted_size", "landmark_features"]
 
@@ -122,16 +123,17 @@ def landmark_features(image_rgb: np.ndarray, landmarks: Landmarks, model: Any, *
     at ``(j + 1/2) W / w - 1/2``; positions past the outer cell centres take the edge cell's).
     """
     torch = _torch()
-    from training.infer import _device, _rgb, normalise
+    from training.distributed import pick_device
+    from training.infer import normalise
 
     if not 1 <= stage <= DEEPEST:
         raise ConfigError(f"encoder stage must be 1..{DEEPEST}, got {stage}")
-    pixels = _rgb(np.asarray(image_rgb), "image")
+    pixels = as_rgb(np.asarray(image_rgb), "image")
     height, width = pixels.shape[:2]
     if (width, height) != (landmarks.width, landmarks.height):
         raise ConfigError(f"the image is {width}x{height} but the landmarks are of a {landmarks.width}x"
                           f"{landmarks.height} image; give the photo the landmarks were found in")
-    dev = _device(device)
+    dev = pick_device(device)
     net, spec = _model(model, device)
     net = net.to(dev).eval()
     step = 2 ** stage

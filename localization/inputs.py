@@ -8,9 +8,7 @@ image segmented with ``--*-checkpoint``. :func:`load_side` tells them apart and 
 
 from __future__ import annotations
 
-import json
 import logging
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -18,7 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from osmseg.errors import ConfigError, DatasetError, ImageryError
+from osmseg.classes import ClassTable, load_class_table
+from osmseg.errors import ConfigError, DatasetError
+from osmseg.images import read_raster
+from osmseg.output.manifest import MANIFEST_NAME, read_manifest
 
 logger = logging.getLogger(__name__)
 
@@ -74,98 +75,45 @@ def _dictionary(name: str) -> Any:
 
 def _read_image(path: Path) -> tuple[np.ndarray, float | None]:
     """Pixels ``(H, W)`` or ``(H, W, bands)`` of an image, and its ground resolution (m/px) if georeferenced."""
-    if path.suffix.lower() in (".tif", ".tiff"):
-        import rasterio
-        from rasterio.errors import RasterioError
-
-        try:
-            with rasterio.open(path) as src:
-                data = src.read()
-                resolution = _resolution(src)
-        except (RasterioError, OSError) as exc:
-            raise ImageryError(f"{path}: cannot read the image ({exc})") from None
-        return (data[0] if data.shape[0] == 1 else np.moveaxis(data, 0, -1)), resolution
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as img:
-            img.load()
-            if img.mode in ("RGBA", "LA", "CMYK", "YCbCr", "HSV", "LAB"):
-                img = img.convert("RGB")  # colour: an image to segment or to draw under the landmarks
-            elif img.mode == "1":
-                img = img.convert("L")
-            return np.asarray(img), None  # "L", "P" (palette indices), "I;16", "I": class ids
-    except (UnidentifiedImageError, OSError) as exc:
-        raise ImageryError(f"{path}: cannot read the image ({exc})") from None
+    raster = read_raster(path)
+    return raster.pixels, raster.resolution_m
 
 
-def _resolution(src: Any) -> float | None:
-    """Metres per pixel of an open rasterio dataset (Web Mercator scaled at its centre latitude)."""
-    if src.crs is None or src.transform.is_identity:
-        return None
-    res = abs(src.transform.a)
-    if src.crs.is_geographic:
-        return None
-    if src.crs.to_epsg() == 3857:
-        from pyproj import Transformer
-
-        x, y = src.xy(src.height // 2, src.width // 2)
-        lat = Transformer.from_crs(3857, 4326, always_xy=True).transform(x, y)[1]
-        return res * math.cos(math.radians(lat))
-    unit = (src.crs.linear_units or "").lower()
-    return res if unit in ("metre", "meter", "m") else None
-
-
-def _manifest_for(mask: Path) -> tuple[dict[str, Any], dict[str, Any], Path] | None:
+def _manifest_for(mask: Path) -> tuple[ClassTable, dict[str, Any], Path] | None:
     """The class table and sample entry of ``mask`` in the manifest of the osmseg dataset listing it, and its root.
 
     Looks at ``DATASET/labels/NAME.png`` -> ``DATASET/manifest.json`` (and a manifest beside the
     mask); a manifest that does not list the mask is not its own and is ignored.
     """
     for root in (mask.parent.parent, mask.parent):
-        path = root / "manifest.json"
-        if not path.is_file():
+        if not (root / MANIFEST_NAME).is_file():
             continue
-        try:
-            manifest = json.loads(path.read_text(encoding="utf-8"))
-            table = {"classes": list(manifest["classes"]["classes"])}
-            samples = list(manifest.get("samples", ()))
-        except (OSError, ValueError, KeyError, TypeError):
-            raise DatasetError(f"{path}: not a readable osmseg dataset manifest; give the mask's class table "
-                               "with --aerial-table/--ground-table") from None
+        manifest = read_manifest(root)
         rel = mask.resolve().relative_to(root.resolve()).as_posix()
-        sample = next((s for s in samples if isinstance(s, dict) and rel in s.get("files", {})), None)
+        sample = next((s for s in manifest["samples"] if rel in s["files"]), None)
         if sample is not None:
-            return table, sample, root
+            return ClassTable.from_dict(manifest["classes"], f"{root / MANIFEST_NAME} classes"), sample, root
     return None
 
 
 def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: SideOptions, dictionary: Any,
-               rgb: np.ndarray | None, table_dict: dict[str, Any] | None) -> Side:
+               rgb: np.ndarray | None, table: ClassTable | None) -> Side:
     """Landmarks of a label mask, with the best background at hand (RGB image, class colours)."""
     from localization.landmarks import landmarks_from_mask
-    from osmseg.classes import load_class_table
 
     background = rgb
     if opts.table is not None:
         table = load_class_table(opts.table)
-        ids: Any = {c.id: c.name for c in (table.unlabeled, *table.classes)}
-        colours = {c.id: c.color for c in (table.unlabeled, *table.classes)}
-    elif table_dict is not None:
-        ids = {int(c["id"]): str(c["name"]) for c in table_dict["classes"]}
-        colours = {int(c["id"]): tuple(c["color"]) for c in table_dict["classes"] if "color" in c}
-    else:
+    elif table is None:
         found = _manifest_for(path)
         if found is not None:
-            table_dict, sample, root = found
-            ids = {int(c["id"]): str(c["name"]) for c in table_dict["classes"]}
-            colours = {int(c["id"]): tuple(c["color"]) for c in table_dict["classes"] if "color" in c}
+            table, sample, root = found
             resolution = resolution or sample.get("ground_resolution_m")
-            image = root / "images" / path.name
-            if background is None and image.is_file():
-                background = _rgb(_read_image(image)[0])
-        else:
-            ids, colours = None, {}
+            image = next((root / rel for rel in sorted(sample["files"]) if rel.startswith("images/")), None)
+            if background is None and image is not None and image.is_file():
+                background = _drawable(_read_image(image)[0])  # the sample's photo, whatever its format
+    ids: Any = {c.id: c.name for c in table.by_id.values()} if table is not None else None
+    colours = {c.id: c.color for c in table.by_id.values()} if table is not None else {}
     mask = pixels.astype(np.int64)
     lm = landmarks_from_mask(mask, ids, dictionary, mode=opts.mode, stride=opts.grid_stride,
                              min_size=opts.min_size, panorama=opts.panorama)
@@ -199,8 +147,12 @@ def _colourise(mask: np.ndarray, colours: dict[int, Any], ids: dict[int, str] | 
     return lut[mask]
 
 
-def _rgb(pixels: np.ndarray) -> np.ndarray | None:
-    """``pixels`` as an RGB image for drawing, or None if it is not one."""
+def _drawable(pixels: np.ndarray) -> np.ndarray | None:
+    """``pixels`` as an RGB picture to draw under landmarks (values clipped), or None if they are no image.
+
+    Not :func:`osmseg.images.as_rgb`, which refuses what a model cannot take: a picture may be drawn
+    from a 16-bit photo, and a mask of class ids is not one.
+    """
     if pixels.ndim == 3 and pixels.shape[2] >= 3:
         rgb = pixels[:, :, :3]
         return rgb if rgb.dtype == np.uint8 else np.clip(rgb, 0, 255).astype(np.uint8)
@@ -218,12 +170,12 @@ def _segmented_side(path: Path, pixels: np.ndarray, resolution: float | None, op
     from training.checkpoint import model_from_checkpoint
     from training.infer import predict_array
 
-    rgb = _rgb(pixels)
+    rgb = _drawable(pixels)
     if rgb is None:
         raise ConfigError(f"{path}: --{opts.name}-checkpoint needs an RGB image, got {pixels.shape}")
     model, spec = model_from_checkpoint(opts.checkpoint)  # type: ignore[arg-type]
     mask = predict_array(model, rgb, spec)
-    return replace(_mask_side(path, mask, resolution, opts, dictionary, rgb, spec.class_table), photo=rgb)
+    return replace(_mask_side(path, mask, resolution, opts, dictionary, rgb, spec.table), photo=rgb)
 
 
 def _landmark_file_side(path: Path, opts: SideOptions, dictionary: Any) -> Side:
@@ -235,7 +187,7 @@ def _landmark_file_side(path: Path, opts: SideOptions, dictionary: Any) -> Side:
     resolution = None
     if beside is not None:
         pixels, resolution = _read_image(beside)
-        background = _rgb(pixels)
+        background = _drawable(pixels)
         size = size or (pixels.shape[1], pixels.shape[0])
     if size is None:
         probe = read_landmarks(path, dictionary, 1 << 30, 1 << 30)
@@ -273,7 +225,7 @@ def with_photo(side: Side, path: Path | None, name: str) -> Side:
     """``side`` with the RGB photo of ``--NAME-image`` (for landmark features; drawn under the pictures)."""
     if path is None:
         return side
-    rgb, lm = _rgb(_read_image(path)[0]), side.landmarks
+    rgb, lm = _drawable(_read_image(path)[0]), side.landmarks
     if rgb is None or rgb.shape[:2] != (lm.height, lm.width):
         got = "not an RGB image" if rgb is None else f"{rgb.shape[1]}x{rgb.shape[0]}"
         raise ConfigError(f"--{name}-image {path.name} is {got}; the {name} landmarks need the {lm.width}x{lm.height} "

@@ -117,7 +117,7 @@ def _read_text(path: Path) -> list[tuple[int, float, float, str]]:
 
     The class is the rest of the line, so it may contain spaces (``dirt road``).
     """
-    rows = []
+    rows: list[tuple[int, float, float, str]] = []
     for number, line in enumerate(_open_text(path), start=1):
         line = line.split("#", 1)[0].strip()
         if not line:

@@ -25,14 +25,12 @@ from __future__ import annotations
 import csv
 import logging
 import math
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
 
 from localization.bench import (RECALL_RADII_M, aerial_graphs, baselines, by_num_classes, chance_errors,
                                 localize_subsets, subsets_of, summarize, write_results)
@@ -41,6 +39,7 @@ from localization.landmarks import LandmarkClasses, Landmarks, load_landmark_cla
 from localization.result import DEFAULT_P
 from osmseg import __version__
 from osmseg.errors import ConfigError, DatasetError
+from osmseg.progress import Progress, track
 
 logger = logging.getLogger(__name__)
 
@@ -179,7 +178,7 @@ def _mean_time(records: Sequence[dict[str, Any]]) -> float:
     return round(sum(r["localize_s"] for r in records) / max(len(records), 1), 4)
 
 
-def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, progress: bool = False,
+def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, progress: Progress | None = None,
               plots: bool = True, source: str = "") -> dict[str, Any]:
     """Localize every pair's panorama with every class subset; write results.json (+ plots)."""
     if not pairs:
@@ -190,8 +189,7 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
     radii = RECALL_RADII_M if config.resolution_m else RECALL_RADII_PX
     records: list[dict[str, Any]] = []
     t_start = time.perf_counter()
-    for index, pair in enumerate(tqdm(pairs, desc="pairs", unit="pair", disable=not progress, file=sys.stderr,
-                                      dynamic_ncols=True)):
+    for index, pair in enumerate(track(pairs, progress, "pairs", unit="pair")):
         graphs = aerial_graphs(pair.aerial, subsets, config.window)
         scored, seconds = localize_subsets(graphs, pair.ground, pair.truth, scale, config.p, config.top_k)
         centre, uniform = chance_errors((pair.aerial.height, pair.aerial.width), pair.truth, scale)

@@ -52,7 +52,7 @@ def class_colours(classes: Sequence[str]) -> list[str]:
     >>> class_colours(["building", "Road", "lamp"])
     ['#ffd400', '#4a4aff', '#1f77b4']
     """
-    cycle = [matplotlib.colors.to_hex(c) for c in matplotlib.colormaps["tab10"].colors]
+    cycle = [matplotlib.colors.to_hex(c) for c in matplotlib.colormaps["tab10"](range(10))]
     out, spare = [], iter(cycle * (1 + len(classes) // len(cycle)))
     for name in classes:
         out.append(KNOWN_COLOURS.get(name.lower()) or next(spare))
@@ -167,7 +167,7 @@ def graph_png(path: Path | str, lm: Landmarks, adjacency: np.ndarray, *, image: 
         ax = fig.add_subplot()
         _background(ax, image, w, h)
         segments = _segments(lm, adj)
-        ax.add_collection(LineCollection(segments, colors="0.25", linewidths=0.6, alpha=0.6, zorder=2))
+        ax.add_collection(LineCollection(list(segments), colors="0.25", linewidths=0.6, alpha=0.6, zorder=2))
         cls = np.asarray(lm.cls, dtype=np.int64)
         if k:
             ax.scatter(lm.xy[:, 0], lm.xy[:, 1], s=28, c=[colours[c] for c in cls], edgecolors="black",

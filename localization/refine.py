@@ -110,7 +110,7 @@ def feature_edge_mask(features: np.ndarray, threshold: float, *, metric: str = "
         x = u[:, :components] * sv[:components]
     elif reduce == "umap":
         try:
-            import umap  # type: ignore[import-not-found]
+            import umap
         except ImportError:
             raise ConfigError("reduce='umap' needs umap-learn: pip install umap-learn (or use 'pca')") from None
         x = umap.UMAP(n_components=components, random_state=seed).fit_transform(x)

@@ -367,12 +367,12 @@ def render_view(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str, r
     ``truth`` is always the given ``viewpoint``, even when the camera was offset. ``sources``:
     keep which aerial pixel each panorama pixel shows (:func:`render_panorama`).
     """
-    camera = tuple(float(v) for v in viewpoint)
+    camera = (float(viewpoint[0]), float(viewpoint[1]))
     if noise.offset_m > 0:
         mask_shape = np.asarray(mask).shape
         camera = offset_viewpoint(camera, noise.offset_m, resolution_m, np.random.default_rng([noise.seed, 0]),
                                   (int(mask_shape[0]), int(mask_shape[1])))
-    pano = render_panorama(mask, table, resolution_m, camera, config, sources=sources)  # type: ignore[arg-type]
+    pano = render_panorama(mask, table, resolution_m, camera, config, sources=sources)
     if noise.active:
         pano = dataclasses.replace(pano, labels=apply_noise(pano.labels, pano.table, classes, noise))
     marks = landmarks_from_mask(pano.labels, pano.table, classes, mode=mode, min_size=min_size, stride=stride,

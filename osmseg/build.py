@@ -20,7 +20,7 @@ import time
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -53,6 +53,7 @@ from osmseg.output.manifest import FORMAT, FORMAT_VERSION, SAMPLE_DIRS
 from osmseg.output.stac import write_stac
 from osmseg.output.writer import IMAGE_FORMATS
 from osmseg.places import Area, normalise_name
+from osmseg.progress import Progress, report
 from osmseg.rasterize import rasterize, to_table
 from osmseg.sampling import block_attempt_centre, check_room, overlap_groups
 from osmseg.state import BuildState
@@ -306,8 +307,8 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) ->
 
 def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int) -> dict[str, Any]:
     """Try centres for one slot until one is accepted or ``max_tries`` runs out."""
-    rejections = []
-    outcome = {"slot": slot, "status": "gave_up", "rejected": rejections}  # unless an attempt is accepted
+    rejections: list[dict[str, Any]] = []
+    outcome: dict[str, Any] = {"slot": slot, "status": "gave_up", "rejected": rejections}  # unless an attempt is accepted
     for attempt in range(config.max_tries):
         record = state.attempt(slot, attempt)
         if record is None:
@@ -352,13 +353,13 @@ def open_pipeline(config: BuildConfig, client: HttpClient, env: dict[str, str]) 
 def build(
     config: BuildConfig,
     env: dict[str, str] | None = None,
-    progress: Callable[[int, dict[str, Any]], None] | None = None,
+    progress: Progress | None = None,
     command_line: str = "",
 ) -> BuildSummary:
     """Build (or resume) the dataset described by ``config`` in ``config.out_dir``.
 
-    ``progress(slot, outcome)`` is called after each finished slot (the CLI draws its bar
-    with it). ``command_line`` is recorded in the manifest; pass it without secrets.
+    ``progress`` gets a :class:`~osmseg.progress.Step` per finished slot of this shard, with
+    the accepted, rejected and failed counts so far (the CLI draws its bar with it). ``command_line`` is recorded in the manifest; pass it without secrets.
     """
     env = dict(os.environ if env is None else env)
     start = time.monotonic()
@@ -390,11 +391,13 @@ def build(
             else:  # a country-sized area: cut just the first-try boxes
                 grids = [g for g in (_grid(config, s, 0) for s in todo) if g is not None]
                 prepare([pad_bbox(g.bbox, config.osm_padding_m) for g in grids])
-        for slot in mine:
+        report(progress, "build", 0, len(mine), "sample")
+        for done, slot in enumerate(mine, start=1):
             outcome = state.slot(slot) or run_slot(config, pipe, state, slot)
             _count(summary, outcome)
-            if progress is not None:
-                progress(slot, outcome)
+            counts = {"failed": len(summary.failed)} if summary.failed else {}
+            report(progress, "build", done, len(mine), "sample", accepted=summary.accepted,
+                   rejected=sum(summary.rejected.values()), **counts)
         imagery_info, osm_info = pipe.imagery.describe(), pipe.osm.describe()
     outcomes = [state.slot(s) for s in range(config.samples)]
     summary.pending_other_shards = sum(o is None for o in outcomes)
@@ -470,7 +473,7 @@ def finalize(
     samples = [o["sample"] for o in outcomes if o["status"] == "accepted"]
     rejected = [dict(r, slot=o["slot"]) for o in outcomes for r in o["rejected"]]
     area = config.area
-    manifest = {
+    manifest: dict[str, Any] = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "tool": {"name": "osmseg", "version": __version__},

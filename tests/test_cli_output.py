@@ -93,6 +93,25 @@ def test_a_log_file_gets_no_progress_frames_a_terminal_does(tmp_path: Path, trai
     assert code == 0 and b"\r" in err, err[-500:]
 
 
+def test_every_long_command_reports_its_steps_as_bars_when_asked(tmp_path: Path, trained: Path) -> None:
+    """The library reports steps through a callback; the command draws them: --progress into a
+    pipe shows each command's own bars (tasks and units), and the summary still follows."""
+    image = TINYSEG / "images" / "tinyseg_000.png"
+    commands = {
+        "train": (["train", str(TINYSEG), "--out", str(tmp_path / "run"), "--config",
+                   str(TEST_DATA / "train" / "tiny.yaml"), "--epochs", "1"], [b"epoch 1 train", b"batch", b"epoch"]),
+        "eval": (["eval", str(trained / "best.pt"), str(TINYSEG), "--out", str(tmp_path / "eval")],
+                 [b"evaluate", b"image"]),
+        "predict": (["predict", str(trained / "best.pt"), str(image), "--out", str(tmp_path / "pred")],
+                    [b"predict tinyseg_000", b"window"]),
+    }
+    for name, (args, shown) in commands.items():
+        code, err = osmseg_process(["--progress", *args])
+        assert code == 0, (name, err.decode()[-800:])
+        for text in shown:
+            assert text in err, f"{name}: no {text!r} bar in {err[-500:]!r}"
+
+
 @pytest.mark.parametrize(("args", "says"), [
     (["eval", "CHECKPOINT", "--out", "e"], "give a DATASET folder or --pair"),
     (["build", "--city", "Berlin", "--out", "x", "--imagery", "xyz:https://t.example/{z}/{x}/{y}.png?key=${KEY}"],

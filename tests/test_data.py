@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import itertools
 import shutil
 from pathlib import Path
@@ -15,6 +16,7 @@ from conftest import TEST_DATA
 from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from training.augment import GEOMETRIC, OVERHEAD, STREET, Draw, orient
+from osmseg.images import read_label, read_rgb
 from training.data import (
     PatchDataset,
     SampleFiles,
@@ -25,8 +27,6 @@ from training.data import (
     files_by_name,
     median_frequency_weights,
     patch_boxes,
-    read_image,
-    read_label,
     validate,
     weights_from_histograms,
 )
@@ -196,7 +196,9 @@ def test_class_table_from_manifest_toml_or_error(tmp_path: Path) -> None:
         'name = "two"\nunlabeled = { id = 0, name = "unlabeled", color = [0, 0, 0] }\n'
         '[[classes]]\nid = 1\nname = "building"\ncolor = [255, 0, 0]\n')
     assert [c.name for c in dataset_class_table(tmp_path).classes] == ["building"]
-    (tmp_path / "manifest.json").write_text('{"classes": {"classes": [{"id": 1, "name": "x", "color": [1, 2, 3]}]}}')
+    manifest = json.loads((TINY / "manifest.json").read_text())
+    manifest["classes"] = {"classes": [{"id": 1, "name": "x", "color": [1, 2, 3]}]}
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(DatasetError) as exc:
         dataset_class_table(tmp_path)
     assert "with 0 (unlabeled)" in one_line(exc)
@@ -246,7 +248,7 @@ def test_items_have_the_right_types_shapes_and_normalisation() -> None:
     x, y = ds[5]  # second image, top-right patch
     assert x.dtype == torch.float32 and x.shape == (3, 64, 80)
     assert y.dtype == torch.int64 and y.shape == (64, 80)
-    image, label = read_image(files[1].image), read_label(files[1].label)
+    image, label = read_rgb(files[1].image), read_label(files[1].label)
     assert np.array_equal(unnormalise(x), image[:64, 80:])
     assert torch.equal(y, torch.from_numpy(label[:64, 80:].astype(np.int64)))
     assert abs(float(x.mean())) < 3 and set(y.unique().tolist()) <= {0, 1, 2, 3, 4}
@@ -405,7 +407,7 @@ def test_real_geotiff_image_and_foreign_mask_read() -> None:
     from conftest import shared_path
 
     folder = shared_path("inria-austin")
-    image, label = read_image(folder / "image.tif"), read_label(folder / "buildings.tif")
+    image, label = read_rgb(folder / "image.tif"), read_label(folder / "buildings.tif")
     assert image.shape == (1000, 1000, 3) and image.dtype == np.uint8 and image.std() > 10
     assert label.shape == (1000, 1000) and set(np.unique(label).tolist()) == {0, 255}
     files = [SampleFiles("austin", folder / "image.tif", folder / "buildings.tif")]

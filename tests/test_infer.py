@@ -23,6 +23,7 @@ from torch import nn
 
 from osmseg.errors import ConfigError, ImageryError
 from osmseg.output.geotiff import read_class_table
+from osmseg.progress import Step
 from training.spec import ModelSpec
 from training.infer import predict_array
 from training.predict import predict_file
@@ -223,10 +224,11 @@ def test_a_model_with_the_wrong_number_of_classes_is_refused() -> None:
 
 
 def test_progress_reports_every_window() -> None:
-    spec, calls = make_spec(), []
-    predict_array(ColourModel(spec), np.zeros((1000, 733, 3), np.uint8), spec, batch_size=3,
-                  progress=lambda done, total: calls.append((done, total)))
-    assert calls[-1] == (8, 8) and [d for d, _ in calls] == sorted(d for d, _ in calls)
+    spec, steps = make_spec(), []
+    predict_array(ColourModel(spec), np.zeros((1000, 733, 3), np.uint8), spec, batch_size=3, progress=steps.append)
+    calls = [(s.done, s.total) for s in steps]
+    assert calls[0] == (0, 8) and calls[-1] == (8, 8) and [d for d, _ in calls] == sorted(d for d, _ in calls)
+    assert {s.unit for s in steps} == {"window"} and steps[-1].finished
 
 
 # ----------------------------------------------------------------------------- rescale
@@ -320,9 +322,10 @@ def test_resolution_resamples_the_input_and_returns_classes_on_its_grid(tmp_path
     write_tif(tmp_path / "in.tif", image)  # 0.5 m pixels in UTM 33N
     runs = {}
     for target in (None, 1.0):
-        calls: list[tuple[int, int]] = []
+        steps: list[Step] = []
         out = predict_file(ColourModel(spec), spec, tmp_path / "in.tif", tmp_path / f"{target}{suffix}",
-                           resolution_m=target, progress=lambda d, t: calls.append((d, t)))
+                           resolution_m=target, progress=steps.append)
+        calls = [(s.done, s.total) for s in steps]
         mask = np.asarray(Image.open(out)) if suffix == ".png" else rasterio.open(out).read(1)
         runs[target] = (calls[-1][1], mask)
     (whole_windows, whole), (coarse_windows, coarse) = runs[None], runs[1.0]

@@ -17,6 +17,7 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
+from conftest import write_dataset_manifest
 from localization.graph import cliques_fast
 from localization.landmarks import Landmarks
 from localization.match import (
@@ -459,9 +460,7 @@ def test_cli_with_masks_from_a_dataset_folder(tmp_path) -> None:
     _paint(mask, aerial, ids13)
     (tmp_path / "labels").mkdir()
     Image.fromarray(mask).save(tmp_path / "labels" / "s0.png")
-    manifest = {"classes": table.to_dict(), "samples": [{"name": "s0", "ground_resolution_m": 0.3,
-                                                         "files": {"labels/s0.png": "x"}}]}
-    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    write_dataset_manifest(tmp_path, table.to_dict(), [{"name": "s0", "ground_resolution_m": 0.3}])
     camvid_ids = {B: 1, R: 3, F: 4, V: 5}  # CamVid label values (landmarks-camvid.toml mask_classes)
     pano = panorama(aerial, truth, 60)
     ground = np.zeros((pano.height, pano.width), np.uint8)  # 0 = Sky

@@ -18,7 +18,9 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
-from localization.bench import BenchConfig, _aerial_graph, _localize, load_dataset_scenes, run_bench, Scene
+from conftest import write_dataset_manifest
+from localization.bench import BenchConfig, load_dataset_scenes, run_bench, Scene
+from localization.pipeline import LocalizeConfig, aerial_graph, run
 from localization.landmarks import landmarks_from_mask, load_landmark_classes
 from localization.match import localize
 from localization.visible import landmark_cells, visible_landmarks
@@ -271,7 +273,7 @@ def test_bench_end_to_end_on_a_constructed_town(tmp_path: Path) -> None:
     view = render_view(scene.mask, TABLE, RES, tuple(rec["truth"]), CLASSES)
     aerial = landmarks_from_mask(scene.mask, TABLE, CLASSES)
     direct = localize(aerial, view.landmarks)
-    cached = _localize(_aerial_graph(aerial, None), view.landmarks, config.p, config.top_k)
+    cached = run(LocalizeConfig(p=config.p, top_k=config.top_k), aerial_graph(aerial), view.landmarks)
     assert direct.map_xy == cached.map_xy and rec["map"] == (None if direct.map_xy is None else list(direct.map_xy))
     again = run_bench([scene], config, tmp_path / "again", plots=False)
     strip = lambda r: [{k: v for k, v in x.items() if not k.endswith("_s")} for x in r["viewpoints"]]  # noqa: E731
@@ -296,8 +298,8 @@ def test_cli_on_a_mask_file_and_on_a_dataset_folder(tmp_path: Path) -> None:
     (ds / "labels").mkdir(parents=True)
     Image.fromarray(town(seed=1)).save(ds / "labels" / "s0.png")
     Image.fromarray(town(seed=2)).save(ds / "labels" / "s1.png")
-    (ds / "manifest.json").write_text(json.dumps({"classes": TABLE.to_dict(), "samples": [
-        {"name": "s0", "ground_resolution_m": 0.5}, {"name": "s1", "ground_resolution_m": 0.5}]}))
+    write_dataset_manifest(ds, TABLE.to_dict(), [{"name": "s0", "ground_resolution_m": 0.5},
+                                                 {"name": "s1", "ground_resolution_m": 0.5}])
     assert [s.name for s in load_dataset_scenes(ds)] == ["s0", "s1"]
     res = runner.invoke(localize_bench_command, [str(ds), "--out", str(tmp_path / "b"), *args, "--no-plots"],
                         obj={"verbosity": -1})

@@ -278,6 +278,23 @@ def test_local_file_errors_are_one_line(tmp_path):
     assert "broken.osm" in one_line(exc)
 
 
+def test_an_osm_xml_file_with_changesets_reads_its_map_data(tmp_path):
+    """JOSM and the API's changeset downloads put <changeset> elements beside the map data."""
+    osm = tmp_path / "with-changeset.osm"
+    osm.write_text('<?xml version="1.0"?><osm version="0.6">'
+                   '<changeset id="5" created_at="2020-01-01T00:00:00Z" closed_at="2020-01-01T00:00:00Z" open="false"/>'
+                   '<node id="1" version="1" timestamp="2021-05-01T00:00:00Z" lat="0.001" lon="0.001"/>'
+                   '<node id="2" version="1" timestamp="2021-05-01T00:00:00Z" lat="0.002" lon="0.001"/>'
+                   '<node id="3" version="1" timestamp="2021-05-01T00:00:00Z" lat="0.002" lon="0.002"/>'
+                   '<way id="7" version="1" timestamp="2021-06-01T00:00:00Z"><nd ref="1"/><nd ref="2"/><nd ref="3"/>'
+                   '<nd ref="1"/><tag k="building" v="yes"/></way></osm>')
+    grid = sample_grid(0.0015, 0.0015, 18)
+    extract = LocalFileSource(osm, tmp_path / "w").fetch(pad_bbox(grid.bbox, 20))
+    assert extract.info["counts"] == {"n": 3, "w": 1, "r": 0}
+    assert np.array_equal(mask(extract.paths, grid), mask([osm], grid))
+    assert (mask([osm], grid) == IDS["building"]).sum() > 1000
+
+
 # -- GeoJSON -------------------------------------------------------------------------------------------------
 
 

@@ -18,10 +18,10 @@ from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.filters import FilterConfig, Rejection
 from osmseg.grid import SampleGrid, sample_grid
+from osmseg.images import read_label
 from osmseg.output import (
     command_line,
     make_zip,
-    read_labels,
     read_manifest,
     rejection_entry,
     sample_entry,
@@ -104,7 +104,7 @@ def test_pngs_decode_to_the_inputs(tmp_path: Path, sample_arrays) -> None:
     assert tuple(seg[10, 10]) == (0, 0, 0) and tuple(seg[10, 130]) == TABLE.by_name["building"].color
     with Image.open(tmp_path / "images/s0.png") as im:
         assert np.array_equal(np.asarray(im), rgb)
-    assert np.array_equal(read_labels(tmp_path / "labels/s0.png"), labels)
+    assert np.array_equal(read_label(tmp_path / "labels/s0.png"), labels)
 
 
 def test_jpeg_images_are_deterministic_and_faithful(tmp_path: Path, sample_arrays) -> None:
@@ -140,7 +140,7 @@ def test_geotiff_is_georeferenced_and_holds_the_labels(tmp_path: Path, sample_ar
     nw = mercantile.xy_bounds(GRID.tiles[0])
     assert (x, y) == pytest.approx((nw.left, nw.top))
     assert not list(tmp_path.glob("geo/*.aux.xml")), "GDAL sidecar written"
-    assert np.array_equal(read_labels(tmp_path / "geo/s0.tif"), labels)
+    assert np.array_equal(read_label(tmp_path / "geo/s0.tif"), labels)
 
 
 def test_bad_input_gives_one_line_errors(tmp_path: Path, sample_arrays) -> None:

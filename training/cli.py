@@ -15,12 +15,11 @@ pictures for a checkpoint on labelled images. Imports: osmseg core and training.
 from __future__ import annotations
 
 import json
-from collections import Counter
 from pathlib import Path
 
 import click
 
-from osmseg.cli.common import report_errors, require_torch
+from osmseg.cli.common import progress_bars, report_errors, require_torch
 from osmseg.errors import ConfigError
 
 
@@ -57,7 +56,8 @@ def train_command(ctx: click.Context, dataset: Path, out_dir: Path, config_file:
     overrides = dict(options)
     overrides["ignore_unlabeled"] = None if keep_unlabeled is None else not keep_unlabeled
     config = make_config(dataset, out_dir, find_config_file(config_file) if config_file else None, overrides)
-    summary = run(config, progress=ctx.obj.get("progress", False))
+    with progress_bars(ctx.obj.get("progress", False)) as progress:
+        summary = run(config, progress=progress)
     if summary.get("rank", 0) != 0:  # under torchrun only rank 0 reports, as only it writes
         return
     if summary.get("best") is not None and ctx.obj["verbosity"] >= 0:
@@ -93,25 +93,15 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
                     join: str, overlap: int | None, block_size: int, tta: bool, resolution: str | None,
                     batch_size: int, device: str) -> None:
     """Write a class mask (and a colour mask) for every INPUT image."""
-    stems = Counter(src.stem for src in inputs)
-    if clash := sorted(stem for stem, n in stems.items() if n > 1):
-        raise ConfigError(f"{stems[clash[0]]} inputs are named {clash[0]}.*: their masks would overwrite each other "
-                          f"in {out_dir}; predict them into separate --out folders")
     require_torch()
-    from training.checkpoint import model_from_checkpoint
-    from training.predict import predict_file, target_resolution
+    from training.predict import PredictConfig, predict_files
 
-    model, spec = model_from_checkpoint(checkpoint, device=device)
-    resolution_m = target_resolution(resolution, spec)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for src in inputs:
-        geo = src.suffix.lower() in (".tif", ".tiff")
-        suffix = ".tif" if geo else ".png"  # a GeoTIFF's colour mask stays georeferenced and block-written
-        dst = out_dir / f"{src.stem}{suffix}"
-        predict_file(model, spec, src, dst, colour_dst=out_dir / f"{src.stem}_color{suffix}", mode=mode, join=join,
-                     overlap=overlap, block_size=block_size, tta=tta, batch_size=batch_size, device=device,
-                     resolution_m=resolution_m)
-        click.echo(str(dst))
+    config = PredictConfig(checkpoint, inputs, out_dir, mode=mode, join=join, overlap=overlap, block_size=block_size,
+                           tta=tta, resolution=resolution, batch_size=batch_size, device=device)
+    with progress_bars(ctx.obj.get("progress", False)) as progress:
+        masks = predict_files(config, progress)
+    for mask in masks:
+        click.echo(str(mask))
 
 
 @click.command("eval")
@@ -147,8 +137,9 @@ def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pai
     from training.metrics import format_table
 
     opts = EvalOptions(mode=mode, join=join, tta=tta, split=split, mapping=mapping, panels=panels, device=device,
-                       progress=ctx.obj.get("progress", False), resolution_m=resolution_m)
-    metrics = run_eval(checkpoint, dataset, out_dir, opts, pairs)
+                       resolution_m=resolution_m)
+    with progress_bars(ctx.obj.get("progress", False)) as progress:
+        metrics = run_eval(checkpoint, dataset, out_dir, opts, pairs, progress)
     if ctx.obj["verbosity"] >= 0:
         click.echo(format_table(metrics), err=True)
         pictures = sorted(p.name for p in out_dir.glob("*.png"))

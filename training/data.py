@@ -27,7 +27,6 @@ Loading speed
 
 from __future__ import annotations
 
-import json
 import logging
 import warnings
 from collections import OrderedDict
@@ -39,12 +38,13 @@ import numpy as np
 import rasterio
 import rasterio.errors
 import torch
-from PIL import Image, UnidentifiedImageError
 from torch.utils.data import Dataset
 from torchvision.transforms.v2 import functional as F
 
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.grid import ground_pixel_size
+from osmseg.images import image_size, is_tiff, read_label, read_rgb
+from osmseg.output.manifest import manifest_path, read_manifest
 from osmseg.errors import DatasetError
 from training.augment import OVERHEAD, AugmentConfig, draw, item_rng, jitter, orient
 
@@ -68,76 +68,7 @@ class SampleFiles:
 
 
 # ---------------------------------------------------------------------------------- reading
-def _is_tiff(path: Path) -> bool:
-    return path.suffix.lower() in (".tif", ".tiff")
-
-
-def _unreadable(path: Path, exc: Exception) -> DatasetError:
-    reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    return DatasetError(f"{path}: cannot read this image ({reason}); replace or remove it")
-
-
-def image_size(path: Path) -> tuple[int, int]:
-    """(height, width) of an image or label file from its header, without decoding pixels."""
-    try:
-        if _is_tiff(path):
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # NotGeoreferencedWarning for plain TIFFs
-                with rasterio.open(path) as src:
-                    return src.height, src.width
-        with Image.open(path) as im:
-            return im.height, im.width
-    except (OSError, UnidentifiedImageError, ValueError) as exc:  # RasterioIOError is an OSError
-        raise _unreadable(path, exc) from None
-
-
-def _read_tiff(path: Path) -> np.ndarray:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        with rasterio.open(path) as src:
-            return np.moveaxis(src.read(), 0, -1)  # (H, W, bands)
-
-
-def read_image(path: Path) -> np.ndarray:
-    """An image as ``(H, W, 3)`` uint8 RGB (grey is repeated, alpha and extra bands dropped)."""
-    path = Path(path)
-    try:
-        if _is_tiff(path):
-            array = _read_tiff(path)
-            if array.dtype != np.uint8:
-                raise DatasetError(f"{path}: image is {array.dtype}; convert it to 8-bit RGB")
-            if array.shape[2] < 3:
-                array = np.repeat(array[:, :, :1], 3, axis=2)
-            return np.ascontiguousarray(array[:, :, :3])
-        with Image.open(path) as im:
-            return np.asarray(im.convert("RGB"))
-    except (OSError, UnidentifiedImageError, ValueError) as exc:
-        if isinstance(exc, DatasetError):
-            raise
-        raise _unreadable(path, exc) from None
-
-
-def read_label(path: Path) -> np.ndarray:
-    """A label image as ``(H, W)`` class ids (uint8, or a wider integer type if stored so)."""
-    path = Path(path)
-    try:
-        if _is_tiff(path):
-            array = _read_tiff(path)[:, :, 0]
-        else:
-            with Image.open(path) as im:
-                if im.mode not in ("L", "P", "1", "I", "I;16"):
-                    raise DatasetError(f"{path}: label is a {im.mode} image; labels must be single-band "
-                                       "class ids (labels/, not the colour masks in segmented/)")
-                array = np.asarray(im)
-    except (OSError, UnidentifiedImageError, ValueError) as exc:
-        if isinstance(exc, DatasetError):
-            raise
-        raise _unreadable(path, exc) from None
-    if array.dtype == bool:
-        array = array.astype(np.uint8)
-    if not np.issubdtype(array.dtype, np.integer):
-        raise DatasetError(f"{path}: label values are {array.dtype}; labels must be integer class ids")
-    return array
+# (image files are read by osmseg.images: read_rgb, read_label, image_size)
 
 
 def check_label(label: np.ndarray, path: Path, num_classes: int) -> None:
@@ -268,15 +199,9 @@ def dataset_class_table(root: Path, classes: str | None = None) -> ClassTable:
     if classes is not None:
         return load_class_table(str(classes))
     root = Path(root)
-    manifest = root / "manifest.json"
-    if manifest.is_file():
-        try:
-            raw = json.loads(manifest.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise DatasetError(f"{manifest}: not readable JSON ({exc}); rebuild the dataset") from None
-        if not isinstance(raw, dict) or "classes" not in raw:
-            raise DatasetError(f"{manifest}: has no 'classes' table; give one with --classes FILE.toml")
-        return ClassTable.from_dict(raw["classes"], f"{manifest} classes")
+    if manifest_path(root).is_file():
+        manifest = read_manifest(root)
+        return ClassTable.from_dict(manifest["classes"], f"{manifest_path(root)} classes")
     if (root / "classes.toml").is_file():
         return load_class_table(str(root / "classes.toml"))
     raise DatasetError(f"{root}: no manifest.json or classes.toml says what the label ids mean; "
@@ -290,16 +215,15 @@ def dataset_resolution(root: Path, files: Sequence[SampleFiles]) -> float | None
     datasets are measured from their georeferenced images (up to 16 of them); None when the
     images are plain PNG/JPEG, which say nothing about the ground.
     """
-    manifest = Path(root) / "manifest.json"
     values: list[float] = []
-    if manifest.is_file():
+    if manifest_path(Path(root)).is_file():
         try:
-            raw = json.loads(manifest.read_text(encoding="utf-8"))
-            values = [float(s["ground_resolution_m"]) for s in raw.get("samples", ()) if "ground_resolution_m" in s]
-        except (OSError, ValueError, TypeError, KeyError, AttributeError):
-            values = []
+            values = [float(s["ground_resolution_m"]) for s in read_manifest(Path(root))["samples"]
+                      if "ground_resolution_m" in s]
+        except (DatasetError, ValueError, TypeError):
+            values = []  # measured from the images below; training does not need it
     if not values:
-        for f in [f for f in files if _is_tiff(f.image)][:16]:
+        for f in [f for f in files if is_tiff(f.image)][:16]:
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # NotGeoreferencedWarning for plain TIFFs
@@ -426,7 +350,7 @@ class PatchDataset(Dataset):
             except DatasetError as exc:
                 raise DatasetError(f"{f.image}: {exc}") from None
         boxes = [tuple(int(v) for v in b) for b in spec]  # type: ignore[union-attr]
-        for t, left, bh, bw in boxes:  # type: ignore[misc]
+        for t, left, bh, bw in boxes:
             if t < 0 or left < 0 or t + bh > height or left + bw > width:
                 raise DatasetError(f"{f.image}: box {(t, left, bh, bw)} lies outside the {width}x{height} image")
         return boxes  # type: ignore[return-value]
@@ -448,7 +372,7 @@ class PatchDataset(Dataset):
             self._cache.move_to_end(fi)
             return self._cache[fi]
         f = self.files[fi]
-        image, label = read_image(f.image), read_label(f.label)
+        image, label = read_rgb(f.image), read_label(f.label)
         if label.shape != image.shape[:2]:
             raise DatasetError(f"{f.label}: label is {label.shape[1]}x{label.shape[0]} but image {f.image.name} "
                                f"is {image.shape[1]}x{image.shape[0]}; labels must be on the image's pixel grid")

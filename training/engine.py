@@ -7,12 +7,14 @@ passes the device, whether to use AMP, and a model that may be wrapped in
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+import itertools
+from collections.abc import Callable, Iterable, Sized
 from dataclasses import dataclass
 
 import torch
 from torch import nn
-from tqdm import tqdm
+
+from osmseg.progress import Progress, track
 
 from training.distributed import all_reduce_sum
 from training.metrics import ConfusionMatrix
@@ -26,7 +28,6 @@ class StepOptions:
     amp: bool = False  # autocast to float16 (CUDA only)
     channels_last: bool = False
     max_steps: int | None = None  # stop an epoch early (smoke tests, benchmarks)
-    progress: bool = False  # draw a tqdm bar (rank 0 only)
 
     def to_device(self, images: torch.Tensor, masks: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         memory_format = torch.channels_last if self.channels_last else torch.contiguous_format
@@ -37,14 +38,12 @@ class StepOptions:
         return torch.autocast(device_type=self.device.type, dtype=torch.float16, enabled=self.amp)
 
 
-def _batches(loader: Iterable, opts: StepOptions, desc: str) -> Iterable:
-    total = len(loader) if hasattr(loader, "__len__") else None  # type: ignore[arg-type]
+def _batches(loader: Iterable, opts: StepOptions, task: str, progress: Progress | None) -> Iterable:
+    total = len(loader) if isinstance(loader, Sized) else None
     if opts.max_steps is not None and total is not None:
         total = min(total, opts.max_steps)
-    for i, batch in enumerate(tqdm(loader, total=total, desc=desc, disable=not opts.progress, leave=False)):
-        if opts.max_steps is not None and i >= opts.max_steps:
-            break
-        yield batch
+    batches = itertools.islice(loader, opts.max_steps) if opts.max_steps is not None else loader
+    yield from track(batches, progress, task, total, unit="batch")
 
 
 def train_one_epoch(
@@ -57,14 +56,16 @@ def train_one_epoch(
     opts: StepOptions,
     epoch: int,
     on_step: Callable[[int, float], None] | None = None,
+    progress: Progress | None = None,
 ) -> float:
     """Train for one epoch; returns the mean training loss over all processes.
 
-    The scheduler steps once per batch (poly decay is defined per iteration).
+    The scheduler steps once per batch (poly decay is defined per iteration). ``on_step(step,
+    loss)`` after each batch; ``progress`` gets a step per batch (task ``epoch N train``).
     """
     model.train()
     total = torch.zeros(2, dtype=torch.float64, device=opts.device)  # loss sum, batches
-    for step, (images, masks) in enumerate(_batches(loader, opts, f"epoch {epoch}")):
+    for step, (images, masks) in enumerate(_batches(loader, opts, f"epoch {epoch} train", progress)):
         images, masks = opts.to_device(images, masks)
         with opts.autocast():
             loss = criterion(model(images), masks)
@@ -88,12 +89,15 @@ def evaluate(
     opts: StepOptions,
     num_classes: int,
     ignore_index: int | None,
+    progress: Progress | None = None,
+    task: str = "validate",
 ) -> tuple[float, ConfusionMatrix]:
-    """Mean loss and the confusion matrix over ``loader``, summed over all processes."""
+    """Mean loss and the confusion matrix over ``loader``, summed over all processes
+    (``progress``: a step per batch, as ``task``)."""
     model.eval()
     matrix = ConfusionMatrix(num_classes, ignore_index=ignore_index)
     total = torch.zeros(2, dtype=torch.float64, device=opts.device)
-    for images, masks in _batches(loader, opts, "validate"):
+    for images, masks in _batches(loader, opts, task, progress):
         images, masks = opts.to_device(images, masks)
         with opts.autocast():
             logits = model(images)

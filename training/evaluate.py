@@ -23,13 +23,14 @@ from typing import Any
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from osmseg.errors import DatasetError
+from osmseg.images import read_label, read_rgb
 from osmseg.output.atomic import atomic_write_bytes
+from osmseg.progress import Progress, track
 from training.checkpoint import load_checkpoint, model_from_checkpoint
 from training.spec import ModelSpec
-from training.data import SampleFiles, dataset_class_table, discover_dataset, read_image, read_label
+from training.data import SampleFiles, dataset_class_table, discover_dataset
 from training.infer import InferenceOptions
 from training.predict import predict_image, target_resolution
 from training.metrics import ConfusionMatrix, format_table, load_class_mapping
@@ -51,7 +52,6 @@ class EvalOptions:
     panels: int = 4  # samples shown in panels.png
     batch_size: int = 4
     device: str = "auto"  # auto: the GPU when there is one, as in training
-    progress: bool = True  # a tqdm bar over images on stderr
     resolution_m: float | str | None = None  # resample georeferenced inputs to this ground pixel size first
     # (metres, or "model": the training data's, recorded in the checkpoint)
 
@@ -79,7 +79,7 @@ def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequen
 
 
 def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[SampleFiles], opts: EvalOptions,
-                    label_lut: np.ndarray | None = None,
+                    label_lut: np.ndarray | None = None, progress: Progress | None = None,
                     ) -> tuple[dict[str, Any], list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], dict[str, Any]]:
     """Metrics over ``files``, the first panels' arrays, and the table they were computed in.
 
@@ -97,9 +97,9 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
     class_names = list(mapping.classes) if mapping is not None else spec.class_names
     target_m = target_resolution(opts.resolution_m, spec)
     inference = InferenceOptions(opts.mode, opts.join, None, opts.tta, opts.batch_size, opts.device)
-    panels = []
-    for f in tqdm(files, desc="evaluate", leave=False, disable=not opts.progress):
-        rgb = read_image(f.image)
+    panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
+    for f in track(files, progress, "evaluate", unit="image"):
+        rgb = read_rgb(f.image)
         truth = read_label(f.label)
         if truth.shape != rgb.shape[:2]:
             raise DatasetError(f"{f.label}: label is {truth.shape[1]}x{truth.shape[0]} but the image is "
@@ -116,8 +116,9 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
 
 
 def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: EvalOptions,
-             pairs: Sequence[tuple[Path, Path]] = ()) -> dict[str, Any]:
-    """Evaluate a checkpoint and write metrics and pictures into ``out_dir``."""
+             pairs: Sequence[tuple[Path, Path]] = (), progress: Progress | None = None) -> dict[str, Any]:
+    """Evaluate a checkpoint and write metrics and pictures into ``out_dir`` (``progress``: a
+    step per image evaluated)."""
     checkpoint = load_checkpoint(checkpoint_path)
     model, spec = model_from_checkpoint(checkpoint_path, device=opts.device)
     files, which = choose_files(checkpoint, dataset, pairs, opts.split)
@@ -126,7 +127,7 @@ def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: E
     label_lut = None
     if opts.mapping is None and dataset is not None and has_class_table(dataset):  # else: the model's ids
         _, label_lut = model_classes(spec.name, dataset_class_table(dataset))
-    metrics, panels, table = evaluate_images(model, spec, files, opts, label_lut)
+    metrics, panels, table = evaluate_images(model, spec, files, opts, label_lut, progress)
     metrics["evaluated"] = {"checkpoint": str(checkpoint_path), "images": which, "mode": opts.mode,
                             "join": opts.join, "tta": opts.tta, "mapping": opts.mapping,
                             "resolution_m": target_resolution(opts.resolution_m, spec)}

@@ -37,6 +37,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -47,6 +48,8 @@ from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError
+from osmseg.images import as_rgb
+from osmseg.progress import Progress, report
 from training.distributed import pick_device
 from training.tiling import Box, WindowGrid, blend_weight, letterbox, nearest_index, pixel_blocks
 
@@ -63,9 +66,6 @@ JOINS = ("blend", "crop")
 DEFAULT_OVERLAP_FRACTION = 0.25
 DEFAULT_BLOCK = 2048  # pixels a side of an output block (blend: ~235 MB of float32 for 14 classes)
 PIL_SUFFIXES = (".png", ".jpg", ".jpeg")
-Progress = Callable[[int, int], None]  # (windows done, windows planned)
-
-
 @dataclass(frozen=True)
 class InferenceOptions:
     """How to predict; validated on creation (ConfigError with a one-line message)."""
@@ -158,7 +158,10 @@ class _Runner:
         with torch.autocast(self.device.type, enabled=cuda):
             if self.tta:
                 pairs = _tta_pairs(square=x.shape[-1] == x.shape[-2])
-                out = sum(undo(self.model(do(x)).float()) for do, undo in pairs) / len(pairs)
+                out = torch.zeros(())
+                for do, undo in pairs:  # one view at a time: peak memory of two logit maps
+                    out = out + undo(self.model(do(x)).float())
+                out = out / len(pairs)
             else:
                 out = self.model(x).float()
         want = (x.shape[0], self.num_classes, *x.shape[-2:])
@@ -194,32 +197,16 @@ class Source(Protocol):
     def valid(self, box: Box) -> np.ndarray: ...  # (h, w) bool: True where the box has image data
 
 
-def _rgb(pixels: np.ndarray, name: str) -> np.ndarray:
-    """(h, w), (h, w, 1|3|4) uint8 -> (h, w, 3): grey replicated, alpha dropped."""
-    if pixels.dtype != np.uint8:
-        raise ImageryError(f"{name}: pixels are {pixels.dtype}, the model takes 8-bit RGB; convert it "
-                           f"(e.g. gdal_translate -ot Byte -scale)")
-    if pixels.ndim == 2:
-        pixels = pixels[:, :, None]
-    bands = pixels.shape[2] if pixels.ndim == 3 else -1
-    if bands == 1:
-        return np.repeat(pixels, 3, axis=2)
-    if bands in (3, 4):
-        return pixels[:, :, :3]
-    raise ImageryError(f"{name}: {bands if bands > 0 else 'unknown'} bands (shape {pixels.shape}); "
-                       f"give 1 (grey), 3 (RGB) or 4 (RGBA) bands")
-
-
 class ArraySource:
     def __init__(self, pixels: np.ndarray, name: str = "image array") -> None:
         if pixels.ndim not in (2, 3) or pixels.shape[0] < 1 or pixels.shape[1] < 1:
             raise ImageryError(f"{name}: an image must be (height, width[, bands]), got shape {pixels.shape}")
-        _rgb(pixels[:1, :1], name)  # check dtype and bands before anything runs
+        as_rgb(pixels[:1, :1], name)  # check dtype and bands before anything runs
         self.pixels, self.name = pixels, name
         self.height, self.width = int(pixels.shape[0]), int(pixels.shape[1])
 
     def read(self, box: Box) -> np.ndarray:
-        return _rgb(self.pixels[box[0]:box[1], box[2]:box[3]], self.name)
+        return as_rgb(self.pixels[box[0]:box[1], box[2]:box[3]], self.name)
 
     def read_resized(self, height: int, width: int) -> np.ndarray:
         image = Image.fromarray(np.ascontiguousarray(self.read((0, self.height, 0, self.width))))
@@ -327,6 +314,8 @@ def _split_join(runner: _Runner, source: Source, sink: Any, options: InferenceOp
     blend = options.join == "blend"
     weight = torch.from_numpy(blend_weight(size, grid.overlap)).to(runner.device)
     logger.debug("%s: %d windows in %d blocks (%d predictions)", source.name, len(grid), len(blocks), planned)
+    task = f"predict {Path(source.name).name}"
+    report(progress, task, 0, planned, "window")
     for block in blocks:
         top, bottom, left, right = block.box
         pixels = source.read(block.read)
@@ -353,8 +342,7 @@ def _split_join(runner: _Runner, source: Source, sink: Any, options: InferenceOp
                 else:
                     acc[t0 - top:t1 - top, l0 - left:l1 - left] = part
             done += len(ids)
-            if progress is not None:
-                progress(done, planned)
+            report(progress, task, done, planned, "window")
         # dividing by the weight sum would not change the argmax (a positive factor per pixel)
         sink.write(top, left, _argmax_classes(acc) if blend else acc)
         del acc  # free this block's accumulator before the next one is allocated
@@ -367,8 +355,7 @@ def _rescale(runner: _Runner, source: Source, sink: Any, options: InferenceOptio
     canvas[top:bottom, left:right] = source.read_resized(bottom - top, right - left)
     logits = runner.logits(canvas[None])
     classes = logits[0, :, top:bottom, left:right].argmax(dim=0).to(torch.uint8).cpu().numpy()
-    if progress is not None:
-        progress(1, 1)
+    report(progress, f"predict {Path(source.name).name}", 1, 1, "window")
     for r0, r1, c0, c1 in pixel_blocks(source.height, source.width, options.block_size):
         rows = nearest_index(source.height, classes.shape[0], r0, r1)
         cols = nearest_index(source.width, classes.shape[1], c0, c1)

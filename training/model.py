@@ -137,7 +137,8 @@ class SegNet(nn.Module):
         for m in self.modules():
             if isinstance(m, nn.Conv2d):
                 nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
-                nn.init.zeros_(m.bias)
+                if m.bias is not None:
+                    nn.init.zeros_(m.bias)
             elif isinstance(m, nn.BatchNorm2d):
                 nn.init.ones_(m.weight)
                 nn.init.zeros_(m.bias)
@@ -169,14 +170,6 @@ def build_model(spec: ModelSpec) -> SegNet:
     return SegNet(num_classes=spec.num_classes, width=spec.width)
 
 
-def _table_dict(table: ClassTable | Mapping[str, Any] | str | Path) -> dict[str, Any]:
-    if isinstance(table, ClassTable):
-        return table.to_dict()
-    if isinstance(table, Mapping):
-        return {"name": table.get("name", ""), "classes": [dict(c) for c in table.get("classes", ())]}
-    return load_class_table(str(table)).to_dict()
-
-
 def model_spec(name: str, width: float = 1.0, ignore_unlabeled: bool = True,
                class_table: ClassTable | Mapping[str, Any] | str | Path | None = None,
                input_size: tuple[int, int] = (360, 480),
@@ -199,11 +192,14 @@ def model_spec(name: str, width: float = 1.0, ignore_unlabeled: bool = True,
         if name not in PRESETS:
             raise ConfigError(f"unknown model {name!r}; use one of {sorted(PRESETS)} or give a class table")
         class_table = PRESETS[name]
-    table = _table_dict(class_table)
-    ids = [c.get("id") for c in table["classes"]]
-    if not ids or not all(isinstance(i, int) and 0 <= i < 256 for i in ids):
-        raise ConfigError(f"class table {table['name']!r} needs integer class ids in 0..255, got {ids}")
-    return ModelSpec(arch="segnet", name=name, num_classes=max(ids) + 1, width=float(width), class_table=table,
+    if isinstance(class_table, ClassTable):
+        table = class_table
+    elif isinstance(class_table, Mapping):
+        table = ClassTable.from_dict(class_table, f"model {name!r} class table")
+    else:
+        table = load_class_table(str(class_table))
+    return ModelSpec(arch="segnet", name=name, num_classes=table.num_classes, width=float(width),
+                     class_table=table.to_dict(),
                      ignore_index=0 if ignore_unlabeled else None, input_size=(int(input_size[0]), int(input_size[1])),
                      mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std),  # type: ignore[arg-type]
                      resolution_m=None if resolution_m is None else float(resolution_m))

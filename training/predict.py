@@ -16,8 +16,10 @@ from __future__ import annotations
 import logging
 import os
 import warnings
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -36,13 +38,14 @@ from osmseg.errors import ConfigError, ImageryError
 from osmseg.grid import ground_pixel_size
 from osmseg.output.atomic import temp_path_for
 from osmseg.output.geotiff import cog_file, write_class_metadata
+from osmseg.progress import Progress
+from training.checkpoint import model_from_checkpoint
 from training.infer import (
     DEFAULT_BLOCK,
     PIL_SUFFIXES,
     ArraySink,
     ArraySource,
     InferenceOptions,
-    Progress,
     RasterSink,
     RasterSource,
     Source,
@@ -172,6 +175,52 @@ def check_resolution(pixel_m: float | None, spec: ModelSpec, name: str, asked: f
                        "than it learnt them; pass --resolution model to resample the input first", name, pixel_m,
                        trained, max(pixel_m / trained, trained / pixel_m),
                        "smaller" if pixel_m > trained else "larger")
+
+
+@dataclass(frozen=True)
+class PredictConfig:
+    """What ``osmseg predict`` does: a checkpoint's model over ``inputs``, masks into ``out_dir``."""
+
+    checkpoint: Path
+    inputs: tuple[Path, ...]
+    out_dir: Path
+    mode: str = "split-join"  # split-join | rescale
+    join: str = "blend"  # blend | crop
+    overlap: int | None = None  # window overlap in pixels (None: a quarter of the window)
+    block_size: int | None = DEFAULT_BLOCK
+    tta: bool = False
+    resolution: float | str | None = None  # metres, "model" (the training data's), or None: as they are
+    batch_size: int = 4
+    device: str = "auto"
+
+    def outputs(self, src: Path) -> tuple[Path, Path]:
+        """Where the class mask and the colour mask of input ``src`` go: NAME.png and
+        NAME_color.png, or NAME.tif and NAME_color.tif for a GeoTIFF (georeferenced, block-written)."""
+        suffix = ".tif" if src.suffix.lower() in (".tif", ".tiff") else ".png"
+        return self.out_dir / f"{src.stem}{suffix}", self.out_dir / f"{src.stem}_color{suffix}"
+
+
+def predict_files(config: PredictConfig, progress: Progress | None = None) -> list[Path]:
+    """Predict every input of ``config``; returns the class masks written, in input order.
+
+    Inputs whose masks would land on one path (``a.png`` and ``a.jpg``) are refused before the
+    model is loaded. ``progress``: the windows of each input (task ``predict NAME``).
+    """
+    stems = Counter(src.stem for src in config.inputs)
+    if clash := sorted(stem for stem, n in stems.items() if n > 1):
+        raise ConfigError(f"{stems[clash[0]]} inputs are named {clash[0]}.*: their masks would overwrite each other "
+                          f"in {config.out_dir}; predict them into separate --out folders")
+    model, spec = model_from_checkpoint(config.checkpoint, device=config.device)
+    resolution_m = target_resolution(config.resolution, spec)
+    config.out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for src in config.inputs:
+        dst, colour = config.outputs(src)
+        written.append(predict_file(model, spec, src, dst, colour_dst=colour, mode=config.mode, join=config.join,
+                                    overlap=config.overlap, block_size=config.block_size, tta=config.tta,
+                                    batch_size=config.batch_size, device=config.device, progress=progress,
+                                    resolution_m=resolution_m))
+    return written
 
 
 def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: str | Path, *,

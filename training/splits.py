@@ -21,6 +21,7 @@ from rasterio.warp import transform_bounds
 
 from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_bytes
+from osmseg.output.manifest import manifest_path, read_manifest
 from osmseg.sampling import overlap_groups
 
 
@@ -89,10 +90,10 @@ def make_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3,
         other = "val" if split == "test" else "test"
         for donor in ("train", other):
             owned = sorted((u for u in dealt if u[0] in out[donor]), key=len)
-            unit = next((u for u in owned if len(out[donor]) - len(u) >= 1), None)
-            if unit is not None:
-                out[split].extend(unit)
-                out[donor] = [n for n in out[donor] if n not in unit]
+            moved = next((u for u in owned if len(out[donor]) - len(u) >= 1), None)
+            if moved is not None:
+                out[split].extend(moved)
+                out[donor] = [n for n in out[donor] if n not in moved]
                 break
     return {k: sorted(v) for k, v in out.items()}
 
@@ -106,16 +107,14 @@ def sample_groups(root: Path, names: Iterable[str], images: Mapping[str, Path] |
     """
     names = sorted(set(names))
     boxes: dict[str, tuple[float, ...]] = {}
-    manifest = Path(root) / "manifest.json"
-    if manifest.is_file():
+    if manifest_path(Path(root)).is_file():
         try:
-            raw = json.loads(manifest.read_text(encoding="utf-8"))
-            for s in raw.get("samples", ()):
+            for s in read_manifest(Path(root))["samples"]:
                 b = s.get("bounds_3857")
                 if isinstance(b, list) and len(b) == 4 and all(isinstance(v, (int, float)) for v in b):
                     boxes[str(s["name"])] = tuple(float(v) for v in b)
-        except (OSError, ValueError, TypeError, KeyError, AttributeError):
-            boxes = {}
+        except DatasetError:
+            boxes = {}  # footprints from the images below; validation reports the manifest
     for name in names:
         path = (images or {}).get(name)
         if name in boxes or path is None or Path(path).suffix.lower() not in (".tif", ".tiff"):

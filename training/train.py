@@ -17,6 +17,7 @@ import csv
 import dataclasses
 import hashlib
 import io
+import functools
 import logging
 import math
 import time
@@ -34,6 +35,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_bytes
+from osmseg.progress import Progress, report
 from training.checkpoint import load_checkpoint, save_checkpoint
 from training.config import TrainConfig
 from training.data import (
@@ -212,10 +214,11 @@ def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist) -> di
     return splits
 
 
-def run(config: TrainConfig, progress: bool = True) -> dict[str, Any]:
+def run(config: TrainConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Train (or resume) the run ``config`` describes; returns a summary of the best epoch.
 
-    ``progress`` draws tqdm bars on stderr (rank 0 only); the CLI turns them off with ``-q``.
+    ``progress`` gets steps from rank 0 only: epochs (task ``train``), and each epoch's
+    training and validation batches (the CLI draws them as bars on a terminal).
     """
     d = setup(config.device)
     try:
@@ -224,7 +227,7 @@ def run(config: TrainConfig, progress: bool = True) -> dict[str, Any]:
         cleanup()
 
 
-def _run(config: TrainConfig, d: Dist, progress: bool = True) -> dict[str, Any]:
+def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict[str, Any]:
     torch.manual_seed(config.seed)  # the same initial weights in every process
     dataset_table = training_class_table(config.dataset, config.classes, config.model)
     model_table, label_lut = model_classes(config.model, dataset_table)
@@ -245,10 +248,10 @@ def _run(config: TrainConfig, d: Dist, progress: bool = True) -> dict[str, Any]:
     splits = given_splits or prepare_splits(config, list(files), d)
     train_files = files_by_name(files, splits["train"])
     val_files = files_by_name(files, splits["val"])
-    common = dict(mean=spec.mean, std=spec.std, ignore_index=spec.ignore_index, seed=config.seed,
-                  num_classes=dataset_table.num_classes, label_lut=label_lut)
-    train_set = PatchDataset(train_files, config.patch_size, augment=config.augment, **common)
-    val_set = PatchDataset(val_files, config.patch_size, augment=False, **common)
+    patches = functools.partial(PatchDataset, mean=spec.mean, std=spec.std, ignore_index=spec.ignore_index,
+                                seed=config.seed, num_classes=dataset_table.num_classes, label_lut=label_lut)
+    train_set = patches(train_files, config.patch_size, augment=config.augment)
+    val_set = patches(val_files, config.patch_size, augment=False)
     if len(train_set) == 0:
         raise DatasetError(f"{config.dataset}: no training patches of {config.patch_size}; are the images smaller?")
 
@@ -267,8 +270,11 @@ def _run(config: TrainConfig, d: Dist, progress: bool = True) -> dict[str, Any]:
         load_encoder_weights(model, config.init)
     opts = StepOptions(device=d.device, amp=config.amp and d.device.type == "cuda",
                        channels_last=config.channels_last and d.device.type == "cuda",
-                       max_steps=config.max_steps_per_epoch, progress=progress and d.is_main)
-    model.to(d.device, memory_format=torch.channels_last if opts.channels_last else torch.contiguous_format)
+                       max_steps=config.max_steps_per_epoch)
+    shown = progress if d.is_main else None  # one process reports
+    model.to(d.device)
+    if opts.channels_last:
+        model.to(memory_format=torch.channels_last)
     net: nn.Module = model
     if d.distributed:
         net = DistributedDataParallel(model, device_ids=[d.device.index] if d.device.type == "cuda" else None)
@@ -303,23 +309,27 @@ def _run(config: TrainConfig, d: Dist, progress: bool = True) -> dict[str, Any]:
         "class_weights": None if weights is None else weights.cpu(),
         "dataset_sha256": dataset_fingerprint(config.dataset),
     }
+    report(shown, "train", start, config.epochs, "epoch")
     for epoch in range(start, config.epochs):
         began = time.monotonic()
         train_set.set_epoch(epoch)
         train_loader.sampler.set_epoch(epoch)  # type: ignore[attr-defined]
         lr = optimizer.param_groups[0]["lr"]
-        train_loss = train_one_epoch(net, criterion, optimizer, scheduler, scaler, train_loader, opts, epoch + 1)
+        train_loss = train_one_epoch(net, criterion, optimizer, scheduler, scaler, train_loader, opts, epoch + 1,
+                                     progress=shown)
         if d.distributed:  # every process validates with rank 0's BN statistics (those saved below)
             for buffer in model.buffers():
                 dist.broadcast(buffer, src=0)
         # The plain module, not the DDP wrapper: its first forward after training would sync
         # buffers (a collective), but processes may hold different numbers of val batches.
-        val_loss, matrix = evaluate(model, criterion, val_loader, opts, spec.num_classes, spec.ignore_index)
+        val_loss, matrix = evaluate(model, criterion, val_loader, opts, spec.num_classes, spec.ignore_index,
+                                    progress=shown, task=f"epoch {epoch + 1} validate")
         metrics = matrix.compute(spec.class_names)  # by id, never by list position
         row = {"epoch": epoch + 1, "lr": lr, "train_loss": round(train_loss, 6), "val_loss": round(val_loss, 6),
                "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
                "seconds": round(time.monotonic() - began, 2)}
         history.append(row)
+        report(shown, "train", epoch + 1, config.epochs, "epoch")
         if d.is_main:
             state = dict(base_state, model=model.state_dict(), optimizer=optimizer.state_dict(),
                          scheduler=scheduler.state_dict(), scaler=scaler.state_dict(), epoch=epoch + 1,

@@ -6,18 +6,15 @@ import errno
 import math
 import os
 from dataclasses import replace
-import sys
 from pathlib import Path
-from typing import Any
 
 import click
-from tqdm import tqdm
 
 from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.filters import FilterConfig
 from osmseg.output import command_line
-from osmseg.cli.common import command_line_of, report_errors
+from osmseg.cli.common import command_line_of, progress_bars, report_errors
 from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT, missing_bing_key
 from osmseg.places import Area, find_preset, parse_bbox
 
@@ -51,40 +48,17 @@ def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: s
     return Area(name=name, lat=lat, lon=lon, radius_km=radius_km or 2.0)
 
 
-class ProgressBar:
-    """A tqdm bar over slots, showing accepted and rejected counts."""
-
-    def __init__(self, total: int, enabled: bool) -> None:
-        self.bar = tqdm(total=total, unit="sample", disable=not enabled, file=sys.stderr, dynamic_ncols=True)
-        self.accepted = 0
-        self.rejected = 0
-        self.failed = 0
-
-    def __call__(self, slot: int, outcome: dict[str, Any]) -> None:
-        self.accepted += outcome["status"] == "accepted"
-        self.failed += outcome["status"] == "failed"
-        self.rejected += len(outcome["rejected"])
-        counts = {"accepted": self.accepted, "rejected": self.rejected, **({"failed": self.failed} if self.failed else {})}
-        self.bar.set_postfix(counts, refresh=False)
-        self.bar.update(1)
-
-    def close(self) -> None:
-        self.bar.close()
-
-
 def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str, str] | None = None) -> BuildSummary:
     """Run a build (a progress bar if ``progress``) and print the summary (stderr) and output path (stdout)."""
-    bar = ProgressBar(len(config.my_slots()), enabled=progress)
     try:
-        summary = build(config, env=env, progress=bar, command_line=command_line(config.command()))
+        with progress_bars(progress) as bars:
+            summary = build(config, env=env, progress=bars, command_line=command_line(config.command()))
     except OSError as exc:
         if exc.errno != errno.ENOSPC:
             raise
         where = exc.filename or f"{config.out_dir} or the cache {config.cache_dir}"
         raise DatasetError(f"the disk is full (writing {where}): free disk space, or give --out/--cache-dir on a "
                            "disk with room, then run the same command again (finished samples are kept)") from None
-    finally:
-        bar.close()
     if verbosity >= 0:
         for line in summary.lines():
             click.echo(line, err=True)

@@ -1,17 +1,23 @@
-"""What every subcommand shares: logging set-up and turning osmseg errors into exit codes."""
+"""What every subcommand shares: logging set-up, progress bars, and osmseg errors as exit codes.
+
+Imports: osmseg core (the commands of training and localization import this, never the reverse)."""
 
 from __future__ import annotations
 
 import functools
+import importlib.util
 import logging
 import re
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any, Callable, TypeVar
 
 import click
 from tqdm import tqdm
 
 from osmseg.errors import ConfigError, OsmsegError
+from osmseg.progress import Progress, Step
 from osmseg.redact import RedactingFilter
 from osmseg.output.manifest import command_line
 
@@ -81,6 +87,50 @@ def show_progress(asked: bool | None, verbosity: int, stream: Any = None) -> boo
     return verbosity >= 0 and bool(isatty and isatty())
 
 
+class ProgressBars:
+    """Draws :class:`osmseg.progress.Step` reports as tqdm bars on stderr, one bar per task.
+
+    A bar opens at its task's first step and closes when the task finishes; :meth:`close`
+    closes what a failed or interrupted command left open. Bars do not stay on screen: the
+    command's summary says what was done.
+    """
+
+    def __init__(self) -> None:
+        self._bars: dict[str, tqdm] = {}
+
+    def __call__(self, step: Step) -> None:
+        bar = self._bars.get(step.task)
+        if bar is None:
+            bar = tqdm(total=step.total, desc=step.task, unit=step.unit, file=sys.stderr, dynamic_ncols=True,
+                       leave=False)
+            self._bars[step.task] = bar
+        if step.total != bar.total:
+            bar.total = step.total
+        if step.info:
+            bar.set_postfix(dict(step.info), refresh=False)
+        bar.update(step.done - bar.n)
+        if step.finished:
+            self._bars.pop(step.task).close()
+
+    def close(self) -> None:
+        for task in reversed(list(self._bars)):
+            self._bars.pop(task).close()
+
+
+@contextmanager
+def progress_bars(enabled: bool) -> Iterator[Progress | None]:
+    """The callback a command passes to the library: bars when ``enabled`` (see
+    :func:`show_progress`), else None, so nothing is drawn and nothing is counted."""
+    if not enabled:
+        yield None
+        return
+    bars = ProgressBars()
+    try:
+        yield bars
+    finally:
+        bars.close()
+
+
 def report_errors(func: F) -> F:
     """Turn osmseg errors into one line on stderr: exit 2 for usage/config errors, 1 otherwise."""
 
@@ -108,7 +158,7 @@ def command_line_of(ctx: click.Context, **overrides: Any) -> str:
 
     Options the user did not give are left out, so the line is the one they typed, corrected.
     """
-    names = []  # the subcommand names: the program may have been started as `python -m osmseg`
+    names: list[str] = []  # the subcommand names: the program may have been started as `python -m osmseg`
     node: click.Context | None = ctx
     while node is not None and node.parent is not None:
         names.insert(0, str(node.info_name))
@@ -116,11 +166,11 @@ def command_line_of(ctx: click.Context, **overrides: Any) -> str:
     words = ["osmseg", *names]
     params = {**ctx.params, **overrides}
     for param in ctx.command.params:
-        value = params.get(param.name)  # type: ignore[arg-type]
+        value = params.get(str(param.name))
         if isinstance(param, click.Argument):
             words += [str(v) for v in (value if isinstance(value, (list, tuple)) else [value]) if v is not None]
             continue
-        given = param.name in overrides or ctx.get_parameter_source(param.name) in (  # type: ignore[arg-type]
+        given = param.name in overrides or ctx.get_parameter_source(str(param.name)) in (
             click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)
         if not isinstance(param, click.Option) or not given or value is None or value == ():
             continue
@@ -136,9 +186,7 @@ def command_line_of(ctx: click.Context, **overrides: Any) -> str:
 
 def require_torch() -> None:
     """Fail with one line when the training extra (torch) is not installed."""
-    try:
-        import torch  # noqa: F401
-    except ImportError:
+    if importlib.util.find_spec("torch") is None:
         raise click.UsageError(
             "this command needs PyTorch: pip install 'osmseg[train]' (or run `make test`, which installs it)"
         ) from None

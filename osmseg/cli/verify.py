@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
@@ -12,7 +13,7 @@ from PIL import Image
 from osmseg.cli.common import report_errors
 from osmseg.errors import ConfigError
 from osmseg.output import read_manifest, verify
-from osmseg.output.writer import read_rgb
+from osmseg.images import read_rgb
 from osmseg.quality import edge_alignment
 
 
@@ -37,7 +38,7 @@ def verify_command(ctx: click.Context, dataset: Path, align_class: str | None) -
         ids = {c["name"]: c["id"] for c in manifest["classes"]["classes"]}
         if align_class not in ids:
             raise ConfigError(f"--alignment {align_class!r}: not a class of this dataset; use one of {', '.join(ids)}")
-        offsets = {}
+        offsets: dict[str, dict[str, Any]] = {}
         broken = {p.split(":")[0] for p in problems}
         for sample in manifest["samples"]:
             files = sample["files"]

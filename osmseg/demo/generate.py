@@ -149,18 +149,19 @@ class Emulator(requests.adapters.HTTPAdapter):
 
     def relation_full(self, rid: int) -> bytes:
         """The API's ``relation/ID/full`` answer: the relation, its member ways and their nodes."""
-        way_ids = {m.ref for r in osmium.FileProcessor(str(self.pbf), osmium.osm.RELATION) if r.id == rid
-                   for m in r.members if m.type == "w"}
-        node_ids = {n.ref for w in osmium.FileProcessor(str(self.pbf), osmium.osm.WAY) if w.id in way_ids
-                    for n in w.nodes}
+        way_ids = {m.ref for r in osmium.FileProcessor(str(self.pbf), osmium.osm.RELATION)
+                   if isinstance(r, osmium.osm.Relation) and r.id == rid for m in r.members if m.type == "w"}
+        node_ids = {n.ref for w in osmium.FileProcessor(str(self.pbf), osmium.osm.WAY)
+                    if isinstance(w, osmium.osm.Way) and w.id in way_ids for n in w.nodes}
         xml = self.workdir / "relation.osm"
         xml.unlink(missing_ok=True)
         header = osmium.io.Header()
         header.set("generator", "openstreetmap-cgimap 2.0.1 (osmseg demo emulation)")
         with osmium.SimpleWriter(str(xml), header=header) as writer:
             for obj in osmium.FileProcessor(str(self.pbf)):
-                if (obj.is_node() and obj.id in node_ids) or (obj.is_way() and obj.id in way_ids) or (
-                        obj.is_relation() and obj.id == rid):
+                if (isinstance(obj, osmium.osm.Node) and obj.id in node_ids) or (
+                        isinstance(obj, osmium.osm.Way) and obj.id in way_ids) or (
+                        isinstance(obj, osmium.osm.Relation) and obj.id == rid):
                     writer.add(obj)
         return xml.read_bytes()
 

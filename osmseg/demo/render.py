@@ -50,7 +50,7 @@ def _smooth_noise(shape: tuple[int, int], rng: np.random.Generator, scale: int) 
     """Low-frequency noise in [-1, 1]: random values on a coarse grid, bilinearly upsampled."""
     h, w = shape
     coarse = rng.uniform(-1, 1, size=(h // scale + 2, w // scale + 2)).astype(np.float32)
-    img = Image.fromarray(coarse, mode="F").resize((w + 2 * scale, h + 2 * scale), Image.BILINEAR)
+    img = Image.fromarray(coarse, mode="F").resize((w + 2 * scale, h + 2 * scale), Image.Resampling.BILINEAR)
     return np.asarray(img)[scale : scale + h, scale : scale + w]
 
 

@@ -8,6 +8,10 @@
                           (key, if any, from ``<FAMILY>_API_KEY``; see :mod:`.providers`)
 ========================  ==============================================================
 
+Every provider returns an :class:`~osmseg.imagery.base.Imagery` for a sample grid: its pixels,
+the tiles' provenance and which pixels are missing or placeholders. Imports: osmseg core below
+it (grid, errors, net, redact); never OSM, the builder, training or localization.
+
 >>> make_provider("geotiff:/no/such/file.tif", None)
 Traceback (most recent call last):
 osmseg.errors.ConfigError: GeoTIFF /no/such/file.tif does not exist: check the geotiff:PATH

@@ -44,13 +44,16 @@ class _StrictSQLiteDict(SQLiteDict):
     @contextmanager
     def _acquire_sqlite_lock(self) -> Iterator[None]:
         with self._lock:
-            self._connection.execute("BEGIN IMMEDIATE")  # waits up to busy_timeout for other writers
+            connection = self._connection
+            if connection is None:  # requests-cache opens it before any write; never None here
+                raise CacheError(f"{self.db_path}: the cache database is closed")
+            connection.execute("BEGIN IMMEDIATE")  # waits up to busy_timeout for other writers
             self._active_transaction = True
             try:
                 yield
-                self._connection.commit()
+                connection.commit()
             except BaseException:
-                self._connection.rollback()
+                connection.rollback()
                 raise
             finally:
                 self._active_transaction = False
@@ -106,7 +109,7 @@ class LockedSQLiteCache(SQLiteCache):
 
     def close(self) -> None:
         with self._db_lock:
-            super().close()  # type: ignore[no-untyped-call]
+            super().close()
 
 
 def _cache_error(path: Path | str, exc: BaseException) -> CacheError:

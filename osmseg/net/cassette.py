@@ -88,6 +88,14 @@ def clean_body(body: bytes | str | None) -> bytes:
     return urlencode([(k, v) for k, v in fields if k.lower() not in _SECRETS]).encode()
 
 
+def request_body(request: requests.PreparedRequest) -> bytes | str | None:
+    """The body of a prepared request: osmseg sends forms and none, never a stream or a file."""
+    body = request.body
+    if body is not None and not isinstance(body, (bytes, str)):
+        raise TypeError(f"cannot record or replay a streamed request body ({type(body).__name__})")
+    return body
+
+
 def match_key(method: str, url: str, body: bytes | str | None) -> tuple[str, str, str, str, tuple[tuple[str, str], ...], bytes]:
     """What must agree between a live request and a recorded one.
 
@@ -145,7 +153,7 @@ class ReplayAdapter(HTTPAdapter):
 
     def send(self, request: requests.PreparedRequest, **kwargs: Any) -> requests.Response:  # type: ignore[override]
         assert request.method is not None and request.url is not None
-        recorded = self._answers.get(match_key(request.method, request.url, request.body))
+        recorded = self._answers.get(match_key(request.method, request.url, request_body(request)))
         if recorded is None:
             raise OfflineCacheMiss(
                 f"{request.method} {redact(request.url)} is not in the replay cassette {self.path}: "
@@ -186,14 +194,14 @@ class RecordAdapter(HTTPAdapter):
     def send(self, request: requests.PreparedRequest, **kwargs: Any) -> requests.Response:  # type: ignore[override]
         assert request.method is not None and request.url is not None
         with self._lock:
-            known = self._seen.get(match_key(request.method, request.url, request.body))
+            known = self._seen.get(match_key(request.method, request.url, request_body(request)))
         if known is not None:
             return recorded_response(self, request, known)
         response = super().send(request, **kwargs)
         body = response.content  # read it all: a truncated body raises here, and is retried
         if response.status_code not in RETRY_STATUSES:
             headers = {k: [v] for k, v in request.headers.items() if k.lower() not in _DROP_HEADERS}
-            req = VcrRequest(request.method, clean_url(request.url), clean_body(request.body) or None, headers)
+            req = VcrRequest(request.method, clean_url(request.url), clean_body(request_body(request)) or None, headers)
             resp_headers = {k: [redact(v) if k.lower() == "location" else v]
                             for k, v in response.headers.items() if k.lower() not in _DROP_HEADERS}
             resp_headers["Content-Length"] = [str(len(body))]

@@ -263,9 +263,11 @@ class _Collector:
         if area_keys:  # assemble multipolygon relations that may match an area rule
             fp.with_areas(osmium.filter.KeyFilter(*area_keys))
         nodes = osmium.filter.KeyFilter(*node_keys) if node_keys else osmium.filter.EntityFilter(osmium.osm.NOTHING)
-        fp.with_filter(nodes.enable_for(osmium.osm.NODE))
-        others = osmium.osm.WAY | osmium.osm.RELATION | osmium.osm.AREA
-        fp.with_filter(osmium.filter.KeyFilter(*other_keys).enable_for(others))  # untagged objects never reach Python
+        nodes.enable_for(osmium.osm.NODE)
+        fp.with_filter(nodes)
+        tagged = osmium.filter.KeyFilter(*other_keys)
+        tagged.enable_for(osmium.osm.WAY | osmium.osm.RELATION | osmium.osm.AREA)
+        fp.with_filter(tagged)  # untagged objects never reach Python
         iterator = iter(fp)
         while True:
             try:
@@ -274,17 +276,17 @@ class _Collector:
                 break
             except RuntimeError as exc:  # osmium's parse errors (XML, PBF) arrive as RuntimeError
                 raise OSMDataError(_read_error(name, exc)) from None
-            if obj.is_node():
+            if isinstance(obj, osmium.osm.Node):
                 self.node(obj)
-            elif obj.is_way():
+            elif isinstance(obj, osmium.osm.Way):
                 self.way(obj)
-            elif obj.is_area():
+            elif isinstance(obj, osmium.osm.Area):
                 if not obj.from_way():  # closed ways are handled (and repaired) in way()
                     self.area(obj)
-            elif obj.is_relation():
+            elif isinstance(obj, osmium.osm.Relation):
                 self.relation(obj)
 
-    def node(self, n: Any) -> None:
+    def node(self, n: osmium.osm.Node) -> None:
         tags = _tags(n)
         cls = self.classify(tags, "point")
         if cls is None or not n.location.valid():
@@ -292,7 +294,7 @@ class _Collector:
         point = shapely.Point(n.location.lon, n.location.lat)
         self.add("point", cls, f"n{self.oid(n.id)}", point, cls.width_for(tags, "point"))
 
-    def way(self, w: Any) -> None:
+    def way(self, w: osmium.osm.Way) -> None:
         tags = _tags(w)
         if self.sea_class is not None and tags.get("natural") == "coastline":
             runs, _ = self.runs_of(w)
@@ -337,7 +339,7 @@ class _Collector:
         note = f"{name}: {'; '.join(notes)}" if notes else None
         self.items.append((kind, cls, osm_id, geom, math.nan if width is None else width, note))
 
-    def runs_of(self, w: Any) -> tuple[list[Any], int]:
+    def runs_of(self, w: osmium.osm.Way) -> tuple[list[Any], int]:
         """The way's located coordinates in runs split where nodes are missing, and how many are."""
         try:
             return [shapely.get_coordinates(shapely.from_wkb(self.wkb.create_linestring(w)))], 0
@@ -346,7 +348,7 @@ class _Collector:
             self.note_negative(w, missing)
             return runs, missing
 
-    def note_negative(self, w: Any, missing: int) -> None:
+    def note_negative(self, w: osmium.osm.Way, missing: int) -> None:
         """Remember a way with a node missing because its id is negative (osmium never locates those)."""
         if missing and not self.negative:
             self.negative = any(n.ref < 0 for n in w.nodes)
@@ -355,7 +357,7 @@ class _Collector:
         """The id the user's file gives the object (differs when reading a renumbered copy)."""
         return original_id(osm_id) if self.renumbered else osm_id
 
-    def relation(self, r: Any) -> None:
+    def relation(self, r: osmium.osm.Relation) -> None:
         tags = _tags(r)
         if tags.get("type") != "multipolygon":
             return
@@ -366,7 +368,7 @@ class _Collector:
             if r.id < 0 or any(ref < 0 for ref in refs):
                 self.negative = True
 
-    def area(self, a: Any) -> None:
+    def area(self, a: osmium.osm.Area) -> None:
         cls = self.classify(_tags(a), "area")
         if cls is None:
             return
@@ -386,11 +388,15 @@ class _Collector:
         wanted = {ref for _, refs in broken.values() for ref in refs}
         lines: dict[int, BaseGeometry] = {}
         located: set[int] = set()  # member ways with a node that has a location
+        member_filter = osmium.filter.IdFilter(wanted)
+        member_filter.enable_for(osmium.osm.WAY)
         fp = (osmium.FileProcessor(source, osmium.osm.NODE | osmium.osm.WAY).with_locations()
               .with_filter(osmium.filter.EntityFilter(osmium.osm.WAY))
-              .with_filter(osmium.filter.IdFilter(wanted).enable_for(osmium.osm.WAY)))
+              .with_filter(member_filter))
         try:
             for w in fp:
+                if not isinstance(w, osmium.osm.Way):  # never: the filters pass ways only
+                    continue
                 runs, missing = _runs(w.nodes)
                 self.note_negative(w, missing)
                 if runs:
@@ -471,10 +477,11 @@ class _Collector:
         shape[~areas] = shapely.buffer(shape[~areas], half[idx][~areas])
         shape = shapely.intersection(shape, shapely.box(*clip))
         out: list[Feature] = []
-        for j, i in enumerate(idx):
-            polygon = polygonal(shape[j])
-            if note[j]:
-                (self.warn if polygon is not None else logger.debug)(note[j])
+        for k, i in enumerate(idx):
+            polygon = polygonal(shape[k])
+            message = note[k]
+            if message:
+                (self.warn if polygon is not None else logger.debug)(message)
             if polygon is not None:
                 out.append(Feature(classes[i].id, classes[i].order, polygon, ids[i], kinds[i]))
         return out

@@ -153,15 +153,18 @@ def scan_osm(path: Path, origin: str, advice: str, fmt: str = "") -> OsmScan:
     scan = OsmScan()
     newest = None
     try:
-        for obj in osmium.FileProcessor(osmium.io.File(str(path), fmt)):
-            kind = obj.type_str()
-            scan.counts[kind] += 1
+        # nodes, ways and relations only: a <changeset> in an XML file is not map data
+        for obj in osmium.FileProcessor(osmium.io.File(str(path), fmt), osmium.osm.NODE | osmium.osm.WAY
+                                        | osmium.osm.RELATION):
+            if isinstance(obj, osmium.osm.Changeset):  # never, given the entities asked for
+                continue
+            scan.counts[obj.type_str()] += 1
             ts = obj.timestamp
             if ts.year > 1970 and (newest is None or ts > newest):
                 newest = ts
-            if kind == "w":
+            if isinstance(obj, osmium.osm.Way):
                 scan.way_ids.add(obj.id)
-            elif kind == "r" and obj.tags.get("type") == "multipolygon":
+            elif isinstance(obj, osmium.osm.Relation) and obj.tags.get("type") == "multipolygon":
                 scan.multipolygons[obj.id] = tuple(m.ref for m in obj.members if m.type == "w")
     except RuntimeError as exc:
         raise OSMDataError(f"{origin} is not valid OSM data ({_first_line(exc)}); {advice}") from None
@@ -259,13 +262,15 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
         keep_nodes, around = _nodes_near(src_name, boxes, reach)
         keep_ways: set[int] = set()
         for way in osmium.FileProcessor(src_name, osmium.osm.WAY):
+            if not isinstance(way, osmium.osm.Way):  # never: the processor reads ways only
+                continue
             refs = [nd.ref for nd in way.nodes]
             if not keep_nodes.isdisjoint(refs) or (not around.keys().isdisjoint(refs) and _crosses(refs, around, boxes)):
                 keep_ways.add(way.id)
         keep_relations: set[int] = set()
         member_ways: set[int] = set()
         for rel in osmium.FileProcessor(src_name, osmium.osm.RELATION):
-            if rel.tags.get("type") != "multipolygon":
+            if not isinstance(rel, osmium.osm.Relation) or rel.tags.get("type") != "multipolygon":
                 continue
             members = [(m.type, m.ref) for m in rel.members]
             if any(t == "w" and ref in keep_ways for t, ref in members):
@@ -274,14 +279,14 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
                 keep_nodes.update(ref for t, ref in members if t == "n")
         keep_ways |= member_ways
         for way in osmium.FileProcessor(src_name, osmium.osm.WAY):
-            if way.id in keep_ways:
+            if isinstance(way, osmium.osm.Way) and way.id in keep_ways:
                 keep_nodes.update(nd.ref for nd in way.nodes)
         keep = {"n": keep_nodes, "w": keep_ways, "r": keep_relations}
         header = _extract_header(src_name, envelope)
         with atomic_path(out) as tmp:
             counts = {"n": 0, "w": 0, "r": 0}
             with osmium.SimpleWriter(osmium.io.File(str(tmp), "pbf"), header=header, overwrite=True) as writer:
-                for obj in osmium.FileProcessor(src_name):
+                for obj in osmium.FileProcessor(src_name, osmium.osm.NODE | osmium.osm.WAY | osmium.osm.RELATION):
                     kind = obj.type_str()
                     if obj.id in keep[kind]:
                         writer.add(obj)
@@ -300,6 +305,8 @@ def _nodes_near(src: str, boxes: Sequence[LngLatBBox], reach: float) -> tuple[se
     inside: set[int] = set()
     around: dict[int, tuple[float, float]] = {}
     for node in osmium.FileProcessor(src, osmium.osm.NODE):
+        if not isinstance(node, osmium.osm.Node):  # never: the processor reads nodes only
+            continue
         loc = node.location
         if not loc.valid():
             continue

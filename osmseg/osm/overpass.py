@@ -114,7 +114,8 @@ class TagFilter:
         for key, values in self.conditions:
             if key not in theirs:
                 return False
-            if values is not None and (theirs[key] is None or not set(theirs[key]) <= set(values)):
+            their_values = theirs[key]
+            if values is not None and (their_values is None or not set(their_values) <= set(values)):
                 return False
         return True
 
@@ -139,7 +140,7 @@ def tag_filters(table: ClassTable) -> tuple[TagFilter, ...]:
     candidates: set[TagFilter] = set()
     for cls in rules_of.classes:
         for rule in cls.rules:
-            conditions = []
+            conditions: list[Condition] = []
             for key, wanted in sorted(rule.tags.items()):
                 if key.startswith("!"):
                     continue
@@ -152,7 +153,7 @@ def tag_filters(table: ClassTable) -> tuple[TagFilter, ...]:
             if not conditions:
                 continue
             for element in _ELEMENTS[rule.geometry]:
-                extra = [("type", ("multipolygon",))] if element == "relation" else []
+                extra: list[Condition] = [("type", ("multipolygon",))] if element == "relation" else []
                 candidates.add(TagFilter(element, tuple(sorted(conditions + extra))))
     if rules_of.coastline_class is not None:
         candidates.add(TagFilter("way", (("natural", ("coastline",)),)))
@@ -176,8 +177,8 @@ def _merge_single_key(filters: set[TagFilter]) -> set[TagFilter]:
         if slot in single and single[slot] is None:
             continue
         single[slot] = None if values is None else (single.get(slot) or set()) | set(values)
-    for (element, key, fixed), values in single.items():
-        condition: Condition = (key, None if values is None else tuple(sorted(values)))
+    for (element, key, fixed), joined in single.items():
+        condition: Condition = (key, None if joined is None else tuple(sorted(joined)))
         rest.add(TagFilter(element, tuple(sorted((condition, *fixed)))))
     return rest
 

@@ -62,10 +62,10 @@ def write_renumbered(source: osmium.io.File | str, out: Path, name: str) -> int:
                                        f"-{RENUMBER_BASE}: cannot renumber its negative ids (objects not uploaded "
                                        "from JOSM) to read it; renumber the file with osmium renumber")
             new_id = renumbered_id(obj.id)
-            if obj.is_node():
+            if isinstance(obj, osmium.osm.Node):
                 writer.add(obj.replace(id=new_id))
-            elif obj.is_way():
+            elif isinstance(obj, osmium.osm.Way):
                 writer.add(obj.replace(id=new_id, nodes=[renumbered_id(n.ref) for n in obj.nodes]))
-            else:
+            elif isinstance(obj, osmium.osm.Relation):  # the only kind left: the processor reads no others
                 writer.add(obj.replace(id=new_id, members=[(m.type, renumbered_id(m.ref), m.role) for m in obj.members]))
     return negative

@@ -5,7 +5,9 @@ per rejected attempt :func:`rejection_entry`; and at the end :func:`write_manife
 :func:`write_datasheet`, :func:`write_attribution`, :func:`write_overview`,
 :func:`write_class_histogram`, :func:`write_stac` (a STAC catalog of the dataset) and, with
 ``--zip``, :func:`make_zip`. The folder layout and the manifest schema are documented in
-``docs/dataset-format.md``.
+``docs/dataset-format.md``. Readers of a dataset use :func:`read_manifest` (validated) and
+:func:`verify`. Imports: osmseg core below it (classes, grid, errors, images); never the
+builder, the CLI, training or localization.
 """
 
 from osmseg.output.atomic import atomic_write_bytes, atomic_write_text, sha256_file
@@ -25,7 +27,7 @@ from osmseg.output.manifest import (
 from osmseg.output.package import make_zip
 from osmseg.output.pictures import write_class_histogram, write_overview
 from osmseg.output.stac import write_stac
-from osmseg.output.writer import read_labels, sample_paths, write_sample
+from osmseg.output.writer import sample_paths, write_sample
 
 __all__ = [
     "atomic_write_bytes",
@@ -33,7 +35,6 @@ __all__ = [
     "class_totals",
     "command_line",
     "make_zip",
-    "read_labels",
     "read_manifest",
     "rejection_entry",
     "sample_entry",

@@ -12,6 +12,7 @@ import io
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -19,8 +20,12 @@ from matplotlib.figure import Figure
 
 from osmseg.output.atomic import atomic_write_bytes
 
+if TYPE_CHECKING:  # matplotlib >= 3.8 names its rcParams keys; older releases run without it
+    from matplotlib.typing import RcKeyType
+
 DPI = 100
-STYLE = {"font.size": 9, "axes.titlesize": 10, "figure.titlesize": 11, "image.interpolation_stage": "rgba"}
+STYLE: dict[RcKeyType, Any] = {"font.size": 9, "axes.titlesize": 10, "figure.titlesize": 11,
+                               "image.interpolation_stage": "rgba"}
 
 
 @contextmanager

@@ -19,7 +19,8 @@ from PIL import Image, ImageDraw, ImageFont
 from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_bytes
-from osmseg.output.writer import encode_png, read_rgb
+from osmseg.images import read_rgb
+from osmseg.output.writer import encode_png
 
 OVERVIEW_NAME = "overview.png"
 HISTOGRAM_NAME = "class_histogram.png"

@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rasterio
 from PIL import Image
 
 from osmseg.classes import ClassTable
@@ -176,26 +175,3 @@ def write_sample(
         atomic_write_bytes(out_dir / rel, data)
         files[rel] = sha256_bytes(data)
     return {"files": files, "class_histogram": histogram}
-
-
-def read_rgb(path: Path) -> np.ndarray:
-    """An ``images/`` file (PNG, JPEG or GeoTIFF) as ``(H, W, 3)`` uint8 RGB."""
-    path = Path(path)
-    if path.suffix.lower() in (".tif", ".tiff"):
-        with rasterio.open(path) as src:
-            bands = src.read(indexes=[1, 2, 3] if src.count >= 3 else [1] * 3)
-        return np.ascontiguousarray(bands.transpose(1, 2, 0))
-    with Image.open(path) as im:
-        return np.asarray(im.convert("RGB"))
-
-
-def read_labels(path: Path) -> np.ndarray:
-    """Class ids from a ``labels/*.png`` or ``geo/*.tif`` file."""
-    path = Path(path)
-    if path.suffix.lower() in (".tif", ".tiff"):
-        with rasterio.open(path) as src:
-            return src.read(1)
-    with Image.open(path) as im:
-        if im.mode != "L":
-            raise DatasetError(f"{path}: label PNGs are 8-bit greyscale (mode L), this one is {im.mode}")
-        return np.asarray(im)

@@ -1,0 +1,221 @@
+"""Localize one query in one aerial image: the library entry point every caller goes through.
+
+:func:`run` takes a :class:`LocalizeConfig` (windows, candidate extension, hierarchy, feature
+edges), the aerial side (its landmarks, or an :class:`AerialGraph` built once for many
+queries) and the query's landmarks, and returns the :class:`~localization.result.Localization`.
+``osmseg localize`` (:func:`localize_files`, which also reads both sides and writes
+``result.json`` and pictures), the rendered-panorama benchmark (:mod:`localization.bench`)
+and the annotated-pairs protocol (:mod:`localization.pairs`) all call it, so a change to how
+a pair is localized is made here once.
+
+Imports: osmseg core, and localization (training only through :mod:`localization.inputs`
+and :mod:`localization.features`, when an RGB side is segmented or features are asked for).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from localization.features import FeatureEdges
+from localization.graph import Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
+from localization.inputs import Side, SideOptions, load_side, with_photo
+from localization.landmarks import Landmarks
+from localization.match import DEFAULT_P, Localization, localize, match_cliques, unanswered
+from localization.refine import HIERARCHY, localize_hierarchical
+from osmseg.errors import ConfigError, DatasetError
+from osmseg.output.atomic import atomic_write_text
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["AerialGraph", "LocalizeConfig", "LocalizeFiles", "LocalizeReport", "aerial_graph", "localize_files", "run"]
+
+
+@dataclass(frozen=True)
+class LocalizeConfig:
+    """How to localize: the settings of :func:`run` (the paper's defaults).
+
+    ``window`` None is the automatic window (mean + 5 sd of nearest-neighbour distances);
+    ``query_window`` None is the panorama's height (else the aerial window); ``hierarchical``
+    uses ``windows`` coarse to fine (eq. 3.8) instead of one window; ``features`` removes edges
+    between look-alike landmarks (§5.3.2).
+    """
+
+    window: int | None = None
+    query_window: int | None = None
+    p: float = DEFAULT_P
+    stride: int = 1
+    top_k: int = 5
+    fast: bool = True  # the exact event sweep; False: the paper's plain sliding window
+    hierarchical: bool = False
+    windows: tuple[int, ...] = HIERARCHY
+    features: FeatureEdges | None = None
+
+    def __post_init__(self) -> None:
+        for name, value in (("window", self.window), ("query_window", self.query_window)):
+            if value is not None and value < 1:
+                raise ConfigError(f"{name} must be at least 1 pixel, got {value}")
+        if not self.windows or min(self.windows) < 1:
+            raise ConfigError(f"windows must be positive pixel sizes, coarse to fine, got {list(self.windows)}")
+
+
+@dataclass(frozen=True)
+class AerialGraph:
+    """An aerial image's landmarks with their cliques at one window: built once, matched many times."""
+
+    landmarks: Landmarks
+    window: int
+    cliques: Cliques | None  # None when the image has no landmark
+
+
+def aerial_graph(lm: Landmarks, config: LocalizeConfig = LocalizeConfig()) -> AerialGraph:
+    """The graph of ``lm`` at ``config.window``, or the automatic one (no graph without landmarks)."""
+    if len(lm.xy) == 0:
+        return AerialGraph(lm, 0, None)
+    w = int(config.window) if config.window is not None else window_size_auto(lm)
+    build = cliques_fast if config.fast else cliques_reference
+    return AerialGraph(lm, w, build(lm, w, config.stride))
+
+
+def run(config: LocalizeConfig, aerial: Landmarks | AerialGraph, query: Landmarks, *,
+        aerial_drop: np.ndarray | None = None, query_drop: np.ndarray | None = None) -> Localization:
+    """Localize ``query`` (a panorama's or an aerial crop's landmarks) in ``aerial``.
+
+    ``aerial_drop``/``query_drop`` are ``(K, K)`` landmark pairs whose edges are removed
+    (:meth:`FeatureEdges.drop`). An unanswered :class:`Localization` (not an exception) says
+    why when nothing can be matched.
+    """
+    lm = aerial.landmarks if isinstance(aerial, AerialGraph) else aerial
+    if config.hierarchical:
+        return localize_hierarchical(lm, query, config.windows, query_window=config.query_window, p=config.p,
+                                     stride=config.stride, top_k=config.top_k, fast=config.fast,
+                                     aerial_drop=aerial_drop, query_drop=query_drop)
+    if not isinstance(aerial, AerialGraph):
+        return localize(lm, query, window=config.window, query_window=config.query_window, p=config.p,
+                        stride=config.stride, top_k=config.top_k, fast=config.fast,
+                        aerial_drop=aerial_drop, query_drop=query_drop)
+    graph = aerial
+    if graph.cliques is None:
+        return unanswered("the aerial image has no landmarks", p=config.p)
+    if len(query.xy) == 0:
+        return unanswered("the query has no landmarks", p=config.p)
+    qw = config.query_window or (query.height if query.panorama else graph.window)
+    build = cliques_fast if config.fast else cliques_reference
+    result = match_cliques(lm, graph.cliques, query, build(query, qw, config.stride), p=config.p,
+                           top_k=config.top_k, window=graph.window, query_window=qw,
+                           aerial_drop=aerial_drop, query_drop=query_drop)
+    logger.debug("localize: window %d, query window %d, %d cliques, %d candidates, ties %d",
+                 graph.window, qw, result.n_cliques, len(result.candidates), result.ties)
+    return result
+
+
+# --------------------------------------------------------------------------- a pair of files
+
+
+@dataclass(frozen=True)
+class LocalizeFiles:
+    """``osmseg localize``'s inputs: the two files, how to read each, and where the truth is."""
+
+    aerial: Path
+    ground: Path
+    aerial_options: SideOptions
+    ground_options: SideOptions
+    aerial_image: Path | None = None  # the RGB photo of a mask or landmark file (features, pictures)
+    ground_image: Path | None = None
+    feature_checkpoint: Path | None = None  # whose encoder gives the features [each side's checkpoint]
+    truth: tuple[float, float] | None = None  # aerial pixels
+    resolution_m: float | None = None  # metres per aerial pixel [the aerial side's own, if known]
+
+
+@dataclass(frozen=True)
+class LocalizeReport:
+    """What :func:`localize_files` found, and the files it wrote."""
+
+    result: Localization
+    aerial: Side
+    ground: Side
+    error_px: float | None
+    error_m: float | None
+    summary: dict[str, Any]
+    written: list[Path] = field(default_factory=list)
+
+
+def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path | None = None) -> LocalizeReport:
+    """Read both sides, localize, and (with ``out_dir``) write ``result.json`` and the pictures."""
+    aerial = load_side(request.aerial, request.aerial_options)
+    ground = load_side(request.ground, request.ground_options)
+    _check_sides(aerial, ground, request)
+    aerial = with_photo(aerial, request.aerial_image, "aerial")
+    ground = with_photo(ground, request.ground_image, "ground")
+    a, truth = aerial.landmarks, request.truth
+    if config.window is not None and not config.hierarchical and config.window >= max(a.width, a.height):
+        raise ConfigError(f"--window {config.window} is not smaller than the aerial image ({a.width}x{a.height}): "
+                          f"every landmark would be in one window; give less than {max(a.width, a.height)}, or auto")
+    if truth is not None and not (0 <= truth[0] < a.width and 0 <= truth[1] < a.height):
+        raise ConfigError(f"--truth {truth[0]:g},{truth[1]:g} is outside the aerial image ({a.width}x{a.height})")
+    drops: dict[str, np.ndarray | None] = {}
+    if config.features is not None:
+        drops = config.features.masks({
+            "aerial": (aerial.photo, a, request.feature_checkpoint or request.aerial_options.checkpoint),
+            "ground": (ground.photo, ground.landmarks, request.feature_checkpoint or request.ground_options.checkpoint)})
+    result = run(config, a, ground.landmarks, aerial_drop=drops.get("aerial"), query_drop=drops.get("ground"))
+    if (config.window is None and not config.hierarchical and not result.unanswered
+            and result.window >= max(a.width, a.height)):
+        logger.warning("the automatic window (%d px) covers the whole aerial image, so there is one candidate: "
+                       "give a smaller --window", result.window)
+    if config.features is not None:
+        graphs = {"aerial": (a, result.window), "ground": (ground.landmarks, result.query_window)}
+        result = replace(result, feature_edges=config.features.summary(drops, graphs, fast=config.fast,
+                                                                         stride=config.stride))
+    resolution = request.resolution_m or aerial.resolution
+    error_px, error_m = result.error(truth, resolution)
+    summary: dict[str, Any] = {"aerial": str(request.aerial), "ground": str(request.ground),
+                               "aerial_landmarks": len(a), "ground_landmarks": len(ground.landmarks)}
+    if truth is not None:
+        summary["truth"] = {"x": truth[0], "y": truth[1], "error_px": error_px, "error_m": error_m}
+    report = LocalizeReport(result, aerial, ground, error_px, error_m, summary)
+    if out_dir is not None:
+        report.written.extend(_pictures(out_dir, report, config, resolution))
+        full = {**summary, **result.to_dict(all_candidates=True)}
+        report.written.append(atomic_write_text(out_dir / "result.json",
+                                                json.dumps(full, indent=2, sort_keys=True) + "\n"))
+    return report
+
+
+def _check_sides(aerial: Side, ground: Side, request: LocalizeFiles) -> None:
+    """One-line errors for inputs no localization can use."""
+    for side, path, name in ((aerial, request.aerial, "aerial"), (ground, request.ground, "ground")):
+        lm = side.landmarks
+        if len(lm) == 0:
+            raise DatasetError(f"{path}: no landmarks of classes {', '.join(lm.classes)} found; check "
+                               f"--{name}-classes and --{name}-table (or lower --min-size)")
+    aerial_classes = {aerial.landmarks.classes[c] for c in np.unique(aerial.landmarks.cls)}
+    ground_classes = {ground.landmarks.classes[c] for c in np.unique(ground.landmarks.cls)}
+    if len(aerial_classes) == 1 and ground_classes <= aerial_classes:
+        raise DatasetError(f"both images have landmarks of one class only ({aerial_classes.pop()}): every place would "
+                           "match equally; use masks or landmark files with more classes")
+
+
+def _pictures(out_dir: Path, report: LocalizeReport, config: LocalizeConfig, resolution: float | None) -> list[Path]:
+    """localization.png, aerial_graph.png and ground_graph.png in ``out_dir``."""
+    try:
+        from localization import pictures
+    except ImportError:
+        raise ConfigError("pictures need matplotlib: pip install matplotlib (or leave out --out)") from None
+    result, aerial, ground = report.result, report.aerial, report.ground
+    build = cliques_fast if config.fast else cliques_reference
+    truth = (report.summary["truth"]["x"], report.summary["truth"]["y"]) if "truth" in report.summary else None
+    paths = [pictures.localization_png(out_dir / "localization.png", result, aerial.landmarks,
+                                       image=aerial.picture(), truth=truth, resolution=resolution)]
+    for name, side, w in (("aerial", aerial, result.window), ("ground", ground, result.query_window)):
+        if w:
+            graph = adjacency(build(side.landmarks, w, config.stride))
+            title = f"{name}: {len(side.landmarks)} landmarks, window {w} px"
+            paths.append(pictures.graph_png(out_dir / f"{name}_graph.png", side.landmarks, graph,
+                                            image=side.picture(), title=title))
+    return paths
