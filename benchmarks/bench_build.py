@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT))
 from osmseg.build import BuildConfig, build  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 from osmseg.demo.render import render_aerial  # noqa: E402
-from osmseg.filters import FilterConfig  # noqa: E402
+from osmseg.rejection import FilterConfig  # noqa: E402
 from osmseg.grid import sample_grid  # noqa: E402
 from osmseg.osm.features import read_features  # noqa: E402
 from osmseg.places import Area  # noqa: E402

@@ -25,11 +25,13 @@ step:
    (:mod:`localization.result`: the ranking, ties and the answer). :mod:`localization.refine`
    adds the dissertation's options: the window hierarchy (eq. 3.8) and feature-based edge removal,
    with features (a SegNet encoder's output at each landmark) from :mod:`localization.features`.
-4. :mod:`localization.render`, :mod:`localization.pictures`, :mod:`localization.bench` --
-   **render / pictures / benchmark**: semantic panoramas rendered from aerial masks (real
-   panoramas paired with aerial images are not available offline), the paper's pictures
-   (candidates and top-k on the aerial image, both graphs overlaid), and a benchmark that
-   localizes rendered panoramas from seeded viewpoints and reports the errors.
+4. :mod:`localization.render`, :mod:`localization.figures`, :mod:`localization.evaluate`,
+   :mod:`localization.pairs` -- **render / figures / evaluation**: semantic panoramas rendered
+   from aerial masks (real panoramas paired with aerial images are not available offline), the
+   paper's figures (candidates and top-k on the aerial image, both graphs overlaid), and the
+   two evaluations: rendered panoramas from seeded viewpoints (``osmseg localize-bench`` on a
+   dataset or mask) and annotated aerial/ground pairs (``localize-bench`` on a pairs folder),
+   with their error plots (:mod:`localization.evaluate_plots`).
 
 Coordinates are pixels throughout: ``x`` is the column, ``y`` the row. numpy and scipy do
 the work; only :mod:`localization.features` runs a network, with torch (the ``train`` extra).

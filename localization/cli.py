@@ -328,7 +328,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     unless --resolution gives the aerial m/px. Prints the path of results.json on stdout and a
     summary on stderr.
     """
-    from localization.bench import BenchConfig, load_dataset_scenes, load_mask_scene, run_bench
+    from localization.evaluate import BenchConfig, load_dataset_scenes, load_mask_scene, run_bench
     from localization.pairs import PairsConfig, is_pairs_folder, load_pairs, run_pairs
     from localization.render import NoiseConfig, RenderConfig
 

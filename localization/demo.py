@@ -53,7 +53,7 @@ DEMO_VIEWPOINTS = 12
 
 def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: Progress | None) -> None:
     """Render panoramas in the demo masks and localize them (localize-bench with a few viewpoints)."""
-    from localization.bench import BenchConfig, load_dataset_scenes, run_bench
+    from localization.evaluate import BenchConfig, load_dataset_scenes, run_bench
     from localization.cli import format_summary
 
     loc_dir = out_dir / "localize"

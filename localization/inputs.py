@@ -137,7 +137,7 @@ def _colourise(mask: np.ndarray, colours: dict[int, Any], ids: dict[int, str] | 
     elif ids:
         from matplotlib.colors import to_rgb
 
-        from localization.pictures import class_colours
+        from localization.figures import class_colours
 
         palette = dict(zip(dictionary.names, class_colours(dictionary.names)))
         for cid, name in ids.items():

@@ -48,7 +48,7 @@ from scipy.sparse.csgraph import connected_components
 
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ClassTableError, ConfigError
-from osmseg.manifests import MANIFEST_DIR, load_toml
+from osmseg.datafiles import DATA_DIR, load_toml
 
 __all__ = ["MODES", "PAPER_CLASSES", "LandmarkClasses", "Landmarks", "landmarks_from_mask",
            "landmark_dictionary_path", "load_landmark_classes"]
@@ -220,10 +220,10 @@ def landmark_dictionary_path(name_or_path: str) -> Path:
     if Path(given).is_file():
         return Path(given)
     short = given.removesuffix(".toml").removeprefix("landmarks-")
-    candidate = MANIFEST_DIR / f"landmarks-{short}.toml"
+    candidate = DATA_DIR / f"landmarks-{short}.toml"
     if "/" not in given and "\\" not in given and short and candidate.is_file():
         return candidate
-    known = sorted(p.stem.removeprefix("landmarks-") for p in MANIFEST_DIR.glob("landmarks-*.toml"))
+    known = sorted(p.stem.removeprefix("landmarks-") for p in DATA_DIR.glob("landmarks-*.toml"))
     raise ConfigError(f"landmark dictionary {given!r} not found: give one of {', '.join(known)} "
                       f"(data_manifests/landmarks-NAME.toml) or a path to a .toml file")
 

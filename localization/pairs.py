@@ -15,7 +15,7 @@ pairs in that layout, which is what :func:`load_pairs` reads::
 
 :func:`run_pairs` localizes every panorama in its aerial image with every subset of classes and
 writes the same ``results.json`` and pictures as the rendered-panorama benchmark
-(:mod:`localization.bench`): errors in metres given the aerial resolution, else in pixels.
+(:mod:`localization.evaluate`): errors in metres given the aerial resolution, else in pixels.
 With the truth at the centre, "guess the image centre" scores 0: the baseline to beat is the
 random guess.
 """
@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 
-from localization.bench import (RECALL_RADII_M, aerial_graphs, baselines, by_num_classes, chance_errors,
+from localization.evaluate import (RECALL_RADII_M, aerial_graphs, baselines, by_num_classes, chance_errors,
                                 localize_subsets, subsets_of, summarize, write_results)
 from localization.landmark_files import read_landmarks
 from localization.landmarks import LandmarkClasses, Landmarks, load_landmark_classes

@@ -4,7 +4,7 @@
 edges), the aerial side (its landmarks, or an :class:`AerialGraph` built once for many
 queries) and the query's landmarks, and returns the :class:`~localization.result.Localization`.
 ``osmseg localize`` (:func:`localize_files`, which also reads both sides and writes
-``result.json`` and pictures), the rendered-panorama benchmark (:mod:`localization.bench`)
+``result.json`` and pictures), the rendered-panorama benchmark (:mod:`localization.evaluate`)
 and the annotated-pairs protocol (:mod:`localization.pairs`) all call it, so a change to how
 a pair is localized is made here once.
 
@@ -204,18 +204,18 @@ def _check_sides(aerial: Side, ground: Side, request: LocalizeFiles) -> None:
 def _pictures(out_dir: Path, report: LocalizeReport, config: LocalizeConfig, resolution: float | None) -> list[Path]:
     """localization.png, aerial_graph.png and ground_graph.png in ``out_dir``."""
     try:
-        from localization import pictures
+        from localization import figures
     except ImportError:
         raise ConfigError("pictures need matplotlib: pip install matplotlib (or leave out --out)") from None
     result, aerial, ground = report.result, report.aerial, report.ground
     build = cliques_fast if config.fast else cliques_reference
     truth = (report.summary["truth"]["x"], report.summary["truth"]["y"]) if "truth" in report.summary else None
-    paths = [pictures.localization_png(out_dir / "localization.png", result, aerial.landmarks,
+    paths = [figures.localization_png(out_dir / "localization.png", result, aerial.landmarks,
                                        image=aerial.picture(), truth=truth, resolution=resolution)]
     for name, side, w in (("aerial", aerial, result.window), ("ground", ground, result.query_window)):
         if w:
             graph = adjacency(build(side.landmarks, w, config.stride))
             title = f"{name}: {len(side.landmarks)} landmarks, window {w} px"
-            paths.append(pictures.graph_png(out_dir / f"{name}_graph.png", side.landmarks, graph,
+            paths.append(figures.graph_png(out_dir / f"{name}_graph.png", side.landmarks, graph,
                                             image=side.picture(), title=title))
     return paths

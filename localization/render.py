@@ -1,7 +1,7 @@
 """Render the semantic 360° panorama a camera ~2 m above the ground would see, from an aerial mask.
 
 Real ground panoramas paired with aerial images are not available offline, so the localization
-benchmark (:mod:`localization.bench`) renders them. The model is a "voxel space" ray caster,
+benchmark (:mod:`localization.evaluate`) renders them. The model is a "voxel space" ray caster,
 as in old terrain engines: the aerial label mask is a height field, one height per class.
 
 Camera and panorama

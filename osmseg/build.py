@@ -18,7 +18,7 @@ import logging
 import os
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +27,7 @@ import numpy as np
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, RetriesExhausted
-from osmseg.filters import FilterConfig, check_imagery, check_labels
+from osmseg.rejection import FilterConfig, check_imagery, check_labels
 from osmseg.grid import TILE_SIZE, LngLatBBox, SampleGrid, ground_resolution, pad_bbox, sample_grid
 from osmseg.imagery import make_provider
 from osmseg.imagery.base import ImageryProvider
@@ -49,13 +49,14 @@ from osmseg.output import (
     write_overview,
     write_sample,
 )
-from osmseg.output.manifest import FORMAT, FORMAT_VERSION, SAMPLE_DIRS
+from osmseg.output.manifest import FORMAT, FORMAT_VERSION, SAMPLE_DIRS, config_entry
 from osmseg.output.stac import write_stac
 from osmseg.output.writer import IMAGE_FORMATS
 from osmseg.places import Area, normalise_name
 from osmseg.progress import Progress, report
 from osmseg.rasterize import rasterize, to_table
 from osmseg.sampling import block_attempt_centre, check_room, overlap_groups
+from osmseg.records import Attempt, SlotOutcome
 from osmseg.state import BuildState
 
 logger = logging.getLogger(__name__)
@@ -155,32 +156,6 @@ class BuildConfig:
         """The slots this process builds: all of them, or this shard's share."""
         return [s for s in range(self.samples) if self.shard is None or self.shard.owns(s)]
 
-    def command(self) -> list[str]:
-        """The canonical ``osmseg build`` command that makes this dataset (recorded in the manifest).
-
-        Built from the config rather than copied from ``sys.argv`` so that every shard and every
-        resumed run records the same line, and options that never change the content
-        (``--shard``, ``--offline``, ``--cache-dir``, ``-q``) are left out, and so is ``--out``:
-        the same dataset built in another folder has the same manifest.
-        """
-        a = self.area
-        if a.kind != "custom":
-            where = ["--city", a.name, "--radius-km", repr(a.radius_km)]
-        elif a.bbox is not None:
-            where = ["--bbox", ",".join(repr(v) for v in a.bbox)]
-        else:  # repr: the shortest text that reads back as the same float
-            where = ["--lat", repr(a.lat), "--lon", repr(a.lon), "--radius-km", repr(a.radius_km)]
-        f = self.filters
-        return [
-            "osmseg", "build", *where, "--samples", str(self.samples), "--seed", str(self.seed),
-            "--zoom", str(self.zoom), "--imagery", redact(self.imagery), "--osm", redact(self.osm),
-            "--classes", self.classes,
-            "--image-format", self.image_format, "--max-unlabeled", f"{f.max_unlabeled:g}",
-            "--min-classes", str(f.min_classes), "--min-contrast", f"{f.min_contrast:g}",
-            "--max-missing-imagery", f"{f.max_invalid_imagery:g}", "--max-placeholder-tiles", str(f.max_placeholder_tiles),
-            "--max-tries", str(self.max_tries), *(["--no-overlap"] if self.no_overlap else []),
-        ]
-
     @property
     def prefix(self) -> str:
         return self.name_prefix or normalise_name(self.area.name).replace(" ", "-") or "sample"
@@ -268,7 +243,7 @@ class Pipeline:
     rules: ClassTable  # the table whose tag rules are rasterised (the base of a mapped table)
 
 
-def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) -> dict[str, Any]:
+def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) -> Attempt:
     """Run one attempt; write the sample if it is accepted. Returns the attempt's record.
 
     OSM comes first: a sample whose mask fails the label checks is rejected before any of
@@ -276,7 +251,7 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) ->
     """
     centre = attempt_centre(config, slot, attempt)
     if centre is None:
-        return {"status": "exhausted"}
+        return Attempt.exhausted()
     lon, lat = centre
     grid = sample_grid(lon, lat, config.zoom, config.grid_size)
     extract = pipe.osm.fetch(pad_bbox(grid.bbox, config.osm_padding_m))
@@ -295,20 +270,20 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int) ->
     if rejection is not None or imagery is None:
         assert rejection is not None
         problems = {"osm_problems": list(features.problems)} if features.problems else {}
-        return {"status": "rejected", **rejection_entry(lon, lat, rejection, attempt=attempt), **problems, **unplaced}
+        return Attempt.rejected({**rejection_entry(lon, lat, rejection, attempt=attempt), **problems, **unplaced})
     name = f"{config.prefix}_{slot:05d}"
     written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format)
     entry = sample_entry(name, grid, written, imagery=imagery.info, osm=extract.info, osm_timestamp=extract.timestamp)
     # broken OSM objects that were repaired or skipped, for users checking a mask they doubt
     entry["osm_problems"] = list(features.problems)
     entry.update(unplaced)
-    return {"status": "accepted", "sample": entry}
+    return Attempt.accepted(entry)
 
 
-def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int) -> dict[str, Any]:
+def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int) -> SlotOutcome:
     """Try centres for one slot until one is accepted or ``max_tries`` runs out."""
     rejections: list[dict[str, Any]] = []
-    outcome: dict[str, Any] = {"slot": slot, "status": "gave_up", "rejected": rejections}  # unless an attempt is accepted
+    outcome = SlotOutcome(slot, "gave_up")  # unless an attempt is accepted
     for attempt in range(config.max_tries):
         record = state.attempt(slot, attempt)
         if record is None:
@@ -321,16 +296,17 @@ def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int) 
                 # build goes on with the other slots and the same command later retries it.
                 reason = str(exc)
                 state.record_failure(slot, attempt, reason)
-                return {"slot": slot, "status": "failed", "attempt": attempt, "reason": reason, "rejected": rejections}
-            if record["status"] == "exhausted":  # --no-overlap: no block of the area is left for this attempt
-                outcome = {**outcome, "exhausted": True}
+                return SlotOutcome(slot, "failed", tuple(rejections), attempt=attempt, reason=reason)
+            if record.status == "exhausted":  # --no-overlap: no block of the area is left for this attempt
+                outcome = SlotOutcome(slot, "gave_up", exhausted=True)
                 break
             state.record_attempt(slot, attempt, record)
-        if record["status"] == "accepted":
-            outcome = {"slot": slot, "status": "accepted", "sample": record["sample"], "rejected": rejections}
+        if record.sample is not None:
+            outcome = SlotOutcome(slot, "accepted", sample=record.sample)
             break
-        rejections.append({k: v for k, v in record.items() if k != "status"})
-    state.record_slot(slot, outcome)
+        rejections.append(dict(record.rejection or {}))
+    outcome = replace(outcome, rejected=tuple(rejections))
+    state.record_slot(outcome)
     return outcome
 
 
@@ -403,7 +379,7 @@ def build(
     summary.pending_other_shards = sum(o is None for o in outcomes)
     if summary.pending_other_shards == 0:
         state.check_owner()  # another command took the folder over meanwhile
-        manifest = finalize(config, pipe.table, [o for o in outcomes if o], imagery_info, osm_info, command_line)
+        manifest = finalize(config, pipe.table, [o for o in outcomes if o is not None], imagery_info, osm_info, command_line)
         summary.dataset_accepted = manifest["summary"]["accepted"]  # every shard's samples, not only ours
         summary.duplicates = manifest["summary"]["duplicate_samples"]
         summary.overlapping = manifest["summary"]["overlapping_samples"]
@@ -446,32 +422,30 @@ def _grid(config: BuildConfig, slot: int, attempt: int) -> SampleGrid | None:
     return None if centre is None else sample_grid(centre[0], centre[1], config.zoom, config.grid_size)
 
 
-def _count(summary: BuildSummary, outcome: dict[str, Any]) -> None:
-    summary.unplaced += sum(int(r.get("osm_unplaced", 0)) for r in outcome["rejected"])
-    if outcome["status"] == "accepted":
-        summary.unplaced += int(outcome["sample"].get("osm_unplaced", 0))
-    summary.exhausted += bool(outcome.get("exhausted"))
-    if outcome["status"] == "failed":
-        summary.failed.append((outcome["slot"], outcome["reason"]))
-    elif outcome["status"] == "accepted":
+def _count(summary: BuildSummary, outcome: SlotOutcome) -> None:
+    summary.unplaced += outcome.unplaced
+    summary.exhausted += outcome.exhausted
+    if outcome.status == "failed":
+        summary.failed.append((outcome.slot, str(outcome.reason)))
+    elif outcome.sample is not None:
         summary.accepted += 1
-        summary.osm_problems += len(outcome["sample"].get("osm_problems", ()))
+        summary.osm_problems += len(outcome.sample.get("osm_problems", ()))
     else:
         summary.gave_up += 1
-    summary.rejected.update(r["reason"] for r in outcome["rejected"])
+    summary.rejected.update(r["reason"] for r in outcome.rejected)
 
 
 def finalize(
     config: BuildConfig,
     table: ClassTable,
-    outcomes: list[dict[str, Any]],
+    outcomes: list[SlotOutcome],
     imagery_info: dict[str, Any],
     osm_info: dict[str, Any],
     command_line: str,
 ) -> dict[str, Any]:
     """Write manifest, datasheet, attribution, pictures (and zip) from the finished slots."""
-    samples = [o["sample"] for o in outcomes if o["status"] == "accepted"]
-    rejected = [dict(r, slot=o["slot"]) for o in outcomes for r in o["rejected"]]
+    samples = [o.sample for o in outcomes if o.sample is not None]
+    rejected = [dict(r, slot=o.slot) for o in outcomes for r in o.rejected]
     area = config.area
     manifest: dict[str, Any] = {
         "format": FORMAT,
@@ -484,7 +458,7 @@ def finalize(
         "zoom": config.zoom,
         "grid_size": config.grid_size,
         "image_format": config.image_format,
-        "config": config.identity(),
+        "config": config_entry(config.identity()),
         "classes": table.to_dict(),
         "filters": config.filters.to_dict(),
         "imagery": imagery_info,

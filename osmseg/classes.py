@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from osmseg.errors import ClassTableError, DatasetError
-from osmseg.manifests import load_toml
+from osmseg.datafiles import load_toml
 
 RGB = tuple[int, int, int]
 

@@ -3,7 +3,8 @@
 As in rasterio, there is one root, :class:`OsmsegError`, and each subclass also
 inherits the builtin exception it resembles, so callers may catch either.  Every
 message is one line that says what to change.  The CLI turns these into a one-line
-message on stderr and exit status 1 (2 for usage errors).
+message on stderr and exit status 1 (2 for usage errors). The packages above the core
+subclass :class:`OsmsegError` for their own errors (``training.errors.CheckpointError``).
 """
 
 from __future__ import annotations
@@ -86,7 +87,3 @@ class OSMLimitError(OSMDataError):
 
 class DatasetError(OsmsegError, IOError):
     """An output or input dataset folder is inconsistent."""
-
-
-class CheckpointError(OsmsegError, ValueError):
-    """A checkpoint file is missing, corrupt, or not an osmseg checkpoint."""

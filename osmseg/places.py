@@ -16,7 +16,7 @@ import numpy as np
 
 from osmseg.errors import ConfigError, UnknownPlaceError
 from osmseg.grid import LngLatBBox
-from osmseg.manifests import load_toml
+from osmseg.datafiles import load_toml
 
 EARTH_RADIUS_M = 6371008.8
 

@@ -17,6 +17,7 @@ from typing import Any
 
 from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_text
+from osmseg.records import Attempt, SlotOutcome
 
 STATE_DIR = ".osmseg-build"
 
@@ -105,13 +106,15 @@ class BuildState:
     def _slot_path(self, slot: int) -> Path:
         return self.root / "slots" / f"{slot:05d}.json"
 
-    def attempt(self, slot: int, attempt: int) -> dict[str, Any] | None:
+    def attempt(self, slot: int, attempt: int) -> Attempt | None:
         """The recorded outcome of one attempt, or None if it never finished."""
-        return _read_json(self._attempt_path(slot, attempt))
+        path = self._attempt_path(slot, attempt)
+        data = _read_json(path)
+        return None if data is None else Attempt.from_json(data, str(path))
 
-    def record_attempt(self, slot: int, attempt: int, outcome: dict[str, Any]) -> None:
+    def record_attempt(self, slot: int, attempt: int, outcome: Attempt) -> None:
         self.check_owner()
-        atomic_write_json(self._attempt_path(slot, attempt), outcome)
+        atomic_write_json(self._attempt_path(slot, attempt), outcome.to_json())
         (self.root / "failures" / f"{slot:05d}-{attempt:02d}.json").unlink(missing_ok=True)  # it worked now
 
     def record_failure(self, slot: int, attempt: int, reason: str) -> None:
@@ -119,13 +122,15 @@ class BuildState:
         atomic_write_json(self.root / "failures" / f"{slot:05d}-{attempt:02d}.json",
                           {"slot": slot, "attempt": attempt, "reason": reason})
 
-    def slot(self, slot: int) -> dict[str, Any] | None:
+    def slot(self, slot: int) -> SlotOutcome | None:
         """The final outcome of a slot (accepted sample or gave up), or None if unfinished."""
-        return _read_json(self._slot_path(slot))
+        path = self._slot_path(slot)
+        data = _read_json(path)
+        return None if data is None else SlotOutcome.from_json(data, str(path))
 
-    def record_slot(self, slot: int, outcome: dict[str, Any]) -> None:
+    def record_slot(self, outcome: SlotOutcome) -> None:
         self.check_owner()
-        atomic_write_json(self._slot_path(slot), outcome)
+        atomic_write_json(self._slot_path(outcome.slot), outcome.to_json())
 
 
 def _read_json(path: Path) -> dict[str, Any] | None:

@@ -104,6 +104,15 @@ def test_build_writes_a_dataset_whose_masks_line_up_with_the_imagery(tmp_path: P
             assert (geo.read(1) == labels).all()
     for extra in ("DATASHEET.md", "ATTRIBUTION.md", "overview.png", "class_histogram.png"):
         assert (out / extra).stat().st_size > 0
+    # each build setting is written once (format 2), and together they are what decided the content
+    from osmseg.output.manifest import TOP_LEVEL_SETTINGS, build_identity, verify
+
+    assert manifest["format_version"] == 2 and not set(manifest["config"]) & set(TOP_LEVEL_SETTINGS)
+    assert build_identity(manifest) == json.loads((out / ".osmseg-build" / "config.json").read_text())
+    # a format-1 manifest (every setting again in config) is still read and verified
+    old = dict(manifest, format_version=1, config=build_identity(manifest))
+    (out / "manifest.json").write_text(json.dumps(old, indent=2, sort_keys=True) + "\n")
+    assert verify(out) == [] and build_identity(old) == build_identity(manifest)
 
 
 def test_cog_images_and_labels_share_one_grid_and_are_cloud_optimized(tmp_path: Path, imagery_tif: Path) -> None:
@@ -228,14 +237,17 @@ def test_a_build_stops_when_another_command_takes_its_folder_over(tmp_path: Path
     """Two commands with other options on one folder (say, shards started with a typo): the one
     that lost the folder stops at its next record instead of mixing its samples in."""
     from osmseg.errors import DatasetError
+    from osmseg.records import Attempt
     from osmseg.state import BuildState
 
+    rejected = Attempt.rejected({"center": {"lon": 0, "lat": 0}, "reason": "unlabeled", "detail": "all unlabeled"})
     first, second = BuildState(tmp_path), BuildState(tmp_path)
     first.check_config({"seed": 1})
     second.check_config({"seed": 2})  # nothing accepted yet: the folder is taken over
     with pytest.raises(DatasetError, match="taken over by a build with other options"):
-        first.record_attempt(0, 0, {"status": "rejected", "reason": "unlabeled"})
-    second.record_attempt(0, 0, {"status": "rejected", "reason": "unlabeled"})
+        first.record_attempt(0, 0, rejected)
+    second.record_attempt(0, 0, rejected)
+    assert second.attempt(0, 0) == rejected  # read back as the value it was
 
 
 @pytest.mark.parametrize(
@@ -305,3 +317,35 @@ def test_malformed_osm_file_fails_with_one_line(tmp_path: Path, imagery_tif: Pat
     assert result.exit_code == 1
     message = result.output.strip()
     assert message.startswith("Error:") and "\n" not in message and "broken" in message
+
+
+@pytest.mark.parametrize("args", [
+    ["--city", "Helsinki", "--samples", "4", "--no-overlap", "--imagery", "xyz:https://t.example/{z}/{x}/{y}.png"],
+    ["--lat", "52.520008", "--lon", "13.404954", "--radius-km", "2", "--max-missing-imagery", "0.123456789",
+     "--min-contrast", "3.25", "--zoom", "19", "--image-format", "cog", "--osm", "overpass", "--imagery", "Esri.WorldImagery"],
+    ["--bbox", "24.9,60.1,25.0,60.2", "--classes", "classes6.toml", "--max-unlabeled", "0.5", "--min-classes", "3",
+     "--max-placeholder-tiles", "2", "--max-tries", "4", "--seed", "9", "--imagery", "bing"],
+])
+def test_the_recorded_command_reads_back_as_the_same_build(args: list[str], tmp_path: Path) -> None:
+    """The manifest's command comes from the build command's own option table: run as it is
+    written, it describes the same dataset (every content value, none lost to rounding), and
+    every option of ``osmseg build`` either appears in it or is declared as not changing content."""
+    import shlex
+
+    from osmseg.cli.build import NOT_CONTENT, build_command, build_config, content_options, recorded_command
+    from osmseg.output import command_line
+
+    def parse(argv: list[str]):
+        ctx = build_command.make_context("build", [*argv, "--out", str(tmp_path / "out")])
+        return build_config(**ctx.params)
+
+    config = parse(args)
+    line = command_line(recorded_command(config))
+    words = shlex.split(line)
+    assert words[:2] == ["osmseg", "build"] and "--out" not in words
+    assert parse(words[2:]).identity() == config.identity()
+    names = {p.name for p in build_command.params}
+    assert names == set(content_options(config)) | NOT_CONTENT  # no option unaccounted for
+    given = {name for name, value in content_options(config).items() if value is not None and value is not False}
+    assert {max(p.opts, key=len) for p in build_command.params if p.name in given} == {
+        w for w in words if w.startswith("--")}

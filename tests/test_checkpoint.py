@@ -14,7 +14,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from osmseg.errors import CheckpointError, ConfigError
+from osmseg.errors import ConfigError
+from training.errors import CheckpointError
 from training.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
 from training.spec import ModelSpec
 from training.model import SegNet, build_model, model_spec

@@ -25,7 +25,7 @@ from localization.match import (
     relevant_cliques,
 )
 from localization.refine import feature_edge_mask, inherit, localize_hierarchical
-from localization.pictures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
+from localization.figures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
 from osmseg.classes import load_class_table
 from localization.cli import localize_command
 from osmseg.errors import ConfigError

@@ -1,4 +1,4 @@
-"""Rendered panoramas (localization.render) and the rendered-panorama benchmark (localization.bench).
+"""Rendered panoramas (localization.render) and the rendered-panorama benchmark (localization.evaluate).
 
 Scenes are constructed masks in the classes13 ids, so each expected pixel follows from the
 camera geometry: a building of height h whose near face is d metres away tops out at
@@ -19,7 +19,7 @@ from click.testing import CliRunner
 from PIL import Image
 
 from conftest import write_dataset_manifest
-from localization.bench import BenchConfig, load_dataset_scenes, run_bench, Scene
+from localization.evaluate import BenchConfig, load_dataset_scenes, run_bench, Scene
 from localization.pipeline import LocalizeConfig, aerial_graph, run
 from localization.landmarks import landmarks_from_mask, load_landmark_classes
 from localization.match import localize

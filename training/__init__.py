@@ -7,7 +7,7 @@ presets; :mod:`training.engine` runs the training and validation loops (CPU or C
 DDP); :mod:`training.checkpoint` saves and reloads everything needed to use a trained model;
 :mod:`training.infer` runs a model over images of any size (split-join or rescale) and
 :mod:`training.predict` over image files (PNG or COG masks, at the training resolution if
-asked); :mod:`training.metrics` and :mod:`training.pictures` score predictions and draw
+asked); :mod:`training.metrics` and :mod:`training.figures` score predictions and draw
 confusion matrices, qualitative panels and training curves.
 
 Imports: the osmseg core only (never :mod:`localization`).

@@ -27,8 +27,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from osmseg.errors import CheckpointError, ConfigError
+from osmseg.errors import ConfigError
 from training.distributed import pick_device
+from training.errors import CheckpointError
 from training.model import SegNet, build_model
 from training.spec import ModelSpec
 
@@ -50,7 +51,7 @@ def storable(obj: Any, where: str = "state") -> Any:
     {'lr': 0.5, 'out': 'runs/a', 'steps': [1, (2, 3)]}
     >>> storable({"rng": np.zeros(3)})
     Traceback (most recent call last):
-    osmseg.errors.CheckpointError: state['rng'] is a numpy.ndarray, which checkpoints cannot hold; store a tensor or a list
+    training.errors.CheckpointError: state['rng'] is a numpy.ndarray, which checkpoints cannot hold; store a tensor or a list
     """
     if type(obj) in _SCALARS or isinstance(obj, _OBJECTS):
         return obj

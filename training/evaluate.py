@@ -34,7 +34,7 @@ from training.data import SampleFiles, dataset_class_table, discover_dataset
 from training.infer import InferenceOptions
 from training.predict import predict_image, target_resolution
 from training.metrics import ConfusionMatrix, format_table, load_class_mapping
-from training.pictures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
+from training.figures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
 from training.train import dataset_fingerprint, has_class_table, model_classes
 
 logger = logging.getLogger(__name__)

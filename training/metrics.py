@@ -41,7 +41,7 @@ import torch
 from torch import Tensor
 
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.manifests import load_toml
+from osmseg.datafiles import load_toml
 
 __all__ = [
     "ConfusionMatrix",

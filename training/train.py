@@ -130,7 +130,7 @@ class RunFiles:
                     self.writer.add_scalar(key, row[key], row["epoch"])
             self.writer.flush()
         try:
-            from training.pictures import training_curves_png
+            from training.figures import training_curves_png
 
             training_curves_png(history, self.out / "curves.png")
         except ImportError:  # matplotlib is part of the train extra; never fail a run over a picture

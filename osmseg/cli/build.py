@@ -1,4 +1,9 @@
-"""``osmseg build``: make a segmentation dataset from OpenStreetMap and aerial imagery."""
+"""``osmseg build``: make a segmentation dataset from OpenStreetMap and aerial imagery.
+
+The options are parsed into a :class:`~osmseg.build.BuildConfig` by :func:`build_config`, and
+the command recorded in the manifest is generated back from the same option table by
+:func:`recorded_command` (flags spelled as click knows them), so the two cannot drift.
+"""
 
 from __future__ import annotations
 
@@ -7,16 +12,18 @@ import math
 import os
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import click
 
 from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.filters import FilterConfig
+from osmseg.rejection import FilterConfig
 from osmseg.output import command_line
 from osmseg.cli.common import command_line_of, progress_bars, report_errors
 from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT, missing_bing_key
 from osmseg.places import Area, find_preset, parse_bbox
+from osmseg.redact import redact
 
 
 def default_cache_dir() -> Path:
@@ -52,7 +59,7 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
     """Run a build (a progress bar if ``progress``) and print the summary (stderr) and output path (stdout)."""
     try:
         with progress_bars(progress) as bars:
-            summary = build(config, env=env, progress=bars, command_line=command_line(config.command()))
+            summary = build(config, env=env, progress=bars, command_line=command_line(recorded_command(config)))
     except OSError as exc:
         if exc.errno != errno.ENOSPC:
             raise
@@ -133,7 +140,7 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
       osmseg build --lat 0.35 --lon 32.59 --zoom 21 --imagery 'xyz:file:///data/tiles/{z}/{x}/{y}.png' \\
                    --osm buildings.osm.pbf --out data/kampala
     """
-    area = resolve_area(city, lat, lon, bbox, radius_km)
+    resolve_area(city, lat, lon, bbox, radius_km)  # a usage error before anything else is said
     env = dict(os.environ)
     if replay and not env.get(BING_KEY_ENV):
         env[BING_KEY_ENV] = "replayed-without-key"  # recorded requests are matched without their key
@@ -141,16 +148,84 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
         # Bing Maps Basic keys no longer exist: say so, and give a command that works as it is
         raise ConfigError(f"{missing_bing_key(imagery is not None)}; run instead: "
                           f"{command_line_of(ctx, imagery=KEYLESS_DEFAULT)}  (keyless; other providers: docs/imagery.md)")
+    config = build_config(**ctx.params)
+    run_build(config, ctx.obj["verbosity"], ctx.obj.get("progress", False), env=env)
+
+
+def build_config(*, city: str | None, lat: float | None, lon: float | None, radius_km: float | None,
+                 bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, osm: str, classes: str,
+                 image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float,
+                 max_missing_imagery: float, max_placeholder_tiles: int, max_tries: int, no_overlap: bool,
+                 out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool, shard: str | None,
+                 make_zip: bool, record: Path | None, replay: Path | None) -> BuildConfig:
+    """The :class:`BuildConfig` that ``osmseg build``'s options (by parameter name) describe."""
+    if record and replay:
+        raise ConfigError("--record and --replay exclude each other")
     filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes, min_contrast=min_contrast,
                            max_invalid_imagery=max_missing_imagery, max_placeholder_tiles=max_placeholder_tiles)
     config = BuildConfig(
-        out_dir=out_dir, area=area, imagery=imagery or "bing", osm=osm,
+        out_dir=out_dir, area=resolve_area(city, lat, lon, bbox, radius_km), imagery=imagery or "bing", osm=osm,
         samples=samples, seed=seed, zoom=zoom, classes=classes, image_format=image_format, filters=filters,
         max_tries=max_tries, cache_dir=cache_dir or default_cache_dir(), offline=offline, http_timeout=http_timeout,
         shard=Shard.parse(shard) if shard else None, zip=make_zip, no_overlap=no_overlap,
     )
-    if record and replay:
-        raise ConfigError("--record and --replay exclude each other")
     if record or replay:
         config = replace(config, cassette=record or replay, cassette_mode="record" if record else "replay")
-    run_build(config, ctx.obj["verbosity"], ctx.obj.get("progress", False), env=env)
+    return config
+
+
+#: ``osmseg build`` options that never change what is built, left out of the recorded command:
+#: every shard and every resumed run, and the same dataset built in another folder, record one line.
+NOT_CONTENT = frozenset({"out_dir", "cache_dir", "http_timeout", "offline", "shard", "make_zip", "record", "replay"})
+
+
+def content_options(config: BuildConfig) -> dict[str, Any]:
+    """The value of every content option of ``osmseg build`` that gives ``config`` (the
+    inverse of :func:`build_config`; None or False: the option is left out)."""
+    a, f = config.area, config.filters
+    if a.kind != "custom":
+        where: dict[str, Any] = {"city": a.name, "radius_km": a.radius_km}
+    elif a.bbox is not None:
+        where = {"bbox": ",".join(repr(v) for v in a.bbox)}
+    else:
+        where = {"lat": a.lat, "lon": a.lon, "radius_km": a.radius_km}
+    return {
+        "city": None, "lat": None, "lon": None, "radius_km": None, "bbox": None, **where,
+        "samples": config.samples, "seed": config.seed, "zoom": config.zoom,
+        "imagery": redact(config.imagery), "osm": redact(config.osm), "classes": config.classes,
+        "image_format": config.image_format, "max_unlabeled": f.max_unlabeled, "min_classes": f.min_classes,
+        "min_contrast": f.min_contrast, "max_missing_imagery": f.max_invalid_imagery,
+        "max_placeholder_tiles": f.max_placeholder_tiles, "max_tries": config.max_tries,
+        "no_overlap": config.no_overlap,
+    }
+
+
+def _number(value: float, exact: bool) -> str:
+    """A float as short text that reads back as the same value (``%g`` when that loses nothing).
+
+    >>> _number(0.7, False), _number(2.0, True), _number(0.123456789, False)
+    ('0.7', '2.0', '0.123456789')
+    """
+    short = f"{value:g}"
+    return repr(value) if exact or float(short) != value else short
+
+
+def recorded_command(config: BuildConfig) -> list[str]:
+    """The canonical ``osmseg build`` command that makes ``config``'s dataset, in the option
+    table's order with its own flag names (recorded in the manifest; secrets redacted)."""
+    values = content_options(config)
+    words = ["osmseg", "build"]
+    for param in build_command.params:
+        if not isinstance(param, click.Option) or param.name in NOT_CONTENT:
+            continue
+        value = values[str(param.name)]  # a new option must say here what it records
+        if value is None or value is False:
+            continue
+        flag = max(param.opts, key=len)
+        if value is True:
+            words.append(flag)
+        elif isinstance(value, float):  # the area's coordinates as typed (repr), thresholds short
+            words += [flag, _number(value, exact=param.name in ("lat", "lon", "radius_km"))]
+        else:
+            words += [flag, str(value)]
+    return words

@@ -22,14 +22,20 @@ from typing import Any
 import mercantile
 
 from osmseg.errors import DatasetError
-from osmseg.filters import REASONS, Rejection
+from osmseg.rejection import REASONS, Rejection
 from osmseg.grid import SampleGrid
 from osmseg.redact import redact
 from osmseg.output.atomic import atomic_write_text, sha256_file
 
 MANIFEST_NAME = "manifest.json"
 FORMAT = "osmseg-dataset"
-FORMAT_VERSION = 1
+#: Version 2 writes each build setting once: the top-level keys (area, seed, zoom, grid_size,
+#: image_format, filters) and ``config`` for the rest; version 1 repeated them all in ``config``.
+FORMAT_VERSION = 2
+#: The versions this osmseg reads.
+READ_VERSIONS = (1, 2)
+#: Build settings written at the top level, so not again in ``config`` (version 2).
+TOP_LEVEL_SETTINGS = ("area", "seed", "zoom", "grid_size", "image_format", "filters")
 #: Folders holding per-sample files (each file listed in the manifest).
 SAMPLE_DIRS = ("images", "segmented", "labels", "geo")
 #: Keys every manifest has (see docs/dataset-format.md).
@@ -202,15 +208,37 @@ def read_manifest(path: Path) -> dict[str, Any]:
     return manifest
 
 
+def config_entry(identity: dict[str, Any]) -> dict[str, Any]:
+    """The manifest's ``config``: the build's identity less what the top level already says.
+
+    >>> config_entry({"seed": 1, "zoom": 18, "samples": 4, "imagery": "bing"})
+    {'samples': 4, 'imagery': 'bing'}
+    """
+    return {k: v for k, v in identity.items() if k not in TOP_LEVEL_SETTINGS}
+
+
+def build_identity(manifest: dict[str, Any]) -> dict[str, Any]:
+    """Everything that decided a dataset's content (``BuildConfig.identity()``), from a manifest
+    of any version: version 1 kept it whole in ``config``, version 2 once across the top level
+    and ``config``."""
+    if manifest.get("format_version") == 1:
+        return dict(manifest.get("config") or {})
+    top = {key: manifest[key] for key in TOP_LEVEL_SETTINGS if key in manifest}
+    if isinstance(top.get("area"), dict):
+        top["area"] = {k: v for k, v in top["area"].items() if v is not None}
+    return {**top, **(manifest.get("config") or {})}
+
+
 def validate_manifest(manifest: Any, where: str = "manifest") -> None:
     """Raise :class:`DatasetError` (one line) if ``manifest`` does not have the documented shape."""
     if not isinstance(manifest, dict):
         raise DatasetError(f"{where}: top level must be a JSON object")
     if manifest.get("format") != FORMAT:
         raise DatasetError(f"{where}: format is {manifest.get('format')!r}, expected {FORMAT!r}")
-    if manifest.get("format_version") != FORMAT_VERSION:
+    if manifest.get("format_version") not in READ_VERSIONS:
         raise DatasetError(
-            f"{where}: format_version {manifest.get('format_version')!r} is not {FORMAT_VERSION}; use a matching osmseg"
+            f"{where}: format_version {manifest.get('format_version')!r} is not one of {list(READ_VERSIONS)}; "
+            "use a matching osmseg"
         )
     missing = [k for k in REQUIRED_KEYS if k not in manifest]
     if missing:

@@ -60,8 +60,8 @@ from osmseg.grid import TILE_SIZE
 from osmseg.output.atomic import atomic_write_text
 from osmseg.output.attribution import ATTRIBUTION_NAME, ODBL_URL, OSM_COPYRIGHT_URL, LabelSource
 from osmseg.output.datasheet import DATASHEET_NAME
-from osmseg.output.manifest import MANIFEST_NAME, validate_manifest
-from osmseg.output.pictures import OVERVIEW_NAME
+from osmseg.output.manifest import MANIFEST_NAME, build_identity, validate_manifest
+from osmseg.output.overview import OVERVIEW_NAME
 
 STAC_DIR = "stac"
 CATALOG_NAME = "catalog.json"
@@ -262,7 +262,7 @@ def _collection(manifest: dict[str, Any], table: ClassTable, classes: list[Class
     area = manifest["area"]
     place = str(area.get("name") or "area")
     labels = LabelSource.of(manifest)
-    identity = json.dumps(manifest.get("config") or manifest["command"], sort_keys=True, ensure_ascii=False)
+    identity = json.dumps(build_identity(manifest) or manifest["command"], sort_keys=True, ensure_ascii=False)
     slug = re.sub(r"[^0-9a-z]+", "-", place.lower()).strip("-") or "area"
     boxes = [i.bbox for i in items if i.bbox] or [_numbers(area.get("bbox") or [-180, -90, 180, 90], 4, "area.bbox")]
     starts = [i.datetime or i.common_metadata.start_datetime for i in items]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from osmseg.errors import ConfigError
-from osmseg.filters import REASONS, FilterConfig, Rejection, check_imagery, check_labels, check_sample, grey_std
+from osmseg.rejection import REASONS, FilterConfig, Rejection, check_imagery, check_labels, check_sample, grey_std
 from conftest import shared_path
 
 DEFAULT = FilterConfig()

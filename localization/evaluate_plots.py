@@ -1,6 +1,6 @@
 """Pictures of a localization benchmark: the error CDF and the number-of-classes trend.
 
-Both read the ``results.json`` document of :func:`localization.bench.run_bench` (rendered
+Both read the ``results.json`` document of :func:`localization.evaluate.run_bench` (rendered
 panoramas, errors in metres) or :func:`localization.pairs.run_pairs` (annotated pairs, errors
 in metres given a resolution, else in pixels): ``results["unit"]`` says which, and the recall
 radii are the keys of ``summary["recall_at"]``.
@@ -20,9 +20,9 @@ __all__ = ["plot_errors", "plot_classes"]
 
 
 def _figures() -> Any:
-    """:mod:`osmseg.output.figures`, or a one-line error when matplotlib is missing."""
+    """:mod:`osmseg.output.plotting`, or a one-line error when matplotlib is missing."""
     try:
-        from osmseg.output import figures
+        from osmseg.output import plotting as figures
     except ImportError:
         raise ConfigError("the benchmark plots need matplotlib: pip install matplotlib (or pass --no-plots)") from None
     return figures

@@ -1,7 +1,7 @@
 """Evaluation pictures: confusion matrix, qualitative panels, training curves, per-class IoU.
 
 Every picture is drawn with matplotlib's object-oriented API on an Agg canvas created here
-(osmseg.output.figures: a Figure on its own Agg canvas), never through ``pyplot``: no
+(osmseg.output.plotting: a Figure on its own Agg canvas), never through ``pyplot``: no
 global backend is switched, no figure is registered in pyplot's figure manager (so nothing
 stays open after a call, and nothing needs a display), and style settings are applied with
 :func:`matplotlib.rc_context`, which restores ``rcParams`` on exit. Each PNG is rendered into
@@ -26,7 +26,7 @@ import numpy as np
 from matplotlib.patches import Patch
 
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.output.figures import figure as _figure, save_png as _save
+from osmseg.output.plotting import figure as _figure, save_png as _save
 
 __all__ = ["confusion_matrix_png", "qualitative_panels", "training_curves_png", "per_class_iou_png"]
 

@@ -1,4 +1,5 @@
-"""Rendered-panorama benchmark: how well does landmark-graph matching find a panorama's viewpoint?
+"""Evaluate localization on rendered panoramas (``osmseg localize-bench``): how well does
+landmark-graph matching find a panorama's viewpoint? (The speed scripts are in ``benchmarks/``.)
 
 Real ground panoramas paired with aerial images are not available offline, so we make them:
 for each of N seeded viewpoints placed anywhere on standable ground of an aerial label mask
@@ -36,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from localization.bench_plots import plot_classes, plot_errors
+from localization.evaluate_plots import plot_classes, plot_errors
 from localization.graph import cliques_fast
 from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
 from localization.match import DEFAULT_P, Localization
@@ -422,7 +423,7 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
 def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, config: BenchConfig) -> list[Path]:
     """``STEM_map.png`` (the mask with candidates, top-k and truth) and ``STEM_panorama.png`` (its graph)."""
     from localization.graph import adjacency
-    from localization.pictures import graph_png, localization_png
+    from localization.figures import graph_png, localization_png
 
     loc = run(LocalizeConfig(p=config.p, top_k=config.top_k), graph, view.landmarks)
     query = view.landmarks

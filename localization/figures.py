@@ -9,7 +9,7 @@
   class, the covisibility edges in grey (a panorama's edges across its left/right seam are
   drawn the short way round, leaving one side and entering the other).
 
-House style as :mod:`training.pictures`: matplotlib's object-oriented API on an Agg canvas
+House style as :mod:`training.figures`: matplotlib's object-oriented API on an Agg canvas
 (never ``pyplot``), style through :func:`matplotlib.rc_context`, PNGs rendered in memory
 without a software stamp (same input, same bytes) and written atomically.
 """
@@ -29,7 +29,7 @@ from matplotlib.patches import Rectangle
 from localization.landmarks import Landmarks
 from localization.match import Localization
 from osmseg.errors import ConfigError
-from osmseg.output.figures import figure as _figure, save_png as _save
+from osmseg.output.plotting import figure as _figure, save_png as _save
 
 __all__ = ["CANDIDATE", "TOP_K", "TRUTH", "class_colours", "graph_png", "localization_png"]
 
