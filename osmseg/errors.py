@@ -10,6 +10,17 @@ subclass :class:`OsmsegError` for their own errors (``training.errors.Checkpoint
 from __future__ import annotations
 
 
+def first_line(exc: BaseException, limit: int = 300) -> str:
+    """The first line of an exception's message (its type name if it has none), at most ``limit``
+    characters: how a library's long or multi-line error goes into one of ours.
+
+    >>> first_line(ValueError("bad value\\nmore detail")), first_line(KeyError())
+    ('bad value', 'KeyError')
+    """
+    text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
 class OsmsegError(Exception):
     """Root of all osmseg errors."""
 

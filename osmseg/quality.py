@@ -4,7 +4,8 @@ OSM outlines and aerial imagery can be offset from each other by metres (imagery
 misregistration, old tracing). Object outlines in a good mask run along strong edges in the
 image; shifting the mask by a few pixels moves them off those edges. :func:`edge_alignment`
 measures the mean image edge strength along a class's outline for every shift in a window
-and reports the best one: (0, 0) means the mask sits on the image.
+and reports the best one: (0, 0) means the mask sits on the image; :func:`dataset_alignment`
+does it for every sample of a dataset (``osmseg verify --alignment CLASS``).
 
 >>> import numpy as np
 >>> img = np.zeros((64, 64, 3), np.uint8); img[20:40, 20:40] = 200
@@ -17,9 +18,16 @@ and reports the best one: (0, 0) means the mask sits on the image.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
+
+from osmseg.classes import ClassTable
+from osmseg.errors import ConfigError
+from osmseg.images import read_label, read_rgb
+from osmseg.output.manifest import read_manifest
 
 
 class Alignment(NamedTuple):
@@ -77,3 +85,37 @@ def edge_alignment(rgb: np.ndarray, mask: np.ndarray, max_shift: int = 6) -> Ali
     # the outline sampled at +(dx, dy) hits the edges: moving the mask by (dx, dy) lines it up
     return Alignment(best=(int(ix) - max_shift, int(iy) - max_shift), at_zero=float(score[max_shift, max_shift]),
                      far=float(np.mean(far)), outline_pixels=int(rows.size))
+
+
+def dataset_alignment(dataset: Path, class_name: str, skip: Iterable[str] = ()) -> dict[str, dict[str, Any]]:
+    """Per sample of an ``osmseg build`` dataset, how ``class_name``'s outlines sit on the image edges.
+
+    Sample name -> ``{"dx", "dy", "edge_at_zero", "edge_far", "outline_pixels"}`` (see
+    :class:`Alignment`); a sample without that class says so (``dx``/``dy`` None and a
+    ``note``) instead of a (0, 0) that would read as "lined up". Samples whose image or label
+    file is in ``skip`` (relative paths, e.g. files :func:`osmseg.output.verify` found broken)
+    are left out. ConfigError when the dataset has no such class.
+    """
+    manifest = read_manifest(dataset)
+    table = ClassTable.from_dict(manifest["classes"], f"{dataset}/manifest.json classes")
+    wanted = table.by_name.get(class_name)
+    if wanted is None:
+        names = ", ".join(c.name for c in table.classes)
+        raise ConfigError(f"--alignment {class_name!r}: not a class of this dataset; use one of {names}")
+    skipped = set(skip)
+    offsets: dict[str, dict[str, Any]] = {}
+    for sample in manifest["samples"]:
+        files = sample["files"]
+        image = next((k for k in files if k.startswith("images/")), None)
+        label = next((k for k in files if k.startswith("labels/")), None)
+        if image is None or label is None or image in skipped or label in skipped:
+            continue
+        mask = read_label(Path(dataset) / label) == wanted.id
+        if not mask.any():
+            offsets[sample["name"]] = {"dx": None, "dy": None, "outline_pixels": 0,
+                                       "note": f"no {class_name} pixels in this sample"}
+            continue
+        fit = edge_alignment(read_rgb(Path(dataset) / image), mask)
+        offsets[sample["name"]] = {"dx": fit.best[0], "dy": fit.best[1], "edge_at_zero": round(fit.at_zero, 1),
+                                   "edge_far": round(fit.far, 1), "outline_pixels": fit.outline_pixels}
+    return offsets

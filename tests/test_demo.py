@@ -35,6 +35,13 @@ def test_demo_builds_offline_and_says_what_it_used(tmp_path: Path) -> None:
     assert verified.exit_code == 0
     offsets = json.loads(verified.stdout)["alignment"]["offsets"].values()
     assert all(o["dx"] == 0 and o["dy"] == 0 for o in offsets)
+    # a class missing from a sample is said to be missing, not reported as lined up at (0, 0)
+    water = json.loads(CliRunner().invoke(cli, ["verify", str(out), "--alignment", "water"]).stdout)
+    noted = {name for name, o in water["alignment"]["offsets"].items() if o["dx"] is None}
+    assert noted == {s["name"] for s in manifest["samples"] if not s["class_histogram"].get("water")}
+    assert all(water["alignment"]["offsets"][n]["note"] == "no water pixels in this sample" for n in noted)
+    unknown = CliRunner().invoke(cli, ["verify", str(out), "--alignment", "lava"])
+    assert unknown.exit_code == 2 and "'lava': not a class of this dataset; use one of building" in unknown.output
     # then panoramas rendered from those masks were localized in them, with pictures
     loc = tmp_path / "demo" / "localize"
     results = json.loads((loc / "results.json").read_text())

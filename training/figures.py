@@ -25,6 +25,7 @@ import matplotlib
 import numpy as np
 from matplotlib.patches import Patch
 
+from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.plotting import figure as _figure, save_png as _save
 
@@ -35,17 +36,10 @@ MAX_ANNOTATED = 16
 Panel = tuple[str, np.ndarray, np.ndarray, np.ndarray]
 
 
-def _classes(class_table: Mapping[str, Any]) -> list[tuple[int, str, tuple[int, int, int]]]:
-    """(id, name, rgb) of each class of a ``ClassTable.to_dict()`` table, by id."""
-    try:
-        entries = [(int(c["id"]), str(c["name"]), tuple(int(v) for v in c["color"])) for c in class_table["classes"]]
-    except (KeyError, TypeError, ValueError):
-        raise ConfigError("class table must look like ClassTable.to_dict(): "
-                          "{'name': ..., 'classes': [{'id', 'name', 'color'}]}") from None
-    for cid, name, rgb in entries:
-        if not (0 <= cid < 256 and len(rgb) == 3 and all(0 <= v <= 255 for v in rgb)):
-            raise ConfigError(f"class table entry {name!r}: id must be 0..255 and color three values 0..255")
-    return sorted(entries)  # type: ignore[arg-type]
+def _classes(class_table: ClassTable | Mapping[str, Any]) -> list[tuple[int, str, tuple[int, int, int]]]:
+    """(id, name, rgb) of each class of a table (a ClassTable or its ``to_dict()``), by id."""
+    table = class_table if isinstance(class_table, ClassTable) else ClassTable.from_dict(class_table)
+    return sorted((c.id, c.name, c.color) for c in (table.unlabeled, *table.classes))
 
 
 def _palette(class_table: Mapping[str, Any]) -> np.ndarray:

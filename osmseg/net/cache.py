@@ -28,7 +28,7 @@ from requests_cache.backends.sqlite import SQLiteCache, SQLiteDict
 from requests_cache.cache_keys import redact_response
 from requests_cache.models.response import CachedResponse
 
-from osmseg.errors import CacheError
+from osmseg.errors import CacheError, first_line
 from osmseg.redact import redact
 
 
@@ -114,7 +114,7 @@ class LockedSQLiteCache(SQLiteCache):
 
 def _cache_error(path: Path | str, exc: BaseException) -> CacheError:
     """One line for a cache database that fails (``database or disk is full``, read-only, corrupt)."""
-    reason = _first_line(exc)
+    reason = first_line(exc)
     full = "full" in reason.lower() or getattr(exc, "errno", None) == errno.ENOSPC
     advice = ("free disk space, or give --cache-dir on a disk with room" if full else
               "check the folder's permissions and free space, or give another --cache-dir")
@@ -122,6 +122,3 @@ def _cache_error(path: Path | str, exc: BaseException) -> CacheError:
                       "(finished samples are kept)")
 
 
-def _first_line(exc: BaseException, limit: int = 300) -> str:
-    text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-    return text if len(text) <= limit else text[: limit - 1] + "…"

@@ -32,7 +32,6 @@ under a millisecond; network time is not serialised).
 from __future__ import annotations
 
 import logging
-import re
 import threading
 import time
 from collections.abc import Callable, Collection, Iterator, Mapping
@@ -45,8 +44,6 @@ from urllib.parse import urlsplit
 import requests
 from requests.adapters import HTTPAdapter
 from requests_cache import NEVER_EXPIRE, CachedSession
-from urllib3.exceptions import InvalidHeader
-from urllib3.util import Retry
 
 from osmseg import __version__
 from osmseg.errors import (
@@ -59,8 +56,18 @@ from osmseg.errors import (
     OsmsegError,
     RetriesExhausted,
     ServiceUnavailable,
+    first_line,
 )
 from osmseg.net.cache import LockedSQLiteCache
+from osmseg.net.failures import (
+    BAD_URL_EXCEPTIONS,
+    NO_CONNECTION,
+    RETRY_EXCEPTIONS,
+    HostGate,
+    describe_failure,
+    retry_after,
+    status_hint,
+)
 from osmseg.net.cassette import RETRY_STATUSES, RecordAdapter, ReplayAdapter
 from osmseg.redact import SECRET_HEADERS, SECRET_PARAMS, install_log_redaction, redact
 
@@ -72,22 +79,6 @@ DEFAULT_HOST_LIMITS: Mapping[str, int] = {"api.openstreetmap.org": 2, "overpass-
 #: Name of the cache file inside ``HttpConfig.cache_dir``.
 CACHE_FILE = "http.sqlite"
 DEFAULT_USER_AGENT = f"osmseg/{__version__} (+https://github.com/osmseg/osmseg)"
-
-# Exceptions worth another attempt.  SSL errors are ConnectionErrors too but do not heal.
-_RETRY_EXCEPTIONS = (
-    requests.exceptions.ConnectionError,  # refused, reset, DNS, and truncated bodies
-    requests.exceptions.Timeout,
-    requests.exceptions.ChunkedEncodingError,
-    requests.exceptions.ContentDecodingError,
-)
-#: how :func:`_describe` names failures to connect at all (as opposed to a broken answer)
-_NO_CONNECTION = ("connection failed", "no connection within")
-
-_BAD_URL_EXCEPTIONS = (
-    requests.exceptions.MissingSchema,
-    requests.exceptions.InvalidSchema,
-    requests.exceptions.InvalidURL,
-)
 
 install_log_redaction(__name__)
 
@@ -135,78 +126,6 @@ class HttpConfig:
             raise ConfigError(f"per-host HTTP limits must be >= 1, got {limits}")
 
 
-class _HostGate:
-    """Concurrency slots for one host plus a shared "not before" time set by Retry-After."""
-
-    def __init__(self, limit: int) -> None:
-        self.slots = threading.BoundedSemaphore(limit)
-        self._lock = threading.Lock()
-        self._not_before = 0.0
-
-    def pause(self, seconds: float) -> None:
-        """Ask every caller of this host to wait ``seconds`` from now before sending."""
-        with self._lock:
-            self._not_before = max(self._not_before, time.monotonic() + seconds)
-
-    def wait(self) -> None:
-        """Sleep until the host's pause (if any) is over."""
-        while True:
-            with self._lock:
-                delay = self._not_before - time.monotonic()
-            if delay <= 0:
-                return
-            time.sleep(delay)
-
-
-def _first_line(exc: BaseException, limit: int = 300) -> str:
-    text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-    return text if len(text) <= limit else text[: limit - 1] + "…"
-
-
-def _retry_after(response: requests.Response) -> float | None:
-    """Seconds the server asks us to wait (``Retry-After`` as seconds or HTTP date), if any."""
-    value = response.headers.get("Retry-After")
-    if not value:
-        return None
-    try:
-        return max(0.0, float(Retry().parse_retry_after(value)))
-    except InvalidHeader:
-        return None
-
-
-def _describe(exc: BaseException, timeout: float) -> str:
-    """A short, secret-free phrase for a transport failure."""
-    if isinstance(exc, requests.exceptions.ConnectTimeout):
-        return f"no connection within {timeout:g} s"
-    if isinstance(exc, requests.exceptions.Timeout):
-        return f"no data within {timeout:g} s"
-    if isinstance(exc, requests.exceptions.ChunkedEncodingError):
-        return "connection dropped mid-response (truncated body)"
-    if isinstance(exc, requests.exceptions.ContentDecodingError):
-        return "undecodable (corrupt compressed) body"
-    text = str(exc)
-    if "IncompleteRead" in text or "Connection broken" in text:
-        return "connection dropped mid-response (truncated body)"
-    if "RemoteDisconnected" in text or "Connection aborted" in text or "Connection reset" in text:
-        return "connection dropped before the answer"  # the host was reached: not a connection failure
-    match = re.search(r"\[Errno -?\d+\] ([^'\")\]]+)", text)
-    return f"connection failed ({match.group(1).strip()})" if match else "connection failed"
-
-
-_HINTS = {
-    401: "check the API key or token (its environment variable) and its permissions",
-    404: "check the URL or tile template",
-    429: "the service keeps rate-limiting: wait, then run the same command again",
-    500: "the service keeps failing: run the same command again later",
-}
-
-
-def _status_hint(status: int) -> str:
-    """What the user can do about an HTTP error status."""
-    key = 401 if status == 403 else min(status, 500)
-    return _HINTS.get(key, "check the request (URL, parameters, key)")
-
-
 class HttpClient:
     """GET/POST with cache, retries, per-host limits and offline mode; see the module doc.
 
@@ -220,7 +139,7 @@ class HttpClient:
         self.config = config if config is not None else HttpConfig()
         install_log_redaction(__name__)
         self._session = self._make_session()
-        self._gates: dict[str, _HostGate] = {}
+        self._gates: dict[str, HostGate] = {}
         self._gates_lock = threading.Lock()
         self._answered: set[str] = set()  # hosts that have answered (any HTTP status) in this client's life
         self._warned: set[str] = set()  # hosts whose retries were already said at WARNING
@@ -366,12 +285,12 @@ class HttpClient:
         session.headers["User-Agent"] = cfg.user_agent
         return session
 
-    def _gate(self, host: str) -> _HostGate:
+    def _gate(self, host: str) -> HostGate:
         with self._gates_lock:
             gate = self._gates.get(host)
             if gate is None:
                 limit = self.config.host_limits.get(host, self.config.default_host_limit)
-                gate = self._gates[host] = _HostGate(limit)
+                gate = self._gates[host] = HostGate(limit)
             return gate
 
     def _request(
@@ -404,7 +323,7 @@ class HttpClient:
             outcome = self._send(method, full_url, shown, gate, data=data, headers=headers)
             if isinstance(outcome, str):
                 problem, last_status = outcome, None
-                if attempt >= 1 and host not in self._answered and outcome.startswith(_NO_CONNECTION):
+                if attempt >= 1 and host not in self._answered and outcome.startswith(NO_CONNECTION):
                     # a host that has never answered and cannot be reached twice: no network, a wrong
                     # host name or port. Say so now rather than after minutes of backoff per sample.
                     raise NetworkError(
@@ -420,10 +339,10 @@ class HttpClient:
                 except corrupt as exc:  # a 200 with a body nobody can use: like a 5xx, not the end
                     if cfg.offline:  # the cache is all there is: keep it, and say what to do
                         raise RetriesExhausted(f"{method} {shown}: the cached answer is unusable "
-                                               f"({_first_line(exc)}): run once without --offline to fetch "
+                                               f"({first_line(exc)}): run once without --offline to fetch "
                                                "it again") from None
                     self.forget(outcome)
-                    problem, last_status = f"unusable answer: {_first_line(exc)}", None
+                    problem, last_status = f"unusable answer: {first_line(exc)}", None
                 except OsmsegError:  # the caller refuses the answer itself: never replay it from the cache
                     if not cfg.offline:
                         self.forget(outcome)
@@ -433,7 +352,7 @@ class HttpClient:
             else:  # a status worth retrying
                 self._answered.add(host)
                 problem, last_status = f"HTTP {outcome.status_code}", outcome.status_code
-                asked = _retry_after(outcome)
+                asked = retry_after(outcome)
                 if asked is not None:
                     wait = min(asked, cfg.max_retry_after)
                     gate.pause(wait)
@@ -450,7 +369,7 @@ class HttpClient:
         if last_status is not None:
             raise ServiceUnavailable(
                 f"{method} {shown} failed with HTTP {last_status} after {attempts} attempts: "
-                f"{_status_hint(last_status)}",
+                f"{status_hint(last_status)}",
                 last_status,
             )
         if problem.startswith("unusable answer"):
@@ -465,7 +384,7 @@ class HttpClient:
         method: str,
         url: str,
         shown: str,
-        gate: _HostGate,
+        gate: HostGate,
         *,
         data: Mapping[str, Any] | str | bytes | None,
         headers: Mapping[str, str] | None,
@@ -481,15 +400,15 @@ class HttpClient:
                     headers=dict(headers) if headers else None,
                     timeout=(timeout, timeout),
                 )
-        except _BAD_URL_EXCEPTIONS:
+        except BAD_URL_EXCEPTIONS:
             raise ConfigError(f"{method} {shown}: not a valid http(s) URL") from None
         except requests.exceptions.SSLError:
             raise NetworkError(
                 f"{method} {shown}: TLS/certificate check failed: "
                 "check the host name and the system's CA certificates"
             ) from None
-        except _RETRY_EXCEPTIONS as exc:
-            return _describe(exc, timeout)
+        except RETRY_EXCEPTIONS as exc:
+            return describe_failure(exc, timeout)
 
     def _accept(
         self, method: str, shown: str, response: requests.Response, ok_statuses: Collection[int]
@@ -514,12 +433,12 @@ class HttpClient:
             return True
         if status in (401, 403):
             raise AuthError(
-                f"{method} {shown} was refused (HTTP {status}): {_status_hint(status)}", status
+                f"{method} {shown} was refused (HTTP {status}): {status_hint(status)}", status
             )
         if status not in RETRY_STATUSES:
             reason = f" {response.reason}" if response.reason else ""
             raise HTTPStatusError(
-                f"{method} {shown} failed with HTTP {status}{reason}: {_status_hint(status)}",
+                f"{method} {shown} failed with HTTP {status}{reason}: {status_hint(status)}",
                 status,
             )
         return False
@@ -530,7 +449,7 @@ class HttpClient:
         prepared = requests.models.PreparedRequest()
         try:
             prepared.prepare_url(url, dict(params) if params else None)
-        except _BAD_URL_EXCEPTIONS:
+        except BAD_URL_EXCEPTIONS:
             raise ConfigError(f"not a valid http(s) URL: {redact(url)}") from None
         return str(prepared.url)
 

@@ -55,7 +55,7 @@ from typing import Any
 
 import osmium
 
-from osmseg.errors import ConfigError, OSMDataError
+from osmseg.errors import ConfigError, OSMDataError, first_line
 from osmseg.grid import LngLatBBox, pad_bbox
 from osmseg.osm.base import OsmExtract
 from osmseg.osm.josm import count_deleted, has_deletions, without_deleted
@@ -167,7 +167,7 @@ def scan_osm(path: Path, origin: str, advice: str, fmt: str = "") -> OsmScan:
             elif isinstance(obj, osmium.osm.Relation) and obj.tags.get("type") == "multipolygon":
                 scan.multipolygons[obj.id] = tuple(m.ref for m in obj.members if m.type == "w")
     except RuntimeError as exc:
-        raise OSMDataError(f"{origin} is not valid OSM data ({_first_line(exc)}); {advice}") from None
+        raise OSMDataError(f"{origin} is not valid OSM data ({first_line(exc)}); {advice}") from None
     scan.newest = iso_utc(newest) if newest is not None else None
     return scan
 
@@ -183,8 +183,6 @@ def store_osm_xml(data: bytes, path: Path, origin: str, advice: str) -> OsmScan:
     return scan
 
 
-def _first_line(exc: BaseException) -> str:
-    return (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
 
 
 def read_done(marker: Path) -> OsmExtract | None:
@@ -225,7 +223,7 @@ def osm_file_timestamp(path: Path) -> tuple[str | None, str]:
             header = reader.header()
             stamp = header.get("osmosis_replication_timestamp", "") or header.get("timestamp", "")
     except RuntimeError as exc:
-        raise OSMDataError(f"--osm {path}: cannot read the file header ({_first_line(exc)}); is it an OSM file?") from None
+        raise OSMDataError(f"--osm {path}: cannot read the file header ({first_line(exc)}); is it an OSM file?") from None
     if stamp:
         return stamp, "file header"
     newest = scan_osm(path, f"--osm {path}", "give a valid .osm/.osm.pbf file").newest
@@ -292,7 +290,7 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
                         writer.add(obj)
                         counts[kind] += 1
     except RuntimeError as exc:
-        raise OSMDataError(f"--osm {src}: cannot read it as OSM data ({_first_line(exc)}); "
+        raise OSMDataError(f"--osm {src}: cannot read it as OSM data ({first_line(exc)}); "
                            "give a valid .osm/.osm.pbf/.osm.bz2 file") from None
     return counts
 

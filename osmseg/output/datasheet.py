@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
+from osmseg.classes import ClassTable
 from osmseg.output.atomic import atomic_write_text
 from osmseg.output.attribution import LabelSource
 from osmseg.output.manifest import class_totals
@@ -56,7 +58,7 @@ def _description(d: dict[str, Any] | None) -> list[str]:
     return lines
 
 
-def _hex(rgb: list[int]) -> str:
+def _hex(rgb: Sequence[int]) -> str:
     """``#rrggbb`` of an RGB triple.
 
     >>> _hex([50, 50, 255])
@@ -98,7 +100,8 @@ def render_datasheet(manifest: dict[str, Any]) -> str:
     tool = manifest.get("tool", {})
     tool_text = f"{tool.get('name', 'osmseg')} {tool.get('version', '')}".strip()
     area = manifest.get("area", {}) or {}
-    classes = sorted(manifest["classes"]["classes"], key=lambda c: c["id"])
+    table = ClassTable.from_dict(manifest["classes"], "manifest classes")
+    classes = sorted((table.unlabeled, *table.classes), key=lambda c: c.id)
     zoom = manifest["zoom"]
     grid = manifest.get("grid_size", 5)
     size = grid * 256
@@ -149,10 +152,10 @@ def render_datasheet(manifest: dict[str, Any]) -> str:
         "  |---:|---|---|---:|---:|",
     ]
     for c in classes:
-        count = totals.get(c["name"], 0)
+        count = totals.get(c.name, 0)
         share = 100.0 * count / all_pixels if all_pixels else 0.0
-        rgb = c["color"]
-        out.append(f"  | {c['id']} | {c['name']} | {_hex(rgb)} ({rgb[0]}, {rgb[1]}, {rgb[2]}) | {count:,} | {share:.2f}% |")
+        rgb = c.color
+        out.append(f"  | {c.id} | {c.name} | {_hex(rgb)} ({rgb[0]}, {rgb[1]}, {rgb[2]}) | {count:,} | {share:.2f}% |")
     out += [
         "",
         "- **Unlabeled is not background.** Class 0 marks pixels no OSM feature covers: unmapped",

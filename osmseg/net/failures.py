@@ -1,0 +1,105 @@
+"""How HTTP failures are told apart, waited for and described, for :class:`osmseg.net.http.HttpClient`.
+
+Which exceptions are worth another attempt (:data:`RETRY_EXCEPTIONS`) and which say the URL
+itself is wrong; how long a server asks us to wait (:func:`retry_after`, seconds or an HTTP
+date); a short, secret-free phrase for a failure (:func:`describe_failure`) and what the user
+can do about an HTTP status (:func:`status_hint`); and the per-host gate that limits
+concurrency and holds every caller of a host during a ``Retry-After`` (:class:`HostGate`).
+Imports: requests and urllib3 only.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+import time
+
+import requests
+from urllib3.exceptions import InvalidHeader
+from urllib3.util import Retry
+
+__all__ = ["BAD_URL_EXCEPTIONS", "NO_CONNECTION", "RETRY_EXCEPTIONS", "HostGate", "describe_failure",
+           "retry_after", "status_hint"]
+
+# Exceptions worth another attempt.  SSL errors are ConnectionErrors too but do not heal.
+RETRY_EXCEPTIONS = (
+    requests.exceptions.ConnectionError,  # refused, reset, DNS, and truncated bodies
+    requests.exceptions.Timeout,
+    requests.exceptions.ChunkedEncodingError,
+    requests.exceptions.ContentDecodingError,
+)
+#: how :func:`describe_failure` names failures to connect at all (as opposed to a broken answer)
+NO_CONNECTION = ("connection failed", "no connection within")
+
+BAD_URL_EXCEPTIONS = (
+    requests.exceptions.MissingSchema,
+    requests.exceptions.InvalidSchema,
+    requests.exceptions.InvalidURL,
+)
+
+
+class HostGate:
+    """Concurrency slots for one host plus a shared "not before" time set by Retry-After."""
+
+    def __init__(self, limit: int) -> None:
+        self.slots = threading.BoundedSemaphore(limit)
+        self._lock = threading.Lock()
+        self._not_before = 0.0
+
+    def pause(self, seconds: float) -> None:
+        """Ask every caller of this host to wait ``seconds`` from now before sending."""
+        with self._lock:
+            self._not_before = max(self._not_before, time.monotonic() + seconds)
+
+    def wait(self) -> None:
+        """Sleep until the host's pause (if any) is over."""
+        while True:
+            with self._lock:
+                delay = self._not_before - time.monotonic()
+            if delay <= 0:
+                return
+            time.sleep(delay)
+
+
+def retry_after(response: requests.Response) -> float | None:
+    """Seconds the server asks us to wait (``Retry-After`` as seconds or HTTP date), if any."""
+    value = response.headers.get("Retry-After")
+    if not value:
+        return None
+    try:
+        return max(0.0, float(Retry().parse_retry_after(value)))
+    except InvalidHeader:
+        return None
+
+
+def describe_failure(exc: BaseException, timeout: float) -> str:
+    """A short, secret-free phrase for a transport failure."""
+    if isinstance(exc, requests.exceptions.ConnectTimeout):
+        return f"no connection within {timeout:g} s"
+    if isinstance(exc, requests.exceptions.Timeout):
+        return f"no data within {timeout:g} s"
+    if isinstance(exc, requests.exceptions.ChunkedEncodingError):
+        return "connection dropped mid-response (truncated body)"
+    if isinstance(exc, requests.exceptions.ContentDecodingError):
+        return "undecodable (corrupt compressed) body"
+    text = str(exc)
+    if "IncompleteRead" in text or "Connection broken" in text:
+        return "connection dropped mid-response (truncated body)"
+    if "RemoteDisconnected" in text or "Connection aborted" in text or "Connection reset" in text:
+        return "connection dropped before the answer"  # the host was reached: not a connection failure
+    match = re.search(r"\[Errno -?\d+\] ([^'\")\]]+)", text)
+    return f"connection failed ({match.group(1).strip()})" if match else "connection failed"
+
+
+HINTS = {
+    401: "check the API key or token (its environment variable) and its permissions",
+    404: "check the URL or tile template",
+    429: "the service keeps rate-limiting: wait, then run the same command again",
+    500: "the service keeps failing: run the same command again later",
+}
+
+
+def status_hint(status: int) -> str:
+    """What the user can do about an HTTP error status."""
+    key = 401 if status == 403 else min(status, 500)
+    return HINTS.get(key, "check the request (URL, parameters, key)")
