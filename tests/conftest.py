@@ -12,6 +12,9 @@ import pytest
 REPO_ROOT = Path(__file__).resolve().parent.parent
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
 TEST_DATA = Path(__file__).resolve().parent / "data"
+#: A small hand-made OSM town (tests/data/tinycity) and the centre of its sampling area.
+TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
+TINYCITY_CENTRE = (24.94, 60.17)  # lon, lat
 
 pytest_plugins = ["servers"]  # the http_server fixture: a scripted HTTP server on 127.0.0.1
 
@@ -42,6 +45,35 @@ def write_dataset_manifest(folder: Path, classes: Mapping[str, Any], samples: Se
                 "summary": {}, "classes": dict(classes), "samples": rows}
     path = Path(folder) / "manifest.json"
     path.write_text(json.dumps(manifest), encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="session")
+def imagery_tif(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A GeoTIFF in EPSG:3067 (not the tiles' CRS) painted from tinycity's labels over a 9x9-tile
+    block: imagery whose every pixel says which class OSM puts there, for builds to line up with."""
+    import rasterio
+    from rasterio.warp import calculate_default_transform, reproject
+
+    from osmseg.classes import load_class_table
+    from osmseg.demo.render import render_aerial
+    from osmseg.grid import sample_grid
+    from osmseg.osm.features import read_features
+    from osmseg.rasterize import rasterize
+
+    table = load_class_table("classes13.toml")
+    grid = sample_grid(*TINYCITY_CENTRE, 18, size=9)
+    labels = rasterize(read_features([TINYCITY], grid, table), grid, table)
+    rgb = render_aerial(labels, seed=3).transpose(2, 0, 1)
+    dst_crs = "EPSG:3067"
+    transform, width, height = calculate_default_transform(
+        "EPSG:3857", dst_crs, grid.width, grid.height, *grid.xy_bounds)
+    path = tmp_path_factory.mktemp("imagery") / "tinycity-tm35fin.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=3, dtype="uint8",
+                       crs=dst_crs, transform=transform) as dst:
+        for band in range(3):
+            reproject(rgb[band], rasterio.band(dst, band + 1), src_transform=grid.transform,
+                      src_crs="EPSG:3857", dst_transform=transform, dst_crs=dst_crs)
     return path
 
 

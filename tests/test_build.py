@@ -24,39 +24,16 @@ import pytest
 import rasterio
 from click.testing import CliRunner
 from PIL import Image
-from rasterio.warp import calculate_default_transform, reproject
 from rio_cogeo.cogeo import cog_validate
 
 from osmseg.classes import load_class_table
 from osmseg.cli.main import cli
-from osmseg.demo.render import IDS13, MATERIALS, render_aerial
-from osmseg.grid import sample_grid
-from osmseg.osm.features import read_features
-from osmseg.rasterize import rasterize
+from osmseg.demo.render import IDS13, MATERIALS
 
-from conftest import TEST_DATA
+from conftest import TEST_DATA, TINYCITY, TINYCITY_CENTRE
 
-TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
-LON, LAT = 24.94, 60.17
+LON, LAT = TINYCITY_CENTRE
 TABLE = load_class_table("classes13.toml")
-
-
-@pytest.fixture(scope="module")
-def imagery_tif(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A GeoTIFF in EPSG:3067 painted from tinycity's labels over a 9x9-tile block."""
-    grid = sample_grid(LON, LAT, 18, size=9)
-    labels = rasterize(read_features([TINYCITY], grid, TABLE), grid, TABLE)
-    rgb = render_aerial(labels, seed=3).transpose(2, 0, 1)
-    dst_crs = "EPSG:3067"
-    transform, width, height = calculate_default_transform(
-        "EPSG:3857", dst_crs, grid.width, grid.height, *grid.xy_bounds)
-    path = tmp_path_factory.mktemp("imagery") / "tinycity-tm35fin.tif"
-    with rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=3, dtype="uint8",
-                       crs=dst_crs, transform=transform) as dst:
-        for band in range(3):
-            reproject(rgb[band], rasterio.band(dst, band + 1), src_transform=grid.transform,
-                      src_crs="EPSG:3857", dst_transform=transform, dst_crs=dst_crs)
-    return path
 
 
 def build_args(out: Path, imagery: Path, *extra: str, samples: int = 3) -> list[str]:

@@ -36,7 +36,6 @@ from affine import Affine  # noqa: E402
 from click.testing import CliRunner  # noqa: E402
 from PIL import Image  # noqa: E402
 from rasterio.enums import ColorInterp  # noqa: E402
-from rasterio.warp import calculate_default_transform, reproject  # noqa: E402
 from rio_cogeo.cogeo import cog_validate  # noqa: E402
 from torch.utils.data import DataLoader  # noqa: E402
 from torchgeo.datasets import IntersectionDataset, RasterDataset, stack_samples  # noqa: E402
@@ -44,15 +43,11 @@ from torchgeo.samplers import RandomGeoSampler  # noqa: E402
 
 from osmseg.classes import load_class_table  # noqa: E402
 from osmseg.cli.main import cli  # noqa: E402
-from osmseg.demo.render import IDS13, MATERIALS, render_aerial  # noqa: E402
-from osmseg.grid import sample_grid  # noqa: E402
-from osmseg.osm.features import read_features  # noqa: E402
-from osmseg.rasterize import rasterize  # noqa: E402
+from osmseg.demo.render import IDS13, MATERIALS  # noqa: E402
 
-from conftest import TEST_DATA  # noqa: E402
+from conftest import TINYCITY, TINYCITY_CENTRE  # noqa: E402
 
-TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
-LON, LAT = 24.94, 60.17
+LON, LAT = TINYCITY_CENTRE
 TABLE = load_class_table("classes13.toml")
 SIDE = 1280  # pixels per sample side (5 x 5 tiles of 256 px)
 PATCH, PATCHES, BATCH = 768, 12, 4  # 768 px: most patches hold a few roofs
@@ -76,24 +71,6 @@ class ClassMasks(RasterDataset):
 
     filename_glob = "*.tif"
     is_image = False
-
-
-@pytest.fixture(scope="module")
-def imagery_tif(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A GeoTIFF in EPSG:3067 painted from tinycity's labels over a 9x9-tile block (as tests/test_build.py)."""
-    grid = sample_grid(LON, LAT, 18, size=9)
-    labels = rasterize(read_features([TINYCITY], grid, TABLE), grid, TABLE)
-    rgb = render_aerial(labels, seed=3).transpose(2, 0, 1)
-    dst_crs = "EPSG:3067"
-    transform, width, height = calculate_default_transform(
-        "EPSG:3857", dst_crs, grid.width, grid.height, *grid.xy_bounds)
-    path = tmp_path_factory.mktemp("imagery") / "tinycity-tm35fin.tif"
-    with rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=3, dtype="uint8",
-                       crs=dst_crs, transform=transform) as dst:
-        for band in range(3):
-            reproject(rgb[band], rasterio.band(dst, band + 1), src_transform=grid.transform,
-                      src_crs="EPSG:3857", dst_transform=transform, dst_crs=dst_crs)
-    return path
 
 
 @pytest.fixture(scope="module")

@@ -140,7 +140,7 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
       osmseg build --lat 0.35 --lon 32.59 --zoom 21 --imagery 'xyz:file:///data/tiles/{z}/{x}/{y}.png' \\
                    --osm buildings.osm.pbf --out data/kampala
     """
-    resolve_area(city, lat, lon, bbox, radius_km)  # a usage error before anything else is said
+    config = build_config(**ctx.params)  # usage errors (area, shard, cassette) before anything else is said
     env = dict(os.environ)
     if replay and not env.get(BING_KEY_ENV):
         env[BING_KEY_ENV] = "replayed-without-key"  # recorded requests are matched without their key
@@ -148,7 +148,6 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
         # Bing Maps Basic keys no longer exist: say so, and give a command that works as it is
         raise ConfigError(f"{missing_bing_key(imagery is not None)}; run instead: "
                           f"{command_line_of(ctx, imagery=KEYLESS_DEFAULT)}  (keyless; other providers: docs/imagery.md)")
-    config = build_config(**ctx.params)
     run_build(config, ctx.obj["verbosity"], ctx.obj.get("progress", False), env=env)
 
 
