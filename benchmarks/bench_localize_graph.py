@@ -59,7 +59,10 @@ def timed(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
 
 
 def aerial_mask(seed: int = 0, size: int = 750) -> np.ndarray:
-    """Street grid (roads 14 px, footways 4 px beside them), buildings in the blocks, trees on grass."""
+    """Street grid (roads 14 px, footways 4 px beside them), buildings in the blocks, trees on grass.
+
+    50 buildings and 25 trees per 750 x 750 px: a larger mask is a larger city, as dense.
+    """
     rng = np.random.default_rng(seed)
     mask = np.full((size, size), GRASS, np.uint8)
     streets = np.arange(60, size, 180)
@@ -69,10 +72,10 @@ def aerial_mask(seed: int = 0, size: int = 750) -> np.ndarray:
     for s in streets:
         mask[s - 7:s + 7, :] = HIGHWAY
         mask[:, s - 7:s + 7] = HIGHWAY
-    yy, xx = np.mgrid[:size, :size]
     free = mask == GRASS
+    scale = (size / 750) ** 2
     placed = 0
-    while placed < 50:
+    while placed < round(50 * scale):
         x, y = rng.integers(0, size - 40, 2)
         w, h = rng.integers(15, 40, 2)
         if free[y - 3:y + h + 3, x - 3:x + w + 3].all() and y >= 3 and x >= 3:
@@ -80,12 +83,15 @@ def aerial_mask(seed: int = 0, size: int = 750) -> np.ndarray:
             free[y - 3:y + h + 3, x - 3:x + w + 3] = False
             placed += 1
     placed = 0
-    while placed < 25:
+    while placed < round(25 * scale):
         x, y, r = *rng.integers(8, size - 8, 2), rng.integers(5, 8)
+        yy, xx = np.mgrid[y - r - 3:y + r + 4, x - r - 3:x + r + 4]   # the disc's neighbourhood only
+        yy, xx = np.clip(yy, 0, size - 1), np.clip(xx, 0, size - 1)
         disc = (xx - x) ** 2 + (yy - y) ** 2 <= r * r
-        if free[disc].all():
-            mask[disc] = TREE
-            free[(xx - x) ** 2 + (yy - y) ** 2 <= (r + 3) ** 2] = False
+        if free[yy[disc], xx[disc]].all():
+            mask[yy[disc], xx[disc]] = TREE
+            ring = (xx - x) ** 2 + (yy - y) ** 2 <= (r + 3) ** 2
+            free[yy[ring], xx[ring]] = False
             placed += 1
     return mask
 

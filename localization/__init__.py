@@ -33,6 +33,17 @@ step:
    dataset or mask) and annotated aerial/ground pairs (``localize-bench`` on a pairs folder),
    with their error plots (:mod:`localization.evaluate_plots`).
 
+5. :mod:`localization.profile`, :mod:`localization.search`, :mod:`localization.compare` --
+   **the profile method** (beyond the paper, ``--method profile``): the query's class-wise
+   angular profile (which class is seen first at each azimuth and ground distance) against
+   the profile the aerial mask or landmarks predict at every position of a dense grid, coarse
+   to fine, with the heading known or searched by circular cross-correlation, photos of a
+   limited field of view, and a confidence (kappa of the best match) that says "not in this
+   image"; :mod:`localization.compare` runs the methods side by side in the benchmarks and
+   :mod:`localization.scores` turns their answers into errors, recall and baselines.
+   (:mod:`localization.windows` and :mod:`localization.cells` hold the window arithmetic and
+   the component-landmark sweep of :mod:`localization.graph`.)
+
 Coordinates are pixels throughout: ``x`` is the column, ``y`` the row. numpy and scipy do
 the work; only :mod:`localization.features` runs a network, with torch (the ``train`` extra).
 :func:`localization.pipeline.run` localizes one query given a :class:`LocalizeConfig`; the

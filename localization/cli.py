@@ -162,6 +162,22 @@ def _table(result: Any) -> str:
               help="Dimensions --feature-reduce keeps.")
 @click.option("--feature-checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="Checkpoint whose encoder gives the features [the side's --aerial-checkpoint/--ground-checkpoint].")
+@click.option("--conventions", type=click.Choice(["osmseg", "authors"]), default="osmseg", show_default=True,
+              help="Paper method: osmseg's (windows from pixel 0, each candidate at the mean of its windows, ties "
+                   "by the clique's own likelihood) or the authors' MATLAB demo's (windows from pixel 1, the first "
+                   "window, ties to the first clique in lexicographic order), to reproduce their figures.")
+@click.option("--method", type=click.Choice(["paper", "profile"]), default="paper", show_default=True,
+              help="paper: landmark-graph matching (Verde et al. 2020); profile: angular profiles on a dense grid "
+                   "(docs/localization.md), which also gives the heading and a confidence.")
+@click.option("--heading", "heading_text", default="0", show_default=True,
+              help="Profile method: compass azimuth (degrees) of the ground image's centre column, or 'unknown' "
+                   "to search it. CVUSA-style panoramas are north-aligned: 0.")
+@click.option("--fov", "fov_deg", type=click.FloatRange(10, 360), default=360.0, show_default=True,
+              help="Profile method: horizontal field of view of the ground image in degrees (a photo: 60-120).")
+@click.option("--camera-height", type=click.FloatRange(min=0, min_open=True), default=2.0, show_default=True,
+              help="Profile method: metres of the ground camera above the ground.")
+@click.option("--min-confidence", type=click.FloatRange(-1, 1), default=0.6, show_default=True,
+              help="Profile method: below this confidence the answer is 'not in this image'.")
 @click.pass_context
 @report_errors
 def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, aerial_classes: str,
@@ -172,10 +188,13 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                      reference: bool, truth_text: str | None, resolution: float | None, as_json: bool,
                      out_dir: Path | None, aerial_image: Path | None, ground_image: Path | None,
                      feature_threshold: float | None, feature_metric: str, feature_reduce: str,
-                     feature_components: int, feature_checkpoint: Path | None) -> None:
-    """Find where the GROUND panorama was taken in the AERIAL image by matching landmark graphs."""
+                     feature_components: int, feature_checkpoint: Path | None, conventions: str, method: str,
+                     heading_text: str,
+                     fov_deg: float, camera_height: float, min_confidence: float) -> None:
+    """Find where the GROUND panorama was taken in the AERIAL image (landmark graphs, or angular profiles)."""
     from localization.features import FeatureEdges
     from localization.pipeline import LocalizeConfig, LocalizeFiles, localize_files
+    from localization.search import ProfileConfig
 
     verbosity = (ctx.obj or {}).get("verbosity", 0)
     window, windows, truth = _window(window_text), _windows(windows_text), _point(truth_text)
@@ -185,8 +204,14 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                           "T, or leave them out")
     features = (None if feature_threshold is None else
                 FeatureEdges(feature_threshold, feature_metric, feature_reduce, feature_components))
+    profile_only = ("heading_text", "fov_deg", "camera_height", "min_confidence")
+    if method != "profile" and (stray := _given(ctx, profile_only)):
+        raise ConfigError(f"{', '.join(stray)} apply to --method profile: add it, or leave them out")
     config = LocalizeConfig(window=window, query_window=ground_window, p=p, stride=stride, top_k=top_k,
-                            fast=not reference, hierarchical=hierarchical, windows=windows, features=features)
+                            fast=not reference, hierarchical=hierarchical, windows=windows, features=features,
+                            method=method, conventions=conventions, fov_deg=fov_deg, camera_height_m=camera_height,
+                            profile=ProfileConfig(heading_deg=_heading(heading_text), top_k=top_k,
+                                                  min_confidence=min_confidence))
 
     def side(name: str, classes: str, table: str | None, size: str | None, checkpoint: Path | None,
              is_panorama: bool) -> SideOptions:
@@ -209,7 +234,11 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
     else:
         click.echo(_table(result))
     if verbosity >= 0 and not as_json:
-        if not result.unanswered:
+        if result.method == "profile" and result.confidence is not None:
+            click.echo(f"profile method: heading {result.heading_deg:.1f} deg, confidence {result.confidence:.3f} "
+                       f"(chance agreement {result.chance:.3f}), {len(result.candidates)} positions at the finest "
+                       "level", err=True)
+        elif not result.unanswered:
             ties = f", {result.ties} tied at the top (broken as documented)" if result.ties > 1 else ""
             used = (f"windows {', '.join(str(lv.window) for lv in result.levels)} px (hierarchical)" if hierarchical
                     else f"window {result.window} px{' (auto)' if window is None else ''}")
@@ -220,6 +249,23 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                        + (f" ({report.error_m:.1f} m)" if report.error_m is not None else ""), err=True)
         if report.written:
             click.echo(f"written: {', '.join(f.name for f in report.written)} in {out_dir}/", err=True)
+
+
+def _heading(value: str) -> float | None:
+    """``--heading``: degrees, or None for "unknown".
+
+    >>> _heading("unknown"), _heading("90")
+    (None, 90.0)
+    """
+    if value.strip().lower() == "unknown":
+        return None
+    try:
+        heading = float(value)
+    except ValueError:
+        raise ConfigError(f"--heading must be degrees clockwise from north or 'unknown', got {value!r}") from None
+    if not math.isfinite(heading):
+        raise ConfigError(f"--heading must be a finite number of degrees, got {value!r}")
+    return heading % 360.0
 
 
 def _heights(values: tuple[str, ...]) -> dict[str, float]:
@@ -240,9 +286,10 @@ def _heights(values: tuple[str, ...]) -> dict[str, float]:
 
 #: Options that only make sense for one kind of SOURCE (a mistake to give for the other).
 RENDER_ONLY = ("viewpoints", "seed", "table", "mode", "min_size", "stride", "margin", "stand_on", "width", "height",
-               "camera_height", "max_range", "class_height", "confusion", "miss_small", "miss_prob", "offset",
-               "query_landmarks", "visible_min_px", "save_panoramas", "pictures")
-PAIRS_ONLY = ("aerial_size", "ground_size")
+               "max_range", "class_height", "confusion", "miss_small", "miss_prob", "offset",
+               "query_landmarks", "visible_min_px", "save_panoramas", "pictures", "fov_deg",
+               "height_spread", "negatives")
+PAIRS_ONLY = ("aerial_size", "ground_size", "conventions")
 
 
 def _given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
@@ -307,6 +354,22 @@ def _given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
 @click.option("--aerial-size", help="Annotated pairs: WIDTHxHEIGHT of the aerial images when no image lies beside "
               "the landmark files, e.g. 750x750.")
 @click.option("--ground-size", help="Annotated pairs: WIDTHxHEIGHT of the panoramas, e.g. 1232x224.")
+@click.option("--conventions", type=click.Choice(["osmseg", "authors"]), default="osmseg", show_default=True,
+              help="Annotated pairs, paper method: osmseg's conventions or the authors' MATLAB demo's "
+                   "(see osmseg localize --help); the truth then defaults to (W/2, H/2) as their [375 375].")
+@click.option("--method", "methods_text", default="paper", show_default=True,
+              help="Methods to compare, comma-separated, side by side in one run: paper, profile (e.g. paper,profile).")
+@click.option("--heading", type=click.Choice(["known", "unknown"]), default="known", show_default=True,
+              help="known: north-aligned panoramas; unknown: each view turned to a seeded random heading the "
+                   "methods are not told (the profile method searches it and its error is reported).")
+@click.option("--fov", "fov_deg", type=click.FloatRange(10, 360), default=360.0, show_default=True,
+              help="Horizontal field of view of each view: 360 for panoramas, 60-120 for photos.")
+@click.option("--height-spread", type=click.FloatRange(0, 1, max_open=True), default=0.0, show_default=True,
+              help="Each building and tree gets its class height times U(1-s, 1+s), seeded: heights the methods "
+                   "do not know.")
+@click.option("--negatives/--no-negatives", default=True, show_default=True,
+              help="Also localize each view in another scene: how well each method's confidence separates "
+                   "matching from non-matching pairs (ROC AUC).")
 @click.pass_context
 @report_errors
 def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, viewpoints: int, seed: int, table: str,
@@ -316,7 +379,8 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
                            class_height: tuple[str, ...], confusion: float, miss_small: int, miss_prob: float,
                            offset: float, query_landmarks: str, visible_min_px: int, save_panoramas: int,
                            pictures: int, plots: bool, aerial_size: str | None,
-                           ground_size: str | None) -> None:
+                           ground_size: str | None, methods_text: str, heading: str, fov_deg: float,
+                           height_spread: float, negatives: bool, conventions: str) -> None:
     """Render panoramas at seeded viewpoints of SOURCE and localize them in it.
 
     SOURCE is a dataset folder made by `osmseg build` (its labels/ and manifest.json), or one
@@ -334,6 +398,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
 
     verbosity = ctx.obj["verbosity"] if ctx.obj else 0
     bars = bool(ctx.obj.get("progress", False)) if ctx.obj else False
+    methods = tuple(m.strip() for m in methods_text.split(",") if m.strip())
     pairs = source.is_dir() and is_pairs_folder(source)
     misplaced = _given(ctx, RENDER_ONLY if pairs else PAIRS_ONLY)
     if misplaced:
@@ -343,7 +408,8 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     if pairs:
         pairs_config = PairsConfig(landmarks=landmark_dict or "camvid", window=window, p=p, top_k=top_k,
                                    subsets=subsets, resolution_m=resolution, aerial_size=parse_size(aerial_size, "--aerial-size"),
-                                   ground_size=parse_size(ground_size, "--ground-size"))
+                                   ground_size=parse_size(ground_size, "--ground-size"), methods=methods,
+                                   heading=heading, camera_height_m=camera_height, conventions=conventions)
         with progress_bars(bars) as progress:
             results = run_pairs(load_pairs(source, pairs_config), pairs_config, out_dir, progress=progress,
                                 plots=plots, source=str(source))
@@ -356,9 +422,10 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         viewpoints=viewpoints, seed=seed, landmarks=landmark_dict, mode=mode, min_size=min_size, stride=stride,
         window=window, p=p, top_k=top_k, margin_m=margin, stand_on=tuple(stand_on) or None, subsets=subsets,
         render=RenderConfig(width=width, height=height, camera_height_m=camera_height, max_range_m=max_range,
-                            heights=_heights(class_height)),
+                            heights=_heights(class_height), height_spread=height_spread, height_seed=seed),
         noise=NoiseConfig(confusion=confusion, miss_small_px=miss_small, miss_prob=miss_prob, offset_m=offset),
         save_panoramas=save_panoramas, pictures=pictures, query_landmarks=query_landmarks, visible_min_px=visible_min_px,
+        methods=methods, heading=heading, fov_deg=fov_deg, negatives=negatives,
     )
     if query_landmarks != "visible" and _given(ctx, ("visible_min_px",)):
         raise ConfigError("--visible-min-px applies with --query-landmarks visible only: add it or leave it out")
@@ -395,4 +462,23 @@ def format_summary(results: dict[str, Any]) -> str:
         e = entry["summary"]
         lines.append(f"  {k} classes ({len(entry['subsets'])} subsets): median {e['median_error']} {u}, "
                      f"recall@{second} {u} {e['recall_at'][second]}, unanswered {e['unanswered']}/{e['n']}")
+    methods = results.get("methods") or {}
+    if methods:
+        lines.append(method_table(methods, u))
     return "\n".join(lines)
+
+
+def method_table(methods: dict[str, Any], unit: str) -> str:
+    """The methods side by side: one row each (the numbers of results.json's ``methods``)."""
+    radii = list(next(iter(methods.values()))["recall_at"])
+    head = (f"{'method':<8} {'median':>9} {'mean':>9} " + " ".join(f"{'@' + r + unit:>7}" for r in radii)
+            + f" {'heading':>8} {'AUC':>6} {'s/view':>7}")
+    rows = [head]
+    for name, m in methods.items():
+        def num(v: Any, fmt: str = ".2f") -> str:
+            return "-" if v is None else format(v, fmt)
+        rows.append(f"{name:<8} {num(m['median_error']):>9} {num(m['mean_error']):>9} "
+                    + " ".join(f"{num(m['recall_at'][r]):>7}" for r in radii)
+                    + f" {num(m['median_heading_error_deg'], '.1f'):>8} {num(m['roc_auc'], '.3f'):>6} "
+                    f"{num(m['localize_mean_s'], '.3f'):>7}")
+    return "\n".join(rows)

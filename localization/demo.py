@@ -52,7 +52,7 @@ DEMO_VIEWPOINTS = 12
 
 
 def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: Progress | None) -> None:
-    """Render panoramas in the demo masks and localize them (localize-bench with a few viewpoints)."""
+    """Render panoramas in the demo masks and localize them with both methods (localize-bench, a few viewpoints)."""
     from localization.evaluate import BenchConfig, load_dataset_scenes, run_bench
     from localization.cli import format_summary
 
@@ -60,7 +60,8 @@ def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: Pr
     drawing = importlib.util.find_spec("matplotlib") is not None
     if verbosity >= 0:
         click.echo(f"localizing {DEMO_VIEWPOINTS} rendered panoramas in the dataset's masks into {loc_dir}/", err=True)
-    config = BenchConfig(viewpoints=DEMO_VIEWPOINTS, seed=0, subsets=True, pictures=2 if drawing else 0)
+    config = BenchConfig(viewpoints=DEMO_VIEWPOINTS, seed=0, subsets=True, pictures=2 if drawing else 0,
+                         methods=("paper", "profile"))
     results = run_bench(load_dataset_scenes(dataset), config, loc_dir, progress=progress, plots=drawing,
                         source=str(dataset))
     if verbosity >= 0:

@@ -19,6 +19,13 @@ distance (mean distance of the top-5 candidates to the truth), how many answers 
 how many unanswered, and the same for every subset of 2, 3, ... landmark classes (the trend of
 the dissertation's Figure 5.2). Pictures: ``errors.png`` (the error CDF) and ``classes.png``
 (error and recall against the number of classes).
+
+Every view is rendered once (with per-object heights when ``render.height_spread`` is set, a
+seeded heading when ``heading`` is unknown, cut to a photo of ``fov_deg``) and localized by each
+method of ``methods`` (:mod:`localization.compare`); with ``negatives`` and several scenes, also
+in the next scene. ``results["methods"]`` holds each method's summary side by side, with its
+heading error and the ROC AUC of its confidence; ``confidence.png`` draws the latter. The
+record fields of a view are the first method's; the scoring lives in :mod:`localization.scores`.
 """
 
 from __future__ import annotations
@@ -37,13 +44,17 @@ from typing import Any
 
 import numpy as np
 
-from localization.evaluate_plots import plot_classes, plot_errors
+from localization.compare import method_summary, photo_view, run_method
+from localization.evaluate_plots import plot_classes, plot_confidence, plot_errors
 from localization.graph import cliques_fast
 from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
-from localization.match import DEFAULT_P, Localization
-from localization.pipeline import AerialGraph, LocalizeConfig, aerial_graph, run
-from localization.render import (NoiseConfig, RenderConfig, RenderedView, render_view,
+from localization.match import DEFAULT_P
+from localization.pipeline import METHODS, AerialGraph, LocalizeConfig, aerial_graph, profile_index, run
+from localization.profile import semantic_map
+from localization.render import (NoiseConfig, RenderConfig, RenderedView, object_heights, render_view,
                                  save_panorama_png)
+from localization.scores import _mean, baselines, by_num_classes, chance_errors, score, summarize
+from localization.search import AerialIndex, ProfileConfig
 from localization.visible import landmark_cells, visible_landmarks
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
@@ -55,10 +66,8 @@ from osmseg.output.manifest import manifest_path, read_manifest
 logger = logging.getLogger(__name__)
 
 __all__ = ["Scene", "BenchConfig", "load_dataset_scenes", "load_mask_scene", "place_viewpoints", "class_subsets",
-           "subsets_of", "summarize", "score", "chance_errors", "baselines", "by_num_classes", "aerial_graphs",
-           "localize_subsets", "run_bench", "write_results", "plot_errors", "plot_classes"]
+           "subsets_of", "aerial_graphs", "localize_subsets", "run_bench", "write_results"]
 
-RECALL_RADII_M = (10, 25, 50)
 #: Classes nobody stands on, besides those with a height (buildings, trees).
 NOT_STANDABLE = ("unlabeled", "water")
 #: Landmark dictionaries for the class tables osmseg builds (data_manifests/).
@@ -100,6 +109,11 @@ class BenchConfig:
     pictures: int = 0                   # draw the first K localizations (map + panorama graph) under views/
     query_landmarks: str = "mask"       # "mask": from the rendered panorama; "visible": the aerial ones it shows
     visible_min_px: int = 20            # "visible": panorama pixels an aerial landmark needs to count as seen
+    methods: tuple[str, ...] = ("paper",)   # localized by each, side by side; the first one fills the summary
+    profile: ProfileConfig = field(default_factory=lambda: ProfileConfig(min_confidence=0.0))
+    heading: str = "known"              # "known": north-aligned panoramas; "unknown": a seeded random heading per view
+    fov_deg: float = 360.0              # < 360: each view is a photo of this field of view, not a panorama
+    negatives: bool = True              # also localize each view in another scene (confidence: ROC AUC)
 
     def __post_init__(self) -> None:
         if self.viewpoints < 1:
@@ -114,9 +128,23 @@ class BenchConfig:
             raise ConfigError(f"mode must be centroid, grid or component, got {self.mode!r}")
         if self.query_landmarks not in ("mask", "visible"):
             raise ConfigError(f"query landmarks must be 'mask' or 'visible', got {self.query_landmarks!r}")
+        if not self.methods or any(m not in METHODS for m in self.methods) or len(set(self.methods)) != len(self.methods):
+            raise ConfigError(f"methods must be distinct names among {', '.join(METHODS)}, got {list(self.methods)}")
+        if self.heading not in ("known", "unknown"):
+            raise ConfigError(f"heading must be 'known' or 'unknown', got {self.heading!r}")
+        if not 10 <= self.fov_deg <= 360:
+            raise ConfigError(f"field of view must be between 10 and 360 degrees, got {self.fov_deg:g}")
+        if self.query_landmarks == "visible" and (self.fov_deg < 360 or "profile" in self.methods):
+            raise ConfigError("visible query landmarks are for the paper method on whole panoramas: "
+                              "drop --query-landmarks visible, or --fov and the profile method")
         if self.query_landmarks == "visible" and self.noise.active:
             raise ConfigError("class confusion and missed landmarks apply to mask landmarks: drop them with "
                               "visible query landmarks (the viewpoint offset still applies)")
+
+    @property
+    def subsets_on(self) -> bool:
+        """Class subsets (Figure 5.2) are the paper method's, on whole panoramas."""
+        return self.subsets and self.methods[0] == "paper"
 
     def to_dict(self) -> dict[str, Any]:
         out = dataclasses.asdict(self)
@@ -220,116 +248,27 @@ def class_subsets(names: Sequence[str]) -> list[tuple[str, ...]]:
     return [c for k in range(2, len(names) + 1) for c in itertools.combinations(names, k)]
 
 
-# --------------------------------------------------------------------------- scoring
-
-
-def _mean(values: Sequence[float]) -> float | None:
-    return round(float(np.mean(values)), 4) if len(values) else None
-
-
-def _median(values: Sequence[float]) -> float | None:
-    return round(float(np.median(values)), 4) if len(values) else None
-
-
-def summarize(records: Sequence[dict[str, Any]], radii: Sequence[float] = RECALL_RADII_M) -> dict[str, Any]:
-    """Error statistics over per-query records (``error``, ``error_px``, ``top5_mean``, ``ties``, ``unanswered``).
-
-    ``error`` and ``top5_mean`` are in the run's unit (metres, or pixels without a resolution);
-    recall at each radius counts unanswered queries as misses.
-
-    >>> s = summarize([{"error_px": 10.0, "error": 5.0, "top5_mean": 8.0, "ties": 1, "unanswered": False},
-    ...                {"error_px": None, "error": None, "top5_mean": None, "ties": 0, "unanswered": True}])
-    >>> s["mean_error"], s["recall_at"]["10"], s["unanswered"], s["answered"]
-    (5.0, 0.5, 1, 1)
-    """
-    answered = [r for r in records if not r["unanswered"]]
-    err = [r["error"] for r in answered]
-    err_px = [r["error_px"] for r in answered]
-    n = len(records)
-    return {
-        "n": n,
-        "answered": len(answered),
-        "unanswered": n - len(answered),
-        "tied": sum(1 for r in answered if r["ties"] > 1),
-        "mean_ties": _mean([r["ties"] for r in answered]),
-        "mean_error_px": _mean(err_px),
-        "median_error_px": _median(err_px),
-        "mean_error": _mean(err),
-        "median_error": _median(err),
-        "recall_at": {f"{r:g}": round(sum(e <= r for e in err) / n, 4) if n else None for r in radii},
-        "top5_mean_distance": _mean([r["top5_mean"] for r in answered]),
-    }
-
-
-def score(loc: Localization, truth: tuple[float, float], scale: float = 1.0) -> dict[str, Any]:
-    """Error of one localization against the true viewpoint; ``scale``: units per pixel (m/px, or 1).
-
-    ``candidate_guess`` is the expected error of picking one of the candidates at random: what
-    the candidate selection alone achieves, so ``error`` below it is what the matching adds.
-    """
-    if loc.unanswered or loc.map_xy is None:
-        return {"map": None, "error_px": None, "error": None, "top5_mean": None, "candidate_guess": None,
-                "ties": loc.ties, "unanswered": True, "reason": loc.reason, "candidates": 0}
-    err = math.hypot(loc.map_xy[0] - truth[0], loc.map_xy[1] - truth[1])
-    top = [math.hypot(x - truth[0], y - truth[1]) for x, y, _ in loc.top_k]
-    anyone = float(np.mean(np.hypot(loc.candidates[:, 0] - truth[0], loc.candidates[:, 1] - truth[1])))
-    return {"map": [round(loc.map_xy[0], 3), round(loc.map_xy[1], 3)], "error_px": round(err, 4),
-            "error": round(err * scale, 4), "top5_mean": round(float(np.mean(top)) * scale, 4),
-            "candidate_guess": round(anyone * scale, 4),
-            "ties": loc.ties, "unanswered": False, "reason": "", "candidates": int(len(loc.candidates))}
-
-
-def chance_errors(shape: tuple[int, int], truth: tuple[float, float], scale: float = 1.0) -> tuple[float, float]:
-    """Errors of two blind guesses: the image centre, and a uniformly random pixel (expected).
-
-    >>> [round(e, 1) for e in chance_errors((101, 101), (50.0, 50.0))]   # random: ~0.38 x side
-    [0.0, 38.9]
-    """
-    h, w = shape
-    centre = math.hypot(truth[0] - (w - 1) / 2, truth[1] - (h - 1) / 2) * scale
-    gx, gy = np.meshgrid(np.linspace(0, w - 1, 64), np.linspace(0, h - 1, 64))
-    uniform = float(np.mean(np.hypot(gx - truth[0], gy - truth[1]))) * scale
-    return centre, uniform
-
-
-def by_num_classes(subsets: Sequence[tuple[str, ...]], records: Sequence[dict[str, Any]],
-                   radii: Sequence[float] = RECALL_RADII_M) -> dict[str, Any]:
-    """Summaries per class subset, pooled by subset size (the dissertation's Figure 5.2).
-
-    ``subsets[0]`` is the full class set, scored in each record itself; the others are in
-    ``record["by_subset"]["a+b"]``.
-    """
-    full = "+".join(subsets[0])
-
-    def of(record: dict[str, Any], name: str) -> dict[str, Any]:
-        return record if name == full else record["by_subset"][name]
-
-    out: dict[str, Any] = {}
-    for k in sorted({len(s) for s in subsets}):
-        names = ["+".join(s) for s in subsets if len(s) == k]
-        per = {n: summarize([of(r, n) for r in records], radii) for n in names}
-        out[str(k)] = {"summary": summarize([of(r, n) for n in names for r in records], radii), "subsets": per}
-    return out
-
-
 # --------------------------------------------------------------------------- the run
 
 
-def aerial_graphs(lm: Landmarks, subsets: Sequence[tuple[str, ...]], window: int | None) -> dict[tuple[str, ...], Any]:
+def aerial_graphs(lm: Landmarks, subsets: Sequence[tuple[str, ...]], window: int | None,
+                  conventions: str = "osmseg") -> dict[tuple[str, ...], Any]:
     """The aerial landmarks' graph for every class subset, each with its own automatic window."""
-    config = LocalizeConfig(window=window)
+    config = LocalizeConfig(window=window, conventions=conventions)
     return {s: aerial_graph(lm.of_classes(s), config) for s in subsets}
 
 
 def localize_subsets(graphs: dict[tuple[str, ...], Any], query: Landmarks, truth: tuple[float, float], scale: float,
-                     p: float, top_k: int) -> tuple[dict[str, Any], float]:
+                     p: float, top_k: int, query_window: int | None = None,
+                     conventions: str = "osmseg") -> tuple[dict[str, Any], float]:
     """Score the query against every subset's graph: the full set's record (with ``by_subset``) and its time (s)."""
     subsets = list(graphs)
     by_subset: dict[str, dict[str, Any]] = {}
     seconds = 0.0
     for s in subsets:
         t0 = time.perf_counter()
-        loc = run(LocalizeConfig(p=p, top_k=top_k), graphs[s], query.of_classes(s))
+        loc = run(LocalizeConfig(p=p, top_k=top_k, query_window=query_window, conventions=conventions), graphs[s],
+                  query.of_classes(s))
         if s == subsets[0]:
             seconds = time.perf_counter() - t0
         by_subset["+".join(s)] = score(loc, truth, scale)
@@ -344,6 +283,7 @@ def write_results(results: dict[str, Any], out_dir: Path, plots: bool) -> None:
     if plots:
         plot_errors(results, out_dir / "errors.png")
         plot_classes(results, out_dir / "classes.png")
+        plot_confidence(results, out_dir / "confidence.png")
 
 
 def subsets_of(classes: LandmarkClasses, all_subsets: bool) -> list[tuple[str, ...]]:
@@ -354,19 +294,33 @@ def subsets_of(classes: LandmarkClasses, all_subsets: bool) -> list[tuple[str, .
 
 def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, progress: Progress | None = None,
               plots: bool = True, source: str = "") -> dict[str, Any]:
-    """Run the benchmark over ``scenes`` (viewpoints spread round-robin) and write results.json + plots."""
+    """Run the benchmark over ``scenes`` (viewpoints spread round-robin) and write results.json + plots.
+
+    Each view is rendered once and localized by every method of ``config.methods``; with
+    ``negatives`` and two or more scenes, also in the next scene (a non-matching pair).
+    """
     if not scenes:
         raise DatasetError("no aerial masks to benchmark on")
     if config.pictures and importlib.util.find_spec("matplotlib") is None:
         raise ConfigError("--pictures needs matplotlib: pip install matplotlib (or leave --pictures out)")
     out_dir = Path(out_dir)
     classes = landmark_classes_for(scenes[0].table, config.landmarks)
-    subsets = subsets_of(classes, config.subsets)
+    subsets = subsets_of(classes, config.subsets_on)
     graphs: list[dict[tuple[str, ...], AerialGraph]] = []
     placements: list[np.ndarray] = []
     counts = [config.viewpoints // len(scenes) + (i < config.viewpoints % len(scenes)) for i in range(len(scenes))]
     place_rng = np.random.default_rng([config.seed, 0])
     aerial: list[tuple[Landmarks, np.ndarray]] = []  # each scene's landmarks and the cell each pixel is in
+    heights = [object_heights(sc.mask, sc.table, dataclasses.replace(config.render, height_seed=config.render.height_seed + i))
+               if config.render.height_spread > 0 else None for i, sc in enumerate(scenes)]
+    indexes: dict[int, AerialIndex] = {}
+
+    def index_of(si: int) -> AerialIndex:
+        if si not in indexes:
+            sc = scenes[si]
+            indexes[si] = profile_index(semantic_map(sc.mask, sc.table, classes), sc.resolution_m, config.profile)
+        return indexes[si]
+
     for scene, count in zip(scenes, counts):
         if config.query_landmarks == "visible":  # the cells say which aerial landmark a panorama pixel shows
             full, cells = landmark_cells(scene.mask, scene.table, classes, mode=config.mode,
@@ -382,6 +336,7 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
                           if count else np.zeros((0, 2), dtype=np.int64))
     # round-robin over the masks: viewpoint 0 on mask 0, 1 on mask 1, ...
     jobs = [(si, placements[si][i]) for i in range(max(counts)) for si in range(len(scenes)) if i < counts[si]]
+    other = {si: (si + 1) % len(scenes) for si in range(len(scenes))} if config.negatives and len(scenes) > 1 else {}
 
     records: list[dict[str, Any]] = []
     t_start = time.perf_counter()
@@ -389,29 +344,54 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
         scene = scenes[si]
         truth = (float(xy[0]), float(xy[1]))
         seq = np.random.SeedSequence([config.seed, config.noise.seed, index])  # each view its own noise
-        noise = dataclasses.replace(config.noise, seed=int(seq.generate_state(1)[0]))
+        noise_seed, heading_seed = (int(v) for v in seq.generate_state(2))
+        noise = dataclasses.replace(config.noise, seed=noise_seed)
+        heading = (float(np.random.default_rng(heading_seed).uniform(0.0, 360.0)) if config.heading == "unknown"
+                   else config.render.heading_deg)
         t0 = time.perf_counter()
         visible = config.query_landmarks == "visible"
         view: RenderedView = render_view(scene.mask, scene.table, scene.resolution_m, truth, classes,
-                                         config=config.render, noise=noise, mode=config.mode,
-                                         min_size=config.min_size, stride=config.stride, sources=visible)
+                                         config=dataclasses.replace(config.render, heading_deg=heading), noise=noise,
+                                         mode=config.mode, min_size=config.min_size, stride=config.stride,
+                                         sources=visible, heights=heights[si])
         if visible:
             shown, _ = visible_landmarks(view.panorama, aerial[si][1], aerial[si][0], config.visible_min_px)
             view = dataclasses.replace(view, landmarks=shown)
+        query = photo_view(view.panorama, classes, config.fov_deg, camera_height_m=config.render.camera_height_m,
+                           mode=config.mode, min_size=config.min_size, stride=config.stride,
+                           landmarks=view.landmarks)
+        view = dataclasses.replace(view, landmarks=query.landmarks)
         t_render = time.perf_counter() - t0
         if index < config.save_panoramas:
             save_panorama_png(out_dir / "panoramas" / f"{index:04d}_{scene.name}.png", view.panorama)
         if index < config.pictures:
             draw_view(out_dir / "views" / f"{index:04d}_{scene.name}", scene, view, graphs[si][subsets[0]], config)
         centre, uniform = chance_errors(scene.mask.shape, truth, scene.resolution_m)
-        scored, t_loc = localize_subsets(graphs[si], view.landmarks, truth, scene.resolution_m, config.p, config.top_k)
+        photo = config.fov_deg < 360
+        paper_config = LocalizeConfig(p=config.p, top_k=config.top_k,
+                                      query_window=query.camera.height if photo else None)
+        by_method: dict[str, dict[str, Any]] = {}
+        for method in config.methods:
+            by_method[method] = run_method(
+                method, query, truth, scene.resolution_m,
+                paper=lambda: (graphs[si][subsets[0]],
+                               graphs[other[si]][subsets[0]] if si in other else None),
+                profile=lambda: (index_of(si), index_of(other[si]) if si in other else None),
+                paper_config=paper_config, profile_config=config.profile, heading_known=config.heading == "known")
+        first = config.methods[0]
+        if first == "paper":
+            scored, t_loc = localize_subsets(graphs[si], view.landmarks, truth, scene.resolution_m, config.p,
+                                             config.top_k, query_window=paper_config.query_window)
+        else:
+            scored, t_loc = {**by_method[first], "candidate_guess": None, "candidates": 0}, by_method[first]["localize_s"]
         records.append({
             "index": index, "scene": scene.name, "truth": [truth[0], truth[1]],
             "camera": [round(view.panorama.camera[0], 3), round(view.panorama.camera[1], 3)],
-            "resolution_m": scene.resolution_m, "query_landmarks": int(len(view.landmarks.xy)),
+            "heading_deg": round(heading, 3), "resolution_m": scene.resolution_m,
+            "query_landmarks": int(len(view.landmarks.xy)),
             "classes_seen": sorted({view.landmarks.classes[c] for c in np.unique(view.landmarks.cls)}),
             "centre_guess": round(centre, 4), "random_guess": round(uniform, 4),
-            "render_s": round(t_render, 4), "localize_s": round(t_loc, 4), **scored,
+            "render_s": round(t_render, 4), "localize_s": round(t_loc, 4), **scored, "methods": by_method,
         })
     total = time.perf_counter() - t_start
 
@@ -440,7 +420,7 @@ def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], AerialG
              classes: LandmarkClasses, source: str, total_s: float) -> dict[str, Any]:
     """The results.json document (errors in metres)."""
     return {
-        "format": "osmseg-localize-bench", "format_version": 2, "tool": f"osmseg {__version__}",
+        "format": "osmseg-localize-bench", "format_version": 3, "tool": f"osmseg {__version__}",
         "kind": "rendered panoramas", "queries": "rendered panoramas", "unit": "m",
         "seed": config.seed, "settings": config.to_dict(), "source": source,
         "landmark_classes": {"name": classes.name, "names": list(classes.names), "mapping": dict(classes.mapping)},
@@ -451,15 +431,8 @@ def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], AerialG
         "summary": summarize(records),
         "baselines": baselines(records),
         "by_num_classes": by_num_classes(subsets, records),
+        "methods": {m: method_summary(records, m, summarize) for m in config.methods},
         "timing": {"total_s": round(total_s, 3), "render_mean_s": _mean([r["render_s"] for r in records]),
                    "localize_mean_s": _mean([r["localize_s"] for r in records])},
         "viewpoints": records,
     }
-
-
-def baselines(records: Sequence[dict[str, Any]]) -> dict[str, float | None]:
-    """Mean errors of the blind guesses over the records, and of a random candidate (answered records)."""
-    return {"centre_guess_mean": _mean([r["centre_guess"] for r in records]),
-            "random_guess_mean": _mean([r["random_guess"] for r in records]),
-            "random_candidate_mean": _mean([r["candidate_guess"] for r in records if not r["unanswered"]]),
-            "random_candidate_median": _median([r["candidate_guess"] for r in records if not r["unanswered"]])}

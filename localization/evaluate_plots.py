@@ -16,7 +16,7 @@ import numpy as np
 
 from osmseg.errors import ConfigError
 
-__all__ = ["plot_errors", "plot_classes"]
+__all__ = ["plot_errors", "plot_classes", "plot_confidence"]
 
 
 def _figures() -> Any:
@@ -41,17 +41,29 @@ def plot_errors(results: dict[str, Any], path: Path) -> Path:
     recs, s = results["viewpoints"], results["summary"]
     with figures.figure(6.5, 4.0) as fig:
         ax = fig.add_subplot()
-        _cdf(ax, [r["error"] for r in recs if not r["unanswered"]], len(recs), color="tab:green", lw=2,
-             label=f"landmark graphs (MAP), {s['answered']}/{s['n']} answered")
-        _cdf(ax, [r["top5_mean"] for r in recs if not r["unanswered"]], len(recs), color="tab:green", ls=":",
-             label="top-5 mean distance")
-        _cdf(ax, [r["candidate_guess"] for r in recs if not r["unanswered"]], len(recs), color="tab:orange", ls="--",
-             label="a random candidate (expected)")
+        methods = results.get("methods") or {}
+        colours = {"paper": "tab:green", "profile": "tab:blue"}
+        names = {"paper": "landmark graphs (MAP)", "profile": "angular profiles"}
+        for m, summary in methods.items():
+            errors = [r["methods"][m]["error"] for r in recs if r["methods"][m]["error"] is not None]
+            _cdf(ax, errors, len(recs), color=colours.get(m, "tab:purple"), lw=2,
+                 label=f"{names.get(m, m)}, {summary['answered']}/{summary['n']} answered")
+        if not methods:
+            _cdf(ax, [r["error"] for r in recs if not r["unanswered"]], len(recs), color="tab:green", lw=2,
+                 label=f"landmark graphs (MAP), {s['answered']}/{s['n']} answered")
+        first = next(iter(methods), "paper")
+        _cdf(ax, [r["top5_mean"] for r in recs if not r["unanswered"]], len(recs), color=colours.get(first, "tab:green"),
+             ls=":", label=f"top-5 mean distance ({first})")
+        if first == "paper":
+            _cdf(ax, [r["candidate_guess"] for r in recs if not r["unanswered"]], len(recs), color="tab:orange",
+                 ls="--", label="a random candidate (expected)")
         _cdf(ax, [r["centre_guess"] for r in recs], len(recs), color="0.5", ls="--", label="guess the image centre")
         _cdf(ax, [r["random_guess"] for r in recs], len(recs), color="0.7", ls="-.", label="random guess (expected)")
         for radius in s["recall_at"]:
             ax.axvline(float(radius), color="0.85", lw=1, zorder=0)
         ax.set_xlim(left=0)
+        if methods:
+            ax.set_xscale("symlog", linthresh=1.0)
         ax.set_ylim(0, 1.02)
         ax.set_xlabel(f"error ({unit})")
         ax.set_ylabel(f"fraction of {results.get('queries', 'queries')}")
@@ -93,4 +105,31 @@ def plot_classes(results: dict[str, Any], path: Path) -> Path:
         ax_rec.set_xticks(xs)
         ax_rec.legend(fontsize=8)
         fig.suptitle("Effect of the number of landmark classes (subsets pooled)")
+        return figures.save_png(fig, path)
+
+
+def plot_confidence(results: dict[str, Any], path: Path) -> Path | None:
+    """Each method's confidence on matching and on non-matching pairs (histograms, ROC AUC in the title).
+
+    None (nothing drawn) when the run has no non-matching pair (one scene, ``--no-negatives``).
+    """
+    methods = {m: v for m, v in (results.get("methods") or {}).items() if v.get("roc_auc") is not None}
+    if not methods:
+        return None
+    figures = _figures()
+    recs = results["viewpoints"]
+    with figures.figure(4.2 * len(methods), 3.6) as fig:
+        axes = np.atleast_1d(fig.subplots(1, len(methods)))
+        for ax, (m, summary) in zip(axes, methods.items()):
+            pos = [r["methods"][m]["confidence"] for r in recs if r["methods"][m]["confidence"] is not None]
+            neg = [r["methods"][m]["negative_confidence"] for r in recs
+                   if r["methods"][m]["negative_confidence"] is not None]
+            bins = np.linspace(min(pos + neg), max(pos + neg) + 1e-9, 25)
+            ax.hist(pos, bins=bins, alpha=0.6, color="tab:blue", label="matching aerial image")
+            ax.hist(neg, bins=bins, alpha=0.6, color="tab:red", label="another aerial image")
+            ax.set_xlabel("kappa of the best match" if m == "profile" else "MAP likelihood (eq. 3.3)")
+            ax.set_ylabel(results.get("queries", "queries"))
+            ax.set_title(f"{m}: ROC AUC {summary['roc_auc']:.3f}")
+            ax.legend(fontsize=8)
+        fig.suptitle("Does the confidence tell a match from a non-match?")
         return figures.save_png(fig, path)

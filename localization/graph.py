@@ -44,7 +44,20 @@ Two algorithms give identical results (same cliques, same order, same centres):
   the corner indices of all its cells (a cell is a rectangle of corners: closed-form
   arithmetic-series sums) and its first cell in raster order. Interval ends are computed from
   the very same comparisons as the reference, so boundary cases (a landmark exactly on a
-  window edge) agree bit for bit.
+  window edge) agree bit for bit. For point landmarks the cells do not hold K-bit sets but two
+  64-bit sums of random keys of the landmarks covering them, built band by band of cell rows
+  (:func:`_point_cliques`): memory per cell is constant instead of K / 8 bytes, so a 3000 x
+  3000 image with 1,500 landmarks needs about 100 MB instead of 700 MB (two different sets
+  share both sums with probability 2^-128; ``benchmarks/bench_localize_scale.py``).
+
+**The authors' conventions** (``conventions="authors"``), to reproduce the figures of their
+published MATLAB demo (``covgraph.m``): window corners on MATLAB's 1-based grid (``1, 1 + s,
+...``: the same number of positions, one pixel right and down; a panorama's windows also
+start at row 1, so a landmark on row 0 is in none), the cliques in the order of
+``unique(C, 'rows')`` (lexicographic: landmark 1's column first, absent before present) and
+each clique at the centre ``corner + w / 2`` of its *first* window. One case differs still: in
+a panorama, a landmark at exactly ``x = w`` is copied across the seam by their code only when
+``x < w``, so it misses the last window there (osmseg's cyclic test includes it).
 
 >>> lm = Landmarks(np.array([[1.0, 1], [4, 1], [8, 1]]), np.array([0, 1, 0]), ("a", "b"), width=10, height=3)
 >>> c = cliques_fast(lm, 4)  # corners x = 0..6: {l1, l2} at 0-1, {l2} at 2-3, {l2, l3} at 4, {l3} at 5-6
@@ -59,37 +72,19 @@ True
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from localization.cells import _component_planes, _distinct
 from localization.landmarks import Landmarks
-from osmseg.errors import ConfigError
+from localization.windows import (CONVENTIONS, Cliques, _cuts, _empty_from, _Geometry, _geometry, _in_cyclic,
+                                  _in_linear, _intervals)
 
-__all__ = ["Cliques", "adjacency", "cliques_fast", "cliques_reference", "window_size_auto"]
+__all__ = ["CONVENTIONS", "Cliques", "adjacency", "cliques_fast", "cliques_reference", "window_size_auto"]
 
 #: Sigmas above the mean nearest-neighbour distance for the automatic window (Resek 2022, §3).
 AUTO_SIGMAS = 5.0
-
-
-@dataclass(frozen=True, eq=False)  # arrays: compare fields, not objects
-class Cliques:
-    """The cliques of a landmark graph: ``members[j, k]`` is True when clique j holds landmark k.
-
-    ``centers[j]`` is the ``(x, y)`` mean of the centres of all the windows that produce
-    clique j (a panorama: ``x`` of the first such window, ``y = H / 2``; see the module
-    docstring); ``window`` and ``stride`` are the window side and stride used.
-    """
-
-    members: np.ndarray  # (M, K) bool
-    centers: np.ndarray  # (M, 2) float
-    window: int = 0
-    stride: int = 1
-
-    def __len__(self) -> int:
-        return len(self.members)
 
 
 def window_size_auto(lm: Landmarks) -> int:
@@ -135,54 +130,11 @@ def adjacency(cliques: Cliques) -> np.ndarray:
 # ------------------------------------------------------------------------------ window geometry
 
 
-def _in_linear(p: np.ndarray, lo: np.ndarray | int, w: int) -> np.ndarray:
-    """Is coordinate ``p`` inside ``[lo, lo + w]``? (the one test both algorithms use)."""
-    return (lo <= p) & (p <= lo + w)
-
-
-def _in_cyclic(p: np.ndarray, lo: np.ndarray | int, w: int, period: int) -> np.ndarray:
-    """Is ``p`` inside ``[lo, lo + w]`` on a circle of circumference ``period``?"""
-    d = p - lo
-    return np.where(d < 0, d + period, d) <= w
-
-
-@dataclass(frozen=True)
-class _Geometry:
-    """Window positions of one image: corner indices ``0..nx-1`` x ``0..ny-1``, corner = index * s."""
-
-    w: int
-    s: int
-    nx: int
-    ny: int
-    width: int
-    height: int
-    panorama: bool
-
-    def centers(self, first_i: np.ndarray, sum_i: np.ndarray, sum_j: np.ndarray, count: np.ndarray) -> np.ndarray:
-        """Clique centres from integer corner-index data (both algorithms call this, so they agree exactly).
-
-        ``first_i``: x index of the first producing window (used by a panorama only);
-        ``sum_i``/``sum_j``: sums of the x/y corner indices of all producing windows, ``count``
-        their number. Aerial: the mean window centre; panorama: the first window's, at ``H / 2``.
-        """
-        if self.panorama:
-            cx = np.asarray(first_i, dtype=np.int64) * self.s + min(self.w, self.width) / 2
-            return np.stack([cx % self.width, np.full(cx.shape, self.height / 2)], axis=-1)
-        n = np.asarray(count, dtype=np.int64)
-        cx = np.asarray(sum_i, dtype=np.int64) * self.s / n + min(self.w, self.width) / 2
-        cy = np.asarray(sum_j, dtype=np.int64) * self.s / n + min(self.w, self.height) / 2
-        return np.stack([cx, cy], axis=-1)
-
-
-def _geometry(lm: Landmarks, w: int, stride: int) -> _Geometry:
-    for value, what in ((w, "window size"), (stride, "stride")):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise ConfigError(f"the {what} must be a positive integer (pixels), got {value!r}")
-    w, s = int(w), int(stride)
-    if lm.panorama:
-        return _Geometry(w, s, (lm.width - 1) // s + 1, 1, lm.width, lm.height, True)
-    return _Geometry(w, s, max(lm.width - w, 0) // s + 1, max(lm.height - w, 0) // s + 1,
-                     lm.width, lm.height, False)
+def _authors_order(c: Cliques, first_centers: np.ndarray) -> Cliques:
+    """The authors' order and positions: rows sorted as MATLAB's ``unique(C, 'rows')`` (lexicographic,
+    landmark 1 first, absent before present), each at its first window's centre."""
+    order = np.lexsort(c.members.T[::-1]) if len(c) else np.zeros(0, dtype=np.int64)
+    return Cliques(c.members[order], first_centers[order], c.window, c.stride)
 
 
 def _empty(lm: Landmarks, g: _Geometry) -> Cliques:
@@ -192,13 +144,13 @@ def _empty(lm: Landmarks, g: _Geometry) -> Cliques:
 # ------------------------------------------------------------------------------------- reference
 
 
-def cliques_reference(lm: Landmarks, w: int, stride: int = 1) -> Cliques:
+def cliques_reference(lm: Landmarks, w: int, stride: int = 1, conventions: str = "osmseg") -> Cliques:
     """The cliques by the paper's plain sliding window: every position tested, O(positions x K).
 
     Kept as the reference :func:`cliques_fast` is tested against; the landmark test of each
     position is vectorised over the landmarks (or over all component pixels).
     """
-    g = _geometry(lm, w, stride)
+    g = _geometry(lm, w, stride, conventions)
     if len(lm) == 0:
         return _empty(lm, g)
     if lm.pixels is not None:
@@ -209,12 +161,12 @@ def cliques_reference(lm: Landmarks, w: int, stride: int = 1) -> Cliques:
         px, py, starts = lm.xy[:, 0], lm.xy[:, 1], None
     index_of: dict[bytes, int] = {}
     members: list[np.ndarray] = []
-    sums: list[list[int]] = []  # per clique: first x index, sum of x indices, sum of y indices, count
+    sums: list[list[int]] = []  # per clique: first x index, sum of x indices, sum of y indices, count, first y
     for j in range(g.ny):
-        y = j * g.s
-        in_y = True if g.panorama else _in_linear(py, y, g.w)
+        y = g.origin + j * g.s
+        in_y = (_in_linear(py, y, g.height) if g.origin else True) if g.panorama else _in_linear(py, y, g.w)
         for i in range(g.nx):
-            x = i * g.s
+            x = g.origin + i * g.s
             in_x = _in_cyclic(px, x, g.w, g.width) if g.panorama else _in_linear(px, x, g.w)
             inside = in_x & in_y
             if starts is not None:
@@ -228,17 +180,18 @@ def cliques_reference(lm: Landmarks, w: int, stride: int = 1) -> Cliques:
             elif inside.any():
                 index_of[key] = len(members)
                 members.append(inside)
-                sums.append([i, i, j, 1])
+                sums.append([i, i, j, 1, j])
     if not members:
         return _empty(lm, g)
-    first_i, sum_i, sum_j, count = np.array(sums, dtype=np.int64).T
-    return Cliques(np.array(members, dtype=bool), g.centers(first_i, sum_i, sum_j, count), g.w, g.s)
+    first_i, sum_i, sum_j, count, first_j = np.array(sums, dtype=np.int64).T
+    out = Cliques(np.array(members, dtype=bool), g.centers(first_i, sum_i, sum_j, count), g.w, g.s)
+    return _authors_order(out, g.first_centers(first_i, first_j)) if g.origin else out
 
 
 # ------------------------------------------------------------------------------------------ fast
 
 
-def cliques_fast(lm: Landmarks, w: int, stride: int = 1) -> Cliques:
+def cliques_fast(lm: Landmarks, w: int, stride: int = 1, conventions: str = "osmseg") -> Cliques:
     """The same cliques as :func:`cliques_reference`, exactly, from the interval ends only.
 
     See the module docstring. Cost: O(K log K + cells x K / 64) for points, where the cells
@@ -246,199 +199,97 @@ def cliques_fast(lm: Landmarks, w: int, stride: int = 1) -> Cliques:
     components add their pixels and, per component, the cells its windows can reach
     (about ``(w / s + size)²``).
     """
-    g = _geometry(lm, w, stride)
+    g = _geometry(lm, w, stride, conventions)
     if len(lm) == 0:
         return _empty(lm, g)
     if lm.pixels is None:
-        planes, cuts_x, cuts_y = _point_planes(lm, g)
-    else:
-        planes, cuts_x, cuts_y = _component_planes(lm, g)
+        return _point_cliques(lm, g)
+    planes, cuts_x, cuts_y = _component_planes(lm, g)
     return _distinct(planes, cuts_x, cuts_y, len(lm), g)
 
 
-def _lowest_true(pred: Callable[[np.ndarray], np.ndarray], estimate: np.ndarray,
-                 lo: np.ndarray | int, hi: np.ndarray | int) -> np.ndarray:
-    """Per element, the lowest ``i`` in ``[lo, hi]`` where ``pred(i)`` holds (``hi + 1`` if none).
+#: Memory for one band of cells of :func:`_point_cliques` (two 8-byte planes per cell).
+BAND_BYTES = 32 << 20
 
-    ``pred`` must be monotone (False then True) on ``[lo, hi]``; ``estimate`` is a guess a step
-    or two off (from float arithmetic), corrected with ``pred`` itself so the answer agrees
-    exactly with evaluating ``pred`` everywhere.
+
+def _point_cliques(lm: Landmarks, g: _Geometry) -> Cliques:
+    """The cliques of point landmarks in memory that does not grow with K per cell.
+
+    Each landmark covers a rectangle of cells of the cut grid. Instead of a K-bit set per cell,
+    a cell keeps two 64-bit sums of random odd keys of the landmarks covering it, built band by band of cell rows with 2-D difference arrays: cells with equal sums
+    hold the same landmarks (two distinct sets agree on both sums with probability 2^-128).
+    Runs of equal cells along a row are compared, as in :func:`_distinct`; each clique's members
+    are read back from its first cell. Same cliques, order and centres as :func:`_distinct`.
     """
-    i = np.clip(np.asarray(estimate, dtype=np.int64), lo, np.asarray(hi) + 1)
-    while True:  # step down while the index below also holds
-        down = (i > lo) & pred(i - 1)
-        if not down.any():
-            break
-        i = i - down
-    while True:  # step up while this index does not hold
-        up = (i <= hi) & ~pred(i)
-        if not up.any():
-            break
-        i = i + up
-    return i
-
-
-def _intervals(p: np.ndarray, g: _Geometry, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For coordinates ``p`` on ``axis`` (0: x, 1: y): ``(owner, first, last)`` corner-index intervals.
-
-    Interval ``r`` says coordinate ``p[owner[r]]`` is inside the windows with corner index
-    ``first[r] .. last[r]`` on this axis, and in no other. One interval per coordinate (two
-    when a panorama window wraps around), empty ones left out.
-    """
-    p = np.asarray(p)
-    s, w = g.s, g.w
-    n = g.nx if axis == 0 else g.ny
-    idx = np.arange(len(p))
-    after = _lowest_true(lambda i: i * s > p, np.floor(p / s) + 1, 0, n - 1)  # first corner right of p
-    if not (g.panorama and axis == 0):
-        first = _lowest_true(lambda i: i * s + w >= p, np.ceil((p - w) / s), 0, n - 1)
-        owners, firsts, lasts = [idx], [first], [np.minimum(after - 1, n - 1)]
+    k = len(lm)
+    kx, x0, x1 = _intervals(lm.xy[:, 0] - g.origin, g, 0)  # corners at origin + i s: shift the points instead
+    if g.panorama:  # one row of windows as tall as the image (the authors': rows 1 .. 1 + H, so row 0 is out)
+        ky = np.arange(k) if not g.origin else np.flatnonzero(_in_linear(lm.xy[:, 1], g.origin, g.height))
+        y0, y1 = np.zeros(len(ky), np.int64), np.zeros(len(ky), np.int64)
     else:
-        period = g.width
-        # corners left of (or at) p: no wrap, d = p - x; corners right of p: d = p - x + period
-        first = _lowest_true(lambda i: p - i * s <= w, np.ceil((p - w) / s), 0, after - 1)
-        wrapped = _lowest_true(lambda i: (p - i * s) + period <= w, np.ceil((p + period - w) / s), after, n - 1)
-        owners, firsts, lasts = [idx, idx], [first, wrapped], [after - 1, np.full(len(p), n - 1)]
-    owner, lo, hi = (np.concatenate(a) for a in (owners, firsts, lasts))
-    keep = lo <= hi
-    return owner[keep], lo[keep], hi[keep]
-
-
-def _cuts(first: np.ndarray, last: np.ndarray, n: int) -> np.ndarray:
-    """Starts of the elementary intervals of ``0..n-1`` cut at every interval's ends."""
-    ends = np.concatenate([[0], first, last + 1])
-    return np.unique(ends[ends < n])
-
-
-def _new_planes(k: int, ny: int, nx: int) -> np.ndarray:
-    return np.zeros(((k + 63) // 64, ny, nx), dtype=np.uint64)
-
-
-def _set_bit(planes: np.ndarray, k: int, rows: slice, cols: slice, where: np.ndarray | None = None) -> None:
-    bit = np.uint64(1) << np.uint64(k % 64)
-    view = planes[k // 64, rows, cols]
-    if where is None:
-        view |= bit
-    else:
-        np.bitwise_or(view, bit, out=view, where=where)
-
-
-def _point_planes(lm: Landmarks, g: _Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Bit planes over the cut grid for point landmarks: each sets its rectangle(s) of cells."""
-    kx, x0, x1 = _intervals(lm.xy[:, 0], g, 0)
-    if g.panorama:
-        ky, y0, y1 = np.arange(len(lm)), np.zeros(len(lm), np.int64), np.zeros(len(lm), np.int64)
-    else:
-        ky, y0, y1 = _intervals(lm.xy[:, 1], g, 1)
+        ky, y0, y1 = _intervals(lm.xy[:, 1] - g.origin, g, 1)
     cuts_x, cuts_y = _cuts(x0, x1, g.nx), _cuts(y0, y1, g.ny)
-    ex0, ex1 = np.searchsorted(cuts_x, x0), np.searchsorted(cuts_x, x1 + 1)
-    ey0, ey1 = np.searchsorted(cuts_y, y0), np.searchsorted(cuts_y, y1 + 1)
-    rows_of = {int(k): (int(a), int(b)) for k, a, b in zip(ky, ey0, ey1)}  # one y interval per landmark
-    planes = _new_planes(len(lm), len(cuts_y), len(cuts_x))
-    for k, a, b in zip(kx, ex0, ex1):
-        if int(k) in rows_of:
-            r0, r1 = rows_of[int(k)]
-            _set_bit(planes, int(k), slice(r0, r1), slice(int(a), int(b)))
-    return planes, cuts_x, cuts_y
-
-
-def _component_planes(lm: Landmarks, g: _Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Bit planes over the cut grid for component landmarks (any pixel in the window)."""
-    pixels = lm.pixels or ()
-    cols = np.unique(np.concatenate([p[:, 0] for p in pixels])).astype(np.int64)
-    _, x0, x1 = _intervals(cols, g, 0)
-    cuts_x = _cuts(x0, x1, g.nx)
-    if g.panorama:
-        cuts_y = np.zeros(1, dtype=np.int64)
-    else:
-        rows = np.unique(np.concatenate([p[:, 1] for p in pixels])).astype(np.int64)
-        _, y0, y1 = _intervals(rows, g, 1)
-        cuts_y = _cuts(y0, y1, g.ny)
-    planes = _new_planes(len(lm), len(cuts_y), len(cuts_x))
-    for k, pix in enumerate(pixels):
-        if g.panorama:
-            _panorama_component(planes, k, pix, cuts_x, g)
-        else:
-            _aerial_component(planes, k, pix, cuts_x, cuts_y, g)
-    return planes, cuts_x, cuts_y
-
-
-def _panorama_component(planes: np.ndarray, k: int, pix: np.ndarray, cuts_x: np.ndarray, g: _Geometry) -> None:
-    """Cells whose windows hold a column of the component: a difference array over the cuts."""
-    _, lo, hi = _intervals(np.unique(pix[:, 0]).astype(np.int64), g, 0)
-    diff = np.zeros(len(cuts_x) + 1, dtype=np.int64)
-    np.add.at(diff, np.searchsorted(cuts_x, lo), 1)
-    np.add.at(diff, np.searchsorted(cuts_x, hi + 1), -1)
-    covered = np.cumsum(diff[:-1]) > 0
-    _set_bit(planes, k, slice(0, 1), slice(None), covered[None, :])
-
-
-def _aerial_component(planes: np.ndarray, k: int, pix: np.ndarray, cuts_x: np.ndarray, cuts_y: np.ndarray,
-                      g: _Geometry) -> None:
-    """Cells whose window holds a pixel of the component: box counts, one axis after the other."""
-    x, y = pix[:, 0].astype(np.int64), pix[:, 1].astype(np.int64)
-    xmin, xmax, ymin, ymax = x.min(), x.max(), y.min(), y.max()
-    # cells whose window can reach the component's box: corner <= max and corner + w >= min
-    cx, cy = cuts_x * g.s, cuts_y * g.s
-    a, b = np.searchsorted(cx + g.w, xmin), np.searchsorted(cx, xmax, side="right")
-    c, d = np.searchsorted(cy + g.w, ymin), np.searchsorted(cy, ymax, side="right")
-    if a >= b or c >= d:
-        return
-    box = np.zeros((ymax - ymin + 1, xmax - xmin + 2), dtype=np.int32)
-    box[y - ymin, x - xmin + 1] = 1
-    bh, bw = box.shape[0], box.shape[1] - 1
-    row_sum = box.cumsum(axis=1, dtype=np.int32)  # row_sum[r, i] = pixels of row r left of column i
-    lx = np.clip(cx[a:b] - xmin, 0, bw)
-    hx = np.clip(cx[a:b] + g.w - xmin + 1, 0, bw)
-    row_hit = np.zeros((bh + 1, b - a), dtype=np.int32)  # row_hit[r] = rows above r with a pixel in the window
-    row_hit[1:] = ((row_sum[:, hx] - row_sum[:, lx]) > 0).cumsum(axis=0, dtype=np.int32)
-    ly = np.clip(cy[c:d] - ymin, 0, bh)
-    hy = np.clip(cy[c:d] + g.w - ymin + 1, 0, bh)
-    _set_bit(planes, k, slice(c, d), slice(a, b), row_hit[hy] > row_hit[ly])
-
-
-def _distinct(planes: np.ndarray, cuts_x: np.ndarray, cuts_y: np.ndarray, k: int, g: _Geometry) -> Cliques:
-    """Distinct non-empty cell bit sets as Cliques, ordered by their first cell in raster order.
-
-    Cells equal to their left neighbour are merged into horizontal runs first (a run is a
-    rectangle of window corners: indices ``cuts[a] .. cuts[a + 1] - 1`` per cell and axis);
-    only runs are compared, and a clique's corner-index sums and count add up over its runs,
-    in integers.
-    """
-    ny, nx = planes.shape[1:]
-    nonempty = (planes != 0).any(axis=0)
-    start = nonempty.copy()
-    start[:, 1:] &= (planes[:, :, 1:] != planes[:, :, :-1]).any(axis=0)
-    flat_start = np.flatnonzero(start)  # raster order
-    if len(flat_start) == 0:
+    nx, ny = len(cuts_x), len(cuts_y)
+    # one rectangle per (x interval, y interval) pair of a landmark: [ry0, ry1) x [rx0, rx1) in cells
+    y_of = {int(a): (int(b), int(c)) for a, b, c in zip(ky, np.searchsorted(cuts_y, y0),
+                                                         np.searchsorted(cuts_y, y1 + 1))}
+    rect = np.array([(int(o), *y_of[int(o)], int(a), int(b)) for o, a, b in
+                     zip(kx, np.searchsorted(cuts_x, x0), np.searchsorted(cuts_x, x1 + 1)) if int(o) in y_of],
+                    dtype=np.int64).reshape(-1, 5)
+    if len(rect) == 0:
         return _empty_from(k, g)
-    stops = np.append(np.flatnonzero(start | ~nonempty), ny * nx)  # column 0 is always one of these
-    flat_end = stops[np.searchsorted(stops, flat_start, side="right")]  # one past the run's last cell
-    ey, ex = np.divmod(flat_start, nx)
-    ex_end = flat_end - ey * nx
-    words = np.ascontiguousarray(planes[:, ey, ex].T)  # (runs, words)
-    keys = words.view(np.dtype((np.void, words.itemsize * words.shape[1]))).ravel()
-    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-    order = np.argsort(first)  # cliques by first run in raster order
+    keys = np.random.default_rng(0x5EED).integers(0, 2**63, size=(2, k), dtype=np.int64).astype(np.uint64) * 2 + 1
+    band = max(1, BAND_BYTES // (16 * (nx + 1)))
+    runs: list[np.ndarray] = []
+    for b0 in range(0, ny, band):
+        b1 = min(ny, b0 + band)
+        on = rect[(rect[:, 1] < b1) & (rect[:, 2] > b0)]
+        if len(on) == 0:
+            continue
+        r0, r1 = np.maximum(on[:, 1], b0) - b0, np.minimum(on[:, 2], b1) - b0
+        planes = np.zeros((2, b1 - b0 + 1, nx + 1), dtype=np.uint64)
+        for row, col, sign in ((r0, on[:, 3], 1), (r0, on[:, 4], -1), (r1, on[:, 3], -1), (r1, on[:, 4], 1)):
+            for p in range(2):
+                w = keys[p, on[:, 0]]
+                np.add.at(planes[p], (row, col), w if sign > 0 else (~w + np.uint64(1)))
+        planes = planes.cumsum(axis=1, dtype=np.uint64).cumsum(axis=2, dtype=np.uint64)[:, :-1, :-1]
+        nonempty = planes[0] != 0  # a non-empty set's sum of odd keys is 0 with probability 2^-64
+        start = nonempty.copy()
+        start[:, 1:] &= (planes[0, :, 1:] != planes[0, :, :-1]) | (planes[1, :, 1:] != planes[1, :, :-1])
+        flat = np.flatnonzero(start)
+        if len(flat) == 0:
+            continue
+        stops = np.append(np.flatnonzero(start | ~nonempty), start.size)
+        end = stops[np.searchsorted(stops, flat, side="right")]
+        ry, rx = np.divmod(flat, nx)
+        runs.append(np.stack([planes[0].ravel()[flat].view(np.int64), planes[1].ravel()[flat].view(np.int64),
+                              ry + b0, rx, end - ry * nx], axis=1))
+    if not runs:
+        return _empty_from(k, g)
+    run = np.concatenate(runs)                        # raster order: bands in order, raster within a band
+    ey, ex, ex_end = run[:, 2], run[:, 3], run[:, 4]
+    _, first, inverse = np.unique(run[:, 0], return_index=True, return_inverse=True)
+    if (run[first[inverse.ravel()], 1] != run[:, 1]).any():  # the first sums collided: both (never seen)
+        _, first, inverse = np.unique(run[:, :2], axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
     clique = np.empty(len(order), dtype=np.int64)
     clique[order] = np.arange(len(order))
-    clique = clique[inverse.ravel()]  # each run's clique
-    x_bound = np.append(np.asarray(cuts_x, dtype=np.int64), g.nx)
-    y_bound = np.append(np.asarray(cuts_y, dtype=np.int64), g.ny)
+    clique = clique[inverse.ravel()]
+    x_bound, y_bound = np.append(cuts_x, g.nx).astype(np.int64), np.append(cuts_y, g.ny).astype(np.int64)
     x_lo, y_lo = x_bound[ex], y_bound[ey]
     n_x, n_y = x_bound[ex_end] - x_lo, y_bound[ey + 1] - y_lo
-    run_sum_i = (2 * x_lo + n_x - 1) * n_x // 2 * n_y  # sum of the x indices of the run's corners
-    run_sum_j = (2 * y_lo + n_y - 1) * n_y // 2 * n_x
     sums = np.zeros((3, len(order)), dtype=np.int64)
-    for row, values in enumerate((run_sum_i, run_sum_j, n_x * n_y)):
-        np.add.at(sums[row], clique, values)
+    for which, values in enumerate(((2 * x_lo + n_x - 1) * n_x // 2 * n_y, (2 * y_lo + n_y - 1) * n_y // 2 * n_x,
+                                    n_x * n_y)):
+        np.add.at(sums[which], clique, values)
     firsts = first[order]
-    shifts = np.arange(64, dtype=np.uint64)
-    bits = (words[firsts][:, :, None] >> shifts) & np.uint64(1)
-    members = bits.reshape(len(firsts), -1)[:, :k].astype(bool)
-    centers = g.centers(x_lo[firsts], sums[0], sums[1], sums[2])
-    return Cliques(members, centers, g.w, g.s)
+    cy, cx = ey[firsts], ex[firsts]                   # each clique's first cell: who covers it
+    members = np.zeros((len(firsts), k), dtype=bool)
+    for i in range(0, len(rect), 256):  # (cliques, 256 rectangles) of tests at a time
+        o, a, b, c, d = rect[i:i + 256].T
+        rows, cols = np.nonzero((cy[:, None] >= a) & (cy[:, None] < b) & (cx[:, None] >= c) & (cx[:, None] < d))
+        members[rows, o[cols]] = True
+    out = Cliques(members, g.centers(x_lo[firsts], sums[0], sums[1], sums[2]), g.w, g.s)
+    return _authors_order(out, g.first_centers(x_lo[firsts], y_lo[firsts])) if g.origin else out
 
 
-def _empty_from(k: int, g: _Geometry) -> Cliques:
-    return Cliques(np.zeros((0, k), dtype=bool), np.zeros((0, 2)), g.w, g.s)

@@ -42,6 +42,7 @@ class Side:
     resolution: float | None
     paint: Callable[[], np.ndarray] | None = None
     photo: np.ndarray | None = None
+    semantic: Any = None  # localization.profile.SemanticMap of a mask side (the profile method's input)
 
     def picture(self) -> np.ndarray | None:
         """The RGB image to draw under the landmarks, if any."""
@@ -100,6 +101,7 @@ def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: S
                rgb: np.ndarray | None, table: ClassTable | None) -> Side:
     """Landmarks of a label mask, with the best background at hand (RGB image, class colours)."""
     from localization.landmarks import landmarks_from_mask
+    from localization.profile import semantic_map
 
     background = rgb
     if opts.table is not None:
@@ -124,7 +126,7 @@ def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: S
         def paint_mask() -> np.ndarray:
             return _colourise(mask, colours, names, dictionary)
         paint = paint_mask
-    return Side(lm, background, resolution, paint)
+    return Side(lm, background, resolution, paint, semantic=semantic_map(mask, ids, dictionary))
 
 
 def _colourise(mask: np.ndarray, colours: dict[int, Any], ids: dict[int, str] | None, dictionary: Any) -> np.ndarray:

@@ -148,7 +148,10 @@ class Landmarks:
 class LandmarkClasses:
     """A class dictionary: landmark class ``names`` and ``mapping`` mask class name -> landmark class.
 
-    Mask classes absent from ``mapping`` are dropped. ``mask_table`` (a class table in
+    Mask classes absent from ``mapping`` are dropped. ``other_ground`` lists mask classes that
+    are known flat ground of no landmark class (grass, parking...): the ``profile`` method
+    (:mod:`localization.profile`) matches them as one more class, "other", on both sides; they
+    never become landmarks. ``mask_table`` (a class table in
     ``data_manifests/``) or ``mask_classes`` (names by label value 0, 1, ...) say which mask
     labels the names refer to, so a mask can be read without passing its table.
     """
@@ -159,6 +162,7 @@ class LandmarkClasses:
     mask_table: str | None = None
     mask_classes: tuple[str, ...] | None = None
     description: str = field(default="", compare=False)
+    other_ground: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         names = tuple(self.names)
@@ -171,6 +175,10 @@ class LandmarkClasses:
                                   f"{list(names)}")
         object.__setattr__(self, "names", names)
         object.__setattr__(self, "mapping", dict(self.mapping))
+        object.__setattr__(self, "other_ground", tuple(self.other_ground))
+        clash = sorted(set(self.other_ground) & set(self.mapping))
+        if clash:
+            raise ClassTableError(f"{where}: classes {clash} are both mapped to landmarks and listed as other_ground")
         if self.mask_classes is not None:
             object.__setattr__(self, "mask_classes", tuple(self.mask_classes))
 
@@ -201,7 +209,8 @@ def load_landmark_classes(name_or_path: str) -> LandmarkClasses:
         return LandmarkClasses(names=names, mapping=mapping, name=str(raw.get("name", path.stem)),
                                mask_table=raw.get("mask_table"),
                                mask_classes=tuple(mask_classes) if mask_classes is not None else None,
-                               description=str(raw.get("description", "")))
+                               description=str(raw.get("description", "")),
+                               other_ground=tuple(raw.get("other_ground", ())))
     except (KeyError, TypeError) as exc:
         raise ClassTableError(f"{path}: malformed landmark dictionary ({exc}); "
                               "see data_manifests/landmarks-aerial13.toml") from None

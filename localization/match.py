@@ -338,8 +338,12 @@ def _check(p: float, top_k: int, stride: int) -> None:
 
 def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, query_cliques: Cliques, *,
                   p: float = DEFAULT_P, top_k: int = 5, window: int = 0, query_window: int = 0,
-                  aerial_drop: np.ndarray | None = None, query_drop: np.ndarray | None = None) -> Localization:
+                  aerial_drop: np.ndarray | None = None, query_drop: np.ndarray | None = None,
+                  conventions: str = "osmseg") -> Localization:
     """Steps 1-6 of the module docstring on graphs already built (no window choice here).
+
+    ``conventions="authors"``: ties go to the first candidate in the cliques' order, as the
+    authors' ``maxk`` (with cliques built with the same conventions: lexicographic order).
 
     ``window`` and ``query_window`` are only recorded in the result (default: the cliques' own).
     ``aerial_drop``/``query_drop`` remove edges from the graphs (:func:`~localization.refine.feature_edge_mask`).
@@ -369,12 +373,13 @@ def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, 
     clique_lik = _ncc(query_vec, _normalise(table.counts(own)))  # tie-breaker: the clique before extension
     centers = np.asarray(aerial_cliques.centers, dtype=np.float64)[relevant]
     return answered(centers, lik, posteriors(lik), top_k, clique_likelihoods=clique_lik, relevant=relevant,
-                    **settings)
+                    by_index=conventions == "authors", **settings)
 
 
 def localize(aerial: Landmarks, query: Landmarks, *, window: int | None = None, query_window: int | None = None,
              p: float = DEFAULT_P, stride: int = 1, top_k: int = 5, fast: bool = True,
-             aerial_drop: np.ndarray | None = None, query_drop: np.ndarray | None = None) -> Localization:
+             aerial_drop: np.ndarray | None = None, query_drop: np.ndarray | None = None,
+             conventions: str = "osmseg") -> Localization:
     """Localize ``query`` (a panorama's or an aerial crop's landmarks) in ``aerial``.
 
     Args:
@@ -390,6 +395,8 @@ def localize(aerial: Landmarks, query: Landmarks, *, window: int | None = None, 
         fast: exact event-sweep cliques (:func:`cliques_fast`) instead of the plain sliding window.
         aerial_drop, query_drop: ``(K, K)`` landmark pairs whose edges are removed (§5.3.2,
             :func:`~localization.refine.feature_edge_mask`); None keeps every edge.
+        conventions: ``osmseg`` or ``authors`` (their MATLAB demo's windows, positions and
+            tie-break: :func:`~localization.graph.cliques_fast`, :func:`match_cliques`).
 
     Returns an unanswered :class:`Localization` (not an exception) when either image has no
     landmark, the query graph has no edge, no aerial clique holds all the query's classes, or
@@ -406,8 +413,9 @@ def localize(aerial: Landmarks, query: Landmarks, *, window: int | None = None, 
     w = int(window) if window is not None else window_size_auto(aerial)
     qw = int(query_window) if query_window is not None else (query.height if query.panorama else w)
     build = cliques_fast if fast else cliques_reference
-    result = match_cliques(aerial, build(aerial, w, stride), query, build(query, qw, stride),
-                           p=p, top_k=top_k, window=w, query_window=qw, aerial_drop=aerial_drop, query_drop=query_drop)
+    result = match_cliques(aerial, build(aerial, w, stride, conventions), query, build(query, qw, stride, conventions),
+                           p=p, top_k=top_k, window=w, query_window=qw, aerial_drop=aerial_drop, query_drop=query_drop,
+                           conventions=conventions)
     logger.debug("localize: window %d, query window %d, %d cliques, %d candidates, ties %d",
                  w, qw, result.n_cliques, len(result.candidates), result.ties)
     return result

@@ -17,7 +17,9 @@ pairs in that layout, which is what :func:`load_pairs` reads::
 writes the same ``results.json`` and pictures as the rendered-panorama benchmark
 (:mod:`localization.evaluate`): errors in metres given the aerial resolution, else in pixels.
 With the truth at the centre, "guess the image centre" scores 0: the baseline to beat is the
-random guess.
+random guess. ``methods`` adds the profile method side by side (it needs ``resolution_m``;
+heading known, or searched with ``heading="unknown"``), and ``conventions="authors"`` runs the
+paper method as the authors' MATLAB demo does (truth then ``(W/2, H/2)``, their ``[375 375]``).
 """
 
 from __future__ import annotations
@@ -27,16 +29,20 @@ import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 
-from localization.evaluate import (RECALL_RADII_M, aerial_graphs, baselines, by_num_classes, chance_errors,
-                                localize_subsets, subsets_of, summarize, write_results)
+from localization.evaluate import aerial_graphs, localize_subsets, subsets_of, write_results
+from localization.scores import RECALL_RADII_M, baselines, by_num_classes, chance_errors, summarize
+from localization.compare import confidence_of, error_fields, method_summary
 from localization.landmark_files import read_landmarks
 from localization.landmarks import LandmarkClasses, Landmarks, load_landmark_classes
+from localization.pipeline import METHODS, LocalizeConfig, aerial_graph, profile_index, run, run_profile
+from localization.profile import Camera
 from localization.result import DEFAULT_P
+from localization.search import ProfileConfig
 from osmseg import __version__
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.progress import Progress, track
@@ -73,8 +79,20 @@ class PairsConfig:
     resolution_m: float | None = None  # aerial metres per pixel: errors in metres; None: in pixels
     aerial_size: tuple[int, int] | None = None  # (width, height) when no image lies beside the files
     ground_size: tuple[int, int] | None = None
+    methods: tuple[str, ...] = ("paper",)   # side by side; the first fills the summary
+    heading: str = "known"           # "known": north-aligned (CVUSA); "unknown": the profile method searches it
+    profile: ProfileConfig = ProfileConfig(min_confidence=-1.0)  # always answer: the error is what is measured
+    camera_height_m: float = 2.0
+    conventions: str = "osmseg"      # the paper method's: osmseg, or the authors' MATLAB demo (truth (W/2, H/2))
 
     def __post_init__(self) -> None:
+        if not self.methods or any(m not in METHODS for m in self.methods) or len(set(self.methods)) != len(self.methods):
+            raise ConfigError(f"methods must be distinct names among {', '.join(METHODS)}, got {list(self.methods)}")
+        if self.heading not in ("known", "unknown"):
+            raise ConfigError(f"heading must be 'known' or 'unknown', got {self.heading!r}")
+        if "profile" in self.methods and self.resolution_m is None:
+            raise ConfigError("the profile method measures ground distances in metres: give the aerial resolution "
+                              "with --resolution (CVUSA's 750 px aerial images are about 0.2-0.3 m/px)")
         if not 0 < self.p <= 1:
             raise ConfigError(f"p must be in (0, 1], got {self.p}")
         if self.top_k < 1 or (self.window is not None and self.window < 1):
@@ -165,7 +183,8 @@ def load_pairs(folder: Path, config: PairsConfig = PairsConfig()) -> list[Pair]:
         gw, gh = _size(ground_images.get(name), config.ground_size, ground_files[name], "ground")
         aerial = read_landmarks(aerial_files[name], classes, aw, ah)
         ground = read_landmarks(ground_files[name], classes, gw, gh, panorama=True)
-        truth = truths.get(name, ((aw - 1) / 2, (ah - 1) / 2))
+        centre = (aw / 2, ah / 2) if config.conventions == "authors" else ((aw - 1) / 2, (ah - 1) / 2)
+        truth = truths.get(name, centre)  # the authors' demo: [375 375] of 750, in the files' own numbers
         if not (0 <= truth[0] < aw and 0 <= truth[1] < ah):
             raise DatasetError(f"{folder / 'truth.csv'}: the truth of {name} ({truth[0]:g}, {truth[1]:g}) is outside "
                                f"its {aw}x{ah} aerial image")
@@ -190,8 +209,25 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
     records: list[dict[str, Any]] = []
     t_start = time.perf_counter()
     for index, pair in enumerate(track(pairs, progress, "pairs", unit="pair")):
-        graphs = aerial_graphs(pair.aerial, subsets, config.window)
-        scored, seconds = localize_subsets(graphs, pair.ground, pair.truth, scale, config.p, config.top_k)
+        graphs = aerial_graphs(pair.aerial, subsets, config.window, config.conventions)
+        scored, seconds = localize_subsets(graphs, pair.ground, pair.truth, scale, config.p, config.top_k,
+                                           conventions=config.conventions)
+        methods: dict[str, dict[str, Any]] = {}
+        if "paper" in config.methods:
+            paper = LocalizeConfig(p=config.p, top_k=config.top_k, conventions=config.conventions)
+            other = pairs[(index + 1) % len(pairs)] if len(pairs) > 1 else None
+            negative = (run(paper, aerial_graph(other.aerial.of_classes(subsets[0]),
+                                                LocalizeConfig(window=config.window, conventions=config.conventions)),
+                            pair.ground.of_classes(subsets[0])) if other is not None else None)
+            methods["paper"] = {**{k: v for k, v in scored.items() if k != "by_subset"}, "localize_s": round(seconds, 4),
+                                "heading_error_deg": None,
+                                "confidence": confidence_of(run(paper, graphs[subsets[0]], pair.ground.of_classes(subsets[0]))),
+                                "negative_confidence": None if negative is None else confidence_of(negative)}
+        if "profile" in config.methods:
+            methods["profile"] = _profile_pair(pair, pairs[(index + 1) % len(pairs)] if len(pairs) > 1 else None,
+                                               config, scale)
+        if config.methods[0] == "profile":
+            scored = {**scored, **{k: v for k, v in methods["profile"].items() if k in scored}}
         centre, uniform = chance_errors((pair.aerial.height, pair.aerial.width), pair.truth, scale)
         ground = pair.ground
         records.append({
@@ -199,12 +235,13 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
             "aerial_landmarks": len(pair.aerial), "query_landmarks": len(ground), "window_px": graphs[subsets[0]].window,
             "classes_seen": sorted({ground.classes[c] for c in set(ground.cls.tolist())}),
             "centre_guess": round(centre, 4), "random_guess": round(uniform, 4), "localize_s": round(seconds, 4),
-            **scored,
+            **scored, "methods": methods,
         })
     total = time.perf_counter() - t_start
     settings = asdict(config)
+    settings["methods"] = list(config.methods)
     results = {
-        "format": "osmseg-localize-bench", "format_version": 2, "tool": f"osmseg {__version__}",
+        "format": "osmseg-localize-bench", "format_version": 3, "tool": f"osmseg {__version__}",
         "kind": "annotated pairs", "queries": "annotated pairs", "unit": "m" if config.resolution_m else "px",
         "settings": settings, "source": source,
         "landmark_classes": {"name": classes.name, "names": list(classes.names), "mapping": dict(classes.mapping)},
@@ -212,8 +249,25 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
         "summary": summarize(records, radii),
         "baselines": baselines(records),
         "by_num_classes": by_num_classes(subsets, records, radii),
+        "methods": {m: method_summary(records, m, lambda rows: summarize(rows, radii)) for m in config.methods},
         "timing": {"total_s": round(total, 3), "localize_mean_s": _mean_time(records)},
         "viewpoints": records,
     }
     write_results(results, Path(out_dir), plots)
     return results
+
+
+def _profile_pair(pair: Pair, other: Pair | None, config: PairsConfig, scale: float) -> dict[str, Any]:
+    """The profile method on one pair's landmark files; also on the next pair's aerial image (a non-match)."""
+    t0 = time.perf_counter()
+    cfg = replace(config.profile, heading_deg=0.0 if config.heading == "known" else None, top_k=config.top_k)
+    camera = Camera(pair.ground.width, pair.ground.height, camera_height_m=config.camera_height_m)
+    loc = run_profile(cfg, profile_index(pair.aerial, config.resolution_m, cfg), pair.ground, camera)
+    seconds = time.perf_counter() - t0
+    negative = (run_profile(cfg, profile_index(other.aerial, config.resolution_m, cfg), pair.ground, camera)
+                if other is not None else None)
+    heading = None if config.heading == "known" or loc.heading_deg is None else \
+        round(abs((loc.heading_deg + 180.0) % 360.0 - 180.0), 3)  # CVUSA panoramas face north: the truth is 0
+    return {**error_fields(loc, pair.truth, scale), "localize_s": round(seconds, 4), "heading_error_deg": heading,
+            "confidence": loc.confidence,
+            "negative_confidence": None if negative is None else negative.confidence}

@@ -23,17 +23,24 @@ from typing import Any
 import numpy as np
 
 from localization.features import FeatureEdges
-from localization.graph import Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
+from localization.graph import CONVENTIONS, Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
 from localization.inputs import Side, SideOptions, load_side, with_photo
 from localization.landmarks import Landmarks
 from localization.match import DEFAULT_P, Localization, localize, match_cliques, unanswered
+from localization.profile import (AerialLandmarkIndex, AerialMaskIndex, Camera, QueryProfile, SemanticMap,
+                                  query_from_landmarks, query_from_mask, ray_radii)
 from localization.refine import HIERARCHY, localize_hierarchical
+from localization.search import AerialIndex, ProfileConfig, localize_profile
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_text
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["AerialGraph", "LocalizeConfig", "LocalizeFiles", "LocalizeReport", "aerial_graph", "localize_files", "run"]
+__all__ = ["METHODS", "AerialGraph", "LocalizeConfig", "LocalizeFiles", "LocalizeReport", "aerial_graph",
+           "localize_files", "profile_index", "profile_query", "run", "run_profile"]
+
+#: ``paper``: landmark-graph matching (Verde et al. 2020); ``profile``: angular profiles on a dense grid.
+METHODS = ("paper", "profile")
 
 
 @dataclass(frozen=True)
@@ -55,8 +62,19 @@ class LocalizeConfig:
     hierarchical: bool = False
     windows: tuple[int, ...] = HIERARCHY
     features: FeatureEdges | None = None
+    method: str = "paper"
+    conventions: str = "osmseg"     # the paper method's: osmseg, or the authors' MATLAB demo (localization.graph)
+    profile: ProfileConfig = field(default_factory=ProfileConfig)  # the profile method's settings
+    fov_deg: float = 360.0          # the query's horizontal field of view (profile method)
+    camera_height_m: float = 2.0    # the query camera's height above the ground (profile method)
 
     def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ConfigError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.conventions not in CONVENTIONS:
+            raise ConfigError(f"conventions must be one of {', '.join(CONVENTIONS)}, got {self.conventions!r}")
+        if self.conventions == "authors" and (self.hierarchical or self.features is not None):
+            raise ConfigError("the authors' conventions are those of their demo: one window, no feature edges")
         for name, value in (("window", self.window), ("query_window", self.query_window)):
             if value is not None and value < 1:
                 raise ConfigError(f"{name} must be at least 1 pixel, got {value}")
@@ -79,7 +97,7 @@ def aerial_graph(lm: Landmarks, config: LocalizeConfig = LocalizeConfig()) -> Ae
         return AerialGraph(lm, 0, None)
     w = int(config.window) if config.window is not None else window_size_auto(lm)
     build = cliques_fast if config.fast else cliques_reference
-    return AerialGraph(lm, w, build(lm, w, config.stride))
+    return AerialGraph(lm, w, build(lm, w, config.stride, config.conventions))
 
 
 def run(config: LocalizeConfig, aerial: Landmarks | AerialGraph, query: Landmarks, *,
@@ -98,7 +116,7 @@ def run(config: LocalizeConfig, aerial: Landmarks | AerialGraph, query: Landmark
     if not isinstance(aerial, AerialGraph):
         return localize(lm, query, window=config.window, query_window=config.query_window, p=config.p,
                         stride=config.stride, top_k=config.top_k, fast=config.fast,
-                        aerial_drop=aerial_drop, query_drop=query_drop)
+                        aerial_drop=aerial_drop, query_drop=query_drop, conventions=config.conventions)
     graph = aerial
     if graph.cliques is None:
         return unanswered("the aerial image has no landmarks", p=config.p)
@@ -106,11 +124,46 @@ def run(config: LocalizeConfig, aerial: Landmarks | AerialGraph, query: Landmark
         return unanswered("the query has no landmarks", p=config.p)
     qw = config.query_window or (query.height if query.panorama else graph.window)
     build = cliques_fast if config.fast else cliques_reference
-    result = match_cliques(lm, graph.cliques, query, build(query, qw, config.stride), p=config.p,
+    result = match_cliques(lm, graph.cliques, query, build(query, qw, config.stride, config.conventions), p=config.p,
                            top_k=config.top_k, window=graph.window, query_window=qw,
-                           aerial_drop=aerial_drop, query_drop=query_drop)
+                           aerial_drop=aerial_drop, query_drop=query_drop, conventions=config.conventions)
     logger.debug("localize: window %d, query window %d, %d cliques, %d candidates, ties %d",
                  graph.window, qw, result.n_cliques, len(result.candidates), result.ties)
+    return result
+
+
+def profile_index(aerial: SemanticMap | Landmarks, resolution_m: float | None,
+                  config: ProfileConfig = ProfileConfig()) -> AerialIndex:
+    """The aerial side of the profile method: from a mask (ray casting) or landmark points (kernels)."""
+    if not resolution_m:
+        raise ConfigError("the profile method measures distances in metres: give the aerial resolution "
+                          "(--resolution, m/px), or a GeoTIFF or dataset mask that records it")
+    if isinstance(aerial, SemanticMap):
+        return AerialMaskIndex(aerial, resolution_m, config.samples)
+    return AerialLandmarkIndex(aerial, resolution_m, sigma_deg=config.sigma_deg, distance_sd=config.distance_sd,
+                               d0_m=config.d0_m)
+
+
+def profile_query(query: SemanticMap | Landmarks, camera: Camera, config: ProfileConfig = ProfileConfig()
+                  ) -> QueryProfile:
+    """The query side of the profile method, in compass azimuths (heading given) or its own frame (unknown)."""
+    radii = ray_radii(camera, config.radii, config.min_range_m, config.max_range_m)
+    if isinstance(query, SemanticMap):
+        return query_from_mask(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg)
+    bins = config.bins or max(8, int(round(360.0 / (config.sigma_deg / 2))))
+    return query_from_landmarks(query, camera, bins=bins, radii=radii, heading_deg=config.heading_deg)
+
+
+def run_profile(config: ProfileConfig, aerial: AerialIndex, query: SemanticMap | Landmarks | QueryProfile,
+                camera: Camera | None = None) -> Localization:
+    """Localize ``query`` (its mask or landmarks seen by ``camera``, or a ready profile) with the profile method."""
+    if not isinstance(query, QueryProfile):
+        if camera is None:
+            raise ConfigError("the profile method needs the query camera (image size and field of view)")
+        query = profile_query(query, camera, config)
+    result = localize_profile(aerial, query, config)
+    logger.debug("localize (profile): heading %s, confidence %s, %d positions at the finest level",
+                 result.heading_deg, result.confidence, len(result.candidates))
     return result
 
 
@@ -158,6 +211,8 @@ def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path
                           f"every landmark would be in one window; give less than {max(a.width, a.height)}, or auto")
     if truth is not None and not (0 <= truth[0] < a.width and 0 <= truth[1] < a.height):
         raise ConfigError(f"--truth {truth[0]:g},{truth[1]:g} is outside the aerial image ({a.width}x{a.height})")
+    if config.method == "profile":
+        return _profile_files(request, config, aerial, ground, out_dir)
     drops: dict[str, np.ndarray | None] = {}
     if config.features is not None:
         drops = config.features.masks({
@@ -182,6 +237,39 @@ def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path
     if out_dir is not None:
         report.written.extend(_pictures(out_dir, report, config, resolution))
         full = {**summary, **result.to_dict(all_candidates=True)}
+        report.written.append(atomic_write_text(out_dir / "result.json",
+                                                json.dumps(full, indent=2, sort_keys=True) + "\n"))
+    return report
+
+
+def _profile_files(request: LocalizeFiles, config: LocalizeConfig, aerial: Side, ground: Side,
+                   out_dir: Path | None) -> LocalizeReport:
+    """localize_files for the profile method: masks where given, else the landmark lists."""
+    if not request.ground_options.panorama and config.fov_deg >= 360:
+        raise ConfigError("the profile method localizes ground views: a panorama, or a photo with --fov DEGREES")
+    resolution = request.resolution_m or aerial.resolution
+    index = profile_index(aerial.semantic if aerial.semantic is not None else aerial.landmarks, resolution,
+                          config.profile)
+    g = ground.landmarks
+    camera = Camera(g.width, g.height, hfov_deg=config.fov_deg, camera_height_m=config.camera_height_m)
+    result = run_profile(config.profile, index, ground.semantic if ground.semantic is not None else g, camera)
+    truth = request.truth
+    error_px, error_m = result.error(truth, resolution)
+    summary: dict[str, Any] = {"aerial": str(request.aerial), "ground": str(request.ground),
+                               "aerial_landmarks": len(aerial.landmarks), "ground_landmarks": len(g),
+                               "inputs": {"aerial": "mask" if aerial.semantic is not None else "landmarks",
+                                          "ground": "mask" if ground.semantic is not None else "landmarks"}}
+    if truth is not None:
+        summary["truth"] = {"x": truth[0], "y": truth[1], "error_px": error_px, "error_m": error_m}
+    report = LocalizeReport(result, aerial, ground, error_px, error_m, summary)
+    if out_dir is not None:
+        try:
+            from localization import figures
+        except ImportError:
+            raise ConfigError("pictures need matplotlib: pip install matplotlib (or leave out --out)") from None
+        report.written.append(figures.localization_png(out_dir / "localization.png", result, aerial.landmarks,
+                                                       image=aerial.picture(), truth=truth, resolution=resolution))
+        full = {**summary, **result.to_dict(all_candidates=False)}
         report.written.append(atomic_write_text(out_dir / "result.json",
                                                 json.dumps(full, indent=2, sort_keys=True) + "\n"))
     return report

@@ -70,7 +70,7 @@ from osmseg.errors import ConfigError
 
 __all__ = [
     "DEFAULT_HEIGHTS", "SKY_NAME", "SKY_COLOR", "RenderConfig", "NoiseConfig", "Panorama", "RenderedView",
-    "panorama_table", "column_azimuths", "azimuth_to_column", "row_elevations",
+    "panorama_table", "object_heights", "column_azimuths", "azimuth_to_column", "row_elevations",
     "elevation_to_row", "render_panorama", "offset_viewpoint", "apply_noise", "render_view", "save_panorama_png",
 ]
 
@@ -93,6 +93,8 @@ class RenderConfig:
     vfov_deg: float | None = None  # None: square pixels in angle, 360 * height / width degrees
     heading_deg: float = 0.0
     far: str = "unlabeled"  # class of unseen ground rows (beyond range/off the mask): a class name or "sky"
+    height_spread: float = 0.0  # each building/tree gets its class height times U(1 - s, 1 + s) (seeded per object)
+    height_seed: int = 0
 
     def __post_init__(self) -> None:
         if self.width < 8 or self.height < 2:
@@ -103,6 +105,9 @@ class RenderConfig:
             raise ConfigError(f"vfov_deg must be in (0, 180], got {self.vfov_deg}")
         if any(not math.isfinite(h) or h < 0 for h in self.heights.values()):
             raise ConfigError("class heights must be finite and >= 0 metres")
+        if not 0 <= self.height_spread < 1:
+            raise ConfigError(f"height spread must be in [0, 1) (a fraction of each class height), "
+                              f"got {self.height_spread}")
 
     @property
     def row_step_deg(self) -> float:
@@ -239,14 +244,57 @@ def _class_id(table: ClassTable, name: str) -> int:
                           f"use one of {sorted(table.by_name)}") from None
 
 
+def _height_lut(table: ClassTable, config: RenderConfig) -> np.ndarray:
+    lut = np.zeros(256, dtype=np.float64)
+    for name, h in config.heights.items():
+        if name in table.by_name:  # heights of classes this table lacks are unused: one dict serves all tables
+            lut[table.by_name[name].id] = h
+    return lut
+
+
+def object_heights(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str,
+                   config: RenderConfig = RenderConfig()) -> np.ndarray:
+    """Per-pixel heights (H, W) in metres: each object's class height times its own random factor.
+
+    An object is an 8-connected component of one class with a height; its factor is drawn
+    uniformly from ``[1 - height_spread, 1 + height_spread]`` with ``height_seed`` (in
+    component order, so the same mask and seed give the same scene). The localization methods
+    never read these heights: the benchmark varies them so that a method tuned to the
+    renderer's class heights would fail.
+
+    >>> t = load_class_table("classes13.toml")
+    >>> m = np.zeros((5, 9), np.uint8); m[1:3, 1:3] = m[1:3, 5:8] = t.by_name["building"].id
+    >>> h = object_heights(m, t, RenderConfig(height_spread=0.5, height_seed=1))
+    >>> bool(h[1, 1] != h[1, 5]), bool(5.0 <= h[1, 1] <= 15.0), float(h[0, 0])
+    (True, True, 0.0)
+    """
+    from scipy import ndimage
+
+    mask = np.asarray(mask)
+    lut = _height_lut(panorama_table(table), config)
+    out = lut[mask].astype(np.float32)
+    if config.height_spread <= 0:
+        return out
+    rng = np.random.default_rng([config.height_seed, 7])
+    for cid in np.flatnonzero(lut > 0):
+        labels, n = ndimage.label(mask == cid, structure=np.ones((3, 3), dtype=bool))
+        if n:
+            factor = rng.uniform(1 - config.height_spread, 1 + config.height_spread, n + 1).astype(np.float32)
+            factor[0] = 1.0
+            out = np.where(labels > 0, out * factor[labels], out)
+    return out
+
+
 def render_panorama(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str, resolution_m: float,
                     viewpoint: tuple[float, float], config: RenderConfig = RenderConfig(), *,
-                    sources: bool = False) -> Panorama:
+                    sources: bool = False, heights: np.ndarray | None = None) -> Panorama:
     """Ray-cast the panorama seen from ``viewpoint`` (aerial pixels x, y) over the label ``mask``.
 
     One ray per column, all columns and steps at once (numpy, no Python loop over pixels).
     ``sources=True`` also records, per panorama pixel, the aerial pixel it shows
-    (:attr:`Panorama.sources`; sky and far ground: -1).
+    (:attr:`Panorama.sources`; sky and far ground: -1). ``heights`` (H, W) metres per pixel
+    (:func:`object_heights`, computed once per mask) replaces the class heights; without it, a
+    ``height_spread`` in ``config`` computes them here.
     """
     mask = np.asarray(mask)
     if mask.ndim != 2 or mask.size == 0 or not np.issubdtype(mask.dtype, np.integer):
@@ -258,10 +306,11 @@ def render_panorama(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | st
     x0, y0 = float(viewpoint[0]), float(viewpoint[1])
     if not (-0.5 <= x0 < mw - 0.5 and -0.5 <= y0 < mh - 0.5):
         raise ConfigError(f"viewpoint ({x0:g}, {y0:g}) is outside the {mw} x {mh} mask")
-    height_lut = np.zeros(256, dtype=np.float64)
-    for name, h in config.heights.items():
-        if name in pano_table.by_name:  # heights of classes this table lacks are unused: one dict serves all tables
-            height_lut[pano_table.by_name[name].id] = h
+    if heights is None and config.height_spread > 0:
+        heights = object_heights(mask, pano_table, config)
+    if heights is not None and np.shape(heights) != mask.shape:
+        raise ConfigError(f"heights must have the mask's shape {mask.shape}, got {np.shape(heights)}")
+    height_lut = _height_lut(pano_table, config)
     sky_id, far_id = _class_id(pano_table, SKY_NAME), _class_id(pano_table, config.far)
 
     w, h = config.width, config.height
@@ -272,7 +321,9 @@ def render_panorama(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | st
     ys = np.rint(y0 - np.cos(az)[:, None] * dist_px[None, :]).astype(np.int64)
     inside = (xs >= 0) & (xs < mw) & (ys >= 0) & (ys < mh)
     cls = np.where(inside, mask[np.clip(ys, 0, mh - 1), np.clip(xs, 0, mw - 1)], 0).astype(np.int64)
-    top = np.degrees(np.arctan2(height_lut[cls] - config.camera_height_m, dist_px[None, :] * resolution_m))
+    stand = (height_lut[cls] if heights is None else
+             np.where(inside, np.asarray(heights)[np.clip(ys, 0, mh - 1), np.clip(xs, 0, mw - 1)], 0.0))
+    top = np.degrees(np.arctan2(stand - config.camera_height_m, dist_px[None, :] * resolution_m))
     reached = np.where(inside, _rows_reached(top, config), 0)
     reached = np.maximum.accumulate(reached, axis=1)                          # the per-column z-buffer
 
@@ -359,7 +410,8 @@ def apply_noise(labels: np.ndarray, table: ClassTable, classes: LandmarkClasses,
 def render_view(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str, resolution_m: float,
                 viewpoint: tuple[float, float], classes: LandmarkClasses, *,
                 config: RenderConfig = RenderConfig(), noise: NoiseConfig = NoiseConfig(),
-                mode: str = "centroid", min_size: int = 50, stride: int = 50, sources: bool = False) -> RenderedView:
+                mode: str = "centroid", min_size: int = 50, stride: int = 50, sources: bool = False,
+                heights: np.ndarray | None = None) -> RenderedView:
     """Render the panorama at ``viewpoint`` (with ``noise``) and extract its landmarks.
 
     The landmarks are those of the (noisy) panorama, as cylinders (``panorama=True``), with the
@@ -372,7 +424,7 @@ def render_view(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str, r
         mask_shape = np.asarray(mask).shape
         camera = offset_viewpoint(camera, noise.offset_m, resolution_m, np.random.default_rng([noise.seed, 0]),
                                   (int(mask_shape[0]), int(mask_shape[1])))
-    pano = render_panorama(mask, table, resolution_m, camera, config, sources=sources)
+    pano = render_panorama(mask, table, resolution_m, camera, config, sources=sources, heights=heights)
     if noise.active:
         pano = dataclasses.replace(pano, labels=apply_noise(pano.labels, pano.table, classes, noise))
     marks = landmarks_from_mask(pano.labels, pano.table, classes, mode=mode, min_size=min_size, stride=stride,

@@ -22,7 +22,8 @@ TIE_RTOL = 1e-9
 TIE_ATOL = 1e-12
 
 
-def rank(scores: np.ndarray, centers: np.ndarray, second: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+def rank(scores: np.ndarray, centers: np.ndarray, second: np.ndarray | None = None,
+         by_index: bool = False) -> tuple[np.ndarray, int]:
     """Candidate indices best first, and how many share the best score.
 
     Scores within ``TIE_RTOL`` (relative) or ``TIE_ATOL`` of the best are tied with it. Ties
@@ -37,6 +38,8 @@ def rank(scores: np.ndarray, centers: np.ndarray, second: np.ndarray | None = No
     ([2, 1, 0], 2)
     >>> rank(scores, centers, second=np.array([0.0, 0.8, 0.7]))[0].tolist()
     [1, 2, 0]
+    >>> rank(scores, centers, by_index=True)[0].tolist()   # the authors' MATLAB maxk: first index first
+    [1, 2, 0]
     """
     s = np.asarray(scores, dtype=np.float64)
     if s.size == 0:
@@ -44,6 +47,9 @@ def rank(scores: np.ndarray, centers: np.ndarray, second: np.ndarray | None = No
     xy = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
     sec = np.zeros(s.size) if second is None else np.asarray(second, dtype=np.float64)
     index = np.arange(s.size)
+    if by_index:
+        order = np.lexsort((index, -s))
+        return order.astype(np.int64), int(np.isclose(s[order], s[order[0]], rtol=TIE_RTOL, atol=TIE_ATOL).sum())
     order = np.lexsort((index, xy[:, 0], xy[:, 1], -sec, -s))
     tied = np.isclose(s[order], s[order[0]], rtol=TIE_RTOL, atol=TIE_ATOL)
     n_tied = int(tied.sum())  # a prefix: scores are sorted
@@ -64,6 +70,8 @@ class Localization:
     ``likelihoods`` are eq. 3.3 and ``posteriors`` eq. 3.6 (hierarchical: their product over
     the levels, eq. 3.8). ``order`` lists candidate indices best first;
     ``top_k`` holds ``(x, y, score)`` of the first ``k``; ``map_xy`` is the best one.
+    ``method`` says which method answered (``paper``, ``profile``: :mod:`localization.search`,
+    which also sets ``heading_deg``, ``confidence`` and ``chance``).
     ``ties`` is how many candidates share the best score (1: a unique answer); ties are broken
     by ``clique_likelihoods`` (eq. 3.3 for the candidate's clique before extension), then by
     raster order. ``relevant`` gives each candidate's aerial clique index. When the
@@ -90,6 +98,10 @@ class Localization:
     clique_likelihoods: np.ndarray = field(default_factory=lambda: np.zeros(0))
     levels: tuple["Localization", ...] = ()
     feature_edges: dict[str, Any] | None = None
+    method: str = "paper"
+    heading_deg: float | None = None   # the profile method: the query's estimated (or given) heading
+    confidence: float | None = None    # the profile method: kappa of the best match (localization.search)
+    chance: float | None = None        # the profile method: agreement of a random position
 
     def error(self, truth: tuple[float, float] | None, resolution: float | None = None
               ) -> tuple[float | None, float | None]:
@@ -108,6 +120,7 @@ class Localization:
                 "likelihood": round(float(self.likelihoods[i]), 10)}
                for r, ((x, y, s), i) in enumerate(zip(self.top_k, self.order))]
         out: dict[str, Any] = {
+            "method": self.method,
             "unanswered": self.unanswered,
             "reason": self.reason,
             "window": self.window,
@@ -124,6 +137,9 @@ class Localization:
             out["candidates"] = [{"x": float(x), "y": float(y), "likelihood": lk, "posterior": s}
                                  for (x, y), lk, s in zip(self.candidates.tolist(), _floats(self.likelihoods),
                                                           _floats(self.posteriors))]
+        for name in ("heading_deg", "confidence", "chance"):
+            if getattr(self, name) is not None:
+                out[name] = getattr(self, name)
         if self.levels:
             out["levels"] = [lv.to_dict(all_candidates=False) for lv in self.levels]
         if self.feature_edges is not None:
@@ -140,9 +156,9 @@ def unanswered(reason: str, **settings: Any) -> Localization:
 
 
 def answered(centers: np.ndarray, likelihoods: np.ndarray, scores: np.ndarray, top_k: int, *,
-             clique_likelihoods: np.ndarray, **settings: Any) -> Localization:
+             clique_likelihoods: np.ndarray, by_index: bool = False, **settings: Any) -> Localization:
     """A result over candidates at ``centers``, ranked by ``scores`` then ``clique_likelihoods`` (:func:`rank`)."""
-    order, ties = rank(scores, centers, clique_likelihoods)
+    order, ties = rank(scores, centers, clique_likelihoods, by_index)
     top = tuple((float(centers[i, 0]), float(centers[i, 1]), float(scores[i])) for i in order[:top_k])
     return Localization(candidates=np.asarray(centers, dtype=np.float64), likelihoods=likelihoods, posteriors=scores,
                         order=order, top_k=top, map_xy=(top[0][0], top[0][1]), ties=ties, unanswered=False,

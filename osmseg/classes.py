@@ -154,7 +154,8 @@ class ClassDef:
 
 @dataclass(frozen=True)
 class ClassTable:
-    """An ordered set of classes plus the unlabeled class 0."""
+    """An ordered set of classes plus the unlabeled class: id 0 in osmseg's tables; another id
+    where a dataset has its own convention (CamVid's void is 11: ``camvid.toml``)."""
 
     name: str
     classes: tuple[ClassDef, ...]
@@ -166,7 +167,7 @@ class ClassTable:
     @property
     def num_classes(self) -> int:
         """Number of label values including unlabeled (max id + 1)."""
-        return max(c.id for c in self.classes) + 1
+        return max(c.id for c in (self.unlabeled, *self.classes)) + 1
 
     @property
     def by_name(self) -> dict[str, ClassDef]:
@@ -252,17 +253,20 @@ class ClassTable:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able summary (id, name, colour) for manifests and checkpoints; :meth:`from_dict` reads it."""
-        return {
+        out: dict[str, Any] = {
             "name": self.name,
             "classes": [{"id": c.id, "name": c.name, "color": list(c.color)} for c in (self.unlabeled, *self.classes)],
         }
+        if self.unlabeled.id != 0:  # osmseg's own tables keep the form they always had
+            out["unlabeled"] = self.unlabeled.id
+        return out
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "class table") -> ClassTable:
         """A table from its :meth:`to_dict` form (manifest.json, checkpoints, GeoTIFF tags).
 
-        The one reader of that form: ids must be unique integers in 0..255 with 0 (unlabeled)
-        and at least one class more, colours three integers 0..255. Tag rules are not part of
+        The one reader of that form: ids must be unique integers in 0..255 with the unlabeled
+        id (``unlabeled``, default 0) and at least one class more, colours three integers 0..255. Tag rules are not part of
         the form: the result names and colours classes, it does not rasterise OSM.
 
         >>> t = load_class_table("classes6.toml")
@@ -280,11 +284,12 @@ class ClassTable:
             raise DatasetError(f"{where}: classes must be a list of {{id, name, color}} "
                                "with colours of three integers 0..255") from None
         ids = [c.id for c in defs]
-        if len(set(ids)) != len(ids) or not all(0 <= i < 256 for i in ids) or 0 not in ids or len(defs) < 2:
+        void = data.get("unlabeled", 0) if isinstance(data, Mapping) else 0
+        if (len(set(ids)) != len(ids) or not all(0 <= i < 256 for i in ids) or void not in ids or len(defs) < 2):
             raise DatasetError(f"{where}: class ids must be unique, in 0..255, with 0 (unlabeled) and one class more")
-        unlabeled = next(c for c in defs if c.id == 0)
+        unlabeled = next(c for c in defs if c.id == void)
         name = data.get("name", "dataset") if isinstance(data, Mapping) else "dataset"
-        return cls(name=str(name), classes=tuple(c for c in defs if c.id != 0), unlabeled=unlabeled)
+        return cls(name=str(name), classes=tuple(c for c in defs if c.id != void), unlabeled=unlabeled)
 
 
 def _color(value: Any, where: str) -> RGB:
@@ -299,8 +304,8 @@ def load_class_table(name: str = "classes13.toml") -> ClassTable:
     try:
         un = raw["unlabeled"]
         unlabeled = ClassDef(id=int(un["id"]), name=un["name"], color=_color(un["color"], f"{name} unlabeled"))
-        if unlabeled.id != 0:
-            raise ClassTableError(f"{name}: unlabeled must have id 0")
+        if not 0 <= unlabeled.id < 256:
+            raise ClassTableError(f"{name}: the unlabeled id must be in 0..255")
         base = load_class_table(raw["base"]) if "base" in raw else None
         classes = []
         for entry in raw["classes"]:
@@ -336,8 +341,9 @@ def load_class_table(name: str = "classes13.toml") -> ClassTable:
             raise
         raise ClassTableError(f"{name}: malformed class table ({exc!r}); see data_manifests/classes13.toml") from None
     ids = [c.id for c in classes]
-    if len(set(ids)) != len(ids) or 0 in ids or not all(0 < i < 256 for i in ids):
-        raise ClassTableError(f"{name}: class ids must be unique and in 1..255, got {ids}")
+    if len(set(ids)) != len(ids) or unlabeled.id in ids or not all(0 <= i < 256 for i in ids):
+        raise ClassTableError(f"{name}: class ids must be unique, in 0..255 and not the unlabeled id "
+                              f"{unlabeled.id}, got {ids}")
     try:
         hidden = tuple(Rule(geometry="any", tags=dict(tags)) for tags in raw.get("hidden", ()))
     except (TypeError, ValueError):

@@ -366,22 +366,23 @@ def _rescale(runner: _Runner, source: Source, sink: Any, options: InferenceOptio
 def run_model(model: torch.nn.Module, spec: ModelSpec, source: Source, sink: Any,
              options: InferenceOptions, progress: Progress | None) -> None:
     """Predict ``source`` into ``sink``. Pixels the source marks as empty (nodata, an alpha band, a
-    GDAL mask, transparent PNG pixels) get class 0 (unlabeled): the model saw no image there."""
+    GDAL mask, transparent PNG pixels) get the unlabeled class: the model saw no image there."""
     runner = _Runner(model, spec, options)
     size = (int(spec.input_size[0]), int(spec.input_size[1]))
     run = _rescale if options.mode == "rescale" else _split_join
-    run(runner, source, _MaskedSink(sink, source) if source.has_mask else sink, options, size, progress)
+    void = spec.table.unlabeled.id
+    run(runner, source, _MaskedSink(sink, source, void) if source.has_mask else sink, options, size, progress)
 
 
 class _MaskedSink:
-    """Writes class 0 where the source has no valid pixel."""
+    """Writes the unlabeled class where the source has no valid pixel."""
 
-    def __init__(self, sink: Any, source: Source) -> None:
-        self.sink, self.source = sink, source
+    def __init__(self, sink: Any, source: Source, void: int = 0) -> None:
+        self.sink, self.source, self.void = sink, source, void
 
     def write(self, top: int, left: int, classes: np.ndarray) -> None:
         valid = self.source.valid((top, top + classes.shape[0], left, left + classes.shape[1]))
-        self.sink.write(top, left, np.where(valid, classes, 0).astype(classes.dtype))
+        self.sink.write(top, left, np.where(valid, classes, self.void).astype(classes.dtype))
 
 
 def predict_array(model: torch.nn.Module, rgb: np.ndarray, spec: ModelSpec, mode: str = "split-join", *,

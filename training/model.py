@@ -180,7 +180,8 @@ def model_spec(name: str, width: float = 1.0, ignore_unlabeled: bool = True,
 
     ``class_table`` (a ClassTable, its ``to_dict()``, or a TOML name/path) defaults to the
     preset's (``airsegnet6`` -> ``classes6.toml``, ``airsegnet13`` -> ``classes13.toml``); other
-    names need one.  ``ignore_unlabeled`` makes class 0 the loss's and metrics' ignore index.
+    names need one.  ``ignore_unlabeled`` makes the unlabeled class (0; CamVid's void 11) the loss's
+    and metrics' ignore index.
     The default normalisation is ImageNet's mean/std: what an ImageNet-initialised encoder
     expects, and for a randomly initialised one just a harmless centring of the inputs.
 
@@ -200,7 +201,7 @@ def model_spec(name: str, width: float = 1.0, ignore_unlabeled: bool = True,
         table = load_class_table(str(class_table))
     return ModelSpec(arch="segnet", name=name, num_classes=table.num_classes, width=float(width),
                      class_table=table.to_dict(),
-                     ignore_index=0 if ignore_unlabeled else None, input_size=(int(input_size[0]), int(input_size[1])),
+                     ignore_index=table.unlabeled.id if ignore_unlabeled else None, input_size=(int(input_size[0]), int(input_size[1])),
                      mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std),  # type: ignore[arg-type]
                      resolution_m=None if resolution_m is None else float(resolution_m))
 

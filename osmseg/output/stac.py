@@ -124,7 +124,7 @@ def classification(table: ClassTable) -> list[Classification]:
     if len(set(names)) != len(names):
         raise DatasetError(f"manifest classes: names {[c.name for c in classes]} do not stay distinct as {names}")
     return [Classification.create(value=c.id, name=n, title=c.name, color_hint="%02X%02X%02X" % c.color,
-                                  description=UNLABELED_TEXT if c.id == 0 else None) for c, n in zip(classes, names)]
+                                  description=UNLABELED_TEXT if c.id == table.unlabeled.id else None) for c, n in zip(classes, names)]
 
 
 def _numbers(value: Any, n: int, what: str) -> list[float]:

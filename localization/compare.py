@@ -1,0 +1,147 @@
+"""Methods side by side in one benchmark run: views as each method sees them, scores, ROC AUC.
+
+:mod:`localization.evaluate` renders each view once and hands it to every method asked for
+(``paper``, ``profile``). This module holds what differs per method and what compares them:
+
+* :func:`photo_view` cuts a limited field of view out of a rendered panorama (a photo of
+  ``fov_deg`` degrees centred on the camera's heading) and gives its landmarks;
+* :func:`run_method` localizes one view with one method and scores it, also against a
+  *non-matching* aerial image (another scene) for the confidence;
+* :func:`roc_auc` and :func:`method_summary` turn the records into the numbers the bench
+  prints: error statistics, heading error, and how well each method's confidence separates
+  matching from non-matching pairs (the ``paper`` method's confidence is its MAP likelihood,
+  eq. 3.3; the ``profile`` method's is its kappa, :mod:`localization.search`).
+
+Imports: numpy, osmseg core, localization (landmarks, pipeline, profile, search, render).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask
+from localization.match import Localization
+from localization.pipeline import AerialGraph, LocalizeConfig, run, run_profile
+from localization.profile import Camera, SemanticMap, semantic_map
+from localization.render import Panorama
+from localization.search import AerialIndex, ProfileConfig
+
+__all__ = ["Query", "confidence_of", "error_fields", "photo_view", "run_method", "roc_auc", "method_summary"]
+
+
+@dataclass(frozen=True)
+class Query:
+    """One view as the methods get it: its mask in landmark classes, its landmarks and its camera."""
+
+    semantic: SemanticMap
+    landmarks: Landmarks
+    camera: Camera
+    heading_deg: float   # the true heading (compass azimuth of the centre column)
+
+
+def photo_view(panorama: Panorama, classes: LandmarkClasses, fov_deg: float, *, camera_height_m: float,
+               mode: str, min_size: int, stride: int, landmarks: Landmarks | None = None) -> Query:
+    """The query a camera of ``fov_deg`` (360: the whole panorama) pointing at the panorama's heading sees."""
+    labels = panorama.labels
+    h, w = labels.shape
+    step = 360.0 / w
+    if fov_deg >= 360:
+        lm = landmarks if landmarks is not None else landmarks_from_mask(
+            labels, panorama.table, classes, mode=mode, min_size=min_size, stride=stride, panorama=True)
+        cam = Camera(w, h, hfov_deg=360.0, row_step_deg=step, camera_height_m=camera_height_m)
+    else:
+        n = max(2, int(round(w * fov_deg / 360.0)))
+        start = (w - n) // 2
+        labels = np.ascontiguousarray(labels[:, start:start + n])
+        lm = landmarks_from_mask(labels, panorama.table, classes, mode=mode, min_size=min_size, stride=stride)
+        # the crop's centre column keeps the panorama's centre azimuth when n and w have the same parity
+        cam = Camera(n, h, hfov_deg=n * step, row_step_deg=step, camera_height_m=camera_height_m)
+    return Query(semantic_map(labels, panorama.table, classes), lm, cam, panorama.heading_deg)
+
+
+def error_fields(loc: Localization, truth: tuple[float, float], scale: float) -> dict[str, Any]:
+    """The error record of one answer (as :func:`localization.scores.score`, without its candidate statistics)."""
+    if loc.map_xy is None:
+        return {"map": None, "error_px": None, "error": None, "top5_mean": None, "ties": loc.ties,
+                "unanswered": True, "reason": loc.reason}
+    err = math.hypot(loc.map_xy[0] - truth[0], loc.map_xy[1] - truth[1])
+    top = [math.hypot(x - truth[0], y - truth[1]) for x, y, _ in loc.top_k]
+    return {"map": [round(loc.map_xy[0], 3), round(loc.map_xy[1], 3)], "error_px": round(err, 4),
+            "error": round(err * scale, 4), "top5_mean": round(float(np.mean(top)) * scale, 4), "ties": loc.ties,
+            "unanswered": False, "reason": ""}
+
+
+def confidence_of(loc: Localization) -> float:
+    """A method's confidence in its answer: kappa (profile), the MAP likelihood (paper), -1 unanswered."""
+    if loc.method == "profile":
+        return float(loc.confidence) if loc.confidence is not None else -1.0
+    if loc.unanswered or not len(loc.order):
+        return -1.0
+    return float(loc.likelihoods[loc.order[0]])
+
+
+def run_method(method: str, query: Query, truth: tuple[float, float], scale: float, *,
+               paper: Callable[[], tuple[AerialGraph, AerialGraph | None]],
+               profile: Callable[[], tuple[AerialIndex, AerialIndex | None]],
+               paper_config: LocalizeConfig, profile_config: ProfileConfig, heading_known: bool) -> dict[str, Any]:
+    """One method on one view: its error, heading error, time, and confidence on the match and a non-match.
+
+    ``paper``/``profile`` give the aerial side of the view's scene and of a non-matching scene
+    (None with a single scene), built once per scene by the caller.
+    """
+    t0 = time.perf_counter()
+    if method == "paper":
+        graph, other = paper()
+        loc = run(paper_config, graph, query.landmarks)
+        seconds = time.perf_counter() - t0
+        negative = run(paper_config, other, query.landmarks) if other is not None else None
+        heading_error = None
+    else:
+        index, other_index = profile()
+        cfg = replace(profile_config, heading_deg=query.heading_deg if heading_known else None)
+        loc = run_profile(cfg, index, query.semantic, query.camera)
+        seconds = time.perf_counter() - t0
+        negative = run_profile(cfg, other_index, query.semantic, query.camera) if other_index is not None else None
+        heading_error = (None if heading_known or loc.heading_deg is None or loc.unanswered
+                         else round(abs((loc.heading_deg - query.heading_deg + 180.0) % 360.0 - 180.0), 3))
+    out = error_fields(loc, truth, scale)
+    out.update({"localize_s": round(seconds, 4), "confidence": round(confidence_of(loc), 6),
+                "negative_confidence": None if negative is None else round(confidence_of(negative), 6),
+                "heading_error_deg": heading_error})
+    return out
+
+
+def roc_auc(positive: Sequence[float], negative: Sequence[float]) -> float | None:
+    """Probability that a matching pair scores above a non-matching one (ties count half).
+
+    >>> roc_auc([0.9, 0.8], [0.1, 0.8])
+    0.875
+    """
+    if not len(positive) or not len(negative):
+        return None
+    pos, neg = np.asarray(positive, dtype=np.float64), np.asarray(negative, dtype=np.float64)
+    greater = (pos[:, None] > neg[None, :]).sum()
+    equal = (pos[:, None] == neg[None, :]).sum()
+    return round(float((greater + 0.5 * equal) / (len(pos) * len(neg))), 4)
+
+
+def method_summary(records: Sequence[dict[str, Any]], method: str,
+                   summarize: Callable[[Sequence[dict[str, Any]]], dict[str, Any]]) -> dict[str, Any]:
+    """Error statistics (``summarize``), heading error, ROC AUC and time of ``method`` over the records."""
+    rows = [r["methods"][method] for r in records]
+    headings = [r["heading_error_deg"] for r in rows if r["heading_error_deg"] is not None]
+    negatives = [r["negative_confidence"] for r in rows if r["negative_confidence"] is not None]
+    positives = [r["confidence"] for r in rows if r["confidence"] is not None]
+    out = summarize(rows)
+    out.update({
+        "median_heading_error_deg": round(float(np.median(headings)), 3) if headings else None,
+        "roc_auc": roc_auc(positives, negatives),
+        "localize_mean_s": round(float(np.mean([r["localize_s"] for r in rows])), 4) if rows else None,
+    })
+    return out

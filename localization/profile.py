@@ -1,0 +1,366 @@
+"""Angular profiles: what a camera standing at a point sees around the horizon, class by class.
+
+The ``profile`` method (:mod:`localization.search`) compares what the query shows at every
+azimuth with what the aerial image predicts from a candidate position. Both sides become the
+same kind of array, a **profile** ``(C, R + 1, A)``:
+
+* ``A`` azimuth bins of ``360 / A`` degrees, bin ``a`` centred on the compass azimuth
+  ``a * 360 / A`` (clockwise from north = up in the aerial image);
+* ``R`` ground distances ``radii_m`` (metres from the camera) plus one slot ``R`` for "seen
+  in this direction at some distance" (a landmark whose distance the query does not tell);
+* ``C`` landmark classes (the class dictionary's: building, road, vegetation, footway).
+
+**The query** (:func:`query_from_mask`, :func:`query_from_landmarks`). A ground camera
+``h`` metres above flat ground sees the ground at distance ``d`` at the depression angle
+``atan(h / d)`` below the horizon, so each panorama row under the horizon is one ground
+distance. The pixel there shows the ground's class at ``d`` if nothing stands in between, or
+else the *first thing that stands up* (a building, a tree) in that direction. Distances read
+this way come from the *bottom* of whatever is seen, never from its top, so they do not
+depend on how tall buildings or trees are. A landmark file's point gives its azimuth, and a
+distance when its class lies on the ground (road, footway) and its row is below the
+horizon; a standing landmark's point (a building's centre) goes to slot ``R``.
+
+**The aerial prediction** (:class:`AerialMaskIndex`, :class:`AerialLandmarkIndex`). From a
+mask: one ray per azimuth bin from the position, sampled outward; the class at radius ``r``
+is the first standing pixel's class before ``r`` if there is one, else the class at ``r``
+(the same first-hit rule, so occlusion is modelled; standing classes are the mask classes
+named in ``standing``). Slot ``R`` holds every class seen along the ray. From landmark points:
+``P[c, k, a] = max_i g(d_i) K_az(a - θ_i) K_d(d_i, r_k)`` over the landmarks ``i`` of class
+``c`` at bearing ``θ_i`` and distance ``d_i`` from the position, with a Gaussian bearing kernel,
+a log-normal distance kernel and a distance weight ``g(d) = 1 / (1 + d / d0)``.
+
+Imports: numpy, osmseg core, localization.landmarks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from localization.landmarks import LandmarkClasses, Landmarks, _landmark_lut
+from osmseg.classes import ClassTable
+from osmseg.errors import ConfigError
+
+__all__ = ["OTHER", "STANDING_MASK_CLASSES", "STANDING_LANDMARKS", "SemanticMap", "Camera", "QueryProfile", "semantic_map",
+           "query_from_mask", "query_from_landmarks", "AerialMaskIndex", "AerialLandmarkIndex", "ray_radii"]
+
+#: Mask classes that stand up from the ground and hide what lies behind them (case-insensitive).
+STANDING_MASK_CLASSES = ("building", "tree")
+#: The profile class of known flat ground of no landmark class (a dictionary's ``other_ground``).
+OTHER = "other"
+#: Landmark classes whose points mark something standing (their row says nothing about distance).
+STANDING_LANDMARKS = ("building", "vegetation")
+
+
+@dataclass(frozen=True, eq=False)
+class SemanticMap:
+    """A mask in profile classes: ``labels`` (H, W) int8 index into ``classes`` or -1, ``standing`` (H, W) bool.
+
+    ``classes`` are the dictionary's landmark classes and, last, :data:`OTHER` (its
+    ``other_ground`` classes: known flat ground of no landmark class).
+    """
+
+    labels: np.ndarray
+    standing: np.ndarray
+    classes: tuple[str, ...]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.labels.shape[0]), int(self.labels.shape[1]))
+
+
+def semantic_map(mask: np.ndarray, table: ClassTable | Mapping[int, str] | None, classes: LandmarkClasses,
+                 standing: Sequence[str] = STANDING_MASK_CLASSES) -> SemanticMap:
+    """``mask`` (class ids of ``table``) in ``classes``' landmark classes, with its standing pixels.
+
+    >>> m = np.array([[1, 2], [0, 1]])
+    >>> sm = semantic_map(m, {0: "grass", 1: "building", 2: "highway"},
+    ...                   LandmarkClasses(("building", "road"), {"building": "building", "highway": "road"}))
+    >>> sm.labels.tolist(), sm.standing.tolist(), sm.classes
+    ([[0, 1], [-1, 0]], [[True, False], [False, True]], ('building', 'road', 'other'))
+    """
+    mask = np.asarray(mask)
+    lut = _landmark_lut(mask, table, classes)
+    if isinstance(table, ClassTable):
+        names = {c.id: c.name for c in (table.unlabeled, *table.classes)}
+    elif table is not None:
+        names = {int(k): str(v) for k, v in table.items()}
+    else:
+        names = classes.mask_ids() or {}
+    up = {s.lower() for s in standing}
+    stand_lut = np.zeros(len(lut), dtype=bool)
+    for value, name in names.items():
+        if value < len(lut) and name.lower() in up:
+            stand_lut[value] = True
+    other = {s.lower() for s in classes.other_ground}
+    for value, name in names.items():
+        if value < len(lut) and name.lower() in other:
+            lut[value] = len(classes.names)
+    idx = mask.astype(np.int64)
+    return SemanticMap(labels=lut[idx].astype(np.int8), standing=stand_lut[idx], classes=(*classes.names, OTHER))
+
+
+@dataclass(frozen=True)
+class Camera:
+    """How a query image's pixels look out: a cylinder of ``hfov_deg`` around the horizon.
+
+    Column ``c`` looks along ``heading + hfov * ((c + 0.5) / width - 0.5)`` degrees (the
+    renderer's convention, :mod:`localization.render`); row ``r`` at the elevation
+    ``(horizon_row - r) * row_step_deg``. Defaults: square pixels in angle and the horizon
+    between the two middle rows, as CVUSA panoramas and :func:`~localization.render.render_panorama`.
+    """
+
+    width: int
+    height: int
+    hfov_deg: float = 360.0
+    row_step_deg: float | None = None   # None: hfov / width
+    horizon_row: float | None = None    # None: height / 2 - 0.5
+    camera_height_m: float = 2.0
+
+    def __post_init__(self) -> None:
+        if self.width < 2 or self.height < 2:
+            raise ConfigError(f"query image must be at least 2 x 2 pixels, got {self.width} x {self.height}")
+        if not 0 < self.hfov_deg <= 360:
+            raise ConfigError(f"horizontal field of view must be in (0, 360] degrees, got {self.hfov_deg:g}")
+        if not self.camera_height_m > 0:
+            raise ConfigError(f"camera height must be a positive number of metres, got {self.camera_height_m:g}")
+
+    @property
+    def step(self) -> float:
+        return self.row_step_deg if self.row_step_deg is not None else self.hfov_deg / self.width
+
+    @property
+    def horizon(self) -> float:
+        return self.horizon_row if self.horizon_row is not None else self.height / 2 - 0.5
+
+    def azimuths(self, x: np.ndarray, heading_deg: float) -> np.ndarray:
+        """Compass azimuth (degrees, [0, 360)) of column coordinates ``x`` (centres at integers)."""
+        return (heading_deg + self.hfov_deg * ((np.asarray(x, dtype=np.float64) + 0.5) / self.width - 0.5)) % 360.0
+
+    def distance_m(self, row: np.ndarray) -> np.ndarray:
+        """Ground distance seen at row coordinates ``row`` (inf at or above the horizon)."""
+        dep = np.radians((np.asarray(row, dtype=np.float64) - self.horizon) * self.step)
+        with np.errstate(divide="ignore"):
+            return np.where(dep > 0, self.camera_height_m / np.tan(np.maximum(dep, 1e-12)), np.inf)
+
+    def row_of(self, distance_m: float) -> float:
+        """Row coordinate where the ground ``distance_m`` away is seen."""
+        return self.horizon + math.degrees(math.atan(self.camera_height_m / distance_m)) / self.step
+
+
+def ray_radii(camera: Camera, n: int, min_m: float, max_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Up to ``n`` log-spaced ground distances between ``min_m`` and ``max_m`` that fall on distinct rows.
+
+    Returns ``(radii_m, rows)``: each radius is the exact distance of its (integer) row, so the
+    query and the aerial prediction look at the same place.
+
+    >>> r, rows = ray_radii(Camera(1232, 224), 6, 3.0, 60.0)   # 3 m is below the bottom row (3.1 m)
+    >>> rows.tolist(), [round(float(v), 1) for v in r]
+    ([[180, 150, 133, 123, 118]], [5.5, 10.1, 18.2, 34.1, 60.3])
+    """
+    if not (0 < min_m < max_m):
+        raise ConfigError(f"ground distances must satisfy 0 < min < max, got {min_m:g} and {max_m:g}")
+    rows = sorted({int(round(camera.row_of(d))) for d in np.geomspace(min_m, max_m, max(1, n))}, reverse=True)
+    rows = [r for r in rows if camera.horizon < r < camera.height]
+    if not rows:
+        raise ConfigError(f"no row of the {camera.width}x{camera.height} query looks at the ground between "
+                          f"{min_m:g} and {max_m:g} m: check the horizon row and the camera height")
+    rows_a = np.array(rows, dtype=np.int64)
+    return camera.distance_m(rows_a), rows_a.reshape(1, -1)
+
+
+@dataclass(frozen=True, eq=False)
+class QueryProfile:
+    """A query's profile ``q`` (C, R + 1, A) in its own frame (column azimuths with heading 0 or the given one)."""
+
+    q: np.ndarray
+    radii_m: np.ndarray
+    classes: tuple[str, ...]
+    heading_deg: float | None  # the heading the azimuths were computed with; None: query frame (unknown)
+    hfov_deg: float
+
+    @property
+    def bins(self) -> int:
+        return int(self.q.shape[-1])
+
+    @property
+    def mass(self) -> float:
+        return float(self.q.sum())
+
+
+def _bins_of(azimuth_deg: np.ndarray, bins: int) -> np.ndarray:
+    return np.rint(np.asarray(azimuth_deg) * bins / 360.0).astype(np.int64) % bins
+
+
+def query_from_mask(sem: SemanticMap, camera: Camera, *, bins: int, radii: tuple[np.ndarray, np.ndarray],
+                    heading_deg: float | None = 0.0) -> QueryProfile:
+    """The profile of a query mask: class fractions of each azimuth bin at each ground row.
+
+    ``heading_deg`` None builds it in the query's own frame, for a heading search.
+    """
+    if sem.shape != (camera.height, camera.width):
+        raise ConfigError(f"query mask is {sem.shape[1]}x{sem.shape[0]} but the camera says "
+                          f"{camera.width}x{camera.height}")
+    radii_m, rows = radii
+    n_c, n_r = len(sem.classes), len(radii_m)
+    cols = np.arange(camera.width)
+    b = _bins_of(camera.azimuths(cols, heading_deg or 0.0), bins)
+    per_bin = np.bincount(b, minlength=bins).astype(np.float64)
+    q = np.zeros((n_c, n_r + 1, bins))
+    for k, row in enumerate(rows[0]):
+        lab = sem.labels[int(row)].astype(np.int64)
+        ok = lab >= 0
+        np.add.at(q[:, k, :], (lab[ok], b[ok]), 1.0)
+
+    q[:, :n_r] /= np.maximum(per_bin, 1.0)[None, None, :]
+    return QueryProfile(q=q, radii_m=radii_m, classes=sem.classes, heading_deg=heading_deg, hfov_deg=camera.hfov_deg)
+
+
+def query_from_landmarks(lm: Landmarks, camera: Camera, *, bins: int, radii: tuple[np.ndarray, np.ndarray],
+                         heading_deg: float | None = 0.0,
+                         standing: Sequence[str] = STANDING_LANDMARKS) -> QueryProfile:
+    """The profile of a query landmark list: one unit of mass per landmark, at its azimuth bin.
+
+    A landmark of a ground class below the horizon lands in the radius bin nearest (in log
+    distance) to the distance its row shows; every other one in slot ``R`` (seen, distance unknown).
+    """
+    radii_m, _ = radii
+    n_r = len(radii_m)
+    q = np.zeros((len(lm.classes) + 1, n_r + 1, bins))  # + OTHER, which landmark points never are
+    if len(lm):
+        b = _bins_of(camera.azimuths(lm.xy[:, 0], heading_deg or 0.0), bins)
+        dist = camera.distance_m(lm.xy[:, 1])
+        ground = ~np.isin(np.array(lm.classes)[lm.cls], list(standing))
+        near = ground & (dist >= radii_m.min() / 1.5) & (dist <= radii_m.max() * 1.5)
+        k = np.where(near, np.abs(np.log(np.maximum(dist, 1e-9))[:, None] - np.log(radii_m)[None, :]).argmin(1), n_r)
+        np.add.at(q, (lm.cls, k, b), 1.0)
+    return QueryProfile(q=q, radii_m=radii_m, classes=(*lm.classes, OTHER), heading_deg=heading_deg,
+                        hfov_deg=camera.hfov_deg)
+
+
+# --------------------------------------------------------------------------- the aerial prediction
+
+
+def _directions(bins: int) -> tuple[np.ndarray, np.ndarray]:
+    az = np.radians(np.arange(bins) * 360.0 / bins)
+    return np.sin(az), -np.cos(az)  # image x grows east, y grows south
+
+
+class AerialMaskIndex:
+    """Predicted profiles from an aerial :class:`SemanticMap` at ``resolution_m`` metres per pixel.
+
+    The map is kept as one byte per pixel (class index + 1, plus 64 where it stands) inside a
+    border of "outside" bytes (128) as wide as the longest ray, so every ray sample is one
+    flat gather with no bounds test.
+    """
+
+    def __init__(self, sem: SemanticMap, resolution_m: float, samples: int = 24) -> None:
+        if not (resolution_m > 0 and math.isfinite(resolution_m)):
+            raise ConfigError(f"the profile method needs the aerial ground resolution in m/px, got {resolution_m}")
+        self.sem, self.resolution_m, self.samples = sem, float(resolution_m), samples
+        self._code = ((sem.labels.astype(np.int16) + 1) + 64 * sem.standing).astype(np.uint8)
+        self._padded: tuple[int, np.ndarray] | None = None
+        self.classes = sem.classes
+        self.grid_m, self.levels, self.weighted = 4.0, 2, True
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.sem.shape
+
+    def _codes(self, pad: int) -> np.ndarray:
+        if self._padded is None or self._padded[0] < pad:
+            self._padded = (pad, np.pad(self._code, pad, constant_values=128))
+        return self._padded[1]
+
+    def labels(self, xy: np.ndarray, radii_m: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(lab, valid)``: the class seen first at each radius and azimuth ``(N, R, A)`` int8 (-1 none), and
+        whether the image predicts it (False where the ray left the image before anything stood up).
+
+        Positions are taken at their nearest pixel, so every ray is the same flat offsets from it.
+        """
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        fine = np.geomspace(0.6, float(radii_m.max()), self.samples)
+        s = np.unique(np.concatenate([fine, radii_m]))
+        at = np.searchsorted(s, radii_m)                               # radius k is sample at[k]
+        dx, dy = _directions(bins)
+        steps = s / self.resolution_m
+        codes = self._codes(int(math.ceil(steps.max())) + 2)
+        pad, pw = self._padded[0] if self._padded is not None else 0, codes.shape[1]
+        off = (np.rint(dy[:, None] * steps[None, :]).astype(np.int64) * pw
+               + np.rint(dx[:, None] * steps[None, :]).astype(np.int64))                     # (A, S)
+        base = (np.rint(xy[:, 1]).astype(np.int64) + pad) * pw + np.rint(xy[:, 0]).astype(np.int64) + pad
+        code = codes.ravel()[base[:, None, None] + off[None]]                                # (N, A, S)
+        stands = (code & 64) > 0
+        first = np.where(stands.any(axis=2), stands.argmax(axis=2), len(s))                  # (N, A)
+        hit = np.take_along_axis(code, np.minimum(first, len(s) - 1)[..., None], axis=2)[..., 0] & 63
+        at_k = code[:, :, at]
+        occluded = first[:, :, None] <= at[None, None, :]
+        valid = occluded | (at_k < 128)
+        lab = np.where(valid, np.where(occluded, hit[:, :, None], at_k & 63).astype(np.int8) - 1, -1)
+        return np.ascontiguousarray(np.transpose(lab, (0, 2, 1))), np.ascontiguousarray(np.transpose(valid, (0, 2, 1)))
+
+    def profiles(self, xy: np.ndarray, radii_m: np.ndarray, bins: int,
+                 need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(P, V)``: one-hot profiles ``(N, C, R + 1, A)`` float32 and valid cells ``(N, R + 1, A)``.
+
+        ``need`` is accepted for the interface's sake: one-hot profiles cost the same for all cells.
+        """
+        lab, valid = self.labels(xy, radii_m, bins)
+        n, n_r = lab.shape[0], len(radii_m)
+        P = np.zeros((n, len(self.classes), n_r + 1, bins), dtype=np.float32)
+        for c in range(len(self.classes)):
+            P[:, c, :n_r, :] = lab == c
+        P[:, :, n_r, :] = P[:, :, :n_r, :].max(axis=2)
+        V = np.ones((n, n_r + 1, bins), dtype=np.float32)
+        V[:, :n_r, :] = valid
+        return P, V
+
+
+class AerialLandmarkIndex:
+    """Predicted profiles from aerial landmark points (kernels in bearing and log distance)."""
+
+    def __init__(self, lm: Landmarks, resolution_m: float, *, sigma_deg: float = 8.0, distance_sd: float = 0.5,
+                 d0_m: float = 50.0) -> None:
+        if not (resolution_m > 0 and math.isfinite(resolution_m)):
+            raise ConfigError("the profile method needs the aerial ground resolution in m/px (--resolution); "
+                              f"got {resolution_m}")
+        self.lm, self.resolution_m = lm, float(resolution_m)
+        self.sigma, self.distance_sd, self.d0_m = math.radians(sigma_deg), distance_sd, d0_m
+        self.classes = (*lm.classes, OTHER)
+        # point scores are peaked (a kernel a few degrees wide): a fine grid, one refinement
+        self.grid_m, self.levels, self.weighted = 1.25, 1, False
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.lm.height, self.lm.width)
+
+    def profiles(self, xy: np.ndarray, radii_m: np.ndarray, bins: int,
+                 need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(P, V)`` as :meth:`AerialMaskIndex.profiles`; only the ``need`` (C, R + 1) cells are computed."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        n_r, n_c = len(radii_m), len(self.lm.classes)
+        P = np.zeros((len(xy), n_c + 1, n_r + 1, bins), dtype=np.float32)
+        az = np.radians(np.arange(bins) * 360.0 / bins).astype(np.float32)
+        log_r = np.log(radii_m)
+        wanted = np.ones((n_c + 1, n_r + 1), dtype=bool) if need is None else np.asarray(need, dtype=bool)
+        for c in range(n_c):
+            pts = self.lm.xy[self.lm.cls == c]
+            if not len(pts) or not wanted[c].any():
+                continue
+            d = pts[None, :, :] - xy[:, None, :]                                   # (N, M, 2)
+            bearing = np.arctan2(d[..., 0], -d[..., 1])
+            dist_m = np.hypot(d[..., 0], d[..., 1]) * self.resolution_m
+            g = 1.0 / (1.0 + dist_m / self.d0_m)
+            delta = ((az[None, None, :] - bearing[..., None].astype(np.float32) + np.pi) % (2 * np.pi)
+                     - np.pi).astype(np.float32)                                  # (N, M, A), wrapped
+            k_az = np.exp(np.float32(-0.5 / self.sigma ** 2) * delta * delta) * g[..., None].astype(np.float32)
+            if wanted[c, n_r]:
+                P[:, c, n_r, :] = k_az.max(axis=1)
+            log_d = np.log(np.maximum(dist_m, 0.5))
+            for k in np.flatnonzero(wanted[c, :n_r]):  # (N, M, A) at a time: memory stays that of one radius
+                k_d = np.exp(-0.5 * ((log_d - log_r[k]) / self.distance_sd) ** 2).astype(np.float32)
+                P[:, c, k, :] = (k_az * k_d[..., None]).max(axis=1)
+        return P, np.ones((len(xy), n_r + 1, bins), dtype=np.float32)

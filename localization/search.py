@@ -1,0 +1,291 @@
+"""The ``profile`` method: score a dense grid of aerial positions by their angular profile, coarse to fine.
+
+For every position ``p`` of a grid over the aerial image, the aerial side predicts the profile
+``P_p`` (:mod:`localization.profile`: per landmark class, ground distance and azimuth, what a
+camera at ``p`` would see first) and the score is the share of the query's profile mass that
+the prediction agrees with::
+
+    S(p, s) = sum_{c,k,a} Q[c, k, a] P_p[c, k, a + s]  /  sum_{c,k,a} Q[c, k, a] V_p[k, a + s]
+
+``V_p`` marks the cells the aerial image can predict (a ray that leaves the image predicts
+nothing, so positions near the border are not punished for it). With the heading known the
+query is built in compass azimuths and ``s = 0``; with the heading unknown ``S(p, s)`` is a
+circular cross-correlation over ``s``, one FFT per profile row, and the best ``s`` is the
+heading (to a fraction of a bin by a parabola through the peak). A photo of limited field of
+view is a query whose profile is empty outside it: the same formula, nothing else changes.
+
+Search: positions every ``coarse_m`` metres, then around the ``keep`` best ones a 3 x 3 grid a
+third as wide, ``levels`` times (4 m -> 1.3 m -> 0.44 m by default). Work and memory grow with
+the number of grid positions (the image area), in chunks of ``chunk`` positions, and the
+aerial side is never held at more than one chunk's profiles.
+
+**Confidence.** The best score ``S*`` is compared with the agreement a position drawn at
+random would have: ``S0 = sum_{c,k} q[c, k] pbar[c, k]`` with ``pbar`` the mean aerial profile
+over the coarse grid and all azimuths. ``kappa = (S* - S0) / (1 - S0)`` (Cohen's kappa of the
+best match) is 0 for a query that fits no better than chance, and the answer is "not in this
+image" below ``min_confidence``.
+
+Imports: numpy, osmseg core, localization.profile and localization.result.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Protocol
+
+import numpy as np
+
+from localization.profile import QueryProfile
+from localization.result import Localization, unanswered
+from osmseg.errors import ConfigError
+
+__all__ = ["ProfileConfig", "AerialIndex", "grid_positions", "score_positions", "localize_profile"]
+
+
+@dataclass(frozen=True)
+class ProfileConfig:
+    """Settings of the ``profile`` method (see the module docstring)."""
+
+    bins: int | None = None        # azimuth bins [72 (5 deg) for a query mask; for landmark points half the
+                                   # bearing kernel, 90 (4 deg) at 8 deg]
+    radii: int = 16                # ground distances, log-spaced from min_range_m to max_range_m
+    min_range_m: float = 3.0
+    max_range_m: float = 60.0
+    coarse_m: float | None = None  # coarse grid spacing [the aerial side's: 4 m for a mask, 1.25 m for points]
+    keep: int = 40                 # positions refined at each level
+    levels: int | None = None      # refinements, each a third of the previous spacing [2 for a mask, 1 for points]
+    heading_deg: float | None = 0.0  # compass azimuth of the query's centre column; None: unknown (searched)
+    top_k: int = 5
+    min_confidence: float = 0.6    # kappa below this: "not in this image" (docs/localization.md: how it was chosen)
+    chunk: int = 1024              # positions scored at once (memory)
+    samples: int = 24              # aerial ray samples between 0.6 m and the farthest radius
+    sigma_deg: float = 8.0         # aerial landmark points: bearing kernel
+    distance_sd: float = 0.5       # aerial landmark points: log-distance kernel
+    d0_m: float = 50.0             # aerial landmark points: weight 1 / (1 + d / d0)
+    weighted: bool | None = None   # weigh each class and radius by -log of how often the aerial image shows it
+                                   # [a mask: yes; points: no, their soft kernels have no such frequencies]
+    min_prior: float = 0.01
+
+    def __post_init__(self) -> None:
+        if ((self.bins is not None and self.bins < 8) or self.radii < 1 or self.keep < 1 or (self.levels is not None and self.levels < 0)
+                or self.top_k < 1 or self.chunk < 1):
+            raise ConfigError("profile method: bins >= 8, radii >= 1, keep >= 1, levels >= 0, top_k >= 1")
+        if not (0 < self.min_range_m < self.max_range_m and (self.coarse_m is None or self.coarse_m > 0)):
+            raise ConfigError("profile method: ranges must satisfy 0 < min < max and the grid spacing be > 0")
+        if self.heading_deg is not None and not math.isfinite(self.heading_deg):
+            raise ConfigError(f"heading must be a number of degrees or unknown, got {self.heading_deg}")
+
+
+class AerialIndex(Protocol):
+    """What the search needs of the aerial side: its shape, resolution, classes and predicted profiles."""
+
+    resolution_m: float
+    classes: tuple[str, ...]
+    grid_m: float       # the coarse grid spacing that suits it
+    levels: int         # and the refinements
+    weighted: bool      # whether class-frequency weights suit it
+
+    @property
+    def shape(self) -> tuple[int, int]: ...
+
+    def profiles(self, xy: np.ndarray, radii_m: np.ndarray, bins: int,
+                 need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def grid_positions(shape: tuple[int, int], spacing_px: float) -> np.ndarray:
+    """Cell centres of a grid of ``spacing_px`` over an image of ``shape`` (rows, cols), as (x, y).
+
+    >>> grid_positions((10, 20), 10).tolist()
+    [[4.5, 4.5], [14.5, 4.5]]
+    """
+    h, w = shape
+    xs = np.arange(spacing_px / 2 - 0.5, w - 0.5, spacing_px)
+    ys = np.arange(spacing_px / 2 - 0.5, h - 0.5, spacing_px)
+    gx, gy = np.meshgrid(xs, ys)
+    return np.stack([gx.ravel(), gy.ravel()], axis=1)
+
+
+def score_positions(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config: ProfileConfig,
+                    prior: np.ndarray, weights: np.ndarray | None = None,
+                    keep: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Best score and its azimuth shift (in bins) at each position ``xy`` (N, 2).
+
+    A cell the aerial image cannot predict (its ray left the image) is credited with the
+    agreement chance gives it, ``prior`` (C, R + 1) (:func:`class_prior`): a position near the
+    border neither gains nor loses for what lies outside.
+
+    ``keep`` (heading unknown, mask index): only the ``keep`` best positions are needed, so
+    positions are scored in decreasing order of a rotation-free upper bound of their score
+    (:func:`_bounds`) and the search stops once no remaining bound beats the ``keep``-th best
+    score: the same ``keep`` best, exactly; the others get ``-inf``.
+    """
+    q = query.q.astype(np.float32)
+    if weights is not None:
+        q = q * weights[:, :, None].astype(np.float32)
+    total = max(float(q.sum()), 1e-9)
+    u = np.einsum("cra,cr->ra", q, prior.astype(np.float32))         # chance agreement per cell (R + 1, A)
+    n = len(xy)
+    best, shift = np.zeros(n), np.zeros(n)
+    known = query.heading_deg is not None
+    if not known:
+        qf = np.conj(np.fft.rfft(q, axis=-1))
+        uf = np.conj(np.fft.rfft(u, axis=-1))
+    need = q.sum(axis=2) > 0
+    if keep is not None and not known and hasattr(index, "labels") and not float(q[:, -1, :].sum()) and n > keep:
+        return _pruned(index, query, xy, config, q, u, total, qf, uf, keep, need)
+    gather = known and hasattr(index, "labels") and not float(q[:, -1, :].sum())
+    if gather:  # one-hot profiles never built: look each predicted class up in the query
+        n_r = len(query.radii_m)
+        table = np.concatenate([q[:, :n_r, :], np.zeros((1, n_r, query.bins), np.float32)])  # class -1: row C
+        cells = np.arange(n_r * query.bins).reshape(n_r, query.bins)
+        u_seen = u[:n_r]
+    for start in range(0, n, config.chunk):
+        part = xy[start:start + config.chunk]
+        if gather:
+            lab, valid = index.labels(part, query.radii_m, query.bins)  # type: ignore[attr-defined]
+            lab = np.where(lab < 0, len(table) - 1, lab).astype(np.int64)
+            num = table.reshape(len(table), -1)[lab.reshape(len(part), -1), cells.ravel()[None, :]].sum(axis=1)
+            best[start:start + len(part)] = (num + float(u.sum()) - (valid * u_seen[None]).sum(axis=(1, 2))
+                                              - float(u[n_r:].sum())) / total
+            continue
+        P, V = index.profiles(part, query.radii_m, query.bins, need)
+        if known:
+            num = np.einsum("ncra,cra->n", P, q) + float(u.sum()) - np.einsum("nra,ra->n", V, u)
+            best[start:start + len(part)] = num / total
+            continue
+        best[start:start + len(part)], shift[start:start + len(part)] = _rotations(P, V, qf, uf, u, total, query.bins)
+    return best, shift
+
+
+def _rotations(P: np.ndarray, V: np.ndarray, qf: np.ndarray, uf: np.ndarray, u: np.ndarray, total: float,
+               bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Best score over all azimuth shifts, and the shift (sub-bin), by circular cross-correlation."""
+    agree = np.fft.irfft(np.einsum("ncrf,crf->nf", np.fft.rfft(P, axis=-1), qf), n=bins, axis=-1)
+    seen = np.fft.irfft(np.einsum("nrf,rf->nf", np.fft.rfft(V, axis=-1), uf), n=bins, axis=-1)
+    s = (agree + float(u.sum()) - seen) / total
+    k = s.argmax(axis=1)
+    return s[np.arange(len(s)), k], k + _parabola(s, k)
+
+
+def _bounds(lab: np.ndarray, valid: np.ndarray, q: np.ndarray, u: np.ndarray, total: float) -> np.ndarray:
+    """An upper bound of each position's score over every rotation, from its class counts per radius.
+
+    At any shift, class ``c`` at radius ``k`` agrees on at most ``min(sum_a q, n_c * max_a q)``
+    (``n_c`` cells of the position show ``c``; each query cell weighs at most its maximum), and
+    the chance credit of the cells the image cannot predict is at most
+    ``min(sum_a u, n_invalid * max_a u)``.
+    """
+    n_r = lab.shape[1]
+    q_sum, q_max = q[:, :n_r].sum(axis=2), q[:, :n_r].max(axis=2)        # (C, R)
+    bound = np.zeros(len(lab))
+    for c in range(q.shape[0]):
+        if q_sum[c].any():
+            count = (lab == c).sum(axis=2)                                  # (N, R)
+            bound += np.minimum(q_sum[c][None], count * q_max[c][None]).sum(axis=1)
+    invalid = (~valid).sum(axis=2)
+    bound += np.minimum(u[:n_r].sum(axis=1)[None], invalid * u[:n_r].max(axis=1)[None]).sum(axis=1)
+    return bound / total
+
+
+def _pruned(index: Any, query: QueryProfile, xy: np.ndarray, config: ProfileConfig, q: np.ndarray, u: np.ndarray,
+            total: float, qf: np.ndarray, uf: np.ndarray, keep: int, need: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`score_positions` for the ``keep`` best of many positions, best bounds first (see there)."""
+    n = len(xy)
+    bound = np.empty(n)
+    for start in range(0, n, config.chunk):
+        lab, valid = index.labels(xy[start:start + config.chunk], query.radii_m, query.bins)
+        bound[start:start + len(lab)] = _bounds(lab, valid, q, u, total)
+    order = np.argsort(-bound, kind="stable")
+    best, shift = np.full(n, -np.inf), np.zeros(n)
+    scored: list[np.ndarray] = []
+    for start in range(0, n, config.chunk):
+        part = order[start:start + config.chunk]
+        if scored and len(np.concatenate(scored)) >= keep:
+            done = np.concatenate(scored)
+            kth = np.partition(best[done], len(done) - keep)[len(done) - keep]
+            if bound[part[0]] < kth - 1e-9:
+                break
+        P, V = index.profiles(xy[part], query.radii_m, query.bins, need)
+        best[part], shift[part] = _rotations(P, V, qf, uf, u, total, query.bins)
+        scored.append(part)
+    return best, shift
+
+
+def class_prior(index: AerialIndex, query: QueryProfile, xy: np.ndarray, n: int = 512) -> np.ndarray:
+    """How often each class is predicted at each radius (C, R + 1), over ``n`` evenly picked positions of ``xy``."""
+    pick = xy[np.linspace(0, len(xy) - 1, min(n, len(xy))).astype(np.int64)]
+    P, V = index.profiles(pick, query.radii_m, query.bins)
+    return P.sum(axis=(0, 3)) / np.maximum(V.sum(axis=(0, 2)), 1.0)[None, :]
+
+
+def _parabola(s: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Sub-bin offset of each row's peak at ``k`` from a parabola through its neighbours (circular)."""
+    a = s.shape[1]
+    rows = np.arange(len(s))
+    y0, y1, y2 = s[rows, (k - 1) % a], s[rows, k], s[rows, (k + 1) % a]
+    den = y0 - 2 * y1 + y2
+    return np.where(np.abs(den) > 1e-12, np.clip(0.5 * (y0 - y2) / np.where(den == 0, 1, den), -0.5, 0.5), 0.0)
+
+
+def _nms(xy: np.ndarray, order: np.ndarray, radius: float, k: int) -> list[int]:
+    """The first ``k`` of ``order`` that are at least ``radius`` from every one kept before them."""
+    kept: list[int] = []
+    for i in order:
+        if all(math.hypot(*(xy[i] - xy[j])) >= radius for j in kept):
+            kept.append(int(i))
+            if len(kept) == k:
+                break
+    return kept
+
+
+def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileConfig) -> Localization:
+    """Where ``query`` was taken in the aerial ``index``: the ``profile`` method's answer.
+
+    The result is a :class:`~localization.result.Localization` whose candidates are the
+    positions of the finest level, ``likelihoods`` and ``posteriors`` their scores, ``top_k``
+    distinct places (at least one coarse cell apart), ``heading_deg`` the estimated (or given)
+    heading and ``confidence`` the kappa of the best match.
+    """
+    settings = {"method": "profile"}
+    if tuple(index.classes) != tuple(query.classes):
+        raise ConfigError(f"aerial classes {index.classes} and query classes {query.classes} differ: use landmark "
+                          "dictionaries with the same landmark classes")
+    if query.mass <= 0:
+        return unanswered("the query shows no landmark class on the ground rows or at any azimuth", **settings)
+    coarse_m = config.coarse_m if config.coarse_m is not None else index.grid_m
+    levels = config.levels if config.levels is not None else index.levels
+    weighted = config.weighted if config.weighted is not None else index.weighted
+    spacing = coarse_m / index.resolution_m
+    xy = grid_positions(index.shape, spacing)
+    mean = class_prior(index, query, xy)
+    weights = -np.log(np.clip(mean, config.min_prior, 1.0)) if weighted else None
+    score, shift = score_positions(index, query, xy, config, mean, weights, keep=config.keep)
+    h, w = index.shape
+    for _ in range(levels):
+        top = np.argsort(-score, kind="stable")[:config.keep]
+        spacing /= 3.0
+        offsets = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], dtype=np.float64) * spacing
+        cand = (xy[top][:, None, :] + offsets[None]).reshape(-1, 2)
+        cand = np.unique(np.round(cand, 6), axis=0)
+        cand = cand[(cand[:, 0] >= -0.5) & (cand[:, 0] < w - 0.5) & (cand[:, 1] >= -0.5) & (cand[:, 1] < h - 0.5)]
+        xy = cand
+        score, shift = score_positions(index, query, xy, config, mean, weights)
+    order = np.lexsort((xy[:, 0], xy[:, 1], -score))
+    best = int(order[0])
+    qw = query.q.sum(axis=2) * (weights if weights is not None else 1.0)
+    chance = float((qw * mean).sum() / max(qw.sum(), 1e-9))
+    kappa = (float(score[best]) - chance) / max(1e-9, 1.0 - chance)
+    heading = (query.heading_deg if query.heading_deg is not None
+               else float(shift[best] * 360.0 / query.bins) % 360.0)
+    picked = _nms(xy, order, coarse_m / index.resolution_m, config.top_k)
+    top_k = tuple((float(xy[i, 0]), float(xy[i, 1]), float(score[i])) for i in picked)
+    ties = int(np.isclose(score, score[best], rtol=1e-9, atol=1e-12).sum())
+    result = Localization(candidates=xy, likelihoods=score, posteriors=score, order=order.astype(np.int64),
+                          top_k=top_k, map_xy=(top_k[0][0], top_k[0][1]), ties=ties, unanswered=False,
+                          method="profile", heading_deg=round(heading, 3), confidence=round(kappa, 4),
+                          chance=round(chance, 4))
+    if kappa < config.min_confidence:
+        return replace(result, unanswered=True, map_xy=None,
+                       reason=f"not in this image: confidence {kappa:.3f} is below {config.min_confidence:g}")
+    return result

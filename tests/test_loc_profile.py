@@ -1,0 +1,190 @@
+"""The profile method (localization.profile, localization.search): known-answer scenes, heading, photos, confidence.
+
+Every scene is a constructed classes13 mask (the seeded town of test_loc_render) and every
+query a panorama rendered from it at a known place, so the answer is known: the position to a
+metre or two, the heading to a few degrees. The method never reads the renderer's heights: a
+scene with per-object heights (height_spread) must localize as well.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from PIL import Image
+
+from localization.cli import localize_bench_command, localize_command
+from localization.compare import photo_view, roc_auc
+from localization.landmarks import landmarks_from_mask
+from localization.pipeline import profile_index, profile_query, run_profile
+from localization.profile import Camera, query_from_mask, ray_radii, semantic_map
+from localization.render import RenderConfig, object_heights, render_panorama
+from localization.search import ProfileConfig
+from test_loc_render import CLASSES, RES, TABLE, B, GRASS, ROAD, town
+
+TRUTHS = [(137.0, 251.0), (262.0, 118.0), (318.0, 345.0)]  # on a road, on grass, on a road
+
+
+@pytest.fixture(scope="module")
+def scene() -> tuple[np.ndarray, object]:
+    mask = town(400, seed=3)
+    return mask, profile_index(semantic_map(mask, TABLE, CLASSES), RES)
+
+
+def _query(mask: np.ndarray, xy: tuple[float, float], heading: float = 0.0, fov: float = 360.0,
+           render: RenderConfig = RenderConfig()):
+    pano = render_panorama(mask, TABLE, RES, xy, dataclasses.replace(render, heading_deg=heading))
+    return photo_view(pano, CLASSES, fov, camera_height_m=2.0, mode="centroid", min_size=50, stride=50)
+
+
+def _error_m(loc, xy) -> float:
+    return math.hypot(loc.map_xy[0] - xy[0], loc.map_xy[1] - xy[1]) * RES
+
+
+@pytest.mark.parametrize("xy", TRUTHS)
+def test_a_panorama_with_known_heading_is_found_within_a_metre(scene, xy) -> None:
+    mask, index = scene
+    q = _query(mask, xy)
+    loc = run_profile(ProfileConfig(), index, q.semantic, q.camera)
+    assert not loc.unanswered and loc.method == "profile"
+    assert _error_m(loc, xy) <= 1.0
+    assert loc.heading_deg == 0.0 and loc.confidence > 0.8
+
+
+@pytest.mark.parametrize("xy,heading", [(TRUTHS[0], 137.0), (TRUTHS[1], 301.5), (TRUTHS[2], 12.0)])
+def test_unknown_heading_is_recovered_with_the_position(scene, xy, heading) -> None:
+    mask, index = scene
+    q = _query(mask, xy, heading)
+    loc = run_profile(ProfileConfig(heading_deg=None), index, q.semantic, q.camera)
+    assert _error_m(loc, xy) <= 1.5
+    assert abs((loc.heading_deg - heading + 180) % 360 - 180) <= 4.0
+
+
+def test_a_90_degree_photo_with_unknown_heading_is_localized(scene) -> None:
+    mask, index = scene
+    xy, heading = TRUTHS[0], 200.0
+    q = _query(mask, xy, heading, fov=90.0)
+    assert q.camera.width == 308 and q.camera.hfov_deg == pytest.approx(90.0)
+    loc = run_profile(ProfileConfig(heading_deg=None), index, q.semantic, q.camera)
+    assert _error_m(loc, xy) <= 3.0
+    assert abs((loc.heading_deg - heading + 180) % 360 - 180) <= 5.0
+
+
+def test_object_heights_vary_and_the_method_does_not_need_them(scene) -> None:
+    mask, index = scene
+    render = RenderConfig(height_spread=0.6, height_seed=4)
+    heights = object_heights(mask, TABLE, render)
+    building = heights[mask == B]
+    assert building.min() < 7.0 and building.max() > 13.0     # 10 m +- 60 %, per building
+    plain = render_panorama(mask, TABLE, RES, TRUTHS[1], RenderConfig())
+    varied = render_panorama(mask, TABLE, RES, TRUTHS[1], render)
+    assert (plain.labels != varied.labels).sum() > 500          # the skyline changed
+    q = _query(mask, TRUTHS[1], render=render)
+    loc = run_profile(ProfileConfig(), index, q.semantic, q.camera)
+    assert _error_m(loc, TRUTHS[1]) <= 1.0
+
+
+def village(seed: int, size: int = 400) -> np.ndarray:
+    """Another kind of place: a field with one road across it and scattered houses and trees."""
+    rng = np.random.default_rng(seed)
+    m = np.full((size, size), GRASS, np.uint8)
+    row = int(rng.integers(100, 300))
+    m[row - 6:row + 6, :] = ROAD
+    for _ in range(12):
+        x, y = rng.integers(10, size - 40, 2)
+        if not (m[y:y + 24, x:x + 24] == ROAD).any():
+            m[y:y + int(rng.integers(10, 24)), x:x + int(rng.integers(10, 24))] = B
+    return m
+
+
+def test_confidence_separates_matching_from_non_matching_aerial_images(scene) -> None:
+    mask, index = scene
+    others = [profile_index(semantic_map(village(s), TABLE, CLASSES), RES) for s in (11, 12)]
+    match, non = [], []
+    for xy in TRUTHS:
+        q = _query(mask, xy)
+        match.append(run_profile(ProfileConfig(min_confidence=0.0), index, q.semantic, q.camera).confidence)
+        non += [run_profile(ProfileConfig(min_confidence=0.0), o, q.semantic, q.camera).confidence for o in others]
+    assert min(match) > max(non)
+    assert roc_auc(match, non) == 1.0
+    # below the threshold the answer is "not in this image", with the confidence kept
+    q = _query(mask, TRUTHS[0])
+    loc = run_profile(ProfileConfig(min_confidence=max(non) + 0.5 * (min(match) - max(non))), others[0], q.semantic,
+                      q.camera)
+    assert loc.unanswered and loc.map_xy is None and loc.reason.startswith("not in this image")
+
+
+def test_landmark_lists_on_both_sides(scene) -> None:
+    """The paper's input, points only: grid points of the aerial mask, grid points of the panorama."""
+    mask, _ = scene
+    aerial = landmarks_from_mask(mask, TABLE, CLASSES, mode="grid", stride=10, min_size=20)
+    index = profile_index(aerial, RES)
+    xy = TRUTHS[1]
+    pano = render_panorama(mask, TABLE, RES, xy)
+    ground = landmarks_from_mask(pano.labels, pano.table, CLASSES, mode="grid", stride=8, min_size=10, panorama=True)
+    config = ProfileConfig(min_confidence=-1.0, coarse_m=2.5, levels=2)  # points: a low kappa; a coarser start
+    loc = run_profile(config, index, ground, Camera(1232, 224))
+    assert _error_m(loc, xy) <= 4.0
+
+
+def test_query_profile_reads_ground_rows_at_their_distance() -> None:
+    """A road patch 10-14 m north and grass elsewhere: it lands in the radius bins of 10-14 m around azimuth 0."""
+    mask = np.full((201, 201), GRASS, np.uint8)
+    mask[100 - 28:100 - 20, 96:105] = ROAD                      # 10-14 m north at 0.5 m/px, 4.5 m wide: +-13 deg
+    pano = render_panorama(mask, TABLE, RES, (100, 100), RenderConfig())
+    cam = Camera(1232, 224)
+    radii = ray_radii(cam, 16, 3.0, 60.0)
+    q = query_from_mask(semantic_map(pano.labels, pano.table, CLASSES), cam, bins=72, radii=radii)
+    road = q.q[CLASSES.names.index("road")]
+    ks, az = np.nonzero(road[:-1] > 0.5)
+    assert set(az.tolist()) <= {70, 71, 0, 1, 2} and ks.size
+    assert all(9.0 <= radii[0][k] <= 15.0 for k in ks)
+
+
+def test_localize_cli_with_the_profile_method(scene, tmp_path: Path) -> None:
+    mask, _ = scene
+    xy, heading = TRUTHS[1], 75.0
+    pano = render_panorama(mask, TABLE, RES, xy, RenderConfig(heading_deg=heading))
+    Image.fromarray(mask).save(tmp_path / "aerial.png")
+    Image.fromarray(np.where(pano.labels == pano.table.by_name["sky"].id, 0, pano.labels).astype(np.uint8)).save(
+        tmp_path / "pano.png")                                 # sky as unlabeled: classes13 has no sky
+    base = ["--aerial", str(tmp_path / "aerial.png"), "--aerial-table", "classes13.toml",
+            "--ground", str(tmp_path / "pano.png"), "--ground-classes", "aerial13", "--ground-table", "classes13.toml",
+            "--resolution", str(RES), "--truth", f"{xy[0]},{xy[1]}"]
+    res = CliRunner().invoke(localize_command, [*base, "--method", "profile", "--heading", "unknown", "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert out["method"] == "profile" and out["truth"]["error_m"] <= 1.5
+    assert abs((out["heading_deg"] - heading + 180) % 360 - 180) <= 4.0 and out["confidence"] > 0.5
+    bad = CliRunner().invoke(localize_command, [*base, "--heading", "unknown"])
+    assert bad.exit_code == 2 and "--method profile" in bad.output
+    res = CliRunner().invoke(localize_command, [*base, "--method", "profile", "--out", str(tmp_path / "loc")])
+    assert res.exit_code == 0, res.output
+    assert "confidence" in res.stderr and (tmp_path / "loc" / "localization.png").is_file()
+    assert json.loads((tmp_path / "loc" / "result.json").read_text())["method"] == "profile"
+
+
+def test_bench_compares_methods_side_by_side(tmp_path: Path) -> None:
+    for seed in (3, 11):
+        Image.fromarray(town(400, seed=seed)).save(tmp_path / f"town{seed}.png")
+    res = CliRunner().invoke(localize_bench_command, [
+        str(tmp_path / "town3.png"), "--resolution", str(RES), "--out", str(tmp_path / "bench"), "-n", "4",
+        "--method", "paper,profile", "--heading", "unknown", "--height-spread", "0.5", "--no-plots"])
+    assert res.exit_code == 0, res.output
+    results = json.loads((tmp_path / "bench" / "results.json").read_text())
+    assert results["format_version"] == 3 and list(results["methods"]) == ["paper", "profile"]
+    prof = results["methods"]["profile"]
+    assert prof["median_error"] <= 2.0 and prof["median_heading_error_deg"] <= 5.0
+    headings = [v["heading_deg"] for v in results["viewpoints"]]
+    assert len(set(headings)) == 4 and results["methods"]["paper"]["median_heading_error_deg"] is None
+    assert prof["roc_auc"] is None  # one scene: no non-matching pair
+    assert all(set(v["methods"]) == {"paper", "profile"} for v in results["viewpoints"])
+    assert "profile" in res.stderr and "AUC" in res.stderr
+    bad = CliRunner().invoke(localize_bench_command, [str(tmp_path / "town3.png"), "--resolution", str(RES),
+                                                      "--out", str(tmp_path / "b2"), "--method", "paper,nope"])
+    assert bad.exit_code == 2 and "methods must be" in bad.output
