@@ -66,8 +66,8 @@ def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: Pr
                         source=str(dataset))
     if verbosity >= 0:
         click.echo(format_summary(results), err=True)
-        click.echo(f"pictures: {loc_dir}/errors.png, classes.png, views/ (candidates, top-5 and truth on the mask; "
-                   "the panorama's landmark graph)" if drawing else
+        click.echo(f"pictures: {loc_dir}/errors.png, confidence.png, classes.png, views/ (candidates, top-5 "
+                   "and truth on the mask; the panorama's landmark graph)" if drawing else
                    "localization pictures skipped: matplotlib is not installed (pip install 'osmseg[train]')",
                    err=True)
 
