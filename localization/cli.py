@@ -206,7 +206,8 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                 FeatureEdges(feature_threshold, feature_metric, feature_reduce, feature_components))
     profile_only = ("heading_text", "fov_deg", "camera_height", "min_confidence")
     if method != "profile" and (stray := _given(ctx, profile_only)):
-        raise ConfigError(f"{', '.join(stray)} apply to --method profile: add it, or leave them out")
+        verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
+        raise ConfigError(f"{', '.join(stray)} {verb} to --method profile: add it, or leave {them} out")
     config = LocalizeConfig(window=window, query_window=ground_window, p=p, stride=stride, top_k=top_k,
                             fast=not reference, hierarchical=hierarchical, windows=windows, features=features,
                             method=method, conventions=conventions, fov_deg=fov_deg, camera_height_m=camera_height,
