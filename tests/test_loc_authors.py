@@ -107,3 +107,20 @@ def test_a_worked_example_answers_at_the_first_window() -> None:
     assert members[relevant[0]].tolist() == [False, False, True, True]
     assert authors.map_xy == (float(expect[0]), float(expect[1])) and authors.ties == 2
     assert ours.ties == 2 and ours.map_xy[1] < 20      # osmseg: the tie goes to raster order, up-left
+
+
+@pytest.mark.parametrize("conventions", ["osmseg", "authors"])
+def test_the_banded_sweep_gives_the_same_cliques_with_one_row_per_band(monkeypatch: pytest.MonkeyPatch,
+                                                                         conventions: str) -> None:
+    """The key-sum sweep works band by band of cell rows (bounded memory): bands of one row change nothing."""
+    from localization import graph
+
+    rng = np.random.default_rng(7)
+    xy = rng.integers(0, 80, size=(30, 2)).astype(float)
+    lm = Landmarks(xy, rng.integers(0, 3, 30), ("a", "b", "c"), 80, 80)
+    whole = cliques_fast(lm, 17, 2, conventions)
+    monkeypatch.setattr(graph, "BAND_BYTES", 1)
+    banded = cliques_fast(lm, 17, 2, conventions)
+    reference = cliques_reference(lm, 17, 2, conventions)
+    for c in (banded, reference):
+        assert (c.members == whole.members).all() and np.array_equal(c.centers, whole.centers)

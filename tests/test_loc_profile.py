@@ -188,3 +188,13 @@ def test_bench_compares_methods_side_by_side(tmp_path: Path) -> None:
     bad = CliRunner().invoke(localize_bench_command, [str(tmp_path / "town3.png"), "--resolution", str(RES),
                                                       "--out", str(tmp_path / "b2"), "--method", "paper,nope"])
     assert bad.exit_code == 2 and "methods must be" in bad.output
+
+
+def test_scores_do_not_depend_on_the_chunk_size(scene) -> None:
+    """Memory is bounded by scoring positions a chunk at a time: the answer must not change with the chunk."""
+    mask, index = scene
+    q = _query(mask, TRUTHS[0], heading=75.0)
+    answers = [run_profile(ProfileConfig(heading_deg=heading, chunk=chunk, min_confidence=-1.0), index, q.semantic,
+                           q.camera) for heading in (None, 75.0) for chunk in (7, 4096)]
+    for a, b in (answers[:2], answers[2:]):
+        assert a.map_xy == b.map_xy and a.heading_deg == b.heading_deg and a.confidence == b.confidence
