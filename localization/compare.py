@@ -60,8 +60,10 @@ def photo_view(panorama: Panorama, classes: LandmarkClasses, fov_deg: float, *, 
         start = (w - n) // 2
         labels = np.ascontiguousarray(labels[:, start:start + n])
         lm = landmarks_from_mask(labels, panorama.table, classes, mode=mode, min_size=min_size, stride=stride)
-        # the crop's centre column keeps the panorama's centre azimuth when n and w have the same parity
         cam = Camera(n, h, hfov_deg=n * step, row_step_deg=step, camera_height_m=camera_height_m)
+        # the photo's centre looks along the panorama's heading, half a column off when n and w differ in parity
+        heading = (panorama.heading_deg + step * (start + n / 2 - w / 2)) % 360.0
+        return Query(semantic_map(labels, panorama.table, classes), lm, cam, heading)
     return Query(semantic_map(labels, panorama.table, classes), lm, cam, panorama.heading_deg)
 
 

@@ -283,7 +283,7 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     ties = int(np.isclose(score, score[best], rtol=1e-9, atol=1e-12).sum())
     result = Localization(candidates=xy, likelihoods=score, posteriors=score, order=order.astype(np.int64),
                           top_k=top_k, map_xy=(top_k[0][0], top_k[0][1]), ties=ties, unanswered=False,
-                          method="profile", heading_deg=round(heading, 3), confidence=round(kappa, 4),
+                          method="profile", heading_deg=round(heading, 3) % 360.0, confidence=round(kappa, 4),
                           chance=round(chance, 4))
     if kappa < config.min_confidence:
         return replace(result, unanswered=True, map_xy=None,

@@ -229,7 +229,7 @@ class ClassTable:
         """For a mapped table: ``(256,)`` uint8 array mapping base-table ids to this table's ids."""
         if self.base is None:
             return np.arange(256, dtype=np.uint8)
-        lut = np.zeros(256, dtype=np.uint8)
+        lut = np.full(256, self.unlabeled.id, dtype=np.uint8)  # base classes this table drops are unlabeled
         base_ids = {c.name: c.id for c in self.base.classes}
         for c in self.classes:
             for src in c.sources:
@@ -274,7 +274,7 @@ class ClassTable:
         True
         >>> ClassTable.from_dict({"classes": [{"id": 1, "name": "a", "color": [0, 0, 0]}]}, "x.json")
         Traceback (most recent call last):
-        osmseg.errors.DatasetError: x.json: class ids must be unique, in 0..255, with 0 (unlabeled) and one class more
+        osmseg.errors.DatasetError: x.json: class ids must be unique, in 0..255, with the unlabeled id (0) and one class more
         """
         try:
             entries = data["classes"]
@@ -286,7 +286,8 @@ class ClassTable:
         ids = [c.id for c in defs]
         void = data.get("unlabeled", 0) if isinstance(data, Mapping) else 0
         if (len(set(ids)) != len(ids) or not all(0 <= i < 256 for i in ids) or void not in ids or len(defs) < 2):
-            raise DatasetError(f"{where}: class ids must be unique, in 0..255, with 0 (unlabeled) and one class more")
+            raise DatasetError(f"{where}: class ids must be unique, in 0..255, with the unlabeled id ({void}) and "
+                               "one class more")
         unlabeled = next(c for c in defs if c.id == void)
         name = data.get("name", "dataset") if isinstance(data, Mapping) else "dataset"
         return cls(name=str(name), classes=tuple(c for c in defs if c.id != void), unlabeled=unlabeled)

@@ -201,7 +201,7 @@ def test_class_table_from_manifest_toml_or_error(tmp_path: Path) -> None:
     (tmp_path / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(DatasetError) as exc:
         dataset_class_table(tmp_path)
-    assert "with 0 (unlabeled)" in one_line(exc)
+    assert "with the unlabeled id (0)" in one_line(exc)
 
 
 # -------------------------------------------------------------------------------- splits

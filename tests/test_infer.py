@@ -499,3 +499,25 @@ def test_pixels_the_input_marks_empty_get_class_0(tmp_path, kind: str) -> None:
             assert np.array_equal(mask[:, 100:], truth[:, 100:])
         else:  # predicted at half the size: the same classes, but for a pixel's width at the edges
             assert (mask[:, 102:] == truth[:, 102:]).mean() > 0.95
+
+
+def test_a_class_table_with_its_void_at_11_survives_a_geotiff(tmp_path) -> None:
+    """CamVid's table (void = 11): the unlabeled id is written and read back; osmseg's tables write no such tag."""
+    from osmseg.classes import load_class_table
+    from osmseg.output.geotiff import write_class_metadata
+
+    for name, tagged in (("camvid.toml", True), ("classes13.toml", False)):
+        table = load_class_table(name)
+        path = tmp_path / f"{name}.tif"
+        with rasterio.open(path, "w", driver="GTiff", width=4, height=4, count=1, dtype="uint8",
+                           crs=CRS.from_epsg(3857), transform=from_origin(0, 4, 1, 1)) as dst:
+            dst.write(np.full((1, 4, 4), table.unlabeled.id, np.uint8))
+            write_class_metadata(dst, table)
+        with rasterio.open(path) as ds:
+            back = read_class_table(ds)
+            assert back is not None and back.unlabeled.id == table.unlabeled.id  # classes13 lists by rule order:
+            assert {i: (c.name, c.color) for i, c in back.by_id.items()} == \
+                {i: (c.name, c.color) for i, c in table.by_id.items()}          # compare by id
+            assert back.unlabeled.name == ("Unlabelled" if tagged else "unlabeled")
+            assert ("CLASS_UNLABELED" in ds.tags()) == tagged
+            assert ds.descriptions[0].endswith(f"{table.unlabeled.id} = {table.unlabeled.name}")

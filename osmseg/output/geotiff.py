@@ -44,6 +44,8 @@ from osmseg.errors import DatasetError
 BLOCK = 256
 #: zlib level of the DEFLATE compression: fixed, so output bytes never depend on GDAL's default.
 DEFLATE_LEVEL = 6
+#: Dataset tag with the unlabeled class id, written only when it is not 0 (CamVid's void: 11).
+UNLABELED_TAG = "CLASS_UNLABELED"
 CLASS_TABLE_TAG = "CLASS_TABLE"
 _CLASS_TAG = re.compile(r"^CLASS_(\d{1,3})$")
 
@@ -74,14 +76,17 @@ def class_tags(table: ClassTable) -> tuple[dict[str, str], dict[str, str]]:
     ({'CLASS_TABLE': 'osm6'}, 'unlabeled', 'dirt road')
     """
     band = {f"CLASS_{c.id}": c.name for c in sorted((table.unlabeled, *table.classes), key=lambda c: c.id)}
-    return {CLASS_TABLE_TAG: table.name}, band
+    dataset = {CLASS_TABLE_TAG: table.name}
+    if table.unlabeled.id != 0:  # osmseg's own tables keep the tags they always had
+        dataset[UNLABELED_TAG] = str(table.unlabeled.id)
+    return dataset, band
 
 
 def write_class_metadata(dst: DatasetWriter, table: ClassTable, band: int = 1) -> None:
     """Give band ``band`` of an open GeoTIFF the class colour table, names and table name."""
     palette = table.palette()
     dst.write_colormap(band, {i: (int(r), int(g), int(b), 255) for i, (r, g, b) in enumerate(palette)})
-    dst.set_band_description(band, f"class id ({table.name}); 0 = unlabeled")
+    dst.set_band_description(band, f"class id ({table.name}); {table.unlabeled.id} = {table.unlabeled.name}")
     dataset_tags, band_tags = class_tags(table)
     dst.update_tags(band, **band_tags)
     dst.update_tags(**dataset_tags, AREA_OR_POINT="Area")
@@ -103,7 +108,11 @@ def read_class_table(src: DatasetReader | str | Path, band: int = 1) -> ClassTab
     defs = [ClassDef(id=i, name=n, color=tuple(int(v) for v in colours.get(i, (0, 0, 0, 255))[:3]))  # type: ignore[arg-type]
             for i, n in sorted(names.items())]
     table_name = src.tags().get(CLASS_TABLE_TAG, "geotiff")
-    return ClassTable.from_dict({"name": table_name, "classes": [
+    try:
+        void = int(src.tags().get(UNLABELED_TAG, 0))
+    except ValueError:
+        void = -1  # from_dict says what is wrong
+    return ClassTable.from_dict({"name": table_name, "unlabeled": void, "classes": [
         {"id": d.id, "name": d.name, "color": list(d.color)} for d in defs]}, f"{src.name} class tags")
 
 
