@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from localization.landmarks import Landmarks
-from localization.windows import Cliques, _cuts, _empty_from, _Geometry, _intervals
+from localization.windows import Cliques, _cuts, _empty_from, _Geometry, _intervals, _row_runs, _run_cliques
 
 __all__: list[str] = []
 
@@ -111,41 +111,19 @@ def _aerial_component(planes: np.ndarray, k: int, pix: np.ndarray, cuts_x: np.nd
 def _distinct(planes: np.ndarray, cuts_x: np.ndarray, cuts_y: np.ndarray, k: int, g: _Geometry) -> Cliques:
     """Distinct non-empty cell bit sets as Cliques, ordered by their first cell in raster order.
 
-    Cells equal to their left neighbour are merged into horizontal runs first (a run is a
-    rectangle of window corners: indices ``cuts[a] .. cuts[a + 1] - 1`` per cell and axis);
-    only runs are compared, and a clique's corner-index sums and count add up over its runs,
-    in integers.
+    Cells equal to their left neighbour are merged into horizontal runs first
+    (:func:`~localization.windows._row_runs`); only runs are compared
+    (:func:`~localization.windows._run_cliques` adds up their corners).
     """
-    ny, nx = planes.shape[1:]
     nonempty = (planes != 0).any(axis=0)
-    start = nonempty.copy()
-    start[:, 1:] &= (planes[:, :, 1:] != planes[:, :, :-1]).any(axis=0)
-    flat_start = np.flatnonzero(start)  # raster order
-    if len(flat_start) == 0:
+    ey, ex, ex_end = _row_runs(nonempty, (planes[:, :, 1:] != planes[:, :, :-1]).any(axis=0))
+    if len(ey) == 0:
         return _empty_from(k, g)
-    stops = np.append(np.flatnonzero(start | ~nonempty), ny * nx)  # column 0 is always one of these
-    flat_end = stops[np.searchsorted(stops, flat_start, side="right")]  # one past the run's last cell
-    ey, ex = np.divmod(flat_start, nx)
-    ex_end = flat_end - ey * nx
     words = np.ascontiguousarray(planes[:, ey, ex].T)  # (runs, words)
     keys = words.view(np.dtype((np.void, words.itemsize * words.shape[1]))).ravel()
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-    order = np.argsort(first)  # cliques by first run in raster order
-    clique = np.empty(len(order), dtype=np.int64)
-    clique[order] = np.arange(len(order))
-    clique = clique[inverse.ravel()]  # each run's clique
-    x_bound = np.append(np.asarray(cuts_x, dtype=np.int64), g.nx)
-    y_bound = np.append(np.asarray(cuts_y, dtype=np.int64), g.ny)
-    x_lo, y_lo = x_bound[ex], y_bound[ey]
-    n_x, n_y = x_bound[ex_end] - x_lo, y_bound[ey + 1] - y_lo
-    run_sum_i = (2 * x_lo + n_x - 1) * n_x // 2 * n_y  # sum of the x indices of the run's corners
-    run_sum_j = (2 * y_lo + n_y - 1) * n_y // 2 * n_x
-    sums = np.zeros((3, len(order)), dtype=np.int64)
-    for row, values in enumerate((run_sum_i, run_sum_j, n_x * n_y)):
-        np.add.at(sums[row], clique, values)
-    firsts = first[order]
+    firsts, centers, _ = _run_cliques(first, inverse, ey, ex, ex_end, cuts_x, cuts_y, g)
     shifts = np.arange(64, dtype=np.uint64)
     bits = (words[firsts][:, :, None] >> shifts) & np.uint64(1)
     members = bits.reshape(len(firsts), -1)[:, :k].astype(bool)
-    centers = g.centers(x_lo[firsts], sums[0], sums[1], sums[2])
     return Cliques(members, centers, g.w, g.s)

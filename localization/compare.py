@@ -17,7 +17,6 @@ Imports: numpy, osmseg core, localization (landmarks, pipeline, profile, search,
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -30,9 +29,10 @@ from localization.match import Localization
 from localization.pipeline import AerialGraph, LocalizeConfig, run, run_profile
 from localization.profile import Camera, SemanticMap, semantic_map
 from localization.render import Panorama
+from localization.scores import error_fields, heading_error
 from localization.search import AerialIndex, ProfileConfig
 
-__all__ = ["Query", "confidence_of", "error_fields", "photo_view", "run_method", "roc_auc", "method_summary"]
+__all__ = ["Query", "confidence_of", "photo_view", "run_method", "roc_auc", "method_summary"]
 
 
 @dataclass(frozen=True)
@@ -67,18 +67,6 @@ def photo_view(panorama: Panorama, classes: LandmarkClasses, fov_deg: float, *, 
     return Query(semantic_map(labels, panorama.table, classes), lm, cam, panorama.heading_deg)
 
 
-def error_fields(loc: Localization, truth: tuple[float, float], scale: float) -> dict[str, Any]:
-    """The error record of one answer (as :func:`localization.scores.score`, without its candidate statistics)."""
-    if loc.map_xy is None:
-        return {"map": None, "error_px": None, "error": None, "top5_mean": None, "ties": loc.ties,
-                "unanswered": True, "reason": loc.reason}
-    err = math.hypot(loc.map_xy[0] - truth[0], loc.map_xy[1] - truth[1])
-    top = [math.hypot(x - truth[0], y - truth[1]) for x, y, _ in loc.top_k]
-    return {"map": [round(loc.map_xy[0], 3), round(loc.map_xy[1], 3)], "error_px": round(err, 4),
-            "error": round(err * scale, 4), "top5_mean": round(float(np.mean(top)) * scale, 4), "ties": loc.ties,
-            "unanswered": False, "reason": ""}
-
-
 def confidence_of(loc: Localization) -> float:
     """A method's confidence in its answer: kappa (profile), the MAP likelihood (paper), -1 unanswered."""
     if loc.method == "profile":
@@ -103,19 +91,19 @@ def run_method(method: str, query: Query, truth: tuple[float, float], scale: flo
         loc = run(paper_config, graph, query.landmarks)
         seconds = time.perf_counter() - t0
         negative = run(paper_config, other, query.landmarks) if other is not None else None
-        heading_error = None
+        turned: float | None = None
     else:
         index, other_index = profile()
         cfg = replace(profile_config, heading_deg=query.heading_deg if heading_known else None)
         loc = run_profile(cfg, index, query.semantic, query.camera)
         seconds = time.perf_counter() - t0
         negative = run_profile(cfg, other_index, query.semantic, query.camera) if other_index is not None else None
-        heading_error = (None if heading_known or loc.heading_deg is None or loc.unanswered
-                         else round(abs((loc.heading_deg - query.heading_deg + 180.0) % 360.0 - 180.0), 3))
+        turned = (None if heading_known or loc.heading_deg is None or loc.unanswered
+                  else heading_error(loc.heading_deg, query.heading_deg))
     out = error_fields(loc, truth, scale)
     out.update({"localize_s": round(seconds, 4), "confidence": round(confidence_of(loc), 6),
                 "negative_confidence": None if negative is None else round(confidence_of(negative), 6),
-                "heading_error_deg": heading_error})
+                "heading_error_deg": turned})
     return out
 
 

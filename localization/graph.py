@@ -79,7 +79,7 @@ from scipy.spatial import cKDTree
 from localization.cells import _component_planes, _distinct
 from localization.landmarks import Landmarks
 from localization.windows import (CONVENTIONS, Cliques, _cuts, _empty_from, _Geometry, _geometry, _in_cyclic,
-                                  _in_linear, _intervals)
+                                  _in_linear, _intervals, _row_runs, _run_cliques)
 
 __all__ = ["CONVENTIONS", "Cliques", "adjacency", "cliques_fast", "cliques_reference", "window_size_auto"]
 
@@ -254,16 +254,12 @@ def _point_cliques(lm: Landmarks, g: _Geometry) -> Cliques:
                 np.add.at(planes[p], (row, col), w if sign > 0 else (~w + np.uint64(1)))
         planes = planes.cumsum(axis=1, dtype=np.uint64).cumsum(axis=2, dtype=np.uint64)[:, :-1, :-1]
         nonempty = planes[0] != 0  # a non-empty set's sum of odd keys is 0 with probability 2^-64
-        start = nonempty.copy()
-        start[:, 1:] &= (planes[0, :, 1:] != planes[0, :, :-1]) | (planes[1, :, 1:] != planes[1, :, :-1])
-        flat = np.flatnonzero(start)
-        if len(flat) == 0:
+        ry, rx, rend = _row_runs(nonempty, (planes[:, :, 1:] != planes[:, :, :-1]).any(axis=0))
+        if len(ry) == 0:
             continue
-        stops = np.append(np.flatnonzero(start | ~nonempty), start.size)
-        end = stops[np.searchsorted(stops, flat, side="right")]
-        ry, rx = np.divmod(flat, nx)
+        flat = ry * nx + rx
         runs.append(np.stack([planes[0].ravel()[flat].view(np.int64), planes[1].ravel()[flat].view(np.int64),
-                              ry + b0, rx, end - ry * nx], axis=1))
+                              ry + b0, rx, rend], axis=1))
     if not runs:
         return _empty_from(k, g)
     run = np.concatenate(runs)                        # raster order: bands in order, raster within a band
@@ -271,25 +267,14 @@ def _point_cliques(lm: Landmarks, g: _Geometry) -> Cliques:
     _, first, inverse = np.unique(run[:, 0], return_index=True, return_inverse=True)
     if (run[first[inverse.ravel()], 1] != run[:, 1]).any():  # the first sums collided: both (never seen)
         _, first, inverse = np.unique(run[:, :2], axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first)
-    clique = np.empty(len(order), dtype=np.int64)
-    clique[order] = np.arange(len(order))
-    clique = clique[inverse.ravel()]
-    x_bound, y_bound = np.append(cuts_x, g.nx).astype(np.int64), np.append(cuts_y, g.ny).astype(np.int64)
-    x_lo, y_lo = x_bound[ex], y_bound[ey]
-    n_x, n_y = x_bound[ex_end] - x_lo, y_bound[ey + 1] - y_lo
-    sums = np.zeros((3, len(order)), dtype=np.int64)
-    for which, values in enumerate(((2 * x_lo + n_x - 1) * n_x // 2 * n_y, (2 * y_lo + n_y - 1) * n_y // 2 * n_x,
-                                    n_x * n_y)):
-        np.add.at(sums[which], clique, values)
-    firsts = first[order]
+    firsts, centers, corners = _run_cliques(first, inverse, ey, ex, ex_end, cuts_x, cuts_y, g)
     cy, cx = ey[firsts], ex[firsts]                   # each clique's first cell: who covers it
     members = np.zeros((len(firsts), k), dtype=bool)
     for i in range(0, len(rect), 256):  # (cliques, 256 rectangles) of tests at a time
         o, a, b, c, d = rect[i:i + 256].T
         rows, cols = np.nonzero((cy[:, None] >= a) & (cy[:, None] < b) & (cx[:, None] >= c) & (cx[:, None] < d))
         members[rows, o[cols]] = True
-    out = Cliques(members, g.centers(x_lo[firsts], sums[0], sums[1], sums[2]), g.w, g.s)
-    return _authors_order(out, g.first_centers(x_lo[firsts], y_lo[firsts])) if g.origin else out
+    out = Cliques(members, centers, g.w, g.s)
+    return _authors_order(out, g.first_centers(corners[:, 0], corners[:, 1])) if g.origin else out
 
 

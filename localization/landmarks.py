@@ -289,18 +289,23 @@ def _table_ids(table: ClassTable) -> dict[int, str]:
     return {c.id: c.name for c in (table.unlabeled, *table.classes)}
 
 
+def _mask_names(mask_table: ClassTable | Mapping[int, str] | None,
+                classes: LandmarkClasses) -> tuple[dict[int, str], str]:
+    """Mask label value -> class name, from the table given or the dictionary's own, and what to call it."""
+    if isinstance(mask_table, ClassTable):
+        return _table_ids(mask_table), mask_table.name
+    if mask_table is not None:
+        return {int(k): str(v) for k, v in mask_table.items()}, "the given mask classes"
+    found = classes.mask_ids()
+    if found is None:
+        raise ConfigError(f"landmark dictionary {classes.name!r} names no mask table: pass the mask's class table")
+    return found, classes.mask_table or f"{classes.name} mask_classes"
+
+
 def _landmark_lut(mask: np.ndarray, mask_table: ClassTable | Mapping[int, str] | None,
                   classes: LandmarkClasses) -> np.ndarray:
     """Lookup table mask label value -> landmark class index (-1: dropped), checking both sides."""
-    if isinstance(mask_table, ClassTable):
-        ids, table_name = _table_ids(mask_table), mask_table.name
-    elif mask_table is not None:
-        ids, table_name = {int(k): str(v) for k, v in mask_table.items()}, "the given mask classes"
-    else:
-        found = classes.mask_ids()
-        if found is None:
-            raise ConfigError(f"landmark dictionary {classes.name!r} names no mask table: pass the mask's class table")
-        ids, table_name = found, classes.mask_table or f"{classes.name} mask_classes"
+    ids, table_name = _mask_names(mask_table, classes)
     known = set(ids.values())
     unknown = sorted(k for k in classes.mapping if k not in known)
     if unknown:

@@ -35,8 +35,9 @@ from typing import Any
 
 
 from localization.evaluate import aerial_graphs, localize_subsets, subsets_of, write_results
-from localization.scores import RECALL_RADII_M, baselines, by_num_classes, chance_errors, summarize
-from localization.compare import confidence_of, error_fields, method_summary
+from localization.scores import (RECALL_RADII_M, baselines, by_num_classes, chance_errors, error_fields,
+                                 heading_error, summarize)
+from localization.compare import confidence_of, method_summary
 from localization.landmark_files import read_landmarks
 from localization.landmarks import LandmarkClasses, Landmarks, load_landmark_classes
 from localization.pipeline import METHODS, LocalizeConfig, aerial_graph, profile_index, run, run_profile
@@ -266,8 +267,8 @@ def _profile_pair(pair: Pair, other: Pair | None, config: PairsConfig, scale: fl
     seconds = time.perf_counter() - t0
     negative = (run_profile(cfg, profile_index(other.aerial, config.resolution_m, cfg), pair.ground, camera)
                 if other is not None else None)
-    heading = None if config.heading == "known" or loc.heading_deg is None else \
-        round(abs((loc.heading_deg + 180.0) % 360.0 - 180.0), 3)  # CVUSA panoramas face north: the truth is 0
+    # CVUSA panoramas face north: the true heading is 0
+    heading = None if config.heading == "known" or loc.heading_deg is None else heading_error(loc.heading_deg, 0.0)
     return {**error_fields(loc, pair.truth, scale), "localize_s": round(seconds, 4), "heading_error_deg": heading,
             "confidence": loc.confidence,
             "negative_confidence": None if negative is None else negative.confidence}

@@ -211,8 +211,30 @@ def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path
                           f"every landmark would be in one window; give less than {max(a.width, a.height)}, or auto")
     if truth is not None and not (0 <= truth[0] < a.width and 0 <= truth[1] < a.height):
         raise ConfigError(f"--truth {truth[0]:g},{truth[1]:g} is outside the aerial image ({a.width}x{a.height})")
+    summary: dict[str, Any] = {"aerial": str(request.aerial), "ground": str(request.ground),
+                               "aerial_landmarks": len(a), "ground_landmarks": len(ground.landmarks)}
     if config.method == "profile":
-        return _profile_files(request, config, aerial, ground, out_dir)
+        result = _profile_result(request, config, aerial, ground)
+        summary["inputs"] = {side: "mask" if s.semantic is not None else "landmarks"
+                             for side, s in (("aerial", aerial), ("ground", ground))}
+    else:
+        result = _paper_result(request, config, aerial, ground)
+    resolution = request.resolution_m or aerial.resolution
+    error_px, error_m = result.error(truth, resolution)
+    if truth is not None:
+        summary["truth"] = {"x": truth[0], "y": truth[1], "error_px": error_px, "error_m": error_m}
+    report = LocalizeReport(result, aerial, ground, error_px, error_m, summary)
+    if out_dir is not None:
+        report.written.extend(_pictures(out_dir, report, config, resolution))
+        full = {**summary, **result.to_dict(all_candidates=config.method == "paper")}
+        report.written.append(atomic_write_text(out_dir / "result.json",
+                                                json.dumps(full, indent=2, sort_keys=True) + "\n"))
+    return report
+
+
+def _paper_result(request: LocalizeFiles, config: LocalizeConfig, aerial: Side, ground: Side) -> Localization:
+    """The paper method on both sides' landmarks (with the §5.3.2 feature edges when asked)."""
+    a = aerial.landmarks
     drops: dict[str, np.ndarray | None] = {}
     if config.features is not None:
         drops = config.features.masks({
@@ -227,52 +249,18 @@ def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path
         graphs = {"aerial": (a, result.window), "ground": (ground.landmarks, result.query_window)}
         result = replace(result, feature_edges=config.features.summary(drops, graphs, fast=config.fast,
                                                                          stride=config.stride))
-    resolution = request.resolution_m or aerial.resolution
-    error_px, error_m = result.error(truth, resolution)
-    summary: dict[str, Any] = {"aerial": str(request.aerial), "ground": str(request.ground),
-                               "aerial_landmarks": len(a), "ground_landmarks": len(ground.landmarks)}
-    if truth is not None:
-        summary["truth"] = {"x": truth[0], "y": truth[1], "error_px": error_px, "error_m": error_m}
-    report = LocalizeReport(result, aerial, ground, error_px, error_m, summary)
-    if out_dir is not None:
-        report.written.extend(_pictures(out_dir, report, config, resolution))
-        full = {**summary, **result.to_dict(all_candidates=True)}
-        report.written.append(atomic_write_text(out_dir / "result.json",
-                                                json.dumps(full, indent=2, sort_keys=True) + "\n"))
-    return report
+    return result
 
 
-def _profile_files(request: LocalizeFiles, config: LocalizeConfig, aerial: Side, ground: Side,
-                   out_dir: Path | None) -> LocalizeReport:
-    """localize_files for the profile method: masks where given, else the landmark lists."""
+def _profile_result(request: LocalizeFiles, config: LocalizeConfig, aerial: Side, ground: Side) -> Localization:
+    """The profile method: masks where given, else the landmark lists."""
     if not request.ground_options.panorama and config.fov_deg >= 360:
         raise ConfigError("the profile method localizes ground views: a panorama, or a photo with --fov DEGREES")
-    resolution = request.resolution_m or aerial.resolution
-    index = profile_index(aerial.semantic if aerial.semantic is not None else aerial.landmarks, resolution,
-                          config.profile)
+    index = profile_index(aerial.semantic if aerial.semantic is not None else aerial.landmarks,
+                          request.resolution_m or aerial.resolution, config.profile)
     g = ground.landmarks
     camera = Camera(g.width, g.height, hfov_deg=config.fov_deg, camera_height_m=config.camera_height_m)
-    result = run_profile(config.profile, index, ground.semantic if ground.semantic is not None else g, camera)
-    truth = request.truth
-    error_px, error_m = result.error(truth, resolution)
-    summary: dict[str, Any] = {"aerial": str(request.aerial), "ground": str(request.ground),
-                               "aerial_landmarks": len(aerial.landmarks), "ground_landmarks": len(g),
-                               "inputs": {"aerial": "mask" if aerial.semantic is not None else "landmarks",
-                                          "ground": "mask" if ground.semantic is not None else "landmarks"}}
-    if truth is not None:
-        summary["truth"] = {"x": truth[0], "y": truth[1], "error_px": error_px, "error_m": error_m}
-    report = LocalizeReport(result, aerial, ground, error_px, error_m, summary)
-    if out_dir is not None:
-        try:
-            from localization import figures
-        except ImportError:
-            raise ConfigError("pictures need matplotlib: pip install matplotlib (or leave out --out)") from None
-        report.written.append(figures.localization_png(out_dir / "localization.png", result, aerial.landmarks,
-                                                       image=aerial.picture(), truth=truth, resolution=resolution))
-        full = {**summary, **result.to_dict(all_candidates=False)}
-        report.written.append(atomic_write_text(out_dir / "result.json",
-                                                json.dumps(full, indent=2, sort_keys=True) + "\n"))
-    return report
+    return run_profile(config.profile, index, ground.semantic if ground.semantic is not None else g, camera)
 
 
 def _check_sides(aerial: Side, ground: Side, request: LocalizeFiles) -> None:
@@ -290,7 +278,7 @@ def _check_sides(aerial: Side, ground: Side, request: LocalizeFiles) -> None:
 
 
 def _pictures(out_dir: Path, report: LocalizeReport, config: LocalizeConfig, resolution: float | None) -> list[Path]:
-    """localization.png, aerial_graph.png and ground_graph.png in ``out_dir``."""
+    """localization.png in ``out_dir``, and for the paper method aerial_graph.png and ground_graph.png."""
     try:
         from localization import figures
     except ImportError:
@@ -300,6 +288,8 @@ def _pictures(out_dir: Path, report: LocalizeReport, config: LocalizeConfig, res
     truth = (report.summary["truth"]["x"], report.summary["truth"]["y"]) if "truth" in report.summary else None
     paths = [figures.localization_png(out_dir / "localization.png", result, aerial.landmarks,
                                        image=aerial.picture(), truth=truth, resolution=resolution)]
+    if config.method != "paper":  # no landmark graphs to draw
+        return paths
     for name, side, w in (("aerial", aerial, result.window), ("ground", ground, result.query_window)):
         if w:
             graph = adjacency(build(side.landmarks, w, config.stride))

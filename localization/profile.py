@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from localization.landmarks import LandmarkClasses, Landmarks, _landmark_lut
+from localization.landmarks import LandmarkClasses, Landmarks, _landmark_lut, _mask_names
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
 
@@ -84,12 +84,7 @@ def semantic_map(mask: np.ndarray, table: ClassTable | Mapping[int, str] | None,
     """
     mask = np.asarray(mask)
     lut = _landmark_lut(mask, table, classes)
-    if isinstance(table, ClassTable):
-        names = {c.id: c.name for c in (table.unlabeled, *table.classes)}
-    elif table is not None:
-        names = {int(k): str(v) for k, v in table.items()}
-    else:
-        names = classes.mask_ids() or {}
+    names, _ = _mask_names(table, classes)
     up = {s.lower() for s in standing}
     stand_lut = np.zeros(len(lut), dtype=bool)
     for value, name in names.items():

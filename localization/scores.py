@@ -17,7 +17,8 @@ import numpy as np
 
 from localization.result import Localization
 
-__all__ = ["RECALL_RADII_M", "summarize", "score", "chance_errors", "by_num_classes", "baselines"]
+__all__ = ["RECALL_RADII_M", "summarize", "error_fields", "score", "heading_error", "chance_errors", "by_num_classes",
+           "baselines"]
 
 RECALL_RADII_M = (10, 25, 50)
 
@@ -60,22 +61,39 @@ def summarize(records: Sequence[dict[str, Any]], radii: Sequence[float] = RECALL
     }
 
 
+def error_fields(loc: Localization, truth: tuple[float, float], scale: float = 1.0) -> dict[str, Any]:
+    """The error record of one answer: MAP, error in pixels and in units (``scale`` per pixel), top-k mean."""
+    if loc.unanswered or loc.map_xy is None:
+        return {"map": None, "error_px": None, "error": None, "top5_mean": None, "ties": loc.ties,
+                "unanswered": True, "reason": loc.reason}
+    err = math.hypot(loc.map_xy[0] - truth[0], loc.map_xy[1] - truth[1])
+    top = [math.hypot(x - truth[0], y - truth[1]) for x, y, _ in loc.top_k]
+    return {"map": [round(loc.map_xy[0], 3), round(loc.map_xy[1], 3)], "error_px": round(err, 4),
+            "error": round(err * scale, 4), "top5_mean": round(float(np.mean(top)) * scale, 4), "ties": loc.ties,
+            "unanswered": False, "reason": ""}
+
+
 def score(loc: Localization, truth: tuple[float, float], scale: float = 1.0) -> dict[str, Any]:
     """Error of one localization against the true viewpoint; ``scale``: units per pixel (m/px, or 1).
 
-    ``candidate_guess`` is the expected error of picking one of the candidates at random: what
-    the candidate selection alone achieves, so ``error`` below it is what the matching adds.
+    :func:`error_fields`, and ``candidate_guess``: the expected error of picking one of the
+    candidates at random, what the candidate selection alone achieves, so ``error`` below it is
+    what the matching adds.
     """
-    if loc.unanswered or loc.map_xy is None:
-        return {"map": None, "error_px": None, "error": None, "top5_mean": None, "candidate_guess": None,
-                "ties": loc.ties, "unanswered": True, "reason": loc.reason, "candidates": 0}
-    err = math.hypot(loc.map_xy[0] - truth[0], loc.map_xy[1] - truth[1])
-    top = [math.hypot(x - truth[0], y - truth[1]) for x, y, _ in loc.top_k]
+    out = error_fields(loc, truth, scale)
+    if out["unanswered"]:
+        return {**out, "candidate_guess": None, "candidates": 0}
     anyone = float(np.mean(np.hypot(loc.candidates[:, 0] - truth[0], loc.candidates[:, 1] - truth[1])))
-    return {"map": [round(loc.map_xy[0], 3), round(loc.map_xy[1], 3)], "error_px": round(err, 4),
-            "error": round(err * scale, 4), "top5_mean": round(float(np.mean(top)) * scale, 4),
-            "candidate_guess": round(anyone * scale, 4),
-            "ties": loc.ties, "unanswered": False, "reason": "", "candidates": int(len(loc.candidates))}
+    return {**out, "candidate_guess": round(anyone * scale, 4), "candidates": int(len(loc.candidates))}
+
+
+def heading_error(estimate_deg: float, truth_deg: float) -> float:
+    """Absolute angle between two compass headings, in [0, 180] degrees.
+
+    >>> heading_error(359.0, 2.0), heading_error(90.0, 270.0)
+    (3.0, 180.0)
+    """
+    return round(abs((estimate_deg - truth_deg + 180.0) % 360.0 - 180.0), 3)
 
 
 def chance_errors(shape: tuple[int, int], truth: tuple[float, float], scale: float = 1.0) -> tuple[float, float]:

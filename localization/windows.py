@@ -163,5 +163,45 @@ def _cuts(first: np.ndarray, last: np.ndarray, n: int) -> np.ndarray:
     return np.unique(ends[ends < n])
 
 
+def _row_runs(nonempty: np.ndarray, changes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Runs of equal non-empty cells along each row of a cell grid: ``(row, first column, end column)``.
+
+    ``changes[r, c]`` (c >= 1) says cell ``(r, c)`` differs from its left neighbour; runs are
+    listed in raster order, ``end`` one past their last cell.
+    """
+    start = nonempty.copy()
+    start[:, 1:] &= changes
+    flat = np.flatnonzero(start)
+    stops = np.append(np.flatnonzero(start | ~nonempty), start.size)  # column 0 is always one of these
+    end = stops[np.searchsorted(stops, flat, side="right")]
+    row, col = np.divmod(flat, start.shape[1])
+    return row, col, end - row * start.shape[1]
+
+
+def _run_cliques(first: np.ndarray, inverse: np.ndarray, ey: np.ndarray, ex: np.ndarray, ex_end: np.ndarray,
+                 cuts_x: np.ndarray, cuts_y: np.ndarray, g: _Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """From runs labelled by clique (``np.unique``'s ``first`` and ``inverse``): each clique's first run,
+    its centre, and its first window's corner indices ``(M, 2)``, cliques by first run in raster order.
+
+    A run is a rectangle of window corners (indices ``cuts[a] .. cuts[a + 1] - 1`` per axis), so a
+    clique's corner-index sums and count add up over its runs, in integers (arithmetic series).
+    """
+    order = np.argsort(first)
+    clique = np.empty(len(order), dtype=np.int64)
+    clique[order] = np.arange(len(order))
+    clique = clique[np.asarray(inverse).ravel()]  # each run's clique
+    x_bound = np.append(np.asarray(cuts_x, dtype=np.int64), g.nx)
+    y_bound = np.append(np.asarray(cuts_y, dtype=np.int64), g.ny)
+    x_lo, y_lo = x_bound[ex], y_bound[ey]
+    n_x, n_y = x_bound[ex_end] - x_lo, y_bound[ey + 1] - y_lo
+    sums = np.zeros((3, len(order)), dtype=np.int64)
+    for which, values in enumerate(((2 * x_lo + n_x - 1) * n_x // 2 * n_y, (2 * y_lo + n_y - 1) * n_y // 2 * n_x,
+                                    n_x * n_y)):
+        np.add.at(sums[which], clique, values)
+    firsts = first[order]
+    centers = g.centers(x_lo[firsts], sums[0], sums[1], sums[2])
+    return firsts, centers, np.stack([x_lo[firsts], y_lo[firsts]], axis=1)
+
+
 def _empty_from(k: int, g: _Geometry) -> Cliques:
     return Cliques(np.zeros((0, k), dtype=bool), np.zeros((0, 2)), g.w, g.s)
