@@ -45,7 +45,8 @@ from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
 
 __all__ = ["OTHER", "STANDING_MASK_CLASSES", "STANDING_LANDMARKS", "SemanticMap", "Camera", "QueryProfile", "semantic_map",
-           "query_from_mask", "query_from_landmarks", "AerialMaskIndex", "AerialLandmarkIndex", "ray_radii"]
+           "query_from_mask", "query_from_landmarks", "AerialMaskIndex", "AerialLandmarkIndex", "ray_radii",
+           "OPAQUE_LANDMARKS", "HALF_WIDTHS_M", "first_hits"]
 
 #: Mask classes that stand up from the ground and hide what lies behind them (case-insensitive).
 STANDING_MASK_CLASSES = ("building", "tree")
@@ -53,6 +54,10 @@ STANDING_MASK_CLASSES = ("building", "tree")
 OTHER = "other"
 #: Landmark classes whose points mark something standing (their row says nothing about distance).
 STANDING_LANDMARKS = ("building", "vegetation")
+#: Landmark classes that hide what lies behind them (trees let the view through between crowns).
+OPAQUE_LANDMARKS = ("building",)
+#: Half-widths (m) an opaque landmark point may stand for; its predicted profile is the mean over them.
+HALF_WIDTHS_M = (4.0, 6.0, 8.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,6 +244,10 @@ def query_from_landmarks(lm: Landmarks, camera: Camera, *, bins: int, radii: tup
 # --------------------------------------------------------------------------- the aerial prediction
 
 
+#: Class index of a byte of the map (its low 6 bits - 1); -1 for "outside" (128).
+_LABEL_OF_BYTE = np.where(np.arange(256) < 128, (np.arange(256) & 63) - 1, -1).astype(np.int8)
+
+
 def _directions(bins: int) -> tuple[np.ndarray, np.ndarray]:
     az = np.radians(np.arange(bins) * 360.0 / bins)
     return np.sin(az), -np.cos(az)  # image x grows east, y grows south
@@ -265,10 +274,12 @@ class AerialMaskIndex:
     def shape(self) -> tuple[int, int]:
         return self.sem.shape
 
-    def _codes(self, pad: int) -> np.ndarray:
-        if self._padded is None or self._padded[0] < pad:
-            self._padded = (pad, np.pad(self._code, pad, constant_values=128))
-        return self._padded[1]
+    def _codes(self, pad: int) -> tuple[int, np.ndarray]:
+        """``(its pad, the padded byte map)`` at least ``pad`` wide (one tuple: safe to share between threads)."""
+        padded = self._padded
+        if padded is None or padded[0] < pad:
+            padded = self._padded = (pad, np.pad(self._code, pad, constant_values=128))
+        return padded
 
     def labels(self, xy: np.ndarray, radii_m: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
         """``(lab, valid)``: the class seen first at each radius and azimuth ``(N, R, A)`` int8 (-1 none), and
@@ -282,20 +293,20 @@ class AerialMaskIndex:
         at = np.searchsorted(s, radii_m)                               # radius k is sample at[k]
         dx, dy = _directions(bins)
         steps = s / self.resolution_m
-        codes = self._codes(int(math.ceil(steps.max())) + 2)
-        pad, pw = self._padded[0] if self._padded is not None else 0, codes.shape[1]
+        pad, codes = self._codes(int(math.ceil(steps.max())) + 2)
+        pw = codes.shape[1]
         off = (np.rint(dy[:, None] * steps[None, :]).astype(np.int64) * pw
                + np.rint(dx[:, None] * steps[None, :]).astype(np.int64))                     # (A, S)
         base = (np.rint(xy[:, 1]).astype(np.int64) + pad) * pw + np.rint(xy[:, 0]).astype(np.int64) + pad
         code = codes.ravel()[base[:, None, None] + off[None]]                                # (N, A, S)
         stands = (code & 64) > 0
-        first = np.where(stands.any(axis=2), stands.argmax(axis=2), len(s))                  # (N, A)
-        hit = np.take_along_axis(code, np.minimum(first, len(s) - 1)[..., None], axis=2)[..., 0] & 63
-        at_k = code[:, :, at]
-        occluded = first[:, :, None] <= at[None, None, :]
-        valid = occluded | (at_k < 128)
-        lab = np.where(valid, np.where(occluded, hit[:, :, None], at_k & 63).astype(np.int8) - 1, -1)
-        return np.ascontiguousarray(np.transpose(lab, (0, 2, 1))), np.ascontiguousarray(np.transpose(valid, (0, 2, 1)))
+        first = stands.argmax(axis=2)                                                        # (N, A)
+        hit = np.take_along_axis(code, first[..., None], axis=2)[..., 0] & 63
+        first[~np.take_along_axis(stands, first[..., None], axis=2)[..., 0]] = len(s)      # nothing stands
+        # the byte seen at each radius: the first standing thing's before it, else the ground's there
+        seen = np.where(first[:, :, None] <= at[None, None, :], hit[:, :, None], code[:, :, at])
+        seen = np.ascontiguousarray(np.transpose(seen, (0, 2, 1)))                          # (N, R, A)
+        return _LABEL_OF_BYTE[seen], seen < 128
 
     def profiles(self, xy: np.ndarray, radii_m: np.ndarray, bins: int,
                  need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -314,17 +325,68 @@ class AerialMaskIndex:
         return P, V
 
 
-class AerialLandmarkIndex:
-    """Predicted profiles from aerial landmark points (kernels in bearing and log distance)."""
+def first_hits(bearing: np.ndarray, dist_m: np.ndarray, cls: np.ndarray, n_classes: int, bins: int,
+               half_widths_m: Sequence[float] = HALF_WIDTHS_M) -> np.ndarray:
+    """What a camera sees first in each azimuth bin among opaque landmark points: ``(N, K, A)``.
 
-    def __init__(self, lm: Landmarks, resolution_m: float, *, sigma_deg: float = 8.0, distance_sd: float = 0.5,
-                 d0_m: float = 50.0) -> None:
+    Each point ``j`` (bearing ``bearing[n, j]`` radians from position ``n``, ``dist_m[n, j]``
+    metres away, class ``cls[j]`` in ``0..K-1``) is an object ``w`` metres wide on either side,
+    covering the bins within ``atan(w / d)`` of its bearing (at least its nearest bin). In each
+    bin the nearest covering point wins; its class gets ``exp(-delta^2 / 2)`` with ``delta`` the
+    bin's offset from the point's bearing in half-widths. The result is the mean over
+    ``half_widths_m`` (a point does not say how wide its building is). Work is one entry per
+    covered (position, point, bin), so far points cost one or two bins each.
+
+    >>> v = first_hits(np.array([[0.0, 0.0]]), np.array([[10.0, 20.0]]), np.array([0, 1]), 2, 8, (4.0,))
+    >>> v[0, :, 0].round(2).tolist()  # the nearer point hides the farther one in bin 0
+    [1.0, 0.0]
+    """
+    n, m = bearing.shape
+    out = np.zeros((n, n_classes, bins), dtype=np.float32)
+    if not (n and m):
+        return out
+    step = 2 * np.pi / bins
+    centre = (np.mod(bearing, 2 * np.pi) / step).ravel()
+    dist = np.asarray(dist_m, dtype=np.float64).ravel()
+    point_cls = np.tile(np.asarray(cls, dtype=np.int64), n)
+    for w in half_widths_m:
+        half = np.arctan2(w, dist) / step                           # half-width in bins
+        near = np.rint(centre)
+        lo = np.minimum(np.ceil(centre - half), near).astype(np.int64)
+        count = np.minimum(np.maximum(np.floor(centre + half), near).astype(np.int64) - lo + 1, bins)
+        pair = np.repeat(np.arange(n * m), count)
+        a = lo[pair] + (np.arange(len(pair)) - np.repeat(np.cumsum(count) - count, count))
+        delta = (a - centre[pair]) / np.maximum(half[pair], 1e-9)
+        row = pair // m
+        key = row * bins + np.mod(a, bins)
+        depth = np.full(n * bins, np.inf)
+        np.minimum.at(depth, key, dist[pair])
+        win = dist[pair] <= depth[key]
+        value = np.zeros(n * n_classes * bins, dtype=np.float32)
+        np.maximum.at(value, (row[win] * n_classes + point_cls[pair[win]]) * bins + np.mod(a[win], bins),
+                      np.exp(-0.5 * delta[win] ** 2).astype(np.float32))
+        out += value.reshape(n, n_classes, bins) / np.float32(len(half_widths_m))
+    return out
+
+
+class AerialLandmarkIndex:
+    """Predicted profiles from aerial landmark points.
+
+    Opaque classes (:data:`OPAQUE_LANDMARKS`, buildings) in slot ``R`` by the first-hit rule of
+    :func:`first_hits`, as a mask's rays; every other cell by kernels in bearing and log distance.
+    """
+
+    def __init__(self, lm: Landmarks, resolution_m: float, *, sigma_deg: float = 8.0, distance_sd: float = 1.0,
+                 d0_m: float = 50.0, opaque: Sequence[str] = OPAQUE_LANDMARKS,
+                 half_widths_m: Sequence[float] = HALF_WIDTHS_M) -> None:
         if not (resolution_m > 0 and math.isfinite(resolution_m)):
             raise ConfigError("the profile method needs the aerial ground resolution in m/px (--resolution); "
                               f"got {resolution_m}")
         self.lm, self.resolution_m = lm, float(resolution_m)
         self.sigma, self.distance_sd, self.d0_m = math.radians(sigma_deg), distance_sd, d0_m
         self.classes = (*lm.classes, OTHER)
+        self.opaque = np.array([c in opaque for c in lm.classes], dtype=bool)
+        self.half_widths_m = tuple(half_widths_m)
         # point scores are peaked (a kernel a few degrees wide): a fine grid, one refinement
         self.grid_m, self.levels, self.weighted = 1.25, 1, False
 
@@ -341,9 +403,18 @@ class AerialLandmarkIndex:
         az = np.radians(np.arange(bins) * 360.0 / bins).astype(np.float32)
         log_r = np.log(radii_m)
         wanted = np.ones((n_c + 1, n_r + 1), dtype=bool) if need is None else np.asarray(need, dtype=bool)
+        opaque = np.flatnonzero(self.opaque)
+        if len(opaque) and wanted[opaque, n_r].any():
+            on = np.isin(self.lm.cls, opaque)
+            d = self.lm.xy[on][None, :, :] - xy[:, None, :]
+            hits = first_hits(np.arctan2(d[..., 0], -d[..., 1]), np.hypot(d[..., 0], d[..., 1]) * self.resolution_m,
+                              np.searchsorted(opaque, self.lm.cls[on]), len(opaque), bins, self.half_widths_m)
+            P[:, opaque, n_r, :] = hits
         for c in range(n_c):
             pts = self.lm.xy[self.lm.cls == c]
-            if not len(pts) or not wanted[c].any():
+            slots = wanted[c].copy()
+            slots[n_r] &= not self.opaque[c]
+            if not len(pts) or not slots.any():
                 continue
             d = pts[None, :, :] - xy[:, None, :]                                   # (N, M, 2)
             bearing = np.arctan2(d[..., 0], -d[..., 1])
@@ -352,10 +423,10 @@ class AerialLandmarkIndex:
             delta = ((az[None, None, :] - bearing[..., None].astype(np.float32) + np.pi) % (2 * np.pi)
                      - np.pi).astype(np.float32)                                  # (N, M, A), wrapped
             k_az = np.exp(np.float32(-0.5 / self.sigma ** 2) * delta * delta) * g[..., None].astype(np.float32)
-            if wanted[c, n_r]:
+            if slots[n_r]:
                 P[:, c, n_r, :] = k_az.max(axis=1)
             log_d = np.log(np.maximum(dist_m, 0.5))
-            for k in np.flatnonzero(wanted[c, :n_r]):  # (N, M, A) at a time: memory stays that of one radius
+            for k in np.flatnonzero(slots[:n_r]):  # (N, M, A) at a time: memory stays that of one radius
                 k_d = np.exp(-0.5 * ((log_d - log_r[k]) / self.distance_sd) ** 2).astype(np.float32)
                 P[:, c, k, :] = (k_az * k_d[..., None]).max(axis=1)
         return P, np.ones((len(xy), n_r + 1, bins), dtype=np.float32)

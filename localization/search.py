@@ -31,8 +31,11 @@ Imports: numpy, osmseg core, localization.profile and localization.result.
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -61,15 +64,16 @@ class ProfileConfig:
     chunk: int = 1024              # positions scored at once (memory)
     samples: int = 24              # aerial ray samples between 0.6 m and the farthest radius
     sigma_deg: float = 8.0         # aerial landmark points: bearing kernel
-    distance_sd: float = 0.5       # aerial landmark points: log-distance kernel
+    distance_sd: float = 1.0       # aerial landmark points: log-distance kernel (sd of ln d)
     d0_m: float = 50.0             # aerial landmark points: weight 1 / (1 + d / d0)
     weighted: bool | None = None   # weigh each class and radius by -log of how often the aerial image shows it
                                    # [a mask: yes; points: no, their soft kernels have no such frequencies]
     min_prior: float = 0.01
+    threads: int = 0               # chunks scored at once on threads; 0: one per core (the answer is the same)
 
     def __post_init__(self) -> None:
         if ((self.bins is not None and self.bins < 8) or self.radii < 1 or self.keep < 1 or (self.levels is not None and self.levels < 0)
-                or self.top_k < 1 or self.chunk < 1):
+                or self.top_k < 1 or self.chunk < 1 or self.threads < 0):
             raise ConfigError("profile method: bins >= 8, radii >= 1, keep >= 1, levels >= 0, top_k >= 1")
         if not (0 < self.min_range_m < self.max_range_m and (self.coarse_m is None or self.coarse_m > 0)):
             raise ConfigError("profile method: ranges must satisfy 0 < min < max and the grid spacing be > 0")
@@ -140,21 +144,23 @@ def score_positions(index: AerialIndex, query: QueryProfile, xy: np.ndarray, con
         table = np.concatenate([q[:, :n_r, :], np.zeros((1, n_r, query.bins), np.float32)])  # class -1: row C
         cells = np.arange(n_r * query.bins).reshape(n_r, query.bins)
         u_seen = u[:n_r]
-    for start in range(0, n, config.chunk):
-        part = xy[start:start + config.chunk]
+
+    def one(part: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         if gather:
             lab, valid = index.labels(part, query.radii_m, query.bins)  # type: ignore[attr-defined]
             lab = np.where(lab < 0, len(table) - 1, lab).astype(np.int64)
             num = table.reshape(len(table), -1)[lab.reshape(len(part), -1), cells.ravel()[None, :]].sum(axis=1)
-            best[start:start + len(part)] = (num + float(u.sum()) - (valid * u_seen[None]).sum(axis=(1, 2))
-                                              - float(u[n_r:].sum())) / total
-            continue
+            return (num + float(u.sum()) - (valid * u_seen[None]).sum(axis=(1, 2)) - float(u[n_r:].sum())) / total, None
         P, V = index.profiles(part, query.radii_m, query.bins, need)
         if known:
-            num = np.einsum("ncra,cra->n", P, q) + float(u.sum()) - np.einsum("nra,ra->n", V, u)
-            best[start:start + len(part)] = num / total
-            continue
-        best[start:start + len(part)], shift[start:start + len(part)] = _rotations(P, V, qf, uf, u, total, query.bins)
+            return (np.einsum("ncra,cra->n", P, q) + float(u.sum()) - np.einsum("nra,ra->n", V, u)) / total, None
+        return _rotations(P, V, qf, uf, u, total, query.bins)
+
+    for start, (b, s) in zip(range(0, n, config.chunk), _map(one, [xy[i:i + config.chunk] for i in range(0, n, config.chunk)],
+                                                             config.threads)):
+        best[start:start + len(b)] = b
+        if s is not None:
+            shift[start:start + len(b)] = s
     return best, shift
 
 
@@ -192,23 +198,42 @@ def _pruned(index: Any, query: QueryProfile, xy: np.ndarray, config: ProfileConf
             total: float, qf: np.ndarray, uf: np.ndarray, keep: int, need: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`score_positions` for the ``keep`` best of many positions, best bounds first (see there)."""
     n = len(xy)
-    bound = np.empty(n)
-    for start in range(0, n, config.chunk):
-        lab, valid = index.labels(xy[start:start + config.chunk], query.radii_m, query.bins)
-        bound[start:start + len(lab)] = _bounds(lab, valid, q, u, total)
+    starts = range(0, n, config.chunk)
+
+    def bounds_of(part: np.ndarray) -> np.ndarray:
+        lab, valid = index.labels(part, query.radii_m, query.bins)
+        return _bounds(lab, valid, q, u, total)
+
+    bound = np.concatenate(_map(bounds_of, [xy[i:i + config.chunk] for i in starts], config.threads))
     order = np.argsort(-bound, kind="stable")
     best, shift = np.full(n, -np.inf), np.zeros(n)
-    scored: list[np.ndarray] = []
-    for start in range(0, n, config.chunk):
-        part = order[start:start + config.chunk]
-        if scored and len(np.concatenate(scored)) >= keep:
-            done = np.concatenate(scored)
-            kth = np.partition(best[done], len(done) - keep)[len(done) - keep]
-            if bound[part[0]] < kth - 1e-9:
-                break
-        P, V = index.profiles(xy[part], query.radii_m, query.bins, need)
-        best[part], shift[part] = _rotations(P, V, qf, uf, u, total, query.bins)
-        scored.append(part)
+
+    # one-hot rows only where the query has mass (slot R has none on this path, so neither has u)
+    n_r = len(query.radii_m)
+    rows_c, rows_r = np.nonzero(need[:, :n_r])
+    q_rows = qf[rows_c, rows_r]                                                   # (K, F)
+    u_rows = np.flatnonzero(u[:n_r].any(axis=1))
+
+    def rotations_of(part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lab, valid = index.labels(xy[part], query.radii_m, query.bins)
+        onehot = (lab[:, rows_r, :] == rows_c[None, :, None].astype(lab.dtype)).astype(np.float32)
+        agree = np.einsum("nkf,kf->nf", np.fft.rfft(onehot, axis=-1), q_rows)
+        seen = np.einsum("nrf,rf->nf", np.fft.rfft(valid[:, u_rows, :].astype(np.float32), axis=-1), uf[u_rows])
+        score = (np.fft.irfft(agree - seen, n=query.bins, axis=-1) + float(u.sum())) / total
+        k = score.argmax(axis=1)
+        return score[np.arange(len(score)), k], k + _parabola(score, k)
+
+    scored = 0
+    batch = _threads(config.threads)
+    for first in range(0, n, config.chunk * batch):  # a batch of chunks at a time, one per thread
+        if scored >= keep:
+            kth = np.partition(best[order[:scored]], scored - keep)[scored - keep]
+            if bound[order[first]] < kth - 1e-9:
+                break  # no later position can beat the keep-th best: theirs stay -inf
+        parts = [order[i:i + config.chunk] for i in range(first, min(first + config.chunk * batch, n), config.chunk)]
+        for part, (b, s) in zip(parts, _map(rotations_of, parts, config.threads)):
+            best[part], shift[part] = b, s
+            scored += len(part)
     return best, shift
 
 
@@ -217,6 +242,25 @@ def class_prior(index: AerialIndex, query: QueryProfile, xy: np.ndarray, n: int 
     pick = xy[np.linspace(0, len(xy) - 1, min(n, len(xy))).astype(np.int64)]
     P, V = index.profiles(pick, query.radii_m, query.bins)
     return P.sum(axis=(0, 3)) / np.maximum(V.sum(axis=(0, 2)), 1.0)[None, :]
+
+
+def _threads(threads: int) -> int:
+    """How many threads ``threads`` means (0: one per core)."""
+    return threads if threads > 0 else max(1, os.cpu_count() or 1)
+
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def _map(fn: Callable[[T], R], items: list[T], threads: int) -> list[R]:
+    """``[fn(x) for x in items]`` on ``threads`` threads (numpy's gathers, reductions and FFTs let go of
+    the GIL), in order: the result does not depend on the thread count."""
+    n = min(_threads(threads), len(items))
+    if n <= 1:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(n) as pool:
+        return list(pool.map(fn, items))
 
 
 def _parabola(s: np.ndarray, k: np.ndarray) -> np.ndarray:

@@ -198,3 +198,48 @@ def test_scores_do_not_depend_on_the_chunk_size(scene) -> None:
                            q.camera) for heading in (None, 75.0) for chunk in (7, 4096)]
     for a, b in (answers[:2], answers[2:]):
         assert a.map_xy == b.map_xy and a.heading_deg == b.heading_deg and a.confidence == b.confidence
+
+
+def test_pruned_search_keeps_the_exhaustive_best(scene) -> None:
+    """Heading unknown, the coarse grid is scored best bound first and stops early: the kept best must be
+    exactly those of scoring every position (the bound is an upper bound of every rotation's score)."""
+    from localization.search import class_prior, grid_positions, score_positions
+
+    mask, index = scene
+    q = _query(mask, TRUTHS[2], heading=222.0)
+    config = ProfileConfig(heading_deg=None, chunk=64)
+    query = profile_query(q.semantic, q.camera, config)
+    xy = grid_positions(index.shape, 4.0 / RES)
+    prior = class_prior(index, query, xy)
+    weights = -np.log(np.clip(prior, config.min_prior, 1.0))
+    full, full_shift = score_positions(index, query, xy, config, prior, weights)
+    pruned, pruned_shift = score_positions(index, query, xy, config, prior, weights, keep=40)
+    assert np.isinf(pruned).sum() > len(xy) // 5            # many positions were never scored
+    best = np.argsort(-full, kind="stable")[:40]
+    assert set(best.tolist()) == set(np.argsort(-pruned, kind="stable")[:40].tolist())
+    assert np.allclose(pruned[best], full[best], atol=1e-5)
+    assert np.allclose(pruned_shift[best], full_shift[best], atol=1e-3)
+
+
+@pytest.mark.parametrize("heading", [None, 30.0])
+def test_answers_do_not_depend_on_the_thread_count(scene, heading) -> None:
+    mask, index = scene
+    q = _query(mask, TRUTHS[1], heading=30.0)
+    a, b = (run_profile(ProfileConfig(heading_deg=heading, threads=t, chunk=64), index, q.semantic, q.camera)
+            for t in (1, 2))
+    assert a.map_xy == b.map_xy and a.heading_deg == b.heading_deg and a.confidence == b.confidence
+    assert np.array_equal(a.likelihoods, b.likelihoods)
+
+
+def test_a_building_point_hides_the_building_behind_it() -> None:
+    """Landmark points: an opaque building point in front hides one of another class behind it."""
+    from localization.profile import first_hits
+
+    bearing = np.radians(np.array([[0.0, 2.0, 90.0]]))           # north, just east of north, east
+    dist = np.array([[10.0, 40.0, 40.0]])
+    hits = first_hits(bearing, dist, np.array([0, 1, 1]), 2, 72, (4.0,))
+    assert hits[0, 0, 0] == pytest.approx(1.0) and hits[0, 1, 0] == 0.0  # the near one wins bin 0
+    assert hits[0, 1, 18] == pytest.approx(1.0)                          # alone in the east
+    assert (hits[0, :, 36:54] == 0).all()                                # nothing south-west
+    # 4 m wide at 10 m: atan(0.4) = 21.8 deg, so bins up to 20 deg (4 bins of 5) are covered
+    assert hits[0, 0, 4] > 0 and hits[0, 0, 5] == 0
