@@ -208,6 +208,17 @@ def cliques_fast(lm: Landmarks, w: int, stride: int = 1, conventions: str = "osm
     return _distinct(planes, cuts_x, cuts_y, len(lm), g)
 
 
+def _spans(start: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(which, value)``: span ``i`` of ``start[i] .. start[i] + count[i] - 1`` expanded, all spans in order.
+
+    >>> [v.tolist() for v in _spans(np.array([5, 0, 7]), np.array([2, 0, 1]))]
+    [[0, 0, 2], [5, 6, 7]]
+    """
+    count = np.maximum(count, 0)
+    which = np.repeat(np.arange(len(count)), count)
+    return which, start[which] + (np.arange(len(which)) - np.repeat(np.cumsum(count) - count, count))
+
+
 #: Memory for one band of cells of :func:`_point_cliques` (two 8-byte planes per cell).
 BAND_BYTES = 32 << 20
 
@@ -270,10 +281,15 @@ def _point_cliques(lm: Landmarks, g: _Geometry) -> Cliques:
     firsts, centers, corners = _run_cliques(first, inverse, ey, ex, ex_end, cuts_x, cuts_y, g)
     cy, cx = ey[firsts], ex[firsts]                   # each clique's first cell: who covers it
     members = np.zeros((len(firsts), k), dtype=bool)
-    for i in range(0, len(rect), 256):  # (cliques, 256 rectangles) of tests at a time
-        o, a, b, c, d = rect[i:i + 256].T
-        rows, cols = np.nonzero((cy[:, None] >= a) & (cy[:, None] < b) & (cx[:, None] >= c) & (cx[:, None] < d))
-        members[rows, o[cols]] = True
+    # each rectangle's cliques: per cell row of it, the first cells in [c, d) of a sorted raster key
+    key = cy * nx + cx
+    by_key = np.argsort(key, kind="stable")
+    o, a, b, c, d = rect.T
+    of_row, y = _spans(a, b - a)
+    lo = np.searchsorted(key[by_key], y * nx + c[of_row])
+    hi = np.searchsorted(key[by_key], y * nx + d[of_row])
+    of_hit, at = _spans(lo, hi - lo)
+    members[by_key[at], o[of_row[of_hit]]] = True
     out = Cliques(members, centers, g.w, g.s)
     return _authors_order(out, g.first_centers(corners[:, 0], corners[:, 1])) if g.origin else out
 
