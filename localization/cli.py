@@ -166,9 +166,10 @@ def _table(result: Any) -> str:
               help="Paper method: osmseg's (windows from pixel 0, each candidate at the mean of its windows, ties "
                    "by the clique's own likelihood) or the authors' MATLAB demo's (windows from pixel 1, the first "
                    "window, ties to the first clique in lexicographic order), to reproduce their figures.")
-@click.option("--method", type=click.Choice(["paper", "profile"]), default="paper", show_default=True,
-              help="paper: landmark-graph matching (Verde et al. 2020); profile: angular profiles on a dense grid "
-                   "(docs/localization.md), which also gives the heading and a confidence.")
+@click.option("--method", type=click.Choice(["profile", "paper"]), default="profile", show_default=True,
+              help="profile: angular profiles on a dense grid (docs/localization.md), which also gives the heading "
+                   "and a confidence, and needs the aerial resolution; paper: landmark-graph matching (Verde et "
+                   "al. 2020).")
 @click.option("--heading", "heading_text", default="0", show_default=True,
               help="Profile method: compass azimuth (degrees) of the ground image's centre column, or 'unknown' "
                    "to search it. CVUSA-style panoramas are north-aligned: 0.")
@@ -204,10 +205,13 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                           "T, or leave them out")
     features = (None if feature_threshold is None else
                 FeatureEdges(feature_threshold, feature_metric, feature_reduce, feature_components))
-    profile_only = ("heading_text", "fov_deg", "camera_height", "min_confidence")
-    if method != "profile" and (stray := _given(ctx, profile_only)):
-        verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
-        raise ConfigError(f"{', '.join(stray)} {verb} to --method profile: add it, or leave {them} out")
+    only = {"profile": ("heading_text", "fov_deg", "camera_height", "min_confidence"),
+            "paper": ("window_text", "ground_window", "p", "stride", "hierarchical", "windows_text", "reference",
+                      "feature_threshold", "conventions")}
+    for name, options in only.items():
+        if method != name and (stray := _given(ctx, options)):
+            verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
+            raise ConfigError(f"{', '.join(stray)} {verb} to --method {name}: add --method {name}, or leave {them} out")
     config = LocalizeConfig(window=window, query_window=ground_window, p=p, stride=stride, top_k=top_k,
                             fast=not reference, hierarchical=hierarchical, windows=windows, features=features,
                             method=method, conventions=conventions, fov_deg=fov_deg, camera_height_m=camera_height,
@@ -358,8 +362,9 @@ def _given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
 @click.option("--conventions", type=click.Choice(["osmseg", "authors"]), default="osmseg", show_default=True,
               help="Annotated pairs, paper method: osmseg's conventions or the authors' MATLAB demo's "
                    "(see osmseg localize --help); the truth then defaults to (W/2, H/2) as their [375 375].")
-@click.option("--method", "methods_text", default="paper", show_default=True,
-              help="Methods to compare, comma-separated, side by side in one run: paper, profile (e.g. paper,profile).")
+@click.option("--method", "methods_text", default="profile,paper", show_default=True,
+              help="Methods to compare, comma-separated, side by side in one run: profile, paper. The first fills "
+                   "the summary; the class-subset figure is the paper method's when it comes first.")
 @click.option("--heading", type=click.Choice(["known", "unknown"]), default="known", show_default=True,
               help="known: north-aligned panoramas; unknown: each view turned to a seeded random heading the "
                    "methods are not told (the profile method searches it and its error is reported).")

@@ -62,7 +62,7 @@ class LocalizeConfig:
     hierarchical: bool = False
     windows: tuple[int, ...] = HIERARCHY
     features: FeatureEdges | None = None
-    method: str = "paper"
+    method: str = "profile"         # or "paper" (Verde et al. 2020); the profile method needs the resolution
     conventions: str = "osmseg"     # the paper method's: osmseg, or the authors' MATLAB demo (localization.graph)
     profile: ProfileConfig = field(default_factory=ProfileConfig)  # the profile method's settings
     fov_deg: float = 360.0          # the query's horizontal field of view (profile method)
@@ -137,7 +137,7 @@ def profile_index(aerial: SemanticMap | Landmarks, resolution_m: float | None,
     """The aerial side of the profile method: from a mask (ray casting) or landmark points (kernels)."""
     if not resolution_m:
         raise ConfigError("the profile method measures distances in metres: give the aerial resolution "
-                          "(--resolution, m/px), or a GeoTIFF or dataset mask that records it")
+                          "(--resolution, m/px), or a GeoTIFF or dataset mask that records it, or use --method paper")
     if isinstance(aerial, SemanticMap):
         return AerialMaskIndex(aerial, resolution_m, config.samples)
     return AerialLandmarkIndex(aerial, resolution_m, sigma_deg=config.sigma_deg, distance_sd=config.distance_sd,

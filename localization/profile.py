@@ -25,6 +25,8 @@ mask: one ray per azimuth bin from the position, sampled outward; the class at r
 is the first standing pixel's class before ``r`` if there is one, else the class at ``r``
 (the same first-hit rule, so occlusion is modelled; standing classes are the mask classes
 named in ``standing``). Slot ``R`` holds every class seen along the ray. From landmark points:
+buildings (:data:`OPAQUE_LANDMARKS`) in slot ``R`` by the same first-hit rule, each point a
+façade some metres wide on either side (:func:`first_hits`); every other cell
 ``P[c, k, a] = max_i g(d_i) K_az(a - θ_i) K_d(d_i, r_k)`` over the landmarks ``i`` of class
 ``c`` at bearing ``θ_i`` and distance ``d_i`` from the position, with a Gaussian bearing kernel,
 a log-normal distance kernel and a distance weight ``g(d) = 1 / (1 + d / d0)``.

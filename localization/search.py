@@ -16,8 +16,10 @@ view is a query whose profile is empty outside it: the same formula, nothing els
 
 Search: positions every ``coarse_m`` metres, then around the ``keep`` best ones a 3 x 3 grid a
 third as wide, ``levels`` times (4 m -> 1.3 m -> 0.44 m by default). Work and memory grow with
-the number of grid positions (the image area), in chunks of ``chunk`` positions, and the
-aerial side is never held at more than one chunk's profiles.
+the number of grid positions (the image area), in chunks of ``chunk`` positions scored on
+``threads`` threads (numpy releases the GIL in its gathers, reductions and FFTs), and the
+aerial side is never held at more than one chunk's profiles per thread. Each chunk's scores
+depend on that chunk alone, so the answer is the same at any chunk size and thread count.
 
 **Confidence.** The best score ``S*`` is compared with the agreement a position drawn at
 random would have: ``S0 = sum_{c,k} q[c, k] pbar[c, k]`` with ``pbar`` the mean aerial profile

@@ -169,7 +169,8 @@ def write_scene(tmp_path: Path) -> dict[str, str]:
 
 
 def run(args: dict[str, str]):
-    return CliRunner().invoke(localize_command, [v for kv in args.items() for v in kv])
+    """``osmseg localize`` with the paper method: feature edges are its graph's."""
+    return CliRunner().invoke(localize_command, ["--method", "paper", *[v for kv in args.items() for v in kv]])
 
 
 def test_cli_drops_the_edge_between_look_alike_landmarks(net, tmp_path) -> None:

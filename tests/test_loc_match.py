@@ -416,7 +416,8 @@ def write_landmarks(path, lm: Landmarks, labels: dict[int, str] | None = None) -
 
 
 def run(*args: str):
-    return CliRunner().invoke(localize_command, list(args))
+    """``osmseg localize`` with the paper method (the default is the profile method)."""
+    return CliRunner().invoke(localize_command, ["--method", "paper", *args])
 
 
 def test_cli_with_landmark_files(tmp_path) -> None:

@@ -111,17 +111,28 @@ def test_run_pairs_finds_the_only_place_that_shows_every_class(tmp_path: Path) -
 def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     root = write_pairs(tmp_path / "pairs")
     runner = CliRunner()
-    res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "a"), "--no-plots"],
-                        obj={"verbosity": 0})
+    res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "a"), "--no-plots",
+                                                 "--method", "paper"], obj={"verbosity": 0})
     assert res.exit_code == 0, res.output
     assert res.stdout.strip() == str(tmp_path / "a" / "results.json")
     assert "2 annotated pairs" in res.stderr and "@100 px" in res.stderr
     res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "b"), "--no-plots",
-                                                 "--resolution", "0.25", "--no-subsets"], obj={"verbosity": -1})
+                                                 "--resolution", "0.25", "--no-subsets", "--method", "paper"],
+                        obj={"verbosity": -1})
     assert res.exit_code == 0, res.output
     a = json.loads((tmp_path / "a" / "results.json").read_text())
     b = json.loads((tmp_path / "b" / "results.json").read_text())
     assert b["unit"] == "m" and list(b["by_num_classes"]) == ["4"]
+    # the default compares the profile method (it needs the resolution) with the paper method
+    res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "c"), "--no-plots"],
+                        obj={"verbosity": 0})
+    assert res.exit_code == 2 and "--resolution" in res.stderr and "--method paper" in res.stderr
+    assert not (tmp_path / "c").exists()
+    res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "d"), "--no-plots",
+                                                 "--resolution", "0.25", "--no-subsets"], obj={"verbosity": 0})
+    assert res.exit_code == 0, res.output
+    d = json.loads((tmp_path / "d" / "results.json").read_text())
+    assert set(d["methods"]) == {"profile", "paper"} and d["settings"]["methods"] == ["profile", "paper"]
     assert b["summary"]["mean_error"] == pytest.approx(0.25 * a["summary"]["mean_error"], abs=1e-3)
 
 
@@ -158,8 +169,8 @@ def test_cli_bad_pairs_give_one_line(tmp_path: Path, case: str, words: str) -> N
     else:
         write_pairs(root)
         (root / "aerial" / "p1.txt").write_text("450 10 Building\n")
-    res = CliRunner().invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "o"), *args],
-                             obj={"verbosity": 0})
+    res = CliRunner().invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "o"), "--method", "paper",
+                                                      *args], obj={"verbosity": 0})
     assert res.exit_code in (1, 2) and words in res.stderr, res.output
     errors = [line for line in res.stderr.splitlines() if line.startswith("Error:")]
     assert "Traceback" not in res.output and len(errors) == 1 and words in errors[0]

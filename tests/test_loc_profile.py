@@ -161,8 +161,15 @@ def test_localize_cli_with_the_profile_method(scene, tmp_path: Path) -> None:
     out = json.loads(res.stdout)
     assert out["method"] == "profile" and out["truth"]["error_m"] <= 1.5
     assert abs((out["heading_deg"] - heading + 180) % 360 - 180) <= 4.0 and out["confidence"] > 0.5
-    bad = CliRunner().invoke(localize_command, [*base, "--heading", "unknown"])
+    bad = CliRunner().invoke(localize_command, [*base, "--method", "paper", "--heading", "unknown"])
     assert bad.exit_code == 2 and "--method profile" in bad.output
+    default = CliRunner().invoke(localize_command, [*base, "--json"])  # the profile method is the default
+    assert default.exit_code == 0 and json.loads(default.stdout)["method"] == "profile"
+    bad = CliRunner().invoke(localize_command, [*base, "--window", "50"])
+    assert bad.exit_code == 2 and "--window applies to --method paper: add --method paper" in bad.output
+    no_resolution = [a for a in base if a not in ("--resolution", str(RES))]
+    bad = CliRunner().invoke(localize_command, no_resolution)
+    assert bad.exit_code == 2 and "--resolution" in bad.output and "--method paper" in bad.output
     res = CliRunner().invoke(localize_command, [*base, "--method", "profile", "--out", str(tmp_path / "loc")])
     assert res.exit_code == 0, res.output
     assert "confidence" in res.stderr and (tmp_path / "loc" / "localization.png").is_file()

@@ -287,7 +287,7 @@ def test_cli_on_a_mask_file_and_on_a_dataset_folder(tmp_path: Path) -> None:
     mask_file = tmp_path / "town.png"
     Image.fromarray(town()).save(mask_file)
     runner = CliRunner()
-    args = ["-n", "3", "--seed", "2", "--margin", "10", "--confusion", "0.2", "--offset", "2"]
+    args = ["-n", "3", "--seed", "2", "--margin", "10", "--confusion", "0.2", "--offset", "2", "--method", "paper"]
     res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--out", str(tmp_path / "a"),
                                                  *args], obj={"verbosity": 0})
     assert res.exit_code == 0, res.output
