@@ -461,8 +461,9 @@ def format_summary(results: dict[str, Any]) -> str:
         f"answered, {s['unanswered']} unanswered, {s['tied']} tied",
         f"error: mean {s['mean_error']} {u} / median {s['median_error']} {u}"
         f"{in_px}; top-5 mean distance {s['top5_mean_distance']} {u}",
-        f"recall {rec}; a random candidate: median {b['random_candidate_median']} {u}; "
-        f"blind guesses: image centre {b['centre_guess_mean']} {u}, random {b['random_guess_mean']} {u}",
+        f"recall {rec}; " + (f"a random candidate: median {b['random_candidate_median']} {u}; "
+                             if b.get("random_candidate_median") is not None else "")
+        + f"blind guesses: image centre {b['centre_guess_mean']} {u}, random {b['random_guess_mean']} {u}",
     ]
     for k, entry in sorted(results["by_num_classes"].items(), key=lambda kv: int(kv[0])):
         e = entry["summary"]

@@ -130,8 +130,9 @@ def by_num_classes(subsets: Sequence[tuple[str, ...]], records: Sequence[dict[st
 
 
 def baselines(records: Sequence[dict[str, Any]]) -> dict[str, float | None]:
-    """Mean errors of the blind guesses over the records, and of a random candidate (answered records)."""
+    """Mean errors of the blind guesses over the records, and of a random candidate of the paper
+    method (answered records that have one: None when the summary's method has no candidates)."""
+    picks = [r["candidate_guess"] for r in records if not r["unanswered"] and r.get("candidate_guess") is not None]
     return {"centre_guess_mean": _mean([r["centre_guess"] for r in records]),
             "random_guess_mean": _mean([r["random_guess"] for r in records]),
-            "random_candidate_mean": _mean([r["candidate_guess"] for r in records if not r["unanswered"]]),
-            "random_candidate_median": _median([r["candidate_guess"] for r in records if not r["unanswered"]])}
+            "random_candidate_mean": _mean(picks), "random_candidate_median": _median(picks)}

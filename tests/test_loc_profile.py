@@ -195,6 +195,18 @@ def test_bench_compares_methods_side_by_side(tmp_path: Path) -> None:
     bad = CliRunner().invoke(localize_bench_command, [str(tmp_path / "town3.png"), "--resolution", str(RES),
                                                       "--out", str(tmp_path / "b2"), "--method", "paper,nope"])
     assert bad.exit_code == 2 and "methods must be" in bad.output
+    # the default: the profile method first (it fills the summary; the paper method has no random
+    # candidate to report then), with plots, and again into the same folder
+    for _ in range(2):
+        res = CliRunner().invoke(localize_bench_command, [str(tmp_path / "town3.png"), "--resolution", str(RES),
+                                                          "--out", str(tmp_path / "default"), "-n", "3"])
+        assert res.exit_code == 0, res.output
+        results = json.loads((tmp_path / "default" / "results.json").read_text())
+        assert results["settings"]["methods"] == ["profile", "paper"]
+        assert results["summary"]["median_error"] == results["methods"]["profile"]["median_error"] <= 2.0
+        assert results["baselines"]["random_candidate_mean"] is None and "None" not in res.stderr
+        with Image.open(tmp_path / "default" / "errors.png") as im:
+            assert im.format == "PNG"
 
 
 def test_scores_do_not_depend_on_the_chunk_size(scene) -> None:
