@@ -48,7 +48,7 @@ from osmseg.errors import ConfigError
 
 __all__ = ["OTHER", "STANDING_MASK_CLASSES", "STANDING_LANDMARKS", "SemanticMap", "Camera", "QueryProfile", "semantic_map",
            "query_from_mask", "query_from_landmarks", "AerialMaskIndex", "AerialLandmarkIndex", "ray_radii",
-           "OPAQUE_LANDMARKS", "HALF_WIDTHS_M", "first_hits"]
+           "OPAQUE_LANDMARKS", "HALF_WIDTHS_M", "first_hits", "seen_fraction"]
 
 #: Mask classes that stand up from the ground and hide what lies behind them (case-insensitive).
 STANDING_MASK_CLASSES = ("building", "tree")
@@ -328,7 +328,8 @@ class AerialMaskIndex:
 
 
 def first_hits(bearing: np.ndarray, dist_m: np.ndarray, cls: np.ndarray, n_classes: int, bins: int,
-               half_widths_m: Sequence[float] = HALF_WIDTHS_M) -> np.ndarray:
+               half_widths_m: Sequence[float] = HALF_WIDTHS_M,
+               depths: list[np.ndarray] | None = None) -> np.ndarray:
     """What a camera sees first in each azimuth bin among opaque landmark points: ``(N, K, A)``.
 
     Each point ``j`` (bearing ``bearing[n, j]`` radians from position ``n``, ``dist_m[n, j]``
@@ -337,7 +338,9 @@ def first_hits(bearing: np.ndarray, dist_m: np.ndarray, cls: np.ndarray, n_class
     bin the nearest covering point wins; its class gets ``exp(-delta^2 / 2)`` with ``delta`` the
     bin's offset from the point's bearing in half-widths. The result is the mean over
     ``half_widths_m`` (a point does not say how wide its building is). Work is one entry per
-    covered (position, point, bin), so far points cost one or two bins each.
+    covered (position, point, bin), so far points cost one or two bins each. ``depths``, when
+    given, receives for each half-width the distance of the nearest covering point per bin
+    ``(N, A)`` (inf where none): what hides the points behind it (:func:`seen_fraction`).
 
     >>> v = first_hits(np.array([[0.0, 0.0]]), np.array([[10.0, 20.0]]), np.array([0, 1]), 2, 8, (4.0,))
     >>> v[0, :, 0].round(2).tolist()  # the nearer point hides the farther one in bin 0
@@ -346,6 +349,8 @@ def first_hits(bearing: np.ndarray, dist_m: np.ndarray, cls: np.ndarray, n_class
     n, m = bearing.shape
     out = np.zeros((n, n_classes, bins), dtype=np.float32)
     if not (n and m):
+        if depths is not None:
+            depths.extend(np.full((n, bins), np.inf) for _ in half_widths_m)
         return out
     step = 2 * np.pi / bins
     centre = (np.mod(bearing, 2 * np.pi) / step).ravel()
@@ -363,12 +368,30 @@ def first_hits(bearing: np.ndarray, dist_m: np.ndarray, cls: np.ndarray, n_class
         key = row * bins + np.mod(a, bins)
         depth = np.full(n * bins, np.inf)
         np.minimum.at(depth, key, dist[pair])
+        if depths is not None:
+            depths.append(depth.reshape(n, bins))
         win = dist[pair] <= depth[key]
         value = np.zeros(n * n_classes * bins, dtype=np.float32)
         np.maximum.at(value, (row[win] * n_classes + point_cls[pair[win]]) * bins + np.mod(a[win], bins),
                       np.exp(-0.5 * delta[win] ** 2).astype(np.float32))
         out += value.reshape(n, n_classes, bins) / np.float32(len(half_widths_m))
     return out
+
+
+def seen_fraction(bearing: np.ndarray, dist_m: np.ndarray, depths: Sequence[np.ndarray]) -> np.ndarray:
+    """For points at ``bearing`` (N, M) and ``dist_m`` from each position, the share of the
+    ``depths`` maps (:func:`first_hits`) in which nothing nearer covers their azimuth bin:
+    1 in the open, 0 behind a building whatever its width.
+
+    >>> depth = np.full((1, 4), np.inf); depth[0, 0] = 10.0          # a building 10 m to the north
+    >>> seen_fraction(np.array([[0.0, 0.0, np.pi]]), np.array([[5.0, 30.0, 30.0]]), [depth]).tolist()
+    [[1.0, 0.0, 1.0]]
+    """
+    if not depths:
+        return np.ones(np.shape(bearing))
+    bins = depths[0].shape[1]
+    b = np.rint(np.mod(bearing, 2 * np.pi) * bins / (2 * np.pi)).astype(np.int64) % bins
+    return np.mean([dist_m <= np.take_along_axis(d, b, axis=1) for d in depths], axis=0)
 
 
 class AerialLandmarkIndex:
@@ -379,7 +402,7 @@ class AerialLandmarkIndex:
     """
 
     def __init__(self, lm: Landmarks, resolution_m: float, *, sigma_deg: float = 8.0, distance_sd: float = 1.0,
-                 d0_m: float = 50.0, opaque: Sequence[str] = OPAQUE_LANDMARKS,
+                 d0_m: float = 200.0, opaque: Sequence[str] = OPAQUE_LANDMARKS,
                  half_widths_m: Sequence[float] = HALF_WIDTHS_M) -> None:
         if not (resolution_m > 0 and math.isfinite(resolution_m)):
             raise ConfigError("the profile method needs the aerial ground resolution in m/px (--resolution); "
@@ -406,11 +429,13 @@ class AerialLandmarkIndex:
         log_r = np.log(radii_m)
         wanted = np.ones((n_c + 1, n_r + 1), dtype=bool) if need is None else np.asarray(need, dtype=bool)
         opaque = np.flatnonzero(self.opaque)
-        if len(opaque) and wanted[opaque, n_r].any():
+        depths: list[np.ndarray] = []   # per half-width: how far each azimuth bin is open
+        if len(opaque):
             on = np.isin(self.lm.cls, opaque)
             d = self.lm.xy[on][None, :, :] - xy[:, None, :]
             hits = first_hits(np.arctan2(d[..., 0], -d[..., 1]), np.hypot(d[..., 0], d[..., 1]) * self.resolution_m,
-                              np.searchsorted(opaque, self.lm.cls[on]), len(opaque), bins, self.half_widths_m)
+                              np.searchsorted(opaque, self.lm.cls[on]), len(opaque), bins, self.half_widths_m,
+                              depths=depths)
             P[:, opaque, n_r, :] = hits
         for c in range(n_c):
             pts = self.lm.xy[self.lm.cls == c]
@@ -421,7 +446,7 @@ class AerialLandmarkIndex:
             d = pts[None, :, :] - xy[:, None, :]                                   # (N, M, 2)
             bearing = np.arctan2(d[..., 0], -d[..., 1])
             dist_m = np.hypot(d[..., 0], d[..., 1]) * self.resolution_m
-            g = 1.0 / (1.0 + dist_m / self.d0_m)
+            g = seen_fraction(bearing, dist_m, depths) / (1.0 + dist_m / self.d0_m)  # hidden behind buildings: 0
             delta = ((az[None, None, :] - bearing[..., None].astype(np.float32) + np.pi) % (2 * np.pi)
                      - np.pi).astype(np.float32)                                  # (N, M, A), wrapped
             k_az = np.exp(np.float32(-0.5 / self.sigma ** 2) * delta * delta) * g[..., None].astype(np.float32)

@@ -67,7 +67,7 @@ class ProfileConfig:
     samples: int = 24              # aerial ray samples between 0.6 m and the farthest radius
     sigma_deg: float = 8.0         # aerial landmark points: bearing kernel
     distance_sd: float = 1.0       # aerial landmark points: log-distance kernel (sd of ln d)
-    d0_m: float = 50.0             # aerial landmark points: weight 1 / (1 + d / d0)
+    d0_m: float = 200.0            # aerial landmark points: weight 1 / (1 + d / d0), 0 behind a building
     weighted: bool | None = None   # weigh each class and radius by -log of how often the aerial image shows it
                                    # [a mask: yes; points: no, their soft kernels have no such frequencies]
     min_prior: float = 0.01

@@ -262,3 +262,24 @@ def test_a_building_point_hides_the_building_behind_it() -> None:
     assert (hits[0, :, 36:54] == 0).all()                                # nothing south-west
     # 4 m wide at 10 m: atan(0.4) = 21.8 deg, so bins up to 20 deg (4 bins of 5) are covered
     assert hits[0, 0, 4] > 0 and hits[0, 0, 5] == 0
+
+
+def test_landmark_points_behind_a_building_are_not_predicted() -> None:
+    """Aerial points: a tree straight behind a building cannot be seen, one off to the side can."""
+    from localization.landmarks import Landmarks
+    from localization.profile import AerialLandmarkIndex
+
+    classes = ("building", "road", "vegetation", "footway")
+    lm = Landmarks(xy=np.array([[50.0, 40.0], [50.0, 10.0], [90.0, 50.0]]), cls=np.array([0, 2, 2]),
+                   classes=classes, width=100, height=100)
+    index = AerialLandmarkIndex(lm, 1.0)            # 1 m/px: the building 10 m north, trees 40 m N and E
+    radii = np.array([5.0, 10.0])
+    P, _ = index.profiles(np.array([[50.0, 50.0]]), radii, 72)
+    tree, slot = classes.index("vegetation"), len(radii)
+    north, east = 0, 18
+    assert P[0, 0, slot, north] > 0.9                    # the building, first hit to the north
+    assert P[0, tree, slot, east] > 0.5                  # the tree in the open to the east
+    assert P[0, tree, slot, north] < 0.05                # the one behind the building: hidden
+    # from the west of the building's façade the northern tree is in the open again
+    P, _ = index.profiles(np.array([[20.0, 10.0]]), radii, 72)
+    assert P[0, tree, slot, east] > 0.5
