@@ -177,8 +177,9 @@ def _table(result: Any) -> str:
               help="Profile method: horizontal field of view of the ground image in degrees (a photo: 60-120).")
 @click.option("--camera-height", type=click.FloatRange(min=0, min_open=True), default=2.0, show_default=True,
               help="Profile method: metres of the ground camera above the ground.")
-@click.option("--min-confidence", type=click.FloatRange(-1, 1), default=0.6, show_default=True,
-              help="Profile method: below this confidence the answer is 'not in this image'.")
+@click.option("--min-confidence", type=click.FloatRange(-1, 1),
+              help="Profile method: below this confidence the answer is 'not in this image' [0.6 for an aerial "
+                   "mask, 0.3 for aerial landmark points].")
 @click.pass_context
 @report_errors
 def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, aerial_classes: str,
@@ -191,7 +192,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                      feature_threshold: float | None, feature_metric: str, feature_reduce: str,
                      feature_components: int, feature_checkpoint: Path | None, conventions: str, method: str,
                      heading_text: str,
-                     fov_deg: float, camera_height: float, min_confidence: float) -> None:
+                     fov_deg: float, camera_height: float, min_confidence: float | None) -> None:
     """Find where the GROUND panorama was taken in the AERIAL image (landmark graphs, or angular profiles)."""
     from localization.features import FeatureEdges
     from localization.pipeline import LocalizeConfig, LocalizeFiles, localize_files

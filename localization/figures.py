@@ -126,7 +126,9 @@ def localization_png(path: Path | str, result: Localization, aerial: Landmarks, 
 def _summary(result: Localization, truth: tuple[float, float] | None, resolution: float | None) -> str:
     if result.unanswered:
         return f"unanswered: {result.reason}"
-    text = f"window {result.window} px, {len(result.candidates)} candidates"
+    text = (f"profile method, heading {result.heading_deg:.1f}°, confidence {result.confidence:.2f}, "
+            f"{len(result.candidates)} positions" if result.method == "profile" and result.confidence is not None
+            else f"window {result.window} px, {len(result.candidates)} candidates")
     if result.ties > 1:
         text += f", {result.ties} tied at the top"
     px, metres = result.error(truth, resolution)

@@ -271,6 +271,7 @@ class AerialMaskIndex:
         self._padded: tuple[int, np.ndarray] | None = None
         self.classes = sem.classes
         self.grid_m, self.levels, self.weighted = 4.0, 2, True
+        self.min_confidence = 0.6  # kappa of rendered views: docs/localization.md
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -414,6 +415,7 @@ class AerialLandmarkIndex:
         self.half_widths_m = tuple(half_widths_m)
         # point scores are peaked (a kernel a few degrees wide): a fine grid, one refinement
         self.grid_m, self.levels, self.weighted = 1.25, 1, False
+        self.min_confidence = 0.3  # a few points give a lower kappa: docs/localization.md
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -62,7 +62,8 @@ class ProfileConfig:
     levels: int | None = None      # refinements, each a third of the previous spacing [2 for a mask, 1 for points]
     heading_deg: float | None = 0.0  # compass azimuth of the query's centre column; None: unknown (searched)
     top_k: int = 5
-    min_confidence: float = 0.6    # kappa below this: "not in this image" (docs/localization.md: how it was chosen)
+    min_confidence: float | None = None  # kappa below this: "not in this image" [the aerial side's: 0.6 for a
+                                         # mask, 0.3 for landmark points (docs/localization.md: how chosen)]
     chunk: int = 1024              # positions scored at once (memory)
     samples: int = 24              # aerial ray samples between 0.6 m and the farthest radius
     sigma_deg: float = 8.0         # aerial landmark points: bearing kernel
@@ -91,6 +92,7 @@ class AerialIndex(Protocol):
     grid_m: float       # the coarse grid spacing that suits it
     levels: int         # and the refinements
     weighted: bool      # whether class-frequency weights suit it
+    min_confidence: float  # the "not in this image" threshold that suits it
 
     @property
     def shape(self) -> tuple[int, int]: ...
@@ -331,7 +333,8 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
                           top_k=top_k, map_xy=(top_k[0][0], top_k[0][1]), ties=ties, unanswered=False,
                           method="profile", heading_deg=round(heading, 3) % 360.0, confidence=round(kappa, 4),
                           chance=round(chance, 4))
-    if kappa < config.min_confidence:
+    threshold = config.min_confidence if config.min_confidence is not None else index.min_confidence
+    if kappa < threshold:
         return replace(result, unanswered=True, map_xy=None,
-                       reason=f"not in this image: confidence {kappa:.3f} is below {config.min_confidence:g}")
+                       reason=f"not in this image: confidence {kappa:.3f} is below {threshold:g}")
     return result
