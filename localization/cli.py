@@ -406,6 +406,9 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     verbosity = ctx.obj["verbosity"] if ctx.obj else 0
     bars = bool(ctx.obj.get("progress", False)) if ctx.obj else False
     methods = tuple(m.strip() for m in methods_text.split(",") if m.strip())
+    if "paper" not in methods and (stray := _given(ctx, ("window", "p", "conventions", "subsets"))):
+        verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
+        raise ConfigError(f"{', '.join(stray)} {verb} to the paper method: add paper to --method, or leave {them} out")
     pairs = source.is_dir() and is_pairs_folder(source)
     misplaced = _given(ctx, RENDER_ONLY if pairs else PAIRS_ONLY)
     if misplaced:

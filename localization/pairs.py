@@ -205,15 +205,19 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
     if not pairs:
         raise DatasetError("no annotated pairs to evaluate")
     classes: LandmarkClasses = load_landmark_classes(config.landmarks)
-    subsets = subsets_of(classes, config.subsets)
+    paper_first = config.methods[0] == "paper"
+    subsets = subsets_of(classes, config.subsets and paper_first)  # class subsets are the paper method's
     scale = config.resolution_m or 1.0
     radii = RECALL_RADII_M if config.resolution_m else RECALL_RADII_PX
     records: list[dict[str, Any]] = []
     t_start = time.perf_counter()
     for index, pair in enumerate(track(pairs, progress, "pairs", unit="pair")):
         graphs = aerial_graphs(pair.aerial, subsets, config.window, config.conventions)
-        scored, seconds = localize_subsets(graphs, pair.ground, pair.truth, scale, config.p, config.top_k,
-                                           conventions=config.conventions)
+        scored: dict[str, Any] = {}
+        seconds = 0.0
+        if "paper" in config.methods:
+            scored, seconds = localize_subsets(graphs, pair.ground, pair.truth, scale, config.p, config.top_k,
+                                               conventions=config.conventions)
         methods: dict[str, dict[str, Any]] = {}
         if "paper" in config.methods:
             paper = LocalizeConfig(p=config.p, top_k=config.top_k, conventions=config.conventions)
@@ -228,8 +232,9 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
         if "profile" in config.methods:
             methods["profile"] = _profile_pair(pair, pairs[(index + 1) % len(pairs)] if len(pairs) > 1 else None,
                                                config, scale)
-        if config.methods[0] == "profile":
-            scored = {**scored, **{k: v for k, v in methods["profile"].items() if k in scored}}
+        if not paper_first:  # the summary is the profile method's alone (no candidates, no class subsets)
+            scored = {**methods["profile"], "candidate_guess": None, "candidates": 0}
+            seconds = methods["profile"]["localize_s"]
         centre, uniform = chance_errors((pair.aerial.height, pair.aerial.width), pair.truth, scale)
         ground = pair.ground
         records.append({

@@ -288,7 +288,9 @@ def _pictures(out_dir: Path, report: LocalizeReport, config: LocalizeConfig, res
     truth = (report.summary["truth"]["x"], report.summary["truth"]["y"]) if "truth" in report.summary else None
     paths = [figures.localization_png(out_dir / "localization.png", result, aerial.landmarks,
                                        image=aerial.picture(), truth=truth, resolution=resolution)]
-    if config.method != "paper":  # no landmark graphs to draw
+    if config.method != "paper":  # no landmark graphs to draw: none of an earlier paper run stays to mislead
+        for name in ("aerial_graph.png", "ground_graph.png"):
+            (out_dir / name).unlink(missing_ok=True)
         return paths
     for name, side, w in (("aerial", aerial, result.window), ("ground", ground, result.query_window)):
         if w:

@@ -391,7 +391,7 @@ def seen_fraction(bearing: np.ndarray, dist_m: np.ndarray, depths: Sequence[np.n
     if not depths:
         return np.ones(np.shape(bearing))
     bins = depths[0].shape[1]
-    b = np.rint(np.mod(bearing, 2 * np.pi) * bins / (2 * np.pi)).astype(np.int64) % bins
+    b = np.rint(np.mod(bearing, 2 * np.pi) / (2 * np.pi / bins)).astype(np.int64) % bins  # as first_hits rounds
     return np.mean([dist_m <= np.take_along_axis(d, b, axis=1) for d in depths], axis=0)
 
 

@@ -227,17 +227,22 @@ def _pruned(index: Any, query: QueryProfile, xy: np.ndarray, config: ProfileConf
         k = score.argmax(axis=1)
         return score[np.arange(len(score)), k], k + _parabola(score, k)
 
-    scored = 0
-    batch = _threads(config.threads)
-    for first in range(0, n, config.chunk * batch):  # a batch of chunks at a time, one per thread
-        if scored >= keep:
-            kth = np.partition(best[order[:scored]], scored - keep)[scored - keep]
-            if bound[order[first]] < kth - 1e-9:
-                break  # no later position can beat the keep-th best: theirs stay -inf
+    # a batch of chunks at a time, one per thread; then accepted chunk by chunk exactly as one
+    # thread would: a chunk that starts below the keep-th best so far ends the search (within
+    # float32 rounding of the FFT scores), and it and the rest of its batch stay -inf
+    scored, batch, done = 0, _threads(config.threads), False
+    for first in range(0, n, config.chunk * batch):
         parts = [order[i:i + config.chunk] for i in range(first, min(first + config.chunk * batch, n), config.chunk)]
         for part, (b, s) in zip(parts, _map(rotations_of, parts, config.threads)):
+            if scored >= keep:
+                kth = np.partition(best[order[:scored]], scored - keep)[scored - keep]
+                if bound[part[0]] < kth - 1e-5:
+                    done = True
+                    break  # no later position can beat the keep-th best
             best[part], shift[part] = b, s
             scored += len(part)
+        if done:
+            break
     return best, shift
 
 

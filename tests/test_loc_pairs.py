@@ -133,6 +133,13 @@ def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     d = json.loads((tmp_path / "d" / "results.json").read_text())
     assert set(d["methods"]) == {"profile", "paper"} and d["settings"]["methods"] == ["profile", "paper"]
+    # the summary is the profile method's alone: its errors and times, no paper candidates or subsets
+    assert d["summary"]["median_error"] == d["methods"]["profile"]["median_error"]
+    assert d["baselines"]["random_candidate_mean"] is None and list(d["by_num_classes"]) == ["4"]
+    assert all(v["localize_s"] == v["methods"]["profile"]["localize_s"] for v in d["viewpoints"])
+    res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "e"), "--resolution", "0.25",
+                                                 "--method", "profile", "--window", "50"], obj={"verbosity": 0})
+    assert res.exit_code == 2 and "--window applies to the paper method: add paper to --method" in res.stderr
     assert b["summary"]["mean_error"] == pytest.approx(0.25 * a["summary"]["mean_error"], abs=1e-3)
 
 

@@ -170,8 +170,11 @@ def test_localize_cli_with_the_profile_method(scene, tmp_path: Path) -> None:
     no_resolution = [a for a in base if a not in ("--resolution", str(RES))]
     bad = CliRunner().invoke(localize_command, no_resolution)
     assert bad.exit_code == 2 and "--resolution" in bad.output and "--method paper" in bad.output
+    paper = CliRunner().invoke(localize_command, [*base, "--method", "paper", "--out", str(tmp_path / "loc")])
+    assert paper.exit_code == 0 and (tmp_path / "loc" / "aerial_graph.png").is_file(), paper.output
     res = CliRunner().invoke(localize_command, [*base, "--method", "profile", "--out", str(tmp_path / "loc")])
     assert res.exit_code == 0, res.output
+    assert not (tmp_path / "loc" / "aerial_graph.png").exists()  # not left over from the paper run
     assert "confidence" in res.stderr and (tmp_path / "loc" / "localization.png").is_file()
     assert json.loads((tmp_path / "loc" / "result.json").read_text())["method"] == "profile"
 
@@ -240,12 +243,13 @@ def test_pruned_search_keeps_the_exhaustive_best(scene) -> None:
     assert np.allclose(pruned_shift[best], full_shift[best], atol=1e-3)
 
 
-@pytest.mark.parametrize("heading", [None, 30.0])
-def test_answers_do_not_depend_on_the_thread_count(scene, heading) -> None:
+@pytest.mark.parametrize("heading,levels", [(None, None), (None, 0), (30.0, None)])
+def test_answers_do_not_depend_on_the_thread_count(scene, heading, levels) -> None:
+    """Also every coarse score (levels 0): the pruned search accepts chunks as one thread would."""
     mask, index = scene
     q = _query(mask, TRUTHS[1], heading=30.0)
-    a, b = (run_profile(ProfileConfig(heading_deg=heading, threads=t, chunk=64), index, q.semantic, q.camera)
-            for t in (1, 2))
+    a, b = (run_profile(ProfileConfig(heading_deg=heading, threads=t, chunk=64, levels=levels), index, q.semantic,
+                        q.camera) for t in (1, 3))
     assert a.map_xy == b.map_xy and a.heading_deg == b.heading_deg and a.confidence == b.confidence
     assert np.array_equal(a.likelihoods, b.likelihoods)
 
