@@ -211,8 +211,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                       "feature_threshold", "conventions")}
     for name, options in only.items():
         if method != name and (stray := _given(ctx, options)):
-            verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
-            raise ConfigError(f"{', '.join(stray)} {verb} to --method {name}: add --method {name}, or leave {them} out")
+            raise _misplaced(stray, f"--method {name}", f"--method {name}")
     config = LocalizeConfig(window=window, query_window=ground_window, p=p, stride=stride, top_k=top_k,
                             fast=not reference, hierarchical=hierarchical, windows=windows, features=features,
                             method=method, conventions=conventions, fov_deg=fov_deg, camera_height_m=camera_height,
@@ -255,6 +254,16 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                        + (f" ({report.error_m:.1f} m)" if report.error_m is not None else ""), err=True)
         if report.written:
             click.echo(f"written: {', '.join(f.name for f in report.written)} in {out_dir}/", err=True)
+
+
+def _misplaced(stray: list[str], owner: str, fix: str) -> ConfigError:
+    """The one-line error for options that belong to another method than the one run.
+
+    >>> str(_misplaced(["--window"], "the paper method", "paper to --method"))
+    '--window applies to the paper method: add paper to --method, or leave it out'
+    """
+    verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
+    return ConfigError(f"{', '.join(stray)} {verb} to {owner}: add {fix}, or leave {them} out")
 
 
 def _heading(value: str) -> float | None:
@@ -407,8 +416,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     bars = bool(ctx.obj.get("progress", False)) if ctx.obj else False
     methods = tuple(m.strip() for m in methods_text.split(",") if m.strip())
     if "paper" not in methods and (stray := _given(ctx, ("window", "p", "conventions", "subsets"))):
-        verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
-        raise ConfigError(f"{', '.join(stray)} {verb} to the paper method: add paper to --method, or leave {them} out")
+        raise _misplaced(stray, "the paper method", "paper to --method")
     pairs = source.is_dir() and is_pairs_folder(source)
     misplaced = _given(ctx, RENDER_ONLY if pairs else PAIRS_ONLY)
     if misplaced:

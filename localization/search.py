@@ -173,7 +173,11 @@ def _rotations(P: np.ndarray, V: np.ndarray, qf: np.ndarray, uf: np.ndarray, u: 
     """Best score over all azimuth shifts, and the shift (sub-bin), by circular cross-correlation."""
     agree = np.fft.irfft(np.einsum("ncrf,crf->nf", np.fft.rfft(P, axis=-1), qf), n=bins, axis=-1)
     seen = np.fft.irfft(np.einsum("nrf,rf->nf", np.fft.rfft(V, axis=-1), uf), n=bins, axis=-1)
-    s = (agree + float(u.sum()) - seen) / total
+    return _peak((agree + float(u.sum()) - seen) / total)
+
+
+def _peak(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's best score over the shifts, and its shift refined to a fraction of a bin."""
     k = s.argmax(axis=1)
     return s[np.arange(len(s)), k], k + _parabola(s, k)
 
@@ -223,9 +227,7 @@ def _pruned(index: Any, query: QueryProfile, xy: np.ndarray, config: ProfileConf
         onehot = (lab[:, rows_r, :] == rows_c[None, :, None].astype(lab.dtype)).astype(np.float32)
         agree = np.einsum("nkf,kf->nf", np.fft.rfft(onehot, axis=-1), q_rows)
         seen = np.einsum("nrf,rf->nf", np.fft.rfft(valid[:, u_rows, :].astype(np.float32), axis=-1), uf[u_rows])
-        score = (np.fft.irfft(agree - seen, n=query.bins, axis=-1) + float(u.sum())) / total
-        k = score.argmax(axis=1)
-        return score[np.arange(len(score)), k], k + _parabola(score, k)
+        return _peak((np.fft.irfft(agree - seen, n=query.bins, axis=-1) + float(u.sum())) / total)
 
     # a batch of chunks at a time, one per thread; then accepted chunk by chunk exactly as one
     # thread would: a chunk that starts below the keep-th best so far ends the search (within
