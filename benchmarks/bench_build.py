@@ -1,128 +1,268 @@
-"""Dataset-builder speed on real OSM data: parse, rasterise, and whole-build throughput.
+"""Dataset-builder throughput on real data: samples/s on 1 worker and on every core, beside the
+per-sample floor of the same work done by bare library calls, measured in the same run.
 
-Run: ``.venv/bin/python benchmarks/bench_build.py [--samples 12]`` (needs ../shared/data;
-prints, asserts nothing). Every figure is measured in this run, beside a bare baseline:
+Run: ``.venv/bin/python benchmarks/bench_build.py [--samples 64] [--long 2000]`` (needs
+../shared/data; prints, asserts nothing). Sources are local, as a country-size build's are: the
+Helsinki OSM extract (``helsinki-osm/helsinki.osm.pbf``) and a GeoTIFF in EPSG:3067 (the Finnish
+grid, so every sample is warped) whose pixels are a real drone photo (``oam-rgb/manila.tif``,
+mirrored 2x2 to cover the area at 0.3 m/px; it does not match the Helsinki OSM data, which does
+not matter for speed and gives the encoders real photo content). Zoom 18, ``--max-unlabeled
+0.95`` so that every attempt is accepted and samples = attempts.
 
-* parse: :func:`read_features` for one 1280x1280 z18 sample of the Helsinki extract, beside a
-  bare osmium pass over the same extract with node locations (the floor for any osmium
-  reader);
-* rasterise: :func:`rasterize` beside one bare ``rasterio.features.rasterize`` call on the
-  same geometries;
-* build: ``osmseg build`` from local sources (the Helsinki PBF + a GeoTIFF in EPSG:3067
-  rendered from it) with a warm cache, in samples/s, beside the sum of its stages.
+Lines printed (each build is ``osmseg build`` as a user runs it, in a fresh process):
+
+* ``cold``: the first build, which cuts the region and every sample's box from the PBF;
+* ``warm, N workers``: the same build into a new folder with the cache warm, for ``--workers
+  1`` and for every core, PNG and JPEG photos: wall seconds, samples/s, CPU seconds (all the
+  build's processes) per sample, peak RSS of the largest process;
+* ``identical``: the ``--workers 1`` and the all-cores folders hold the same bytes;
+* ``floor``: per sample, the bare library calls doing the same work on the same boxes: a
+  pyosmium pass over the sample's OSM extract, ``rasterio.features.rasterize`` of its features,
+  a windowed read + ``reproject`` of the photo, encoding the photo, the two PNG masks and the
+  label COG with the writer's settings, and SHA-256 of the four files; then the build's
+  marginal CPU per sample (from builds of ``--samples`` and 1 sample) divided by it;
+* ``read_features``: median over the boxes of :func:`osmseg.osm.features.read_features`
+  beside a bare osmium pass over the same box file;
+* ``--long N``: one all-cores JPEG build of N samples with the RSS of the builder and of its
+  largest worker read from /proc when 100, 500, ... N samples are done.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import resource
+import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
+import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import osmium
 import rasterio
+from rasterio.enums import Resampling
 from rasterio.features import rasterize as bare_rasterize
-from rasterio.warp import calculate_default_transform, reproject
+from rasterio.warp import reproject, transform_bounds
+from rasterio.windows import Window, from_bounds
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from osmseg.build import BuildConfig, build  # noqa: E402
+from osmseg.buildconfig import BuildConfig, available_cores  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
-from osmseg.demo.render import render_aerial  # noqa: E402
-from osmseg.rejection import FilterConfig  # noqa: E402
-from osmseg.grid import sample_grid  # noqa: E402
 from osmseg.osm.features import read_features  # noqa: E402
+from osmseg.osm.localfile import LocalFileSource  # noqa: E402
+from osmseg.output.geotiff import encode_cog, write_class_metadata  # noqa: E402
+from osmseg.output.writer import COMPRESS_LEVEL, PHOTO_COMPRESS_LEVEL, encode_jpeg, encode_png  # noqa: E402
+from osmseg.grid import pad_bbox  # noqa: E402
 from osmseg.places import Area  # noqa: E402
-from osmseg.rasterize import rasterize  # noqa: E402
+from osmseg.slots import attempt_grid  # noqa: E402
 
-HELSINKI = ROOT.parent / "shared" / "data" / "helsinki-osm" / "helsinki.osm.pbf"
-CENTRE = (24.944, 60.1715)
+SHARED = ROOT.parent / "shared" / "data"
+HELSINKI = SHARED / "helsinki-osm" / "helsinki.osm.pbf"
+PHOTO = SHARED / "oam-rgb" / "manila.tif"
+LON, LAT, RADIUS_KM = 24.944, 60.1715, 0.25
 
 
-def timed(fn, repeat: int = 3) -> tuple[float, object]:
-    """Median wall time of ``repeat`` calls, and the last result."""
-    times, result = [], None
+def make_imagery(path: Path) -> None:
+    """A 4096x4096 RGB GeoTIFF in EPSG:3067 at 0.3 m/px centred on the area: manila.tif mirrored 2x2."""
+    with rasterio.open(PHOTO) as src:
+        rgb = src.read([1, 2, 3])
+    top = np.concatenate([rgb, rgb[:, :, ::-1]], axis=2)
+    rgb = np.concatenate([top, top[:, ::-1, :]], axis=1)
+    _, height, width = rgb.shape
+    from pyproj import Transformer
+
+    x, y = Transformer.from_crs("EPSG:4326", "EPSG:3067", always_xy=True).transform(LON, LAT)
+    res = 0.3
+    transform = rasterio.transform.from_origin(x - width / 2 * res, y + height / 2 * res, res, res)
+    with rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=3, dtype="uint8",
+                       crs="EPSG:3067", transform=transform, tiled=True, compress="deflate", photometric="RGB") as dst:
+        dst.write(rgb)
+
+
+@dataclass
+class Run:
+    wall: float
+    cpu: float  # user + sys of every process of the build
+    peak_mb: float  # largest resident set of any of its processes
+    accepted: int
+
+
+def build_args(out: Path, cache: Path, tif: Path, samples: int, workers: int, fmt: str) -> list[str]:
+    return [sys.executable, "-m", "osmseg", "-q", "build", "--lat", str(LAT), "--lon", str(LON), "--radius-km",
+            str(RADIUS_KM), "--samples", str(samples), "--seed", "0", "--zoom", "18", "--imagery", f"geotiff:{tif}",
+            "--osm", str(HELSINKI), "--max-unlabeled", "0.95", "--image-format", fmt, "--out", str(out),
+            "--cache-dir", str(cache), "--workers", str(workers)]
+
+
+def run_build(out: Path, cache: Path, tif: Path, samples: int, workers: int, fmt: str,
+              watch: tuple[int, ...] = ()) -> tuple[Run, dict[int, tuple[float, float]]]:
+    """Run one ``osmseg build`` in a fresh process; with ``watch``, the RSS (MB) of the builder and of
+    its largest worker when that many samples are done."""
+    shutil.rmtree(out, ignore_errors=True)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    proc = subprocess.Popen(build_args(out, cache, tif, samples, workers, fmt), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
+    seen: dict[int, tuple[float, float]] = {}
+    stop = threading.Event()
+    if watch:
+        threading.Thread(target=_watch, args=(proc.pid, out, watch, seen, stop), daemon=True).start()
+    _, err = proc.communicate()
+    stop.set()
+    wall = time.perf_counter() - start
+    if proc.returncode != 0:
+        sys.exit(f"build failed ({proc.returncode}): {err.decode()[-2000:]}")
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    accepted = sum(1 for _ in (out / "labels").glob("*.png"))
+    return Run(wall, cpu, after.ru_maxrss / 1024, accepted), seen
+
+
+def _rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
+def _descendants(pid: int) -> list[int]:
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                kids = [int(k) for k in (task / "children").read_text().split()]
+            except OSError:
+                kids = []
+            out += kids
+            todo += kids
+    return out
+
+
+def _watch(pid: int, out: Path, marks: tuple[int, ...], seen: dict[int, tuple[float, float]],
+           stop: threading.Event) -> None:
+    slots = out / ".osmseg-build" / "slots"
+    while not stop.is_set() and len(seen) < len(marks):
+        done = sum(1 for _ in slots.glob("*.json")) if slots.is_dir() else 0
+        for mark in marks:
+            if mark not in seen and done >= mark:
+                workers = [_rss_mb(p) for p in _descendants(pid)]
+                seen[mark] = (_rss_mb(pid), max(workers, default=0.0))
+        time.sleep(0.5)
+
+
+def floor_per_sample(tif: Path, cache: Path, samples: int, fmt: str) -> tuple[float, float, float]:
+    """CPU seconds per sample of the bare library calls for the build's samples (see the module doc),
+    and the median read_features / bare-osmium-pass times (s) over the same boxes."""
+    table = load_class_table("classes13.toml")
+    config = BuildConfig(out_dir=Path("unused"), area=Area("Helsinki", LAT, LON, RADIUS_KM), imagery="", zoom=18,
+                         samples=samples, seed=0)
+    source = LocalFileSource(HELSINKI, cache / "osm")
+    grids = [g for g in (attempt_grid(config, s, 0) for s in range(samples)) if g is not None]
+    src = rasterio.open(tif)
+    palette = table.palette()  # the colour mask: one lookup, as np.take in ClassTable.colorize
+    total, t_read, t_bare = 0.0, [], []
+    for grid in grids:
+        box = source.fetch(pad_bbox(grid.bbox, config.osm_padding_m)).paths[0]
+        features = read_features([box], grid, table)  # not timed: the shapes the bare rasteriser burns
+        shapes = [(f.geometry, f.class_id) for f in sorted(features, key=lambda f: f.order)]
+        start = time.process_time()
+        for _ in osmium.FileProcessor(str(box)).with_locations():
+            pass
+        labels = bare_rasterize(shapes, out_shape=(grid.height, grid.width), transform=grid.transform, fill=0,
+                                dtype="uint8")
+        window = from_bounds(*transform_bounds("EPSG:3857", src.crs, *grid.xy_bounds), src.transform)
+        window = window.round_offsets().round_lengths().intersection(Window(0, 0, src.width, src.height))
+        data = src.read(window=window)
+        rgb = np.zeros((3, grid.height, grid.width), np.uint8)
+        reproject(data, rgb, src_transform=src.window_transform(window), src_crs=src.crs,
+                  dst_transform=grid.transform, dst_crs="EPSG:3857", resampling=Resampling.bilinear)
+        photo = np.ascontiguousarray(rgb.transpose(1, 2, 0))
+        files = [encode_png(photo, PHOTO_COMPRESS_LEVEL) if fmt == "png" else encode_jpeg(photo),
+                 encode_png(palette[labels], COMPRESS_LEVEL), encode_png(labels, COMPRESS_LEVEL, runs=True),
+                 encode_cog(labels, "EPSG:3857", grid.transform, classes=True,
+                            describe=lambda dst: write_class_metadata(dst, table))]
+        for data_bytes in files:
+            hashlib.sha256(data_bytes).hexdigest()
+        total += time.process_time() - start
+        t_read.append(_timed(lambda: read_features([box], grid, table)))
+        t_bare.append(_timed(lambda: sum(1 for _ in osmium.FileProcessor(str(box)).with_locations())))
+    return total / len(grids), statistics.median(t_read), statistics.median(t_bare)
+
+
+def _timed(fn, repeat: int = 3) -> float:
+    times = []
     for _ in range(repeat):
         start = time.perf_counter()
-        result = fn()
+        fn()
         times.append(time.perf_counter() - start)
-    return statistics.median(times), result
+    return min(times)
 
 
-def bare_osmium_pass(path: Path) -> int:
-    """Read every object with node locations: what any osmium-based reader must at least do."""
-    count = 0
-    for _ in osmium.FileProcessor(str(path)).with_locations():
-        count += 1
-    return count
-
-
-def render_geotiff(path: Path, table) -> None:
-    """An EPSG:3067 GeoTIFF painted from the extract's labels over a 9x9-tile z18 block."""
-    grid = sample_grid(*CENTRE, 18, size=9)
-    labels = rasterize(read_features([HELSINKI], grid, table), grid, table)
-    rgb = render_aerial(labels, seed=0).transpose(2, 0, 1)
-    crs = "EPSG:3067"
-    transform, width, height = calculate_default_transform("EPSG:3857", crs, grid.width, grid.height, *grid.xy_bounds)
-    with rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=3, dtype="uint8",
-                       crs=crs, transform=transform, tiled=True, compress="deflate") as dst:
-        for band in range(3):
-            reproject(rgb[band], rasterio.band(dst, band + 1), src_transform=grid.transform, src_crs="EPSG:3857",
-                      dst_transform=transform, dst_crs=crs)
+def tree(root: Path) -> dict[str, str]:
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file() and ".osmseg-build" not in p.parts}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--samples", type=int, default=12)
+    parser.add_argument("--samples", type=int, default=64, help="samples per timed build [64]")
+    parser.add_argument("--long", type=int, default=0, help="also one all-cores JPEG build of this many samples "
+                        "with RSS at 100, 500, ... (e.g. 2000)")
     args = parser.parse_args()
-    if not HELSINKI.exists():
-        sys.exit(f"skipped: {HELSINKI} is absent (../shared/data)")
-    table = load_class_table("classes13.toml")
-    grid = sample_grid(*CENTRE, 18)
-
-    t_bare, n_objects = timed(lambda: bare_osmium_pass(HELSINKI))
-    t_parse, features = timed(lambda: read_features([HELSINKI], grid, table))
-    t_raster, labels = timed(lambda: rasterize(features, grid, table))
-    shapes = [(f.geometry, f.class_id) for f in sorted(features, key=lambda f: f.order)]
-    t_bare_raster, _ = timed(lambda: bare_rasterize(shapes, out_shape=(grid.height, grid.width),
-                                                     transform=grid.transform, fill=0, dtype="uint8"))
-    print(f"Helsinki extract: {HELSINKI.stat().st_size / 1e6:.2f} MB, {n_objects} objects; one sample "
-          f"{grid.width}x{grid.height} px at z18 ({grid.ground_resolution:.2f} m/px), {len(shapes)} features")
-    print(f"parse     read_features    {t_parse * 1000:8.1f} ms   bare osmium pass {t_bare * 1000:8.1f} ms   "
-          f"ratio {t_parse / t_bare:5.2f}")
-    print(f"rasterise rasterize        {t_raster * 1000:8.1f} ms   bare rasterio    {t_bare_raster * 1000:8.1f} ms   "
-          f"ratio {t_raster / t_bare_raster:5.2f}")
-    print(f"          classes present: {sorted(table.by_id[int(c)].name for c in np.unique(labels))}")
-
-    with tempfile.TemporaryDirectory() as tmp:
+    if not (HELSINKI.exists() and PHOTO.exists()):
+        sys.exit(f"skipped: {HELSINKI} or {PHOTO} is absent (../shared/data)")
+    cores = available_cores()
+    n = args.samples
+    with tempfile.TemporaryDirectory(prefix="bench-build-") as tmp:
         work = Path(tmp)
-        tif = work / "helsinki-3067.tif"
-        render_geotiff(tif, table)
-
-        def run(out: str) -> float:
-            config = BuildConfig(
-                out_dir=work / out, area=Area(name="Helsinki", lat=CENTRE[1], lon=CENTRE[0], radius_km=0.25),
-                imagery=f"geotiff:{tif}", osm=str(HELSINKI), samples=args.samples, seed=0, zoom=18,
-                filters=FilterConfig(max_unlabeled=0.95), cache_dir=work / "cache",
-            )
-            start = time.perf_counter()
-            summary = build(config)
-            elapsed = time.perf_counter() - start
-            assert summary.accepted == args.samples, summary.lines()
-            return elapsed
-
-        cold = run("cold")
-        warm = run("warm")  # same cache: OSM extracts already cut
-        per_sample = warm / args.samples
-        stages = t_parse + t_raster
-        print(f"build     {args.samples} samples: cold {cold:6.2f} s, warm cache {warm:6.2f} s = "
-              f"{args.samples / warm:5.2f} samples/s ({per_sample * 1000:.0f} ms/sample)")
-        print(f"          parse+rasterise of a sample {stages * 1000:.0f} ms = {stages / per_sample:5.1%} of a warm "
-              "sample; the rest is warping the GeoTIFF, encoding PNG/GeoTIFF files and hashing")
+        tif = work / "photo-3067.tif"
+        make_imagery(tif)
+        cache = work / "cache"
+        print(f"osmseg build, Helsinki PBF + real photo GeoTIFF (EPSG:3067), zoom 18, {cores} cores, "
+              f"{n} samples per build")
+        cold, _ = run_build(work / "cold", cache, tif, n, cores, "png")
+        print(f"cold      {cores} workers png  {cold.wall:7.2f} s  (cuts the region and all {n} boxes from the PBF)")
+        runs: dict[tuple[int, str], Run] = {}
+        for fmt in ("png", "jpg"):
+            for workers in sorted({1, cores}):
+                run, _ = run_build(work / f"w{workers}-{fmt}", cache, tif, n, workers, fmt)
+                runs[workers, fmt] = run
+                print(f"warm      {workers} worker{'s' if workers > 1 else ' '} {fmt}  {run.wall:7.2f} s  "
+                      f"{run.accepted / run.wall:5.2f} samples/s  {run.cpu / run.accepted * 1000:6.0f} ms CPU/sample  "
+                      f"peak RSS {run.peak_mb:5.0f} MB")
+            if cores > 1:
+                one, every = runs[1, fmt], runs[cores, fmt]
+                same = tree(work / f"w1-{fmt}") == tree(work / f"w{cores}-{fmt}")
+                print(f"scaling   {fmt}: {cores} workers / 1 worker = {one.wall / every.wall:4.2f}x samples/s; "
+                      f"identical bytes: {'yes' if same else 'NO'}")
+        # marginal CPU per sample: builds of n and of 1 sample, so fixed costs (imports, start-up) cancel
+        for fmt in ("png", "jpg"):
+            single, _ = run_build(work / f"one-{fmt}", cache, tif, 1, 1, fmt)
+            marginal = (runs[1, fmt].cpu - single.cpu) / (n - 1)
+            floor, t_read, t_bare = floor_per_sample(tif, cache, n, fmt)
+            print(f"floor     {fmt}: bare calls {floor * 1000:6.0f} ms CPU/sample; build {marginal * 1000:6.0f} ms "
+                  f"marginal CPU/sample (fixed {single.cpu - marginal:4.2f} s) = {marginal / floor:4.2f}x the floor")
+        print(f"read_features {t_read * 1000:6.1f} ms  bare osmium pass {t_bare * 1000:6.1f} ms  "
+              f"ratio {t_read / t_bare:4.2f} (median over {n} boxes)")
+        if args.long:
+            marks = tuple(m for m in (100, 500, 1000, 2000, 5000, 10000, 20000) if m < args.long) + (args.long,)
+            run, seen = run_build(work / "long", cache, tif, args.long, cores, "jpg", watch=marks)
+            print(f"long      {args.long} samples jpg, {cores} workers: {run.wall:7.1f} s "
+                  f"{run.accepted / run.wall:5.2f} samples/s, peak RSS {run.peak_mb:5.0f} MB")
+            for mark in marks:
+                builder, worker = seen.get(mark, (float("nan"), float("nan")))
+                print(f"          RSS at {mark:6d} samples: builder {builder:6.0f} MB, largest worker {worker:6.0f} MB")
 
 
 if __name__ == "__main__":

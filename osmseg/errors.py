@@ -51,6 +51,10 @@ class HTTPStatusError(NetworkError):
         super().__init__(message)
         self.status = status
 
+    def __reduce__(self) -> tuple[type, tuple[str, int | None]]:
+        # raised in a build's worker process and re-raised in the build's own: keep the status
+        return type(self), (str(self.args[0]) if self.args else "", self.status)
+
 
 class RetriesExhausted(NetworkError):
     """A service kept failing in a way that may heal (429/5xx, timeouts, dropped connections,

@@ -65,6 +65,11 @@ class BuildState:
     def config_path(self) -> Path:
         return self.root / "config.json"
 
+    @property
+    def thumbnails(self) -> Path:
+        """Folder of the small pictures the overview sheet is drawn from (see :mod:`osmseg.output.overview`)."""
+        return self.root / "thumbnails"
+
     def recorded_config(self) -> dict[str, Any] | None:
         """The identity recorded by the first run in this folder, or None."""
         path = self.config_path
@@ -127,6 +132,10 @@ class BuildState:
         path = self._slot_path(slot)
         data = _read_json(path)
         return None if data is None else SlotOutcome.from_json(data, str(path))
+
+    def has_slot(self, slot: int) -> bool:
+        """Whether the slot has its final outcome (without reading it)."""
+        return self._slot_path(slot).exists()
 
     def record_slot(self, outcome: SlotOutcome) -> None:
         self.check_owner()

@@ -78,3 +78,41 @@ def test_a_full_cache_disk_stops_in_one_line_and_the_rerun_after_freeing_space_f
     assert (tmp_path / "second.code").read_text().strip() == "0", second
     assert tree_bytes(out) == tree_bytes(clean)
     assert json.loads((out / "manifest.json").read_text())["summary"]["accepted"] == 4
+
+
+def test_a_full_disk_while_cutting_a_local_osm_file_is_one_line_and_the_rerun_finishes(
+        tmp_path: Path, imagery_tif: Path) -> None:
+    """Cutting the samples' boxes out of a local OSM file onto a full disk: osmium cannot survive a
+    write that fails (the process would abort), so the room is checked first and the build stops
+    with the one-line disk-full error; with space freed, the same command finishes."""
+    from conftest import TINYCITY, TINYCITY_CENTRE
+
+    prefix = can_mount_tmpfs(tmp_path)
+    if prefix is None:
+        pytest.skip("cannot mount a tmpfs here (needs root or user namespaces)")
+    lon, lat = TINYCITY_CENTRE
+    build = [sys.executable, "-m", "osmseg", "-q", "build", "--lat", str(lat), "--lon", str(lon), "--radius-km", "0.08",
+             "--samples", "2", "--seed", "1", "--imagery", f"geotiff:{imagery_tif}", "--osm", str(TINYCITY)]
+    clean = tmp_path / "clean"
+    done = subprocess.run([*build, "--out", str(clean), "--cache-dir", str(tmp_path / "clean-cache")],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+    disk, out = tmp_path / "disk", tmp_path / "ds"
+    disk.mkdir()
+    command = " ".join(f"'{a}'" for a in [*build, "--out", str(out), "--cache-dir", str(disk / "cache")])
+    script = f"""
+        mount -t tmpfs -o size=2m tmpfs {disk}
+        head -c 2040k /dev/zero > {disk}/filler        # leaves ~8 KB: less than the region file itself
+        {command} 2> {tmp_path}/first.err; echo $? > {tmp_path}/first.code
+        rm {disk}/filler
+        {command} 2> {tmp_path}/second.err; echo $? > {tmp_path}/second.code
+    """
+    subprocess.run([*prefix, "sh", "-c", script], check=True, timeout=600)
+    first = (tmp_path / "first.err").read_text()
+    assert (tmp_path / "first.code").read_text().strip() == "1", first
+    lines = first.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error:") and "disk is full" in lines[0], first
+    second = (tmp_path / "second.err").read_text()
+    assert (tmp_path / "second.code").read_text().strip() == "0", second
+    assert tree_bytes(out) == tree_bytes(clean)

@@ -16,6 +16,7 @@ from collections.abc import Iterator
 import io
 import json
 import logging
+import multiprocessing
 import re
 from pathlib import Path
 
@@ -25,6 +26,7 @@ import pytest
 import rasterio
 from PIL import Image
 from pyproj import Transformer
+from rasterio.transform import from_origin
 
 from osmseg.errors import AuthError, ConfigError, ImageryError, RetriesExhausted
 from osmseg.grid import TILE_SIZE, SampleGrid, sample_grid
@@ -477,6 +479,74 @@ def test_geotiff_missing_path_is_a_usage_error():
     assert "\n" not in str(bad.value)
 
 
+def fetch_in_child(provider: GeoTiffProvider, grid: SampleGrid, results) -> None:
+    """Runs in a child process: the provider's pixels, sent back to the parent."""
+    imagery = provider.fetch(grid)
+    results.put((imagery.rgb, imagery.valid))
+
+
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_geotiff_provider_in_a_worker_process_gives_the_same_pixels(grid, method):
+    """A build's worker gets the provider forked (its open file inherited) or pickled (spawned):
+    same pixels there, and the parent's provider still reads after the worker is gone."""
+    if method not in multiprocessing.get_all_start_methods():
+        pytest.skip(f"no {method} start method here")
+    provider = GeoTiffProvider(DATA / "utm-rgb.tif")
+    before = provider.fetch(grid)  # the parent's file is open now
+    context = multiprocessing.get_context(method)
+    results = context.Queue()
+    child = context.Process(target=fetch_in_child, args=(provider, grid, results))
+    child.start()
+    rgb, valid = results.get(timeout=120)
+    child.join(timeout=60)
+    assert child.exitcode == 0
+    assert valid.any() and np.array_equal(valid, before.valid) and np.array_equal(rgb, before.rgb)
+    after = provider.fetch(grid)
+    assert np.array_equal(after.valid, before.valid) and np.array_equal(after.rgb, before.rgb)
+
+
+def write_plain_tif(path: Path, colour: tuple[int, int, int], size: int) -> None:
+    """A 100 m EPSG:3857 raster of one colour around (LON, LAT)."""
+    x, y = mercantile.xy(LON, LAT)
+    with rasterio.open(path, "w", driver="GTiff", width=size, height=size, count=3, dtype="uint8",
+                       crs="EPSG:3857", transform=from_origin(x - 50, y + 50, 100 / size, 100 / size)) as dst:
+        dst.write(np.broadcast_to(np.array(colour, np.uint8)[:, None, None], (3, size, size)))
+
+
+def test_geotiff_replaced_while_the_provider_lives_is_read_again(grid, tmp_path):
+    """The provider keeps the file open; a GeoTIFF exported again (renamed over, or rewritten in
+    place) is what the next fetch reads, never a mix with the old file."""
+    path = tmp_path / "ortho.tif"
+    write_plain_tif(path, (200, 10, 10), 40)
+    provider = GeoTiffProvider(path)
+    first = provider.fetch(grid)
+    write_plain_tif(tmp_path / "new.tif", (10, 200, 10), 50)
+    (tmp_path / "new.tif").replace(path)
+    second = provider.fetch(grid)
+    write_plain_tif(path, (10, 10, 200), 80)  # same file, new content and size
+    third = provider.fetch(grid)
+    for imagery, colour in [(first, (200, 10, 10)), (second, (10, 200, 10)), (third, (10, 10, 200))]:
+        assert imagery.valid.sum() > 20_000  # the 100 m square
+        assert (imagery.rgb[imagery.valid] == colour).all()
+    assert provider.describe()["size"] == [80, 80]
+
+
+def test_geotiff_truncated_file_is_a_one_line_imagery_error(grid, tmp_path):
+    """A download cut short opens (its header is whole) but fails on the pixels: one line saying so."""
+    x, y = mercantile.xy(LON, LAT)
+    data = np.random.default_rng(0).integers(0, 256, (3, 512, 512), dtype=np.uint8)
+    whole = tmp_path / "whole.tif"
+    with rasterio.open(whole, "w", driver="GTiff", width=512, height=512, count=3, dtype="uint8", crs="EPSG:3857",
+                       transform=from_origin(x - 100, y + 100, 0.4, 0.4), tiled=True, compress="deflate") as dst:
+        dst.write(data)
+    cut = tmp_path / "cut.tif"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    provider = GeoTiffProvider(cut)
+    with pytest.raises(ImageryError, match=r"cannot read .*cut\.tif .* looks truncated or corrupt") as bad:
+        provider.fetch(grid)
+    assert "\n" not in str(bad.value)
+
+
 # -- the --imagery spec -----------------------------------------------------------------------
 
 
@@ -550,3 +620,59 @@ def test_real_geotiff_warps_onto_the_grid(parts, zoom):
     # the same check one source pixel off fails: the comparison can see a misalignment
     shifted = np.abs(got - bilinear(source, scol + 1, srow)).mean(axis=1)
     assert np.median(shifted) > 1.5
+
+
+def _write_tif(path: Path, rgb: np.ndarray, crs: str, transform) -> Path:  # type: ignore[no-untyped-def]
+    with rasterio.open(path, "w", driver="GTiff", width=rgb.shape[2], height=rgb.shape[1], count=3, dtype="uint8",
+                       crs=crs, transform=transform, tiled=True, compress="deflate") as dst:
+        dst.write(rgb)
+    return path
+
+
+def test_geotiff_zoomed_out_averages_fine_detail_instead_of_aliasing(tmp_path: Path) -> None:
+    """A drone orthophoto 8x finer than the sample's pixels, covering the middle of the sample (in a
+    rotated CRS, ETRS-TM35FIN against Web Mercator): the bilinear kernel is widened by the true
+    8:1 factor, so source pixel noise (std 74) averages down to ~6. The warper's own estimate,
+    made from the raster's size against the grid's, filters less (~10 here)."""
+    lon, lat, zoom = 24.94, 60.17, 17
+    grid = sample_grid(lon, lat, zoom, size=3)
+    x, y = Transformer.from_crs("EPSG:4326", "EPSG:3067", always_xy=True).transform(lon, lat)
+    res = grid.ground_resolution / 8
+    size = grid.width  # an eighth of the grid's extent
+    noise = np.random.default_rng(1).integers(0, 256, (size, size), dtype=np.uint8)
+    path = _write_tif(tmp_path / "noise.tif", np.stack([noise] * 3), "EPSG:3067",
+                      from_origin(x - size / 2 * res, y + size / 2 * res, res, res))
+    image = GeoTiffProvider(path).fetch(grid)
+    assert 0.01 < image.valid.mean() < 0.02
+    inner = image.valid.copy()
+    for _ in range(3):  # away from the footprint's edge, where alpha fades
+        inner[1:-1, 1:-1] &= inner[:-2, 1:-1] & inner[2:, 1:-1] & inner[1:-1, :-2] & inner[1:-1, 2:]
+    grey = image.rgb[..., 0][inner].astype(float)
+    assert abs(grey.mean() - 127.5) < 5 and grey.std() < 8, (grey.mean(), grey.std())
+
+
+def test_geotiff_window_read_gives_the_pixels_of_warping_the_whole_raster(tmp_path: Path) -> None:
+    """Reading only the source window under a sample (plus the kernel's margin) changes no pixel:
+    the same warp of the whole raster at the same scale gives the same image."""
+    from rasterio.warp import reproject
+    from rasterio.enums import Resampling
+
+    lon, lat = 24.94, 60.17
+    x, y = Transformer.from_crs("EPSG:4326", "EPSG:3067", always_xy=True).transform(lon, lat)
+    rng = np.random.default_rng(5)
+    rgb = rng.integers(0, 256, (3, 900, 900), dtype=np.uint8)
+    res = 0.9
+    path = _write_tif(tmp_path / "noise.tif", rgb, "EPSG:3067", from_origin(x - 450 * res, y + 450 * res, res, res))
+    provider = GeoTiffProvider(path)
+    for zoom, size in ((18, 1), (17, 3), (19, 3)):
+        grid = sample_grid(lon + 0.001, lat - 0.0005, zoom, size=size)
+        got = provider.fetch(grid)
+        with rasterio.open(path) as src:
+            whole = np.concatenate([src.read(), np.full((1, 900, 900), 255, np.uint8)])
+            out = np.zeros((4, grid.height, grid.width), np.uint8)
+            reproject(whole, out, src_transform=src.transform, src_crs=src.crs, dst_transform=grid.transform,
+                      dst_crs="EPSG:3857", resampling=Resampling.bilinear, src_alpha=4, dst_alpha=4,
+                      **provider._scales(src, grid))
+        valid = out[3] >= 128
+        assert np.array_equal(got.valid, valid), zoom
+        assert np.array_equal(got.rgb[valid], out[:3].transpose(1, 2, 0)[valid]), zoom

@@ -396,3 +396,29 @@ def test_zip_is_deterministic_and_skips_hidden_state(tmp_path: Path, dataset) ->
 def test_zip_of_a_missing_folder_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(DatasetError, match="not a folder"):
         make_zip(tmp_path / "nope", tmp_path / "x.zip")
+
+
+def test_sweeping_temp_files_spares_live_writers_and_removes_what_killed_ones_left(tmp_path: Path) -> None:
+    """A rerun (or a shard starting beside others on one folder) removes a killed writer's litter,
+    never the file a live process is writing."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from osmseg.output.atomic import FOREIGN_TEMP_SECONDS, _owner, sweep_temp_files, temp_path_for
+
+    live = temp_path_for(tmp_path / "a.png")  # this process: alive
+    assert live.name.startswith(f".a.png.{_owner()}.") and live.name.endswith(".tmp")
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    host = _owner().rsplit("-", 1)[0]
+    dead = tmp_path / f".b.png.{host}-{int(gone.stdout)}.x1y2.tmp"
+    other_new = tmp_path / ".c.png.othernode-12.x1y2.tmp"
+    other_old = tmp_path / ".d.png.othernode-12.x1y2.tmp"
+    legacy = tmp_path / ".e.png.abc123.tmp"
+    for path in (dead, other_new, other_old, legacy):
+        path.write_bytes(b"partial")
+    old = time.time() - FOREIGN_TEMP_SECONDS - 60
+    os.utime(other_old, (old, old))
+    assert sweep_temp_files(tmp_path) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, other_new.name])

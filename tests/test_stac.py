@@ -16,9 +16,10 @@ import hashlib
 import json
 import shutil
 import warnings
+from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 import pystac
@@ -374,6 +375,56 @@ def test_write_stac_is_repeatable_and_drops_items_of_removed_samples(tmp_path: P
     assert sorted(p.name for p in (tmp_path / "stac" / "items").iterdir()) == ["a_2.json", "a_2_image.json"]
 
 
+class Entry(dict[str, Any]):
+    """A sample entry that counts how many are alive (CPython frees it as soon as nothing refers to it)."""
+
+    alive = 0
+
+    def __del__(self) -> None:
+        Entry.alive -= 1
+
+
+class LazySamples(Sequence[dict[str, Any]]):
+    """Entries decoded from JSON text at every access, as a build's finaliser reads them from disk:
+    counts the reads of each entry and the most entries alive at once."""
+
+    def __init__(self, entries: list[dict[str, Any]]) -> None:
+        self.texts = [json.dumps(e) for e in entries]
+        self.reads = [0] * len(entries)
+        self.most_alive = 0
+
+    def __len__(self) -> int:
+        return len(self.texts)
+
+    @overload
+    def __getitem__(self, i: int) -> dict[str, Any]: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[dict[str, Any]]: ...
+    def __getitem__(self, i: int | slice) -> dict[str, Any] | list[dict[str, Any]]:
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        self.reads[i] += 1
+        entry = Entry(json.loads(self.texts[i]))
+        Entry.alive += 1
+        self.most_alive = max(self.most_alive, Entry.alive)
+        return entry
+
+
+def test_write_stac_reads_a_lazy_sequence_of_samples_a_few_times(tmp_path: Path) -> None:
+    entries = [sample("a_1", None, newest="2019-04-21T09:50:14Z"), sample("a_2", "2024-05-01T12:00:00Z"),
+               sample("a_3", None)]
+    write_stac(tmp_path / "list", manifest_of(*entries))
+    manifest = manifest_of(*entries)
+    lazy = manifest["samples"] = LazySamples(entries)
+    manifest["rejected"] = LazySamples([{"center": {"lon": 24.9, "lat": 60.2}, "reason": "unlabeled", "detail": "-"}])
+    write_stac(tmp_path / "lazy", manifest)
+    tree, again = ({p.relative_to(root).as_posix(): p.read_bytes() for p in sorted((root / "stac").rglob("*"))
+                    if p.is_file()} for root in (tmp_path / "list", tmp_path / "lazy"))
+    assert again == tree and len(tree) == 8
+    assert all(1 <= n <= 3 for n in lazy.reads), lazy.reads  # validation, the Collection's facts, the items
+    assert lazy.most_alive <= 2, "entries are dropped as they are used"  # the one in hand and the one before
+
+
 @pytest.mark.parametrize(("damage", "says"), [
     (lambda m: m["samples"][0].update(bbox_wgs84=[1, 2, 3]), "bbox_wgs84"),
     (lambda m: m["samples"][0]["files"].update({"labels/a_1.png": "not-a-digest"}), "sha256"),
@@ -384,6 +435,7 @@ def test_write_stac_is_repeatable_and_drops_items_of_removed_samples(tmp_path: P
     (lambda m: m["samples"][0]["osm"].update(timestamp="yesterday"), "ISO 8601"),
     (lambda m: m["samples"][0].update(name="../escape"), "file stem"),
     (lambda m: m.pop("samples"), "missing keys"),
+    (lambda m: m.update(samples="a_1"), "must be lists"),  # any sequence, but not a string
     (lambda m: m["classes"]["classes"].pop(0), "class ids"),
 ])
 def test_a_malformed_manifest_gives_one_line(tmp_path: Path, damage: Any, says: str) -> None:

@@ -119,6 +119,9 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
 @click.option("--timeout", "http_timeout", type=click.FloatRange(min=0.1), default=30.0, show_default=True,
               help="Seconds to wait for a server to connect or send more bytes before retrying.")
 @click.option("--offline", is_flag=True, help="Use only the cache; fail on anything not cached.")
+@click.option("--workers", type=click.IntRange(min=0), default=0,
+              help="Processes building samples at once; the dataset's bytes are the same for any number "
+                   "[0: every core this process may use].")
 @click.option("--shard", help="K/N: build only this process's share of the samples (array jobs).")
 @click.option("--zip", "make_zip", is_flag=True, help="Also write OUT.zip.")
 @click.option("--record", type=click.Path(dir_okay=False, path_type=Path), help="Record all HTTP traffic to a cassette (keys removed).")
@@ -129,8 +132,8 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
                   bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, osm: str, classes: str,
                   image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float, max_missing_imagery: float,
                   max_placeholder_tiles: int,
-                  max_tries: int, no_overlap: bool, out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool, shard: str | None,
-                  make_zip: bool, record: Path | None, replay: Path | None) -> None:
+                  max_tries: int, no_overlap: bool, out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool,
+                  workers: int, shard: str | None, make_zip: bool, record: Path | None, replay: Path | None) -> None:
     """Build a segmentation dataset: aerial images + OSM label masks + manifest.
 
     \b
@@ -156,17 +159,19 @@ def build_config(*, city: str | None, lat: float | None, lon: float | None, radi
                  image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float,
                  max_missing_imagery: float, max_placeholder_tiles: int, max_tries: int, no_overlap: bool,
                  out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool, shard: str | None,
-                 make_zip: bool, record: Path | None, replay: Path | None) -> BuildConfig:
+                 make_zip: bool, record: Path | None, replay: Path | None, workers: int = 0) -> BuildConfig:
     """The :class:`BuildConfig` that ``osmseg build``'s options (by parameter name) describe."""
     if record and replay:
         raise ConfigError("--record and --replay exclude each other")
+    if record and workers > 1:
+        raise ConfigError("--record writes one cassette from one process: give --workers 1 (or leave --workers out)")
     filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes, min_contrast=min_contrast,
                            max_invalid_imagery=max_missing_imagery, max_placeholder_tiles=max_placeholder_tiles)
     config = BuildConfig(
         out_dir=out_dir, area=resolve_area(city, lat, lon, bbox, radius_km), imagery=imagery or "bing", osm=osm,
         samples=samples, seed=seed, zoom=zoom, classes=classes, image_format=image_format, filters=filters,
         max_tries=max_tries, cache_dir=cache_dir or default_cache_dir(), offline=offline, http_timeout=http_timeout,
-        shard=Shard.parse(shard) if shard else None, zip=make_zip, no_overlap=no_overlap,
+        shard=Shard.parse(shard) if shard else None, zip=make_zip, no_overlap=no_overlap, workers=workers,
     )
     if record or replay:
         config = replace(config, cassette=record or replay, cassette_mode="record" if record else "replay")
@@ -175,7 +180,8 @@ def build_config(*, city: str | None, lat: float | None, lon: float | None, radi
 
 #: ``osmseg build`` options that never change what is built, left out of the recorded command:
 #: every shard and every resumed run, and the same dataset built in another folder, record one line.
-NOT_CONTENT = frozenset({"out_dir", "cache_dir", "http_timeout", "offline", "shard", "make_zip", "record", "replay"})
+NOT_CONTENT = frozenset({"out_dir", "cache_dir", "http_timeout", "offline", "workers", "shard", "make_zip", "record",
+                         "replay"})
 
 
 def content_options(config: BuildConfig) -> dict[str, Any]:

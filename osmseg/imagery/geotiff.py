@@ -1,9 +1,26 @@
 """``geotiff:PATH``: a local GeoTIFF / COG in any CRS, warped onto the sample's grid.
 
 NAIP, national orthophotos and drone mosaics come in their own projection (UTM, Swiss LV95,
-World Mercator, ...).  GDAL's warper (through :class:`rasterio.vrt.WarpedVRT`, bilinear)
-resamples exactly the window a sample needs onto its EPSG:3857 grid
-(``grid.transform``, ``grid.width`` x ``grid.height``), so a huge COG is never read whole.
+World Mercator, ...).  The source window under the grid (plus a margin for the resampling
+kernel) is read once, with the raster's validity (its alpha band, or its nodata / internal
+mask as an alpha band), and warped (bilinear) onto the sample's EPSG:3857 grid in one
+``rasterio.warp.reproject`` call, so invalid source pixels do not bleed into valid ones and a
+huge COG is never read whole.
+
+**One resampling scale per sample.** GDAL's warper chooses the bilinear kernel's width from
+its estimate of the scale (destination pixels per source pixel), made per processing chunk
+from the chunk's shape: a rotated projection (EPSG:3067 against Web Mercator) makes some
+chunks of one sample look like a 0.89 downsampling and others like 0.97, and below 0.95 GDAL
+switches to a kernel 2.5x as wide and as slow, so one image was resampled two ways (the
+``WarpedVRT`` of osmseg <= 0.1 warped 512 x 128 blocks, and paid for the wide kernel). Here the
+scale is measured once from the grid's centre lines in source pixels and given to the warper
+(``XSCALE``/``YSCALE``, which GDAL documents for exactly this: "more reproducible pixel
+output"): every pixel of a sample is resampled alike, downsampling (a zoom coarser than the
+imagery) is filtered by the true factor rather than aliased, and a sample costs about one
+windowed read and one warp.
+
+The file is opened once per process and kept open; a worker process (forked or spawned) opens
+its own, a provider pickles without its handle, and a file replaced on disk is opened again.
 
 Pixels outside the raster's footprint, under its nodata value or its alpha/mask band are
 invalid.  Bands: 3+ bands give RGB (by colour interpretation when set, else bands 1-3; a
@@ -16,17 +33,21 @@ how to convert.
 from __future__ import annotations
 
 import logging
+import math
+import os
 import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import rasterio
+import rasterio.warp
 from rasterio.crs import CRS
-from rasterio.enums import ColorInterp, Resampling
+from rasterio.enums import ColorInterp, MaskFlags, Resampling
 from rasterio.errors import NotGeoreferencedWarning, RasterioError
-from rasterio.vrt import WarpedVRT
-from rasterio.warp import transform_bounds
+from rasterio.io import DatasetReader
+from rasterio.warp import reproject, transform_bounds
+from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError, UnusableImagery
 from osmseg.grid import SampleGrid
@@ -36,6 +57,9 @@ from osmseg.imagery.mosaic import ALPHA_VALID
 logger = logging.getLogger(__name__)
 
 WEB_MERCATOR = CRS.from_epsg(3857)
+#: Grid pixels added around the raster's footprint before warping only that part of the grid:
+#: the warper's approximate transform may place a source pixel up to 1/8 pixel off.
+FOOTPRINT_MARGIN = 2
 
 
 def rgb_bands(colorinterp: tuple[ColorInterp, ...]) -> tuple[int, int, int]:
@@ -59,6 +83,30 @@ def rgb_bands(colorinterp: tuple[ColorInterp, ...]) -> tuple[int, int, int]:
     return colour[0], colour[1], colour[2]
 
 
+def file_stamp(path: Path) -> tuple[int, ...] | None:
+    """What changes when a file is replaced or rewritten (device, inode, size, mtime); None if absent."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def mercator_footprint(src: DatasetReader) -> tuple[float, float, float, float] | None:
+    """EPSG:3857 bounds of the raster's pixels, or None when they cannot be told (no such
+    transform, a raster across the antimeridian or over a pole): then every grid is warped."""
+    corners = [src.transform * (col, row) for col in (0, src.width) for row in (0, src.height)]
+    xs, ys = zip(*corners, strict=True)
+    try:
+        bounds = transform_bounds(src.crs, WEB_MERCATOR, min(xs), min(ys), max(xs), max(ys), densify_pts=21)
+    except (ValueError, RasterioError):
+        return None
+    left, bottom, right, top = bounds
+    if not all(math.isfinite(v) for v in bounds) or left >= right or bottom >= top:
+        return None
+    return left, bottom, right, top
+
+
 class GeoTiffProvider:
     """Imagery from one local raster (GeoTIFF, COG, or anything GDAL opens with a CRS).
 
@@ -75,40 +123,69 @@ class GeoTiffProvider:
         )
         if not self.path.exists():
             raise ConfigError(f"GeoTIFF {self.path} does not exist: check the geotiff:PATH")
+        self._src: DatasetReader | None = None
+        self._pid = 0
+        self._stamp: tuple[int, ...] | None = None
         try:
-            with warnings.catch_warnings():  # a raster without CRS is refused below, in one line
-                warnings.simplefilter("ignore", NotGeoreferencedWarning)
-                src = rasterio.open(self.path)
-            with src:
-                self.crs = src.crs
-                self.bounds = tuple(src.bounds)
-                self.size = (src.width, src.height)
-                self.count = src.count
-                dtypes = set(src.dtypes)
-                colorinterp = tuple(src.colorinterp)
-                palette = ColorInterp.palette in colorinterp
+            self._open()
         except RasterioError:
             raise UnusableImagery(
                 f"{self.path} is not a raster GDAL can read: give a GeoTIFF/COG"
             ) from None
-        if self.crs is None:
-            raise UnusableImagery(
-                f"{self.path} has no CRS: georeference it first (gdal_edit.py -a_srs EPSG:...)"
-            )
-        if dtypes != {"uint8"}:
-            raise UnusableImagery(
-                f"{self.path} is {'/'.join(sorted(dtypes))}, not 8-bit: convert it first"
-                " (gdal_translate -ot Byte -scale ...)"
-            )
-        if palette:
-            raise UnusableImagery(
-                f"{self.path} is a paletted raster: expand it first (gdal_translate -expand rgb)"
-            )
-        self.bands = rgb_bands(colorinterp)
-        self._has_alpha = ColorInterp.alpha in colorinterp
 
     def __repr__(self) -> str:
         return f"GeoTiffProvider({str(self.path)!r})"
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without the open dataset: the process that unpickles opens its own."""
+        return {**self.__dict__, "_src": None}
+
+    def _open(self) -> DatasetReader:
+        """Open the raster, check it is usable, and keep it open for this process.
+
+        Raises RasterioError when GDAL cannot read it (the caller says what that means there) and
+        UnusableImagery when it is not imagery this provider reads."""
+        stamp = file_stamp(self.path)
+        with warnings.catch_warnings():  # a raster without CRS is refused below, in one line
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            src = rasterio.open(self.path)
+        try:
+            crs = src.crs
+            dtypes = set(src.dtypes)
+            colorinterp = tuple(src.colorinterp)
+            if crs is None:
+                raise UnusableImagery(
+                    f"{self.path} has no CRS: georeference it first (gdal_edit.py -a_srs EPSG:...)"
+                )
+            if dtypes != {"uint8"}:
+                raise UnusableImagery(
+                    f"{self.path} is {'/'.join(sorted(dtypes))}, not 8-bit: convert it first"
+                    " (gdal_translate -ot Byte -scale ...)"
+                )
+            if ColorInterp.palette in colorinterp:
+                raise UnusableImagery(
+                    f"{self.path} is a paletted raster: expand it first (gdal_translate -expand rgb)"
+                )
+            self.bands = rgb_bands(colorinterp)
+            self.crs = crs
+            self.bounds = tuple(src.bounds)
+            self.size = (src.width, src.height)
+            self.count = src.count
+            self._has_alpha = ColorInterp.alpha in colorinterp
+            self._footprint = mercator_footprint(src)
+        except BaseException:
+            src.close()
+            raise
+        self._src, self._pid, self._stamp = src, os.getpid(), stamp
+        return src
+
+    def _dataset(self) -> DatasetReader:
+        """The raster, open in this process: opened again in a new process (a worker must not
+        share its parent's file handle) and when the file on disk was replaced or rewritten."""
+        if self._src is None or self._pid != os.getpid() or file_stamp(self.path) != self._stamp:
+            self._src = None  # a handle inherited from the parent is dropped, never used
+            return self._open()
+        return self._src
 
     def check_covers(self, west: float, south: float, east: float, north: float) -> None:
         """ConfigError when the raster's footprint misses the sampling area (lon/lat degrees) entirely:
@@ -123,25 +200,69 @@ class GeoTiffProvider:
                 f"sampling area (lon {west:.5f}..{east:.5f}, lat {south:.5f}..{north:.5f}): sample where the "
                 "imagery is (--bbox/--lat/--lon), or give the GeoTIFF of this area")
 
+    def _source_window(self, src: DatasetReader, grid: SampleGrid) -> Window | None:
+        """The source pixels under ``grid`` plus a margin for the resampling kernel (wider when
+        downsampling), clipped to the raster; None when the grid misses the raster."""
+        try:
+            left, bottom, right, top = transform_bounds(WEB_MERCATOR, src.crs, *grid.xy_bounds, densify_pts=21)
+        except (ValueError, RasterioError):
+            return Window(0, 0, src.width, src.height)
+        corners = [~src.transform * (x, y) for x in (left, right) for y in (bottom, top)]
+        cols, rows = zip(*corners, strict=True)
+        if not all(math.isfinite(v) for v in cols + rows):
+            return Window(0, 0, src.width, src.height)
+        ratio = max((max(cols) - min(cols)) / grid.width, (max(rows) - min(rows)) / grid.height)
+        margin = max(2, math.ceil(ratio) + 1)
+        col0, row0 = max(0, math.floor(min(cols)) - margin), max(0, math.floor(min(rows)) - margin)
+        col1, row1 = min(src.width, math.ceil(max(cols)) + margin), min(src.height, math.ceil(max(rows)) + margin)
+        if col1 <= col0 or row1 <= row0:
+            return None
+        return Window(col0, row0, col1 - col0, row1 - row0)
+
+    @staticmethod
+    def _scales(src: DatasetReader, grid: SampleGrid) -> dict[str, str]:
+        """The warper's ``XSCALE``/``YSCALE``: destination pixels per source pixel along the grid's
+        horizontal and vertical centre lines (their length in source pixels, rotation included).
+        Empty when the source CRS cannot place them (GDAL then estimates, as before)."""
+        left, bottom, right, top = grid.xy_bounds
+        cx, cy = (left + right) / 2, (bottom + top) / 2
+        try:
+            xs, ys = rasterio.warp.transform(WEB_MERCATOR, src.crs, [left, right, cx, cx], [cy, cy, bottom, top])
+        except (ValueError, RasterioError):
+            return {}
+        pixels = [~src.transform * (x, y) for x, y in zip(xs, ys, strict=True)]
+        across = math.dist(pixels[0], pixels[1])
+        down = math.dist(pixels[2], pixels[3])
+        if not (math.isfinite(across) and math.isfinite(down) and across > 0 and down > 0):
+            return {}
+        return {"XSCALE": repr(grid.width / across), "YSCALE": repr(grid.height / down)}
+
     def fetch(self, grid: SampleGrid) -> Imagery:
         """The raster warped (bilinear) onto ``grid``; outside its footprint is invalid."""
+        rgb = np.zeros((grid.height, grid.width, 3), dtype=np.uint8)
+        valid = np.zeros((grid.height, grid.width), dtype=bool)
         try:
-            with (
-                rasterio.open(self.path) as src,
-                WarpedVRT(
-                    src,
-                    crs=WEB_MERCATOR,
-                    transform=grid.transform,
-                    width=grid.width,
-                    height=grid.height,
-                    resampling=Resampling.bilinear,
-                    add_alpha=not self._has_alpha,
-                ) as vrt,
-            ):
+            src = self._dataset()
+            window = self._source_window(src, grid)
+            if window is not None:
+                colorinterp = src.colorinterp
                 unique = sorted(set(self.bands))
-                data = vrt.read(unique)
-                # the alpha band the warper filled from the footprint, nodata, alpha or mask
-                alpha = vrt.read(vrt.colorinterp.index(ColorInterp.alpha) + 1)
+                indexes = list(unique)
+                if self._has_alpha:
+                    indexes.append(colorinterp.index(ColorInterp.alpha) + 1)
+                data = src.read(indexes, window=window)
+                if not self._has_alpha and src.nodata is not None:
+                    # as GDAL's warper (UNIFIED_SRC_NODATA): invalid only where every band is nodata
+                    masks = src.read_masks(window=window)
+                    data = np.concatenate([data, (masks.max(axis=0))[np.newaxis]])
+                elif not self._has_alpha and any(MaskFlags.all_valid not in f for f in src.mask_flag_enums):
+                    data = np.concatenate([data, src.dataset_mask(window=window)[np.newaxis]])
+                has_alpha = len(data) > len(unique)
+                out = np.zeros((len(unique) + 1, grid.height, grid.width), dtype=np.uint8)
+                reproject(data, out, src_transform=src.window_transform(window), src_crs=src.crs,
+                          dst_transform=grid.transform, dst_crs=WEB_MERCATOR, resampling=Resampling.bilinear,
+                          src_alpha=len(data) if has_alpha else 0, dst_alpha=len(unique) + 1,
+                          **self._scales(src, grid))
         except RasterioError as exc:
             cause = exc.__cause__ or exc.__context__
             why = str(cause or exc).splitlines()[0] if str(cause or exc) else type(exc).__name__
@@ -149,10 +270,11 @@ class GeoTiffProvider:
                 f"cannot read {self.path} while warping it to the sample grid ({why}): "
                 "the file looks truncated or corrupt; download or export it again"
             ) from None
-        planes = {band: data[i] for i, band in enumerate(unique)}
-        rgb = np.stack([planes[b] for b in self.bands], axis=-1).astype(np.uint8)
-        valid = alpha >= ALPHA_VALID  # bilinear alpha fades at the footprint edge
-        rgb[~valid] = 0
+        if window is not None:
+            planes = {band: out[i] for i, band in enumerate(unique)}
+            valid = out[-1] >= ALPHA_VALID  # bilinear alpha fades at the footprint edge
+            rgb = np.stack([planes[b] for b in self.bands], axis=-1)
+            rgb[~valid] = 0
         info: dict[str, Any] = {
             "provider": self.name,
             "path": str(self.path),

@@ -16,7 +16,8 @@ Every remote call (Bing, XYZ tiles, the OSM API, Overpass) goes through :class:`
   cannot see failures after it hands the response to requests (a body cut short, a read
   timeout mid-body), and it does not cap ``Retry-After``.
 * **Per-host concurrency limits** (a bounded semaphore per host name): the OSM API gets at most
-  two requests at a time however many threads call the client.
+  two requests at a time however many threads call the client; with ``gate_dir``, however
+  many processes (a build's workers) share that folder (:mod:`osmseg.net.gates`).
 * **Offline**: answers from the cache only; a miss is :class:`~osmseg.errors.OfflineCacheMiss`.
 * **Secrets** (:data:`osmseg.redact.SECRET_PARAMS`) never reach logs, error messages or
   the cache (its keys ignore them, stored URLs say ``REDACTED``).  Use
@@ -69,6 +70,7 @@ from osmseg.net.failures import (
     status_hint,
 )
 from osmseg.net.cassette import RETRY_STATUSES, RecordAdapter, ReplayAdapter
+from osmseg.net.gates import SharedHostGate, shared_gates_supported
 from osmseg.redact import SECRET_HEADERS, SECRET_PARAMS, install_log_redaction, redact
 
 logger = logging.getLogger(__name__)
@@ -100,6 +102,9 @@ class HttpConfig:
         cassette: a vcrpy cassette file to replay every request from (no network), or to
             record every request into (``cassette_mode="record"``); see osmseg.net.cassette.
         cassette_mode: ``"replay"`` or ``"record"``.
+        gate_dir: a folder shared by several processes (a build's workers): the per-host
+            limits and ``Retry-After`` pauses then hold across all of them
+            (:mod:`osmseg.net.gates`); None keeps them per client.
     """
 
     cache_dir: Path | None = None
@@ -113,6 +118,7 @@ class HttpConfig:
     user_agent: str = DEFAULT_USER_AGENT
     cassette: Path | None = None
     cassette_mode: str = "replay"
+    gate_dir: Path | None = None
 
     def __post_init__(self) -> None:
         if self.cassette_mode not in ("replay", "record"):
@@ -138,8 +144,11 @@ class HttpClient:
     def __init__(self, config: HttpConfig | None = None) -> None:
         self.config = config if config is not None else HttpConfig()
         install_log_redaction(__name__)
-        self._session = self._make_session()
-        self._gates: dict[str, HostGate] = {}
+        self._made: requests.Session | None = None  # made at the first request (see _session)
+        self._make_lock = threading.Lock()
+        if self.config.cassette is not None:
+            self._session  # noqa: B018  (a cassette that cannot be read is said now, before any work)
+        self._gates: dict[str, HostGate | SharedHostGate] = {}
         self._gates_lock = threading.Lock()
         self._answered: set[str] = set()  # hosts that have answered (any HTTP status) in this client's life
         self._warned: set[str] = set()  # hosts whose retries were already said at WARNING
@@ -235,11 +244,14 @@ class HttpClient:
     @property
     def transport(self) -> HTTPAdapter:
         """The transport adapter every request goes through (a cassette adapter under --record/--replay)."""
+        self._session  # noqa: B018  (made on first use)
         return self._adapter
 
     def close(self) -> None:
         """Close connections and the cache database; write the cassette when recording."""
-        save = getattr(self._adapter, "save", None)
+        if self._made is None and self.config.cassette is None:
+            return  # nothing was asked: nothing to close
+        save = getattr(self.transport, "save", None)
         if save is not None:
             save()
         self._session.close()
@@ -251,6 +263,16 @@ class HttpClient:
         self.close()
 
     # -- internals ----------------------------------------------------------------------------
+
+    @property
+    def _session(self) -> requests.Session:
+        """The session, made (and the cache database opened) at first use: a build from local files
+        never opens the cache, which several processes on a shared disk would otherwise all lock."""
+        if self._made is None:
+            with self._make_lock:
+                if self._made is None:
+                    self._made = self._make_session()
+        return self._made
 
     def _make_session(self) -> requests.Session:
         cfg = self.config
@@ -285,12 +307,14 @@ class HttpClient:
         session.headers["User-Agent"] = cfg.user_agent
         return session
 
-    def _gate(self, host: str) -> HostGate:
+    def _gate(self, host: str) -> HostGate | SharedHostGate:
         with self._gates_lock:
             gate = self._gates.get(host)
             if gate is None:
                 limit = self.config.host_limits.get(host, self.config.default_host_limit)
-                gate = self._gates[host] = HostGate(limit)
+                shared = self.config.gate_dir is not None and shared_gates_supported()
+                gate = self._gates[host] = (SharedHostGate(Path(str(self.config.gate_dir)), host, limit) if shared
+                                            else HostGate(limit))
             return gate
 
     def _request(
@@ -384,7 +408,7 @@ class HttpClient:
         method: str,
         url: str,
         shown: str,
-        gate: HostGate,
+        gate: HostGate | SharedHostGate,
         *,
         data: Mapping[str, Any] | str | bytes | None,
         headers: Mapping[str, str] | None,
@@ -393,6 +417,7 @@ class HttpClient:
         timeout = self.config.timeout
         try:
             with gate.slots:
+                gate.wait()  # a pause may have begun while this request waited for its slot
                 return self._session.request(
                     method,
                     url,

@@ -44,7 +44,7 @@ from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
 from osmseg.redact import redact
 from osmseg.osm.base import OsmExtract
-from osmseg.osm.localfile import (
+from osmseg.osm.store import (
     OSM_ATTRIBUTION,
     OsmScan,
     bbox_label,

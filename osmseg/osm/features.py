@@ -8,6 +8,14 @@ matches its tags and geometry kind; ``natural=coastline`` ways become sea (see
 their ground width and tree nodes to crowns (metres on the ground are ``1/cos(lat)`` Web
 Mercator metres); everything is clipped to the sample box plus a small margin.
 
+Python does little per object: osmium's filters keep away the objects no rule can match; a
+class decision looks up only the tags it depends on, memoised across objects and reads
+(:mod:`osmseg.osm.objects`); geometries are kept as osmium's WKB or coordinates, then built,
+projected, buffered and clipped in vectorised calls.  The file is read once: osmium's area
+handler reads the relations first, which tells the reader the member ways a broken multipolygon
+may need (kept as they stream by); plain XML without a relation osmium makes an area of skips
+that first pass.
+
 Broken data is repaired or skipped with a ``logger.warning`` that names the OSM object, never a
 crash: an area way that is not closed is closed; where nodes are missing from the file (an
 extract's edge) a line is split and an area is drawn through the nodes that remain; invalid
@@ -57,6 +65,8 @@ from osmseg.errors import OSMDataError
 from osmseg.grid import SampleGrid, XYBounds
 from osmseg.osm.coastline import sea_polygon
 from osmseg.osm.geometry import even_odd, polygonal, to_mercator
+from osmseg.osm.objects import (Member, SecondPass, Shapes, WayRule, as_linestring_wkb, clip_to, few_points,
+                                key_filter, located_runs, member_lines, rules_of, spells_no_area_relation)
 from osmseg.osm.renumber import original_id, write_renumbered
 
 logger = logging.getLogger(__name__)
@@ -124,15 +134,17 @@ def read_features(paths: Sequence[Path | str], grid: SampleGrid, table: ClassTab
         if not f.is_file():
             raise OSMDataError(f"OSM file {f} does not exist or is not a file; fetch it again or check the --osm path")
     collector = _Collector(table, grid)
+    # osmium's area handler reads a file twice: not needed for XML that cannot have multipolygons
+    areas = len(files) > 1 or not spells_no_area_relation(files[0])
     with _one_file(files) as (source, name):
-        collector.stream(source, name)
+        collector.stream(source, name, areas)
         if not collector.negative:
-            collector.repair_relations(source, name)
+            collector.repair_relations()
         if collector.negative:  # JOSM's negative ids: read everything again, renumbered
             with _renumbered(source, name) as copy:
                 collector = _Collector(table, grid, renumbered=True)
-                collector.stream(copy, name)
-                collector.repair_relations(copy, name)
+                collector.stream(copy, name, areas)
+                collector.repair_relations()
     return collector.finish()
 
 
@@ -198,33 +210,8 @@ def _read_error(path: Path | str, exc: Exception) -> str:
     return f"cannot read OSM file {path} ({reason}); it is truncated or not OSM XML/PBF: download it again"
 
 
-def _tags(obj: Any) -> dict[str, str]:
-    return {t.k: t.v for t in obj.tags}
-
-
-def _runs(nodes: Any) -> tuple[list[list[tuple[float, float]]], int]:
-    """(lon, lat) of located nodes, in runs split where a node has no location; missing count."""
-    runs: list[list[tuple[float, float]]] = []
-    run: list[tuple[float, float]] = []
-    missing = 0
-    for n in nodes:
-        loc = n.location
-        if loc.valid():
-            c = (loc.lon, loc.lat)
-            if not run or run[-1] != c:
-                run.append(c)
-        else:
-            missing += 1
-            if run:
-                runs.append(run)
-                run = []
-    if run:
-        runs.append(run)
-    return runs, missing
-
-
 class _Collector:
-    """Gathers classified geometries (lon/lat) while streaming, then projects and clips them."""
+    """Gathers classified lon/lat geometries while streaming, then projects and clips them."""
 
     def __init__(self, table: ClassTable, grid: SampleGrid, renumbered: bool = False) -> None:
         self.table = table
@@ -233,179 +220,178 @@ class _Collector:
         self.negative = False  # met a negative id osmium cannot locate or assemble: read renumbered
         self.unplaced: Counter[tuple[str, str]] = Counter()  # (class name, "way"/"relation")
         self.sea_class = table.coastline_class
+        rules = rules_of(table)
+        self.node_rule, self.way_rule = rules.node, rules.way
+        self.relation_rule, self.area_rule = rules.relation, rules.area
         self.wkb = osmium.geom.WKBFactory()
-        # (kind, class, osm id, lon/lat geometry, width in ground metres or nan, note or None)
-        self.items: list[tuple[str, ClassDef, str, BaseGeometry, float, str | None]] = []
+        # per feature: kind, class, osm id, width in ground metres (or nan), note or None; and
+        # its lon/lat geometry in self.shapes
+        self.items: list[tuple[str, ClassDef, str, float, str | None]] = []
+        self.shapes = Shapes()
         self.coast: list[BaseGeometry] = []
         self.relations: dict[int, tuple[ClassDef, tuple[int, ...]]] = {}  # multipolygon candidates
         self.assembled: set[int] = set()
+        self.wanted: set[int] = set()  # their member ways ...
+        self.members: dict[int, Member] = {}  # ... as the file has them
         self.problems: list[str] = []
         self.near = tuple(grid.bbox)  # where a skipped broken object is worth a warning
-        rules = [r for c in table.classes for r in c.rules] + list(table.hidden)
-        self.relevant = frozenset(k.lstrip("!") for r in rules for k in r.tags) | {"area", "natural"}
-        self.decisions: dict[tuple[str, tuple[tuple[str, str], ...]], ClassDef | None] = {}
-
-    def classify(self, tags: dict[str, str], geometry: str) -> ClassDef | None:
-        """The table's class for ``tags`` as ``geometry``; None if none or hidden (memoised)."""
-        key = (geometry, tuple(sorted((k, v) for k, v in tags.items() if k in self.relevant)))
-        if key not in self.decisions:
-            hidden = self.table.is_hidden(tags)
-            self.decisions[key] = None if hidden else self.table.classify(tags, geometry)
-        return self.decisions[key]
+        self.node_keys = table.rule_keys("point")
+        self.other_keys = table.rule_keys("area", "line") | ({"natural"} if self.sea_class else set())
 
     # -- streaming -------------------------------------------------------------------------
-    def stream(self, source: osmium.io.File, name: str) -> None:
-        t = self.table
-        node_keys = t.rule_keys("point")
-        other_keys = t.rule_keys("area", "line") | ({"natural"} if self.sea_class else set())
-        area_keys = t.rule_keys("area")
+    def stream(self, source: osmium.io.File, name: str, areas: bool = True) -> None:
+        """Read the file: osmium's area handler first reads its relations, then everything.
+
+        The first pass shows the relations to relation(), so that the second keeps the member
+        ways repair_relations() may need (whatever their tags) and the relations themselves
+        do not reach Python again.  Without ``areas`` (the file has no relation osmium makes
+        an area of) there is one pass, and no area handler.
+        """
         fp = osmium.FileProcessor(source).with_locations()
-        if area_keys:  # assemble multipolygon relations that may match an area rule
-            fp.with_areas(osmium.filter.KeyFilter(*area_keys))
-        nodes = osmium.filter.KeyFilter(*node_keys) if node_keys else osmium.filter.EntityFilter(osmium.osm.NOTHING)
-        nodes.enable_for(osmium.osm.NODE)
-        fp.with_filter(nodes)
-        tagged = osmium.filter.KeyFilter(*other_keys)
-        tagged.enable_for(osmium.osm.WAY | osmium.osm.RELATION | osmium.osm.AREA)
-        fp.with_filter(tagged)  # untagged objects never reach Python
+        tagged = osmium.filter.KeyFilter(*self.other_keys)  # untagged objects never reach Python
+        if areas and any(r.geometry == "area" for c in self.table.classes for r in c.rules):
+            area_keys = self.table.rule_keys("area")  # osmium assembles the relations with these
+            # the collector itself is a handler of the first pass: relation() sees the relations
+            fp.with_areas(osmium.filter.KeyFilter(*self.other_keys), self, key_filter(area_keys, osmium.osm.RELATION))
+            fp.with_filter(SecondPass(self.wanted, self.wkb, self.members))
+            fp.with_filter(osmium.filter.EntityFilter(osmium.osm.NODE | osmium.osm.WAY | osmium.osm.AREA))
+            tagged.enable_for(osmium.osm.WAY | osmium.osm.AREA)
+        else:
+            tagged.enable_for(osmium.osm.WAY | osmium.osm.RELATION)
+        fp.with_filter(key_filter(self.node_keys, osmium.osm.NODE)).with_filter(tagged)
+        node_type, way_type, area_type = osmium.osm.Node, osmium.osm.Way, osmium.osm.Area
         iterator = iter(fp)
         while True:
             try:
-                obj = next(iterator)
+                obj: Any = next(iterator)
             except StopIteration:
                 break
             except RuntimeError as exc:  # osmium's parse errors (XML, PBF) arrive as RuntimeError
                 raise OSMDataError(_read_error(name, exc)) from None
-            if isinstance(obj, osmium.osm.Node):
-                self.node(obj)
-            elif isinstance(obj, osmium.osm.Way):
+            kind = type(obj)
+            if kind is way_type:
                 self.way(obj)
-            elif isinstance(obj, osmium.osm.Area):
-                if not obj.from_way():  # closed ways are handled (and repaired) in way()
-                    self.area(obj)
+            elif kind is node_type:
+                self.node(obj)
+            elif kind is area_type:  # of a relation (SecondPass drops those of closed ways: see way())
+                self.area(obj)
             elif isinstance(obj, osmium.osm.Relation):
                 self.relation(obj)
 
     def node(self, n: osmium.osm.Node) -> None:
-        tags = _tags(n)
-        cls = self.classify(tags, "point")
-        if cls is None or not n.location.valid():
+        decision = self.node_rule(n.tags)
+        if decision is None:
             return
-        point = shapely.Point(n.location.lon, n.location.lat)
-        self.add("point", cls, f"n{self.oid(n.id)}", point, cls.width_for(tags, "point"))
+        loc = n.location
+        if loc.valid():
+            self.shapes.add_point(loc.lon, loc.lat)
+            self.items.append(("point", decision[0], f"n{self.oid(n.id)}", decision[1], None))
 
     def way(self, w: osmium.osm.Way) -> None:
-        tags = _tags(w)
-        if self.sea_class is not None and tags.get("natural") == "coastline":
-            runs, _ = self.runs_of(w)
-            if not runs:
-                self.unplaced["coastline", "way"] += 1
-            self.coast.extend(shapely.LineString(r) for r in runs if len(r) >= 2)
+        rule = self.way_rule(w.tags)
+        if rule is None:
             return
-        line_cls = self.classify(tags, "line")
-        area_cls = self.classify(tags, "area")
-        as_area = area_cls is not None and (tags.get("area") == "yes" or line_cls is None) and tags.get("area") != "no"
-        cls = area_cls if as_area else line_cls
-        if cls is None:
+        if isinstance(rule, str):  # COAST, the only other decision
+            self.coastline(w)
             return
-        runs, missing = self.runs_of(w)
+        try:
+            wkb = self.wkb.create_linestring(w)  # all nodes located, 2 places at least
+        except (osmium.InvalidLocationError, RuntimeError):
+            self.broken_way(w, rule)
+            return
+        as_area, cls, width = rule
+        wid = original_id(w.id) if self.renumbered else w.id
+        wkb = as_linestring_wkb(wkb)
+        if not as_area:
+            self.shapes.add_line(wkb)
+            self.items.append(("line", cls, f"w{wid}", width, None))
+            return
+        if few_points(wkb):
+            self.warn_near(f"way {wid} ({cls.name}): fewer than 3 of its nodes have a location in the file: skipped",
+                           shapely.get_coordinates(shapely.from_wkb(wkb)))
+        elif self.shapes.add_ring(wkb) and not w.is_closed():
+            self.add("area", cls, f"w{wid}", math.nan, f"way {wid} ({cls.name})",
+                     ["is tagged as an area but not closed: closed it"])
+        else:
+            self.items.append(("area", cls, f"w{wid}", math.nan, None))
+
+    def broken_way(self, w: osmium.osm.Way, rule: WayRule) -> None:
+        """A way osmium makes no line of: nodes missing from the file, or fewer than 2 places."""
+        cls = rule.cls
+        runs, missing, negative = located_runs(w.nodes)
+        self.negative = self.negative or bool(missing and negative)
         if not runs:
             self.unplaced[cls.name, "way"] += 1
-        located = np.concatenate(runs) if runs else np.empty((0, 2))
+        located = [c for run in runs for c in run]
         wid = self.oid(w.id)
         name = f"way {wid} ({cls.name})"
         notes = [f"{missing} of its {len(w.nodes)} nodes are missing from the file: drew it without them"] if missing else []
-        if not as_area:
+        if not rule.as_area:
             lines = [r for r in runs if len(r) >= 2]
             if not lines:
                 self.warn_near(f"{name}: fewer than 2 of its nodes have a location in the file: skipped", located)
                 return
-            geom = shapely.LineString(lines[0]) if len(lines) == 1 else shapely.MultiLineString(lines)
-            self.add("line", cls, f"w{wid}", geom, cls.width_for(tags, "line"), name, notes)
+            self.shapes.add(shapely.LineString(lines[0]) if len(lines) == 1 else shapely.MultiLineString(lines))
+            self.add("line", cls, f"w{wid}", rule.width, name, notes)
             return
-        ring = [tuple(c) for c in located]
+        ring = located  # an area through the nodes that remain
         if ring and ring[0] != ring[-1]:
             if not w.is_closed():
                 notes.append("is tagged as an area but not closed: closed it")
             ring.append(ring[0])
         if len(set(ring)) < 3:
-            self.warn_near(f"{name}: fewer than 3 of its nodes have a location in the file: skipped", located)
+            self.warn_near(f"{name}: fewer than 3 of its nodes have a location in the file: skipped", ring)
             return
-        self.add("area", cls, f"w{wid}", shapely.Polygon(ring), None, name, notes)
+        self.shapes.add(shapely.polygons(np.array(ring)))
+        self.add("area", cls, f"w{wid}", math.nan, name, notes)
 
-    def add(self, kind: str, cls: ClassDef, osm_id: str, geom: BaseGeometry, width: float | None,
-            name: str = "", notes: Sequence[str] = ()) -> None:
-        """Keep a feature (lon/lat); ``notes`` on its repairs are logged if it reaches the box."""
-        note = f"{name}: {'; '.join(notes)}" if notes else None
-        self.items.append((kind, cls, osm_id, geom, math.nan if width is None else width, note))
-
-    def runs_of(self, w: osmium.osm.Way) -> tuple[list[Any], int]:
-        """The way's located coordinates in runs split where nodes are missing, and how many are."""
+    def coastline(self, w: osmium.osm.Way) -> None:
         try:
-            return [shapely.get_coordinates(shapely.from_wkb(self.wkb.create_linestring(w)))], 0
+            runs: Any = [shapely.get_coordinates(shapely.from_wkb(self.wkb.create_linestring(w)))]
         except (osmium.InvalidLocationError, RuntimeError):
-            runs, missing = _runs(w.nodes)
-            self.note_negative(w, missing)
-            return runs, missing
+            runs, missing, negative = located_runs(w.nodes)
+            self.negative = self.negative or bool(missing and negative)
+        if not runs:
+            self.unplaced["coastline", "way"] += 1
+        self.coast.extend(shapely.LineString(r) for r in runs if len(r) >= 2)
 
-    def note_negative(self, w: osmium.osm.Way, missing: int) -> None:
-        """Remember a way with a node missing because its id is negative (osmium never locates those)."""
-        if missing and not self.negative:
-            self.negative = any(n.ref < 0 for n in w.nodes)
+    def add(self, kind: str, cls: ClassDef, osm_id: str, width: float, name: str = "",
+            notes: Sequence[str] = ()) -> None:
+        """Keep a feature whose geometry was just added to :attr:`shapes`; ``notes`` on its
+        repairs are logged if it reaches the box."""
+        self.items.append((kind, cls, osm_id, width, f"{name}: {'; '.join(notes)}" if notes else None))
 
     def oid(self, osm_id: int) -> int:
         """The id the user's file gives the object (differs when reading a renumbered copy)."""
         return original_id(osm_id) if self.renumbered else osm_id
 
     def relation(self, r: osmium.osm.Relation) -> None:
-        tags = _tags(r)
-        if tags.get("type") != "multipolygon":
-            return
-        cls = self.classify(tags, "area")
+        cls = self.relation_rule(r.tags)
         if cls is not None:
             refs = tuple(m.ref for m in r.members if m.type == "w")
             self.relations[r.id] = (cls, refs)
+            self.wanted.update(refs)
             if r.id < 0 or any(ref < 0 for ref in refs):
                 self.negative = True
 
     def area(self, a: osmium.osm.Area) -> None:
-        cls = self.classify(_tags(a), "area")
+        cls = self.area_rule(a.tags)
         if cls is None:
             return
         try:
-            geom = shapely.from_wkb(self.wkb.create_multipolygon(a))
+            wkb = self.wkb.create_multipolygon(a)
         except (osmium.InvalidLocationError, RuntimeError):
             return  # osmium could not assemble it (an empty area): repaired in repair_relations
         self.assembled.add(a.orig_id())
-        self.add("area", cls, f"r{self.oid(a.orig_id())}", geom, None)
+        self.shapes.add_wkb(wkb)
+        self.add("area", cls, f"r{self.oid(a.orig_id())}", math.nan)
 
     # -- repair ----------------------------------------------------------------------------
-    def repair_relations(self, source: osmium.io.File, name: str) -> None:
+    def repair_relations(self) -> None:
         """Rebuild multipolygons osmium could not assemble from their closed rings (even-odd)."""
         broken = {rid: v for rid, v in self.relations.items() if rid not in self.assembled}
-        if not broken:
-            return
-        wanted = {ref for _, refs in broken.values() for ref in refs}
-        lines: dict[int, BaseGeometry] = {}
-        located: set[int] = set()  # member ways with a node that has a location
-        member_filter = osmium.filter.IdFilter(wanted)
-        member_filter.enable_for(osmium.osm.WAY)
-        fp = (osmium.FileProcessor(source, osmium.osm.NODE | osmium.osm.WAY).with_locations()
-              .with_filter(osmium.filter.EntityFilter(osmium.osm.WAY))
-              .with_filter(member_filter))
-        try:
-            for w in fp:
-                if not isinstance(w, osmium.osm.Way):  # never: the filters pass ways only
-                    continue
-                runs, missing = _runs(w.nodes)
-                self.note_negative(w, missing)
-                if runs:
-                    located.add(w.id)
-                coords = [c for run in runs for c in run]
-                if len(coords) >= 2:
-                    lines[w.id] = shapely.LineString(coords)
-        except RuntimeError as exc:
-            raise OSMDataError(_read_error(name, exc)) from None
+        lines, located, negative = member_lines({ref for _, refs in broken.values() for ref in refs}, self.members)
+        self.negative = self.negative or negative
         for rid, (cls, refs) in sorted(broken.items()):
             present = [lines[ref] for ref in refs if ref in lines]
             missing = len(refs) - len(present)
@@ -418,7 +404,8 @@ class _Collector:
                 self.warn_near(f"{name}: osmium could not assemble it ({why}) and no member ring closes: skipped",
                                [c for line in present for c in line.coords])
             else:
-                self.add("area", cls, f"r{self.oid(rid)}", geom, None, name,
+                self.shapes.add(geom)
+                self.add("area", cls, f"r{self.oid(rid)}", math.nan, name,
                          [f"osmium could not assemble it ({why}): drew its closed rings"])
 
     def warn_near(self, message: str, coords: Any) -> None:
@@ -456,8 +443,8 @@ class _Collector:
                           unplaced=sum(self.unplaced.values()))
 
     def _project(self, clip: XYBounds) -> list[Feature]:
-        kinds, classes, ids, geoms, widths, notes = zip(*self.items)
-        geom = to_mercator(np.array(geoms, dtype=object))
+        kinds, classes, ids, widths, notes = zip(*self.items)
+        geom = to_mercator(self.shapes.build())
         # ground metres -> Web Mercator metres: divide by cos(lat), the grid's pixel-size ratio
         half = np.array(widths, dtype=float) / 2 * (self.grid.pixel_size / self.grid.ground_resolution)
         pad = np.nan_to_num(half, nan=0.0)
@@ -475,15 +462,17 @@ class _Collector:
             extra = f"is an invalid polygon ({reason}): repaired"
             note[j] = f"{note[j]}; {extra}" if note[j] else f"{_describe(ids[i])} ({classes[i].name}): {extra}"
         shape[~areas] = shapely.buffer(shape[~areas], half[idx][~areas])
-        shape = shapely.intersection(shape, shapely.box(*clip))
+        shape = clip_to(shape, clip, valid=areas)  # (areas are valid now)
+        plain = np.isin(shapely.get_type_id(shape), (3, 6)) & ~shapely.is_empty(shape)  # polygonal() as is
         out: list[Feature] = []
         for k, i in enumerate(idx):
-            polygon = polygonal(shape[k])
+            polygon = shape[k] if plain[k] else polygonal(shape[k])
             message = note[k]
             if message:
                 (self.warn if polygon is not None else logger.debug)(message)
             if polygon is not None:
-                out.append(Feature(classes[i].id, classes[i].order, polygon, ids[i], kinds[i]))
+                cls = classes[i]
+                out.append(Feature(cls.id, cls.order, polygon, ids[i], kinds[i]))
         return out
 
 

@@ -38,7 +38,7 @@ from shapely.geometry.base import BaseGeometry
 from osmseg.errors import ConfigError, OSMDataError
 from osmseg.grid import LngLatBBox
 from osmseg.osm.base import OsmExtract
-from osmseg.osm.localfile import cache_name, check_bbox, iso_utc, read_done, write_done
+from osmseg.osm.store import cache_name, check_bbox, iso_utc, read_done, write_done
 from osmseg.output.atomic import atomic_path
 
 logger = logging.getLogger(__name__)

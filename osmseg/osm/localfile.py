@@ -29,6 +29,13 @@ box cuts from that region file instead of the country file.  The region is close
 these rules (a box inside it gets the same extract from the region as from the country),
 so preparing changes speed, never output.
 
+A fetch still reads its region five times for its one box.  :meth:`LocalFileSource.cut`
+makes the extracts and done-markers of many boxes at once, byte for byte what ``fetch``
+makes for each (so later fetches only read the markers): one pass over the region collects
+compact numpy arrays of its nodes, ways and multipolygons, numpy applies the rules above to
+each box, and one write pass per batch of boxes (256, all their files open) hands every
+object to the files of the boxes that keep it (:mod:`osmseg.osm.cut`).
+
 Timestamp: the replication timestamp of the file header (``osmosis_replication_timestamp``:
 Geofabrik, planet and ``osmium extract`` files have it); failing that the file's
 modification time, recorded as such in ``info["timestamp_from"]``.
@@ -37,19 +44,15 @@ What no box-based source can see (API, Overpass or this): an area whose outline 
 entirely outside the padded box while the box lies inside it (a sample in the middle of a
 huge forest or lake).  Callers pad boxes (``osmseg.grid.pad_bbox``) to make that rare.
 
-The module also holds the small helpers the network sources share: deterministic file names
-for a box, validating and storing downloaded OSM XML, and the JSON "done" marker written
-after an extract's files (atomically, last), which is what makes a rerun reuse them.
+File names, done-markers and the input's timestamp come from :mod:`osmseg.osm.store`, which
+every source shares.
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -58,8 +61,19 @@ import osmium
 from osmseg.errors import ConfigError, OSMDataError, first_line
 from osmseg.grid import LngLatBBox, pad_bbox
 from osmseg.osm.base import OsmExtract
+from osmseg.osm.cut import DEFAULT_BATCH, ensure_room, write_extracts
 from osmseg.osm.josm import count_deleted, has_deletions, without_deleted
-from osmseg.output.atomic import atomic_path, atomic_write_text
+from osmseg.osm.store import (
+    OSM_ATTRIBUTION,
+    bbox_contains,
+    bbox_label,
+    cache_name,
+    check_bbox,
+    osm_file_timestamp,
+    read_done,
+    write_done,
+)
+from osmseg.output.atomic import atomic_path
 
 logger = logging.getLogger(__name__)
 
@@ -68,168 +82,6 @@ OSM_SUFFIXES: tuple[str, ...] = (".osm.pbf", ".pbf", ".osm", ".osm.bz2", ".osm.g
 #: Metres around a box within which both ends of a way's segment must lie for the segment to
 #: be found crossing the box without a node in it (longer segments are missed, as by the API).
 DEFAULT_REACH = 1000.0
-#: Attribution required by the ODbL for any OSM-derived data.
-OSM_ATTRIBUTION = "© OpenStreetMap contributors, ODbL 1.0 (https://www.openstreetmap.org/copyright)"
-
-
-# -- shared helpers -------------------------------------------------------------------------------
-
-
-def bbox_label(bbox: LngLatBBox) -> str:
-    """Deterministic, file-name-safe text for a box (7 decimals, OSM's coordinate precision).
-
-    >>> bbox_label(LngLatBBox(13.4, 52.5, 13.41, -0.5))
-    '13.4000000_52.5000000_13.4100000_-0.5000000'
-    """
-    return "_".join(f"{v:.7f}" for v in bbox)
-
-
-def cache_name(kind: str, bbox: LngLatBBox, *identity: str) -> str:
-    """File stem for ``kind``'s data for ``bbox`` from a source identified by ``identity``.
-
-    The digest keeps two sources (another URL, another query, another input file) that share
-    a work folder apart; the readable box keeps the folder browsable.
-
-    >>> cache_name("api", LngLatBBox(0, 0, 1, 1), "https://api.openstreetmap.org/api/0.6")[:42]
-    'api_0.0000000_0.0000000_1.0000000_1.000000'
-    """
-    digest = hashlib.sha256("\n".join((kind, bbox_label(bbox), *identity)).encode()).hexdigest()[:10]
-    return f"{kind}_{bbox_label(bbox)}_{digest}"
-
-
-def bbox_contains(outer: LngLatBBox, inner: LngLatBBox) -> bool:
-    """True if ``inner`` lies within ``outer`` (edges included).
-
-    >>> bbox_contains(LngLatBBox(0, 0, 2, 2), LngLatBBox(0, 0.5, 1, 2)), bbox_contains(LngLatBBox(0, 0, 1, 1), LngLatBBox(0, 0, 2, 1))
-    (True, False)
-    """
-    return outer.west <= inner.west and outer.south <= inner.south and inner.east <= outer.east and inner.north <= outer.north
-
-
-def check_bbox(bbox: LngLatBBox) -> LngLatBBox:
-    """``bbox`` as a LngLatBBox of floats, or ConfigError if it is empty or off the globe."""
-    try:
-        box = LngLatBBox(*(float(v) for v in bbox))
-    except (TypeError, ValueError):
-        raise ConfigError(f"bounding box must be four numbers west,south,east,north, got {bbox!r}") from None
-    if not (-180 <= box.west < box.east <= 180 and -90 <= box.south < box.north <= 90):
-        raise ConfigError(f"bounding box {tuple(box)} must have -180 <= west < east <= 180 and -90 <= south < north <= 90")
-    return box
-
-
-def iso_utc(moment: datetime) -> str:
-    """ISO 8601 UTC with a ``Z`` and whole seconds, as OSM writes timestamps.
-
-    >>> iso_utc(datetime(2024, 5, 1, 12, 0, 30, 999, tzinfo=timezone.utc))
-    '2024-05-01T12:00:30Z'
-    """
-    return moment.astimezone(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
-@dataclass
-class OsmScan:
-    """What one pass over an OSM file found (used to validate downloads and find relations).
-
-    Attributes:
-        counts: number of nodes, ways, relations.
-        way_ids: ids of the ways in the file.
-        multipolygons: for each ``type=multipolygon`` relation, the ids of its member ways.
-        newest: the newest element timestamp (ISO 8601), None when the file has none.
-    """
-
-    counts: dict[str, int] = field(default_factory=lambda: {"n": 0, "w": 0, "r": 0})
-    way_ids: set[int] = field(default_factory=set)
-    multipolygons: dict[int, tuple[int, ...]] = field(default_factory=dict)
-    newest: str | None = None
-
-
-def scan_osm(path: Path, origin: str, advice: str, fmt: str = "") -> OsmScan:
-    """Read ``path`` with osmium once, or raise a one-line OSMDataError if it is not OSM data.
-
-    The message reads "``origin`` is not valid OSM data (osmium's reason); ``advice``", e.g.
-    origin "the OSM API answer to map?bbox=..." and advice "run the same command again".
-    ``fmt`` is osmium's format name ("osm", "pbf") when the file name does not say it.
-    """
-    scan = OsmScan()
-    newest = None
-    try:
-        # nodes, ways and relations only: a <changeset> in an XML file is not map data
-        for obj in osmium.FileProcessor(osmium.io.File(str(path), fmt), osmium.osm.NODE | osmium.osm.WAY
-                                        | osmium.osm.RELATION):
-            if isinstance(obj, osmium.osm.Changeset):  # never, given the entities asked for
-                continue
-            scan.counts[obj.type_str()] += 1
-            ts = obj.timestamp
-            if ts.year > 1970 and (newest is None or ts > newest):
-                newest = ts
-            if isinstance(obj, osmium.osm.Way):
-                scan.way_ids.add(obj.id)
-            elif isinstance(obj, osmium.osm.Relation) and obj.tags.get("type") == "multipolygon":
-                scan.multipolygons[obj.id] = tuple(m.ref for m in obj.members if m.type == "w")
-    except RuntimeError as exc:
-        raise OSMDataError(f"{origin} is not valid OSM data ({first_line(exc)}); {advice}") from None
-    scan.newest = iso_utc(newest) if newest is not None else None
-    return scan
-
-
-def store_osm_xml(data: bytes, path: Path, origin: str, advice: str) -> OsmScan:
-    """Write downloaded OSM XML to ``path`` only if osmium reads it (temp file, then os.replace).
-
-    Raises the one-line OSMDataError of :func:`scan_osm` (and writes nothing) otherwise.
-    """
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-        scan = scan_osm(tmp, origin, advice, fmt="osm")
-    return scan
-
-
-
-
-def read_done(marker: Path) -> OsmExtract | None:
-    """The extract recorded by a done-marker JSON, if it and all its files exist."""
-    try:
-        raw = json.loads(marker.read_text(encoding="utf-8"))
-        paths = tuple(marker.parent / p for p in raw["paths"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    if not all(p.exists() for p in paths):
-        return None
-    return OsmExtract(paths=paths, timestamp=raw.get("timestamp"), info=raw.get("info", {}))
-
-
-def write_done(marker: Path, extract: OsmExtract) -> OsmExtract:
-    """Record ``extract`` in ``marker`` (atomically, after its files): a rerun reuses it."""
-    record = {
-        "paths": [str(p.relative_to(marker.parent)) for p in extract.paths],
-        "timestamp": extract.timestamp,
-        "info": extract.info,
-    }
-    atomic_write_text(marker, json.dumps(record, indent=1, sort_keys=True) + "\n")
-    return extract
-
-
-def osm_file_timestamp(path: Path) -> tuple[str | None, str]:
-    """The data timestamp of an OSM file and where it came from.
-
-    The replication timestamp in the file header (``osmosis_replication_timestamp``, set by
-    Geofabrik, planet and osmium extracts) is the state of OSM the file reflects. Files
-    without one (JOSM saves, hand-made or old extracts) get the time of their newest edited
-    element ("newest element"): the data is at least that new, and a copy's modification time
-    would say nothing about the data. Only a file whose elements carry no timestamps at all
-    gets its modification time, marked as such.
-    """
-    try:
-        with osmium.io.Reader(str(path), osmium.osm.NOTHING) as reader:
-            header = reader.header()
-            stamp = header.get("osmosis_replication_timestamp", "") or header.get("timestamp", "")
-    except RuntimeError as exc:
-        raise OSMDataError(f"--osm {path}: cannot read the file header ({first_line(exc)}); is it an OSM file?") from None
-    if stamp:
-        return stamp, "file header"
-    newest = scan_osm(path, f"--osm {path}", "give a valid .osm/.osm.pbf file").newest
-    if newest is not None:
-        return newest, "newest element"
-    return iso_utc(datetime.fromtimestamp(path.stat().st_mtime, tz=timezone.utc)), "file modification time"
 
 
 # -- extracting ------------------------------------------------------------------------------------
@@ -280,6 +132,7 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
             if isinstance(way, osmium.osm.Way) and way.id in keep_ways:
                 keep_nodes.update(nd.ref for nd in way.nodes)
         keep = {"n": keep_nodes, "w": keep_ways, "r": keep_relations}
+        ensure_room(out.parent, sum(len(ids) for ids in keep.values()))
         header = _extract_header(src_name, envelope)
         with atomic_path(out) as tmp:
             counts = {"n": 0, "w": 0, "r": 0}
@@ -356,14 +209,23 @@ def segment_hits_box(p: tuple[float, float], q: tuple[float, float], box: LngLat
 
 def _extract_header(src: str, envelope: LngLatBBox) -> osmium.io.Header:
     """A header for an extract of ``src``: its replication fields, the extract's box."""
+    return _box_header(_header_fields(src), envelope)
+
+
+def _header_fields(src: str) -> list[tuple[str, str]]:
+    """The replication fields of ``src``'s header that extracts keep."""
     with osmium.io.Reader(src, osmium.osm.NOTHING) as reader:
         old = reader.header()
+    return [(key, old.get(key, "")) for key in ("osmosis_replication_timestamp", "osmosis_replication_sequence_number",
+                                                 "osmosis_replication_base_url", "timestamp") if old.get(key, "")]
+
+
+def _box_header(fields: Sequence[tuple[str, str]], envelope: LngLatBBox) -> osmium.io.Header:
+    """An extract header: generator, ``fields`` (see :func:`_header_fields`), the box."""
     header = osmium.io.Header()
     header.set("generator", "osmseg")
-    for key in ("osmosis_replication_timestamp", "osmosis_replication_sequence_number",
-                "osmosis_replication_base_url", "timestamp"):
-        if old.get(key, ""):
-            header.set(key, old.get(key, ""))
+    for key, value in fields:
+        header.set(key, value)
     header.add_box(osmium.osm.Box(osmium.osm.Location(envelope.west, envelope.south),
                                   osmium.osm.Location(envelope.east, envelope.north)))
     return header
@@ -440,16 +302,58 @@ class LocalFileSource:
     def fetch(self, bbox: LngLatBBox) -> OsmExtract:
         """An ``.osm.pbf`` extract for ``bbox`` (see the module doc); reused when already cut."""
         bbox = check_bbox(bbox)
-        stem = cache_name("file", bbox, *self._identity)
-        marker = self.workdir / f"{stem}.json"
+        marker, out = self._names(bbox)
         done = read_done(marker)
         if done is not None:
             return done
-        source = next((region for boxes, region in self._regions
-                       if any(bbox_contains(b, bbox) for b in boxes)), self.readable())
-        out = self.workdir / f"{stem}.osm.pbf"
         self.workdir.mkdir(parents=True, exist_ok=True)
-        counts = write_extract(source, [bbox], out, self.reach)
+        counts = write_extract(self._source_for(bbox), [bbox], out, self.reach)
+        return self._record(bbox, marker, out, counts)
+
+    def cut(self, bboxes: Iterable[LngLatBBox], batch: int = DEFAULT_BATCH) -> list[OsmExtract]:
+        """Cut the extracts of many boxes at once: for each box, what :meth:`fetch` would write.
+
+        Each box is cut from the file :meth:`fetch` would use (a prepared region holding it,
+        else the input), and gets the same ``.osm.pbf`` (byte for byte) and the same done-marker,
+        so a later ``fetch`` of it only reads the marker.  Per source file, one collecting pass
+        and one write pass per ``batch`` boxes replace :func:`write_extract`'s five passes per
+        box (:mod:`osmseg.osm.cut`).  Boxes already cut (marker present) are skipped; boxes
+        may overlap and repeat.  Memory holds compact arrays of the source file (prepare
+        first for a country file).  Returns the extracts in the order of ``bboxes``.
+        """
+        boxes = [check_bbox(b) for b in bboxes]
+        todo: dict[Path, dict[Path, tuple[LngLatBBox, Path]]] = {}
+        for bbox in boxes:
+            marker, out = self._names(bbox)
+            if read_done(marker) is None:
+                todo.setdefault(self._source_for(bbox), {})[marker] = (bbox, out)
+        if todo:
+            self.workdir.mkdir(parents=True, exist_ok=True)
+            self.timestamp()
+        for source, wanted in todo.items():
+            self._cut_from(source, list(wanted), list(wanted.values()), batch)
+        return [self.fetch(bbox) for bbox in boxes]
+
+    def _cut_from(self, source: Path, markers: list[Path], jobs: list[tuple[LngLatBBox, Path]], batch: int) -> None:
+        """:meth:`cut` for the boxes whose extracts come from one ``source`` file."""
+        fields = _header_fields(str(source))
+        write_extracts(source, jobs, self.reach, lambda box: _box_header(fields, box),
+                       lambda i, counts: self._record(jobs[i][0], markers[i], jobs[i][1], counts),
+                       lambda box, out: write_extract(source, [box], out, self.reach), batch)
+        logger.info("cut %d boxes from %s", len(jobs), source)
+
+    def _names(self, bbox: LngLatBBox) -> tuple[Path, Path]:
+        """The done-marker and the extract file of ``bbox`` in the work folder."""
+        stem = cache_name("file", bbox, *self._identity)
+        return self.workdir / f"{stem}.json", self.workdir / f"{stem}.osm.pbf"
+
+    def _source_for(self, bbox: LngLatBBox) -> Path:
+        """The file to cut ``bbox`` from: the first prepared region holding it, else the input."""
+        return next((region for boxes, region in self._regions
+                     if any(bbox_contains(b, bbox) for b in boxes)), self.readable())
+
+    def _record(self, bbox: LngLatBBox, marker: Path, out: Path, counts: dict[str, int]) -> OsmExtract:
+        """Write ``bbox``'s done-marker for its extract ``out`` (after the file)."""
         stamp, origin = self.timestamp()
         info = {"source": "file", "path": str(self.path), "bbox": list(bbox), "timestamp_from": origin,
                 "counts": counts}

@@ -46,7 +46,7 @@ from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
 from osmseg.redact import redact
 from osmseg.osm.base import OsmExtract
-from osmseg.osm.localfile import OSM_ATTRIBUTION, OsmScan, cache_name, check_bbox, read_done, store_osm_xml, write_done
+from osmseg.osm.store import OSM_ATTRIBUTION, OsmScan, cache_name, check_bbox, read_done, store_osm_xml, write_done
 
 logger = logging.getLogger(__name__)
 

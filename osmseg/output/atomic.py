@@ -12,7 +12,10 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
+import socket
 import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -36,12 +39,72 @@ def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
     return digest.hexdigest()
 
 
+#: A temporary file left by a writer on another machine (a shard of a cluster build on a shared
+#: folder) is removed by :func:`sweep_temp_files` only this long after its last change: no write
+#: of osmseg takes that long, and whether that writer still runs cannot be asked from here.
+FOREIGN_TEMP_SECONDS = 3600.0
+
+
+def _owner() -> str:
+    """``HOST-PID`` of this process, as temporary file names carry it (host made name-safe).
+
+    >>> _owner().rsplit("-", 1)[1] == str(os.getpid())
+    True
+    """
+    host = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
+    return f"{host}-{os.getpid()}"
+
+
 def temp_path_for(path: Path) -> Path:
-    """A fresh hidden temporary file beside ``path`` (created empty; the caller replaces or removes it)."""
+    """A fresh hidden temporary file beside ``path`` (created empty; the caller replaces or removes it).
+
+    Named ``.NAME.HOST-PID.RANDOM.tmp``: :func:`sweep_temp_files` can then tell the litter of a
+    killed writer from the file another live process (a worker, a concurrent shard) is writing.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{_owner()}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     return Path(tmp)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def sweep_temp_files(folder: Path) -> int:
+    """Remove the ``.NAME.*.tmp`` files in ``folder`` that no live writer will finish; how many.
+
+    A file of this machine goes when its writing process is gone (a build killed mid-write); one
+    named by another machine only once unchanged for :data:`FOREIGN_TEMP_SECONDS`, and one of the
+    older unnamed kind always. Files being written by a live process (a worker of this build,
+    another shard started at the same time on the same folder) are left alone.
+    """
+    here = _owner().rsplit("-", 1)[0]
+    removed = 0
+    for tmp in Path(folder).glob(".*.tmp"):
+        parts = tmp.name[1:-len(".tmp")].rsplit(".", 2)
+        owner = parts[1] if len(parts) == 3 else ""
+        host, _, pid = owner.rpartition("-")
+        if host and pid.isdigit():
+            if host == here:
+                stale = not _alive(int(pid))
+            else:
+                try:
+                    stale = time.time() - tmp.stat().st_mtime > FOREIGN_TEMP_SECONDS
+                except OSError:
+                    continue
+        else:
+            stale = True
+        if stale:
+            tmp.unlink(missing_ok=True)
+            removed += 1
+    return removed
 
 
 @contextmanager
@@ -71,20 +134,26 @@ def atomic_path(path: Path) -> Iterator[Path]:
         raise
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> Path:
+def atomic_write_bytes(path: Path, data: bytes, durable: bool = True) -> Path:
     """Write ``data`` to ``path`` atomically (temp file in the same folder, fsync, os.replace).
 
     Creates missing parent folders; the file gets mode 0644 (see :func:`atomic_path`).
+    ``durable=False`` skips the fsync, for writers of many small files that make them durable
+    in one step afterwards (``os.sync()``; see :func:`osmseg.output.stac.write_stac`): a killed
+    process still leaves the old file or the new one, but after a power loss before that step
+    the file may be old, empty or missing.
     """
     path = Path(path)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+            if durable:
+                f.flush()
+                os.fsync(f.fileno())
     return path
 
 
-def atomic_write_text(path: Path, text: str) -> Path:
-    """Write UTF-8 ``text`` with ``\\n`` line endings to ``path`` atomically."""
-    return atomic_write_bytes(path, text.encode("utf-8"))
+def atomic_write_text(path: Path, text: str, durable: bool = True) -> Path:
+    """Write UTF-8 ``text`` with ``\\n`` line endings to ``path`` atomically (``durable``: as
+    :func:`atomic_write_bytes`)."""
+    return atomic_write_bytes(path, text.encode("utf-8"), durable=durable)

@@ -12,6 +12,7 @@ osmseg build --imagery 'xyz:https://t.example/{z}/{x}/{y}?key=REDACTED'
 from __future__ import annotations
 
 import json
+import os
 import re
 import shlex
 from collections import Counter
@@ -25,7 +26,7 @@ from osmseg.errors import DatasetError
 from osmseg.rejection import REASONS, Rejection
 from osmseg.grid import SampleGrid
 from osmseg.redact import redact
-from osmseg.output.atomic import atomic_write_text, sha256_file
+from osmseg.output.atomic import atomic_path, sha256_file
 
 MANIFEST_NAME = "manifest.json"
 FORMAT = "osmseg-dataset"
@@ -177,16 +178,55 @@ def class_totals(samples: Iterable[dict[str, Any]]) -> dict[str, int]:
 
 
 def manifest_text(manifest: dict[str, Any]) -> str:
-    """The manifest as deterministic JSON text (sorted keys, indent 2, UTF-8, trailing newline)."""
+    """The manifest as deterministic JSON text (sorted keys, indent 2, UTF-8, trailing newline).
+
+    >>> manifest_text({"b": [], "a": {"x": 1}}) == json.dumps({"b": [], "a": {"x": 1}}, sort_keys=True, indent=2) + "\\n"
+    True
+    """
+    return "".join(manifest_chunks(manifest))
+
+
+def _dumps(value: Any, level: int) -> str:
+    """``value`` as JSON with indent 2, for a place ``level`` deep in the manifest."""
     try:
-        return json.dumps(manifest, sort_keys=True, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+        text = json.dumps(value, sort_keys=True, indent=2, ensure_ascii=False, allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise DatasetError(f"manifest is not JSON-serialisable ({exc}); pass plain str/int/float/list/dict values") from None
+    return text.replace("\n", "\n" + "  " * level)  # JSON strings hold no raw newline: only layout lines
+
+
+def manifest_chunks(manifest: dict[str, Any]) -> Iterable[str]:
+    """The text of :func:`manifest_text` in pieces, a sample or rejection at a time.
+
+    ``samples`` and ``rejected`` may be any sequences of entries, also lazy ones that read each
+    entry as it is iterated (a build's finaliser passes such): the whole text is never in memory,
+    and its bytes are exactly those of one ``json.dumps(manifest, sort_keys=True, indent=2)``.
+    """
+    yield "{"
+    for n, key in enumerate(sorted(manifest)):
+        value = manifest[key]
+        yield ("," if n else "") + "\n  " + _dumps(key, 1) + ": "
+        if isinstance(value, Sequence) and not isinstance(value, (str, bytes, list, tuple)):
+            empty = True
+            for i, entry in enumerate(value):
+                yield ("[" if i == 0 else ",") + "\n    " + _dumps(entry, 2)
+                empty = False
+            yield "[]" if empty else "\n  ]"
+        else:
+            yield _dumps(value, 1)
+    yield "\n}\n" if manifest else "}\n"
 
 
 def write_manifest(out_dir: Path, manifest: dict[str, Any]) -> Path:
-    """Write ``OUT/manifest.json`` atomically and return its path."""
-    return atomic_write_text(Path(out_dir) / MANIFEST_NAME, manifest_text(manifest))
+    """Write ``OUT/manifest.json`` atomically, piece by piece (see :func:`manifest_chunks`); return its path."""
+    path = Path(out_dir) / MANIFEST_NAME
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
+            for chunk in manifest_chunks(manifest):
+                f.write(chunk)
+            f.flush()
+            os.fsync(f.fileno())
+    return path
 
 
 def manifest_path(path: Path) -> Path:
@@ -243,7 +283,9 @@ def validate_manifest(manifest: Any, where: str = "manifest") -> None:
     missing = [k for k in REQUIRED_KEYS if k not in manifest]
     if missing:
         raise DatasetError(f"{where}: missing keys {missing}")
-    if not isinstance(manifest["samples"], list) or not isinstance(manifest["rejected"], list):
+    # any sequence, not only a list: a build passes lazy ones that read each entry from disk (iterated once here)
+    if not all(isinstance(manifest[k], Sequence) and not isinstance(manifest[k], (str, bytes))
+               for k in ("samples", "rejected")):
         raise DatasetError(f"{where}: samples and rejected must be lists")
     names: set[str] = set()
     for i, sample in enumerate(manifest["samples"]):

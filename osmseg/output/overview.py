@@ -2,7 +2,9 @@
 
 ``overview.png`` shows up to ``max_samples`` samples as rows of image | colour mask |
 50 % overlay, with a legend of class colours and names, so a user sees at a glance whether
-masks line up with the imagery. ``class_histogram.png`` shows each class's share of all
+masks line up with the imagery. The builder keeps each shown sample's thumbnails while it
+writes the sample (:func:`write_thumbnails`), so the sheet is drawn without decoding 1280 px
+images again; without them it is made from the files, with the same pixels. ``class_histogram.png`` shows each class's share of all
 pixels as bars in the class colours. Both are drawn with Pillow only, with fixed sizes and
 Pillow's built-in font, and written like every other output file (atomic, deterministic).
 """
@@ -10,6 +12,7 @@ Pillow's built-in font, and written like every other output file (atomic, determ
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from itertools import islice
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +26,9 @@ from osmseg.images import read_rgb
 from osmseg.output.writer import encode_png
 
 OVERVIEW_NAME = "overview.png"
+#: The sheet shows the first this many samples (in slot order), each as a ``THUMB`` px square.
+OVERVIEW_SAMPLES = 8
+THUMB = 256
 HISTOGRAM_NAME = "class_histogram.png"
 MARGIN = 8
 LINE = 14  # text line height of the default font, in pixels
@@ -68,12 +74,56 @@ def legend_height(table: ClassTable, width: int) -> int:
     return _legend(probe, table, MARGIN, 0, width - MARGIN) + MARGIN
 
 
+def thumbnails(image: np.ndarray, labels: np.ndarray, thumb: int = THUMB) -> tuple[Image.Image, Image.Image]:
+    """A sample's image (box-filtered) and class ids (nearest) shrunk to ``thumb`` x ``thumb``:
+    what the overview sheet shows of it."""
+    return (Image.fromarray(np.ascontiguousarray(image)).resize((thumb, thumb), Image.Resampling.BOX),
+            Image.fromarray(np.ascontiguousarray(labels)).resize((thumb, thumb), Image.Resampling.NEAREST))
+
+
+def write_thumbnails(folder: Path, name: str, image: np.ndarray, labels: np.ndarray) -> None:
+    """Keep sample ``name``'s thumbnails in ``folder`` (the build state) while its files are written,
+    so that the overview sheet is later drawn without decoding the sample's image again.
+
+    ``image`` must be the pixels a reader of the written image gets (for a JPEG, the decoded
+    file): the sheet is then the same whether it is drawn from thumbnails or from the files.
+    """
+    small_image, small_labels = thumbnails(image, labels)
+    atomic_write_bytes(Path(folder) / f"{name}.image.png", encode_png(np.asarray(small_image), level=1))
+    atomic_write_bytes(Path(folder) / f"{name}.labels.png", encode_png(np.asarray(small_labels), level=1))
+
+
+def _sample_thumbnails(out_dir: Path, sample: Mapping[str, Any], folder: Path | None,
+                       thumb: int) -> tuple[Image.Image, Image.Image]:
+    """The thumbnails of a sample: kept ones from ``folder`` when there, else made from its files."""
+    name = str(sample.get("name", ""))
+    if folder is not None and thumb == THUMB:
+        kept = (Path(folder) / f"{name}.image.png", Path(folder) / f"{name}.labels.png")
+        if all(p.is_file() for p in kept):
+            try:
+                with Image.open(kept[0]) as small_image, Image.open(kept[1]) as small_labels:
+                    small_image.load()
+                    small_labels.load()
+                    if small_image.size == small_labels.size == (thumb, thumb):
+                        return small_image.convert("RGB"), small_labels.convert("L")
+            except OSError:  # a damaged thumbnail: the files are the truth
+                pass
+    with Image.open(_file(out_dir, sample, "labels")) as im:
+        labels = np.asarray(im)
+    return thumbnails(read_rgb(_file(out_dir, sample, "images")), labels, thumb)
+
+
 def overview_image(
-    out_dir: Path, samples: Sequence[Mapping[str, Any]], table: ClassTable, *, max_samples: int = 8, thumb: int = 256
+    out_dir: Path, samples: Sequence[Mapping[str, Any]], table: ClassTable, *, max_samples: int = OVERVIEW_SAMPLES,
+    thumb: int = THUMB, kept: Path | None = None,
 ) -> Image.Image:
-    """The contact sheet of the first ``max_samples`` samples (manifest entries) as a Pillow image."""
+    """The contact sheet of the first ``max_samples`` samples (manifest entries) as a Pillow image.
+
+    ``kept``: a folder of thumbnails written by :func:`write_thumbnails`; samples without one
+    there are read from their files (same pictures, more time).
+    """
     out_dir = Path(out_dir)
-    shown = list(samples)[:max_samples]
+    shown = list(islice(samples, max_samples))  # samples may be read from disk as iterated: no more
     width = 3 * thumb + 4 * MARGIN
     row_h = LINE + thumb + MARGIN
     top = MARGIN + LINE + 4
@@ -87,10 +137,8 @@ def overview_image(
         note = f"first {len(shown)} of {len(samples)} samples"
         draw.text((width - MARGIN - int(draw.textlength(note, font=font)), MARGIN), note, fill=INK, font=font)
     for row, sample in enumerate(shown):
-        image = Image.fromarray(read_rgb(_file(out_dir, sample, "images"))).resize((thumb, thumb), Image.Resampling.BOX)
-        with Image.open(_file(out_dir, sample, "labels")) as im:
-            labels = np.asarray(im.resize((thumb, thumb), Image.Resampling.NEAREST))
-        mask = Image.fromarray(table.colorize(labels))
+        image, small_labels = _sample_thumbnails(out_dir, sample, kept, thumb)
+        mask = Image.fromarray(table.colorize(np.asarray(small_labels)))
         overlay = Image.blend(image, mask, 0.5)
         y = top + row * row_h
         draw.text((MARGIN, y), str(sample.get("name", "")), fill=INK, font=font)
@@ -103,14 +151,16 @@ def overview_image(
 
 
 def write_overview(
-    out_dir: Path, samples: Sequence[Mapping[str, Any]], table: ClassTable, *, max_samples: int = 8, thumb: int = 256
+    out_dir: Path, samples: Sequence[Mapping[str, Any]], table: ClassTable, *, max_samples: int = OVERVIEW_SAMPLES,
+    thumb: int = THUMB, kept: Path | None = None,
 ) -> Path:
     """Write ``OUT/overview.png`` (see :func:`overview_image`) atomically and return its path.
 
     ``samples`` are manifest sample entries (:func:`osmseg.output.manifest.sample_entry`);
-    their files must already be in ``out_dir``.
+    their files must already be in ``out_dir``. ``kept``: a folder of thumbnails (see
+    :func:`write_thumbnails`).
     """
-    sheet = overview_image(out_dir, samples, table, max_samples=max_samples, thumb=thumb)
+    sheet = overview_image(out_dir, samples, table, max_samples=max_samples, thumb=thumb, kept=kept)
     return atomic_write_bytes(Path(out_dir) / OVERVIEW_NAME, encode_png(np.asarray(sheet)))
 
 

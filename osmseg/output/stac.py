@@ -31,16 +31,27 @@ spans what the manifest knows: from the newest element edited in the box (else t
 OSM date of the manifest) to its latest OSM date. Never the time of writing: the same
 manifest gives the same bytes (JSON as the manifest's: sorted keys, except that assets keep
 their order; indent 2; atomic).
+
+**Large builds.** ``manifest["samples"]`` may be any sequence of entries, also a lazy one that
+reads each entry from disk as it is iterated: :func:`write_stac` iterates it three times (the
+manifest's shape; what STAC needs and the dates undated samples span; the items, made, written
+and dropped a sample at a time, the Collection's extent gathered on the way) and keeps only the
+sample names, so its memory does not grow with the entries. The item files are made durable
+by one ``os.sync()``, not an fsync each (see :func:`write_stac`).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
 import warnings
 from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
+from fnmatch import fnmatch
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -57,7 +68,7 @@ with warnings.catch_warnings():  # pystac flags the label extension "unmaintaine
 from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from osmseg.grid import TILE_SIZE
-from osmseg.output.atomic import atomic_write_text
+from osmseg.output.atomic import atomic_path, atomic_write_text
 from osmseg.output.attribution import ATTRIBUTION_NAME, ODBL_URL, OSM_COPYRIGHT_URL, LabelSource
 from osmseg.output.datasheet import DATASHEET_NAME
 from osmseg.output.manifest import MANIFEST_NAME, build_identity, validate_manifest
@@ -93,6 +104,8 @@ _MEDIA_TYPES = {".png": pystac.MediaType.PNG, ".jpg": pystac.MediaType.JPEG, ".j
                 ".tif": pystac.MediaType.GEOTIFF, ".tiff": pystac.MediaType.GEOTIFF}
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 _HEX64 = re.compile(r"[0-9a-f]{64}")
+_FOLDS = (min, min, max, max, min, max, min, max)  # how _Facts.folded gathers each value
+_ITEM_LINKS = "\u0000item links\u0000"  # where _write_collection puts them: no real link is a string
 
 
 def media_type(rel: str) -> str | None:
@@ -143,16 +156,9 @@ def _date(value: Any, what: str) -> datetime | None:
     return stamp if stamp.tzinfo else stamp.replace(tzinfo=timezone.utc)
 
 
-def _known_dates(manifest: dict[str, Any]) -> list[datetime]:
-    """Every OSM date in the manifest, sorted (the fallback span of undated samples)."""
-    found = [_date(manifest["osm"].get("timestamp"), "osm.timestamp")]
-    for s in manifest["samples"]:
-        found += [_date(s["osm"].get(k), f"sample {s['name']} osm.{k}") for k in ("timestamp", "newest_element")]
-    return sorted(d for d in found if d is not None)
-
-
-def _sample_dates(sample: dict[str, Any], known: list[datetime]) -> tuple[datetime | None, ...]:
-    """(datetime, start, end) of a sample: its OSM timestamp, else a span (see the module docstring)."""
+def _sample_dates(sample: dict[str, Any], known: tuple[datetime, ...]) -> tuple[datetime | None, ...]:
+    """(datetime, start, end) of a sample: its OSM timestamp, else a span (see the module docstring);
+    ``known``: the earliest and latest OSM date of the manifest (empty: none)."""
     stamp = _date(sample["osm"].get("timestamp"), "osm.timestamp")
     if stamp is not None:
         return stamp, None, None
@@ -162,33 +168,67 @@ def _sample_dates(sample: dict[str, Any], known: list[datetime]) -> tuple[dateti
     return None, start, max(start, known[-1])
 
 
-def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classification], pixels: int,
-           known: list[datetime], source: LabelSource) -> tuple[pystac.Item, pystac.Item]:
-    """The (label item, image item) of a sample; the label item links the image item (rel ``source``)."""
+def _geometry(sample: dict[str, Any]) -> tuple[str, list[float], list[float], float, int]:
+    """(name, ``bbox_wgs84``, ``bounds_3857``, gsd, zoom) of a sample, checked."""
     name = sample["name"]
     if not (isinstance(name, str) and _NAME.fullmatch(name)):
         raise DatasetError(f"manifest: sample name {name!r} is not a file stem ([A-Za-z0-9][A-Za-z0-9_.-]*)")
-    w, s, e, n = _numbers(sample["bbox_wgs84"], 4, f"sample {name} bbox_wgs84")
-    left, bottom, right, top = _numbers(sample["bounds_3857"], 4, f"sample {name} bounds_3857")
+    return (name, _numbers(sample["bbox_wgs84"], 4, f"sample {name} bbox_wgs84"),
+            _numbers(sample["bounds_3857"], 4, f"sample {name} bounds_3857"),
+            float(sample["ground_resolution_m"]), int(sample["zoom"]))
+
+
+def _counts(sample: dict[str, Any], table: ClassTable) -> list[tuple[str, int]]:
+    """(class name, pixels) of a sample's ``class_histogram``, in class id order."""
+    histogram, by_name = sample["class_histogram"], table.by_name
+    if not isinstance(histogram, dict) or not set(histogram) <= set(by_name):
+        raise DatasetError(f"manifest: sample {sample['name']} class_histogram names classes the class table lacks")
+    return [(c, int(histogram[c])) for c in sorted(histogram, key=lambda c: by_name[c].id)]
+
+
+def _asset_plan(name: str, files: dict[str, str]) -> list[tuple[str, str, str, str]]:
+    """(asset key, file, sha256, folder) per file of a sample, in the label item's asset order:
+    :data:`ASSET_KINDS` order, other files before ``images/``. Keys by folder (``image_tif`` when
+    a folder has two files)."""
+    paths = {rel: PurePosixPath(rel) for rel in files}
+    folders = Counter(path.parts[0] for path in paths.values())
+    for folder in ("geo", "images"):  # the label raster (first asset) and the image item's asset
+        if folders[folder] != 1:
+            raise DatasetError(f"manifest: sample {name} lists {folders[folder]} {folder}/ files, not one")
+    rank = {folder: i for i, folder in enumerate(ASSET_KINDS)}
+    plan: dict[str, tuple[str, str, str, str]] = {}
+    for rel, digest in sorted(files.items(), key=lambda f: (rank.get(paths[f[0]].parts[0], 2.5), f[0])):
+        path = paths[rel]
+        if not _HEX64.fullmatch(digest):
+            raise DatasetError(f"manifest: sample {name} {rel}: {digest!r} is not a sha256 hex digest")
+        folder = path.parts[0] if len(path.parts) > 1 else ""
+        key = ASSET_KINDS[folder][0] if folder in ASSET_KINDS else folder or path.stem
+        if folders[path.parts[0]] > 1:
+            key = f"{key}_{path.suffix.lstrip('.').lower()}"
+        if key in plan:
+            raise DatasetError(f"manifest: sample {name}: two files make asset {key!r}, one is {rel}")
+        plan[key] = (key, rel, digest, folder)
+    return list(plan.values())
+
+
+def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classification], pixels: int,
+           known: tuple[datetime, ...], source: LabelSource) -> tuple[pystac.Item, pystac.Item]:
+    """The (label item, image item) of a sample; the label item links the image item (rel ``source``)."""
+    name, (w, s, e, n), (left, bottom, right, top), gsd, zoom = _geometry(sample)
     when, start, end = _sample_dates(sample, known)
     res = (right - left) / pixels  # as osmseg.grid.SampleGrid.transform: square pixels, north up
     pair = []
     for item_id in (name, name + IMAGE_ITEM_SUFFIX):
         footprint = {"type": "Polygon", "coordinates": [[[w, s], [e, s], [e, n], [w, n], [w, s]]]}
         item = pystac.Item(id=item_id, geometry=footprint, bbox=[w, s, e, n], datetime=when, start_datetime=start,
-                           end_datetime=end, properties={"gsd": float(sample["ground_resolution_m"]),
-                                                         "osmseg:zoom": int(sample["zoom"])})
+                           end_datetime=end, properties={"gsd": gsd, "osmseg:zoom": zoom})
         ProjectionExtension.ext(item, add_if_missing=True).apply(
             code=CRS, bbox=[left, bottom, right, top], shape=[pixels, pixels],
             transform=[res, 0.0, left, 0.0, -res, top])
         pair.append(item)
     label_item, image_item = pair
-    histogram = sample["class_histogram"]
-    by_name = table.by_name
-    if not isinstance(histogram, dict) or not set(histogram) <= set(by_name):
-        raise DatasetError(f"manifest: sample {name} class_histogram names classes the class table lacks")
     overview = LabelOverview({})
-    overview.counts = [LabelCount.create(c, int(histogram[c])) for c in sorted(histogram, key=lambda c: by_name[c].id)]
+    overview.counts = [LabelCount.create(c, count) for c, count in _counts(sample, table)]
     origin = str(sample["osm"].get("timestamp_from", ""))
     when_text = (f"edited up to {when:%Y-%m-%d %H:%M} UTC (its newest element)" if when and origin == "newest element"
                  else f"of a file dated {when:%Y-%m-%d} (no edit times in it)" if when and "modification" in origin
@@ -201,39 +241,73 @@ def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classificati
         label_type=LabelType.RASTER, label_properties=None,
         label_classes=[LabelClasses.create(sorted(table.by_id), None)],
         label_tasks=list(TASKS), label_methods=list(METHODS), label_overviews=[overview])
-    _add_assets(label_item, image_item, sample["files"], classes, source.spdx)
-    label_item.add_link(pystac.Link("source", image_item, pystac.MediaType.JSON, "Imagery of the labels"))
-    return label_item, image_item
-
-
-def _add_assets(label_item: pystac.Item, image_item: pystac.Item, files: dict[str, str],
-                classes: list[Classification], label_licence: str | None) -> None:
-    """One asset per file in the label item, :data:`ASSET_KINDS` order (other files before ``images/``);
-    the ``images/`` one in the image item too. Keys by folder (``image_tif`` when a folder has two files)."""
-    folders = Counter(PurePosixPath(rel).parts[0] for rel in files)
-    for folder in ("geo", "images"):  # the label raster (first asset) and the image item's asset
-        if folders[folder] != 1:
-            raise DatasetError(f"manifest: sample {label_item.id} lists {folders[folder]} {folder}/ files, not one")
-    rank = {folder: i for i, folder in enumerate(ASSET_KINDS)}
-    for rel, digest in sorted(files.items(), key=lambda f: (rank.get(PurePosixPath(f[0]).parts[0], 2.5), f[0])):
-        path = PurePosixPath(rel)
-        if not _HEX64.fullmatch(digest):
-            raise DatasetError(f"manifest: sample {label_item.id} {rel}: {digest!r} is not a sha256 hex digest")
-        folder = path.parts[0] if len(path.parts) > 1 else ""
-        key, roles, title = ASSET_KINDS.get(folder, (path.stem if not folder else folder, [], None))
-        if folders[path.parts[0]] > 1:
-            key = f"{key}_{path.suffix.lstrip('.').lower()}"
-        if key in label_item.assets:
-            raise DatasetError(f"manifest: sample {label_item.id}: two files make asset {key!r}, one is {rel}")
+    for key, rel, digest, folder in _asset_plan(name, sample["files"]):  # the images/ one in the image item too
+        _, roles, title = ASSET_KINDS.get(folder, ("", [], None))
         asset = pystac.Asset(href=f"../../{rel}", title=title, media_type=media_type(rel), roles=list(roles))
         for item in (label_item, image_item) if folder == "images" else (label_item,):
             copy = asset.clone()
             item.add_asset(key, copy)
             FileExtension.ext(copy, add_if_missing=True).checksum = "1220" + digest
             if folder in ASSET_KINDS and folder != "images":
-                copy.extra_fields["license"] = label_licence or "other"  # a GeoJSON source: its own terms
+                copy.extra_fields["license"] = source.spdx or "other"  # a GeoJSON source: its own terms
             if folder in CLASS_ID_FOLDERS:
                 ClassificationExtension.ext(copy, add_if_missing=True).classes = classes
+    label_item.add_link(pystac.Link("source", f"./{name}{IMAGE_ITEM_SUFFIX}.json", pystac.MediaType.JSON,
+                                    "Imagery of the labels"))
+    return label_item, image_item
+
+
+def _survey(manifest: dict[str, Any], table: ClassTable) -> tuple[list[str], tuple[datetime, ...]]:
+    """Check every sample as :func:`_items` does (a faulty manifest writes no item); return their
+    names and the earliest and latest OSM date of the manifest (empty: none), as ``sorted(dates)``
+    has them first and last (of one instant in several time zones: the first, the last)."""
+    names: list[str] = []
+    earliest = latest = _date(manifest["osm"].get("timestamp"), "osm.timestamp")
+    for sample in manifest["samples"]:
+        for k in ("timestamp", "newest_element"):
+            if (d := _date(sample["osm"].get(k), f"sample {sample['name']} osm.{k}")) is not None:
+                earliest = d if earliest is None or d < earliest else earliest
+                latest = d if latest is None or d >= latest else latest
+        names.append(name := _geometry(sample)[0])
+        _counts(sample, table)
+        _asset_plan(name, sample["files"])
+    unique = set(names)  # validate_manifest checks
+    if clash := sorted(n for n in unique if n.endswith(IMAGE_ITEM_SUFFIX) and n[:-len(IMAGE_ITEM_SUFFIX)] in unique):
+        raise DatasetError(f"manifest: sample name {clash[0]!r} is the image item id of sample "
+                           f"{clash[0].removesuffix(IMAGE_ITEM_SUFFIX)!r}: rename one")
+    return names, () if earliest is None or latest is None else (earliest, latest)
+
+
+@dataclass
+class _Facts:
+    """What the Collection says of its label items, gathered an item at a time (items are not
+    kept): as ``min``/``max`` over a list of them, of equal values the first."""
+
+    folded: list[Any] = field(default_factory=list)  # west, south, east, north, start, end, gsd min, max
+    zooms: set[int] = field(default_factory=set)
+    definitions: dict[str, pystac.ItemAssetDefinition | dict[str, Any]] = field(default_factory=dict)
+
+    def add(self, item: pystac.Item) -> None:
+        when, gsd = item.datetime, float(item.properties["gsd"])  # no item lacks both date and span
+        new = [*(item.bbox or []), when or item.common_metadata.start_datetime,
+               when or item.common_metadata.end_datetime, gsd, gsd]
+        self.folded = [fold(a, b) for fold, a, b in zip(_FOLDS, self.folded, new)] if self.folded else new
+        self.zooms.add(int(item.properties["osmseg:zoom"]))
+        for key, asset in item.assets.items():
+            if key not in self.definitions:
+                fields = {k: v for k, v in asset.extra_fields.items() if k.startswith("classification:")}
+                self.definitions[key] = pystac.ItemAssetDefinition.create(
+                    asset.title, None, asset.media_type, asset.roles, extra_fields=fields or None)
+
+    def describe(self, collection: pystac.Collection, area: dict[str, Any]) -> None:
+        """Set the Collection's extent, ``item_assets`` and item summaries."""
+        box = self.folded[:4] or _numbers(area.get("bbox") or [-180, -90, 180, 90], 4, "area.bbox")
+        interval = self.folded[4:6] or [None, None]
+        collection.extent = pystac.Extent(pystac.SpatialExtent([box]), pystac.TemporalExtent([interval]))
+        collection.item_assets = self.definitions
+        if self.folded:
+            collection.summaries.add("gsd", pystac.RangeSummary(*self.folded[6:]))
+            collection.summaries.add("osmseg:zoom", sorted(self.zooms))
 
 
 def _providers(manifest: dict[str, Any]) -> list[pystac.Provider]:
@@ -257,27 +331,19 @@ def _providers(manifest: dict[str, Any]) -> list[pystac.Provider]:
     ]
 
 
-def _collection(manifest: dict[str, Any], table: ClassTable, classes: list[Classification],
-                items: list[pystac.Item], pixels: int) -> pystac.Collection:
+def _collection(manifest: dict[str, Any], table: ClassTable, classes: list[Classification], count: int,
+                pixels: int) -> pystac.Collection:
+    """The Collection of ``count`` samples, without what comes from the items (:class:`_Facts`)."""
     area = manifest["area"]
     place = str(area.get("name") or "area")
     labels = LabelSource.of(manifest)
     identity = json.dumps(build_identity(manifest) or manifest["command"], sort_keys=True, ensure_ascii=False)
     slug = re.sub(r"[^0-9a-z]+", "-", place.lower()).strip("-") or "area"
-    boxes = [i.bbox for i in items if i.bbox] or [_numbers(area.get("bbox") or [-180, -90, 180, 90], 4, "area.bbox")]
-    starts = [i.datetime or i.common_metadata.start_datetime for i in items]
-    ends = [i.datetime or i.common_metadata.end_datetime for i in items]
-    interval: list[datetime | None] = [None, None]
-    if items:
-        interval = [min(d for d in starts if d), max(d for d in ends if d)]
-    extent = pystac.Extent(
-        pystac.SpatialExtent([[min(b[0] for b in boxes), min(b[1] for b in boxes),
-                               max(b[2] for b in boxes), max(b[3] for b in boxes)]]),
-        pystac.TemporalExtent([interval]))
+    extent = pystac.Extent(pystac.SpatialExtent([-180.0, -90.0, 180.0, 90.0]), pystac.TemporalExtent([None, None]))
     collection = pystac.Collection(
         id=f"osmseg-{slug}-{hashlib.sha256(identity.encode()).hexdigest()[:8]}",
-        title=f"osmseg: {place}, zoom {manifest['zoom']}, {len(items)} samples",
-        description=(f"{len(items)} aerial images of {place} ({pixels}x{pixels} px, zoom {manifest['zoom']}) with "
+        title=f"osmseg: {place}, zoom {manifest['zoom']}, {count} samples",
+        description=(f"{count} aerial images of {place} ({pixels}x{pixels} px, zoom {manifest['zoom']}) with "
                      f"per-pixel class ids rasterised by osmseg from {labels.name.replace('`', '')} (class table "
                      f"{table.name}). Labels: {labels.notice}; images under the imagery provider's terms "
                      f"(see {ATTRIBUTION_NAME}). How it was built: {MANIFEST_NAME}, {DATASHEET_NAME}."),
@@ -289,23 +355,12 @@ def _collection(manifest: dict[str, Any], table: ClassTable, classes: list[Class
         collection.add_link(pystac.Link("license", ODBL_URL, "text/html", "Open Database License 1.0 (labels)"))
     for key, (rel, kind, role) in COLLECTION_ASSETS.items():
         collection.add_asset(key, pystac.Asset(f"../{rel}", media_type=str(kind), roles=[role]))
-    definitions: dict[str, pystac.ItemAssetDefinition | dict[str, Any]] = {}
-    for item in items:
-        for key, asset in item.assets.items():
-            fields = {k: v for k, v in asset.extra_fields.items() if k.startswith("classification:")}
-            definitions.setdefault(key, pystac.ItemAssetDefinition.create(
-                asset.title, None, asset.media_type, asset.roles, extra_fields=fields or None))
-    collection.item_assets = definitions
     summaries = LabelExtension.summaries(collection, add_if_missing=True)
     summaries.label_type, summaries.label_tasks = [LabelType.RASTER], list(TASKS)
     summaries.label_methods = list(METHODS)
     summaries.label_classes = [LabelClasses.create(sorted(table.by_id), None)]
     ClassificationExtension.summaries(collection, add_if_missing=True).classes = classes
     ProjectionExtension.summaries(collection, add_if_missing=True).code = [CRS]
-    if items:
-        gsd = [float(i.properties["gsd"]) for i in items]
-        collection.summaries.add("gsd", pystac.RangeSummary(min(gsd), max(gsd)))
-        collection.summaries.add("osmseg:zoom", sorted({int(i.properties["osmseg:zoom"]) for i in items}))
     return collection
 
 
@@ -327,44 +382,92 @@ def _json_text(stac: dict[str, Any]) -> str:
         raise DatasetError(f"manifest: a value cannot be written as STAC JSON ({exc})") from None
 
 
+def _write_collection(path: Path, doc: dict[str, Any], item_hrefs: Iterable[str]) -> None:
+    """Write ``doc`` (the Collection's JSON, without item links) with a link per item href
+    appended to its ``links``, as :func:`_json_text` would, atomically: the text goes to the file
+    a link at a time, so that it is never whole in memory (two links per sample)."""
+    doc["links"].append(_ITEM_LINKS)
+    head, tail = _json_text(doc).split(",\n    " + json.dumps(_ITEM_LINKS))  # a list two deep, after root, parent
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
+            f.write(head)
+            for href in item_hrefs:
+                link = pystac.Link("item", href, pystac.MediaType.GEOJSON).to_dict(transform_href=False)
+                f.write(",\n    " + json.dumps(_canonical(link), indent=2, ensure_ascii=False).replace("\n", "\n    "))
+            f.write(tail)
+            f.flush()
+            os.fsync(f.fileno())
+
+
+def _remove_stale_items(folder: Path, names: set[str]) -> None:
+    """Remove the ``*.json`` (as Path.glob matches it) in ``folder`` but ``NAME.json`` and
+    ``NAME_image.json`` of the samples ``names``, not holding the folder's whole listing."""
+    def stale(file: str) -> bool:
+        stem = file.removesuffix(".json")
+        return fnmatch(file, "*.json") and not (file.endswith(".json") and (
+            stem in names or stem.removesuffix(IMAGE_ITEM_SUFFIX) in names))
+    if folder.is_dir():
+        with os.scandir(folder) as entries:
+            for name in sorted(e.name for e in entries if stale(e.name)):
+                (folder / name).unlink()
+
+
 def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
     """Write ``OUT/stac/catalog.json``, ``collection.json`` and ``items/*.json``; return the Catalog's path.
 
     A pure function of ``manifest`` (reads no file); raises a one-line
-    :class:`~osmseg.errors.DatasetError` when the manifest lacks what STAC needs. Items are
-    written before the Collection that lists them, the Collection before the Catalog; items
-    of samples no longer listed are removed.
+    :class:`~osmseg.errors.DatasetError` when the manifest lacks what STAC needs (every sample is
+    checked before the first file is written, but for values JSON cannot hold, such as NaN, found
+    as their item is written). Items are written before the Collection that lists them, the
+    Collection before the Catalog; items of samples no longer listed are removed.
+
+    ``manifest["samples"]`` (any sequence) is iterated three times: by
+    :func:`~osmseg.output.manifest.validate_manifest`, by :func:`_survey` (the checks, the dates
+    undated samples span), then to make, write and drop each sample's two items, gathering the
+    Collection's extent and summaries (:class:`_Facts`). Only the sample names stay in memory.
+
+    The item files are written without an fsync each (which cost more than making the item)
+    and made durable together by one ``os.sync()`` before the Collection and the Catalog are
+    written (these keep their fsync), so the Collection written here lists durable items only.
+    A power loss before that sync can leave item files empty or old; this Collection, the
+    Catalog and the manifest (which the build writes after the catalog) are then not written
+    yet, and a rerun of the same build command rewrites the whole catalog (this is a pure
+    function of the manifest). Where ``os.sync`` does not exist (Windows), each item is fsynced.
     """
     validate_manifest(manifest)
     table = ClassTable.from_dict(manifest["classes"], where="manifest classes")
     classes = classification(table)
     try:
         pixels = int(manifest["grid_size"]) * TILE_SIZE
-        known = _known_dates(manifest)
         source = LabelSource.of(manifest)
-        pairs = [_items(s, table, classes, pixels, known, source) for s in manifest["samples"]]
-        collection = _collection(manifest, table, classes, [label for label, _ in pairs], pixels)
+        names, known = _survey(manifest, table)
+        collection = _collection(manifest, table, classes, len(names), pixels)  # the items hold its id and title
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise DatasetError(f"manifest cannot be described as STAC: {type(exc).__name__} {exc}") from None
-    items = [item for pair in pairs for item in pair]
-    if clash := sorted(i for i, count in Counter(item.id for item in items).items() if count > 1):
-        raise DatasetError(f"manifest: sample name {clash[0]!r} is the image item id of sample "
-                           f"{clash[0].removesuffix(IMAGE_ITEM_SUFFIX)!r}: rename one")
+    root = Path(out_dir).resolve() / STAC_DIR
+    up = [pystac.Link(rel, f"../{target}", pystac.MediaType.JSON, collection.title)  # every item's links
+          for rel, target in (("root", CATALOG_NAME), ("parent", COLLECTION_NAME), ("collection", COLLECTION_NAME))]
+    facts, bulk = _Facts(), hasattr(os, "sync")
+    for sample in manifest["samples"]:
+        pair = _items(sample, table, classes, pixels, known, source)  # checked by _survey
+        facts.add(pair[0])
+        for item in pair:
+            item.collection_id = collection.id
+            doc = item.to_dict(include_self_link=False, transform_hrefs=False)
+            doc["links"] += [link.to_dict(transform_href=False) for link in up]
+            atomic_write_text(root / ITEMS_DIR / f"{item.id}.json", _json_text(doc), durable=not bulk)
+    if bulk:
+        os.sync()  # the items, durable before a file that lists them (see above)
+    facts.describe(collection, manifest["area"])
     catalog = pystac.Catalog(f"{collection.id}-catalog", title=collection.title,
                              description=f"osmseg dataset: Collection {collection.id}; per sample a label item NAME "
                                          f"whose source link is its image item NAME{IMAGE_ITEM_SUFFIX}.",
                              catalog_type=pystac.CatalogType.SELF_CONTAINED)
-    root = Path(out_dir).resolve() / STAC_DIR
     catalog.set_self_href(str(root / CATALOG_NAME))
     catalog.add_child(collection)
     collection.set_self_href(str(root / COLLECTION_NAME))
-    for item in items:
-        collection.add_item(item)
-        item.set_self_href(str(root / ITEMS_DIR / f"{item.id}.json"))
-    for obj in (*items, collection, catalog):  # what a file lists is written before it
-        atomic_write_text(Path(obj.self_href), _json_text(obj.to_dict(include_self_link=False, transform_hrefs=True)))
-    written = {f"{item.id}.json" for item in items}
-    for stale in sorted((root / ITEMS_DIR).glob("*.json")):  # items of samples the manifest no longer has
-        if stale.name not in written:
-            stale.unlink()
+    _write_collection(root / COLLECTION_NAME, collection.to_dict(include_self_link=False, transform_hrefs=True),
+                      (f"./{ITEMS_DIR}/{i}.json" for name in names for i in (name, name + IMAGE_ITEM_SUFFIX)))
+    atomic_write_text(root / CATALOG_NAME, _json_text(catalog.to_dict(include_self_link=False, transform_hrefs=True)))
+    _remove_stale_items(root / ITEMS_DIR, set(names))
     return root / CATALOG_NAME

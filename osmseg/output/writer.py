@@ -21,6 +21,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+import imagecodecs
 import numpy as np
 from PIL import Image
 
@@ -38,6 +39,14 @@ COMPRESS_LEVEL = 6
 #: Aerial photos barely compress (level 6 saves ~14% over level 1 at 5x the time), so the
 #: images/ PNGs use the fast level; masks compress well and cheaply at COMPRESS_LEVEL.
 PHOTO_COMPRESS_LEVEL = 1
+#: libpng's row filter "up" (each row minus the one above), for every PNG osmseg writes. Pillow
+#: tries all five filters on every row and keeps the best, which costs more than the deflate
+#: itself: on a real 1280 px photo, libpng with "up" at level 1 takes ~56 ms for 2.13 MB where
+#: Pillow's level 1 takes ~130 ms for 2.14 MB; a colour mask ~19 ms instead of ~41 ms.
+PNG_FILTER_UP = 32
+#: zlib's run-length strategy: a class-id mask is long runs of one byte (~3 ms, 3 % smaller
+#: than the default strategy at level 6, which takes ~15 ms); colour masks and photos are not.
+ZLIB_RLE = 3
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
 
@@ -69,17 +78,23 @@ def sample_paths(name: str, image_format: str = "png") -> dict[str, str]:
     }
 
 
-def encode_png(array: np.ndarray, level: int = COMPRESS_LEVEL) -> bytes:
+def encode_png(array: np.ndarray, level: int = COMPRESS_LEVEL, *, runs: bool = False) -> bytes:
     """PNG bytes of an ``(H, W)`` (greyscale) or ``(H, W, 3)`` (RGB) uint8 array; no metadata chunks.
+
+    Encoded by libpng through imagecodecs with fixed settings (zlib ``level``, the "up" row
+    filter, and with ``runs`` zlib's run-length strategy, for class-id masks), so the same
+    pixels always give the same bytes. Any PNG reader reads them.
 
     >>> encode_png(np.zeros((2, 2), np.uint8))[:8] == b"\\x89PNG\\r\\n\\x1a\\n"
     True
     """
-    buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(array, dtype=np.uint8)).save(
-        buf, format="PNG", compress_level=level, optimize=False
-    )
-    return buf.getvalue()
+    data = np.ascontiguousarray(array, dtype=np.uint8)
+    if data.ndim not in (2, 3) or (data.ndim == 3 and data.shape[2] not in (3, 4)):
+        raise DatasetError(f"a PNG needs an (H, W) or (H, W, 3) array, got shape {data.shape}")
+    options: dict[str, int] = {"level": level, "filter": PNG_FILTER_UP}
+    if runs:
+        options["strategy"] = ZLIB_RLE
+    return bytes(imagecodecs.png_encode(data, **options))
 
 
 def encode_jpeg(rgb: np.ndarray, quality: int = 95) -> bytes:
@@ -166,7 +181,7 @@ def write_sample(
     encoded = {
         paths["image"]: encode_image(rgb, grid, image_format, jpeg_quality),
         paths["segmented"]: encode_png(table.colorize(labels)),
-        paths["labels"]: encode_png(labels),
+        paths["labels"]: encode_png(labels, runs=True),
         paths["geo"]: encode_label_geotiff(labels, table, grid),
     }
     out_dir = Path(out_dir)

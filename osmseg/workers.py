@@ -1,0 +1,289 @@
+"""Build a dataset's slots on several processes: every core busy, the bytes of one process.
+
+A slot's outcome depends only on the seed, the slot number and the data (:mod:`osmseg.state`),
+never on which process builds it or when, so :class:`SlotRunner` hands slots to worker
+processes in slot order and the dataset is byte-identical whatever ``--workers`` is; a build
+interrupted at any moment resumes from its state folder like a single-process one, and
+``--shard K/N`` still splits it exactly (each shard may run its own workers).
+
+How the workers are made and kept in line:
+
+* **Processes from a fork server** (``spawn`` where there is none): a plain ``fork`` of a
+  process that has already read a PBF would inherit libosmium's thread pool without its
+  threads, and hang. The fork server imports osmseg once; each worker then starts in
+  milliseconds.
+* **One pipeline per worker**, opened once (:func:`osmseg.slots.open_pipeline`): its own HTTP
+  client, imagery provider (a local GeoTIFF stays open) and OSM source, on the region file the
+  parent cut before starting them.
+* **Polite HTTP across workers**: the workers' clients share their per-host limits and
+  ``Retry-After`` pauses through lock files in a temporary folder (:mod:`osmseg.net.gates`),
+  so two workers are still one client to the OSM API.
+* **Logging**: a worker's records go to the parent, which hands each to its own logger of the
+  same name, so the caller's handlers and filters (the CLI's ``-q``/``-v``) apply as in one
+  process. The parent's logging is never configured here; a worker only forwards.
+* **Stopping**: workers ignore SIGINT (Ctrl-C reaches the whole process group); the parent
+  drops what is queued and kills the workers, whose every write is atomic. A worker also ends
+  when the build process ends in any other way (``kill -9``: :func:`_die_with_build`), so no
+  worker is left writing behind a rerun's back.
+
+Imports: osmseg core below it (slots, state, net).
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import logging.handlers
+import multiprocessing
+import multiprocessing.util
+import os
+import select
+import signal
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from osmseg.buildconfig import BuildConfig
+from osmseg.errors import DatasetError
+from osmseg.grid import LngLatBBox
+from osmseg.net.http import HttpClient
+from osmseg.output.overview import OVERVIEW_SAMPLES
+from osmseg.records import SlotOutcome
+from osmseg.slots import Pipeline, http_config, open_pipeline, run_slot
+from osmseg.state import BuildState
+
+__all__ = ["SlotRunner", "WorkerSetup"]
+
+logger = logging.getLogger(__name__)
+
+#: Slots queued per worker beyond the one it builds: enough to keep it busy, few enough that
+#: an interrupted build has little queued work to drop and memory does not grow with the build.
+QUEUED_PER_WORKER = 2
+#: Modules the fork server imports once, so that each worker starts without importing them.
+PRELOAD = ["osmseg.slots"]
+
+
+@dataclass(frozen=True)
+class WorkerSetup:
+    """What a worker needs to build slots: the build, its environment (keys travel through the
+    pool's pipe, never a file), the region boxes the parent prepared, the shared gate folder and
+    where to send log records."""
+
+    config: BuildConfig
+    env: dict[str, str]
+    regions: tuple[LngLatBBox, ...]
+    gate_dir: Path | None
+    log_queue: Any
+    log_level: int
+    parent: int  # the build's process id: workers end with it
+
+
+class _Worker:
+    """The state of one worker process: its pipeline and the build state it records into."""
+
+    pipe: Pipeline
+    state: BuildState
+    config: BuildConfig
+
+
+_WORKER = _Worker()
+
+
+def _die_with_build(pid: int) -> None:
+    """End this worker the moment the build process ``pid`` ends, however it ends (``kill -9``).
+
+    A worker is a child of the fork server, not of the build, and it holds a copy of every pipe
+    end the pool gave it, so neither a parent-death signal nor an end-of-file would reach it: a
+    killed build would leave its workers blocked forever. A thread waits on a pidfd of the build
+    (Linux), or polls it elsewhere, and exits the process when the build is gone. Every write of
+    a worker is atomic, so stopping it anywhere loses nothing but the slot in progress.
+    """
+    def watch() -> None:
+        try:
+            fd = os.pidfd_open(pid)
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            select.select([fd], [], [])  # readable once the process has ended
+        else:
+            while True:
+                time.sleep(0.5)
+                try:
+                    os.kill(pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:  # the pid was reused by someone else's process
+                    break
+        os._exit(1)
+
+    threading.Thread(target=watch, name="osmseg-watch-build", daemon=True).start()
+
+
+def _start_worker(setup: WorkerSetup) -> None:
+    """Pool initializer: forward logging, then open this process's pipeline once."""
+    _die_with_build(setup.parent)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when to stop
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        root.removeHandler(handler)
+    root.addHandler(logging.handlers.QueueHandler(setup.log_queue))
+    root.setLevel(setup.log_level)
+    client = HttpClient(http_config(setup.config, setup.gate_dir))
+    multiprocessing.util.Finalize(client, client.close, exitpriority=10)  # atexit does not run in workers
+    pipe = open_pipeline(setup.config, client, setup.env)
+    prepare = getattr(pipe.osm, "prepare", None)
+    if setup.regions and callable(prepare):
+        prepare(list(setup.regions))  # the parent cut it: this only finds the region file
+    state = BuildState(setup.config.out_dir)
+    state.identity = setup.config.identity()
+    _WORKER.pipe, _WORKER.state, _WORKER.config = pipe, state, setup.config
+
+
+def _build_slot(slot: int, keep_thumbnails: bool) -> SlotOutcome:
+    """Pool task: build one slot in this worker."""
+    return run_slot(_WORKER.config, _WORKER.pipe, _WORKER.state, slot, keep_thumbnails)
+
+
+class _Forward:
+    """Hands a record from a worker to the parent's logger of the same name."""
+
+    level = logging.NOTSET
+
+    def handle(self, record: logging.LogRecord) -> None:
+        logging.getLogger(record.name).handle(record)
+
+
+class FirstSamples:
+    """Which slots may hold one of the first ``OVERVIEW_SAMPLES`` accepted samples (the ones the
+    overview sheet shows), from the slots known to be accepted so far. Conservative: a slot is
+    only ruled out once that many lower slots are known to be accepted.
+
+    >>> first = FirstSamples(2)
+    >>> first.accepted(3); first.accepted(5)
+    >>> first.may_show(4), first.may_show(6)
+    (True, False)
+    """
+
+    def __init__(self, shown: int = OVERVIEW_SAMPLES) -> None:
+        self.shown = shown
+        self._lowest: list[int] = []
+
+    def accepted(self, slot: int) -> None:
+        bisect.insort(self._lowest, slot)
+        del self._lowest[self.shown:]
+
+    def may_show(self, slot: int) -> bool:
+        return bisect.bisect_left(self._lowest, slot) < self.shown
+
+
+class SlotRunner:
+    """Builds slots in this process (one worker) or on a pool of worker processes.
+
+    Use as a context manager; :meth:`run` yields each slot's outcome as it finishes::
+
+        with SlotRunner(config, pipe, state, env, workers=4, regions=()) as runner:
+            for outcome in runner.run(todo, first_samples):
+                ...
+    """
+
+    def __init__(self, config: BuildConfig, pipe: Pipeline, state: BuildState, env: dict[str, str],
+                 workers: int, regions: tuple[LngLatBBox, ...]) -> None:
+        self.config, self.pipe, self.state, self.env = config, pipe, state, env
+        self.workers = max(1, int(workers))
+        self.regions = regions
+        self._stack = ExitStack()
+        self._pool: ProcessPoolExecutor | None = None
+
+    def __enter__(self) -> SlotRunner:
+        if self.workers > 1:
+            self._start_pool()
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        try:
+            if self._pool is not None:
+                if kind is None:
+                    self._pool.shutdown(wait=True)
+                else:  # an error or Ctrl-C: drop queued slots and stop the workers now
+                    _kill(self._pool)
+        finally:
+            self._stack.close()
+
+    def _start_pool(self) -> None:
+        context = _context()
+        queue = context.Queue()
+        listener = logging.handlers.QueueListener(queue, _Forward())  # type: ignore[arg-type]
+        listener.start()
+        self._stack.callback(queue.close)
+        self._stack.callback(listener.stop)
+        gate_dir = Path(self._stack.enter_context(tempfile.TemporaryDirectory(prefix="osmseg-hosts-")))
+        setup = WorkerSetup(config=self.config, env=self.env, regions=self.regions, gate_dir=gate_dir,
+                            log_queue=queue, log_level=logging.getLogger().getEffectiveLevel(), parent=os.getpid())
+        self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=context, initializer=_start_worker,
+                                         initargs=(setup,))
+
+    def run(self, slots: list[int], first: FirstSamples) -> Iterator[SlotOutcome]:
+        """Build ``slots`` (in slot order; outcomes come as they finish). ``first`` says which
+        slots keep thumbnails for the overview, and learns of each accepted sample."""
+        if self._pool is None:
+            for slot in slots:
+                outcome = run_slot(self.config, self.pipe, self.state, slot, first.may_show(slot))
+                if outcome.status == "accepted":
+                    first.accepted(slot)
+                yield outcome
+            return
+        yield from self._run_pool(self._pool, slots, first)
+
+    def _run_pool(self, pool: ProcessPoolExecutor, slots: list[int], first: FirstSamples) -> Iterator[SlotOutcome]:
+        pending: set[Future[SlotOutcome]] = set()
+        queue = iter(slots)
+        limit = self.workers * (1 + QUEUED_PER_WORKER)
+        submit: Callable[[int], Future[SlotOutcome]] = lambda s: pool.submit(_build_slot, s, first.may_show(s))
+        for slot in queue:
+            pending.add(submit(slot))
+            if len(pending) >= limit:
+                break
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                try:
+                    outcome = future.result()
+                except BrokenProcessPool:
+                    raise DatasetError("a worker process died (killed, or out of memory?): run the same command "
+                                       "again to resume, with fewer --workers if memory is short") from None
+                if outcome.status == "accepted":
+                    first.accepted(outcome.slot)
+                yield outcome
+            for slot in queue:
+                pending.add(submit(slot))
+                if len(pending) >= limit:
+                    break
+
+
+def _context() -> multiprocessing.context.BaseContext:
+    """A fork server where the platform has one (see the module doc), else spawn."""
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        context = multiprocessing.get_context("forkserver")
+        context.set_forkserver_preload(PRELOAD)
+        return context
+    return multiprocessing.get_context("spawn")
+
+
+def _kill(pool: ProcessPoolExecutor) -> None:
+    """Stop a pool at once: drop queued tasks, kill the workers (their writes are atomic), reap them."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())  # before shutdown forgets them
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.kill()
+    for process in processes:
+        process.join(timeout=10)
+    pool.shutdown(wait=True)
