@@ -13,14 +13,19 @@ Lines printed (each build is ``osmseg build`` as a user runs it, in a fresh proc
 
 * ``cold``: the first build, which cuts the region and every sample's box from the PBF;
 * ``warm, N workers``: the same build into a new folder with the cache warm, for ``--workers
-  1`` and for every core, PNG and JPEG photos: wall seconds, samples/s, CPU seconds (all the
-  build's processes) per sample, peak RSS of the largest process;
+  1`` and for every core, PNG and JPEG photos: wall seconds, samples/s of the whole build and
+  "steady" (between the first and the last finished sample: start-up and finalising left
+  out, which is what a long build sees), CPU seconds of all the build's processes (workers
+  included: this process adopts the fork server's orphans) per sample, peak RSS of the
+  largest process;
 * ``identical``: the ``--workers 1`` and the all-cores folders hold the same bytes;
 * ``floor``: per sample, the bare library calls doing the same work on the same boxes: a
   pyosmium pass over the sample's OSM extract, ``rasterio.features.rasterize`` of its features,
   a windowed read + ``reproject`` of the photo, encoding the photo, the two PNG masks and the
   label COG with the writer's settings, and SHA-256 of the four files; then the build's
-  marginal CPU per sample (from builds of ``--samples`` and 1 sample) divided by it;
+  marginal CPU per sample (the 1-worker build's CPU less the least of three 1-sample builds',
+  over the samples but one) divided by it; and the photo's encoding with Pillow's PNG level 1
+  (the encoder osmseg used before, in the issue's definition of the floor);
 * ``read_features``: median over the boxes of :func:`osmseg.osm.features.read_features`
   beside a bare osmium pass over the same box file;
 * ``--long N``: one all-cores JPEG build of N samples with the RSS of the builder and of its
@@ -31,6 +36,9 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import io
+import logging
+import os
 import resource
 import shutil
 import statistics
@@ -45,6 +53,7 @@ from pathlib import Path
 import numpy as np
 import osmium
 import rasterio
+from PIL import Image
 from rasterio.enums import Resampling
 from rasterio.features import rasterize as bare_rasterize
 from rasterio.warp import reproject, transform_bounds
@@ -92,6 +101,30 @@ class Run:
     cpu: float  # user + sys of every process of the build
     peak_mb: float  # largest resident set of any of its processes
     accepted: int
+    steady: float  # samples/s between the first and the last finished sample (start-up and finalising left out)
+    first: float  # seconds until the first sample was finished (start-up, cutting OSM data, one sample)
+    last: float  # seconds from the last sample finished to the end (manifest, STAC, pictures)
+
+
+def adopt_orphans() -> None:
+    """Make this process the reaper of the build's orphans (Linux): a build's workers are children
+    of its fork server, which outlives the build by a moment; reaped here, their CPU time counts."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        ctypes.CDLL(None).prctl(36, 1, 0, 0, 0)  # PR_SET_CHILD_SUBREAPER
+
+
+def reap_all(timeout: float = 15.0) -> None:
+    """Wait for every remaining child (the fork server and its workers end once the build has)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            pid, _ = os.waitpid(-1, os.WNOHANG)
+        except ChildProcessError:
+            return
+        if pid == 0:
+            time.sleep(0.05)
 
 
 def build_args(out: Path, cache: Path, tif: Path, samples: int, workers: int, fmt: str) -> list[str]:
@@ -111,18 +144,23 @@ def run_build(out: Path, cache: Path, tif: Path, samples: int, workers: int, fmt
     proc = subprocess.Popen(build_args(out, cache, tif, samples, workers, fmt), stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE)
     seen: dict[int, tuple[float, float]] = {}
+    times: dict[int, float] = {}
     stop = threading.Event()
-    if watch:
-        threading.Thread(target=_watch, args=(proc.pid, out, watch, seen, stop), daemon=True).start()
+    threading.Thread(target=_watch, args=(proc.pid, out, (1, samples, *watch), seen, times, stop, start),
+                     daemon=True).start()
     _, err = proc.communicate()
-    stop.set()
     wall = time.perf_counter() - start
+    stop.set()
+    reap_all()
     if proc.returncode != 0:
         sys.exit(f"build failed ({proc.returncode}): {err.decode()[-2000:]}")
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     accepted = sum(1 for _ in (out / "labels").glob("*.png"))
-    return Run(wall, cpu, after.ru_maxrss / 1024, accepted), seen
+    span = times.get(samples, wall) - times.get(1, 0.0)
+    steady = (samples - 1) / span if samples > 1 and span > 0 else float("nan")
+    return Run(wall, cpu, after.ru_maxrss / 1024, accepted, steady, times.get(1, wall),
+               wall - times.get(samples, wall)), seen
 
 
 def _rss_mb(pid: int) -> float:
@@ -150,54 +188,74 @@ def _descendants(pid: int) -> list[int]:
 
 
 def _watch(pid: int, out: Path, marks: tuple[int, ...], seen: dict[int, tuple[float, float]],
-           stop: threading.Event) -> None:
+           times: dict[int, float], stop: threading.Event, start: float) -> None:
+    """Note when 1, N, ... samples are done, and the RSS of the builder and its largest worker then."""
     slots = out / ".osmseg-build" / "slots"
-    while not stop.is_set() and len(seen) < len(marks):
+    while not stop.is_set() and len(times) < len(set(marks)):
         done = sum(1 for _ in slots.glob("*.json")) if slots.is_dir() else 0
         for mark in marks:
-            if mark not in seen and done >= mark:
+            if mark not in times and done >= mark:
+                times[mark] = time.perf_counter() - start
                 workers = [_rss_mb(p) for p in _descendants(pid)]
                 seen[mark] = (_rss_mb(pid), max(workers, default=0.0))
-        time.sleep(0.5)
+        time.sleep(0.05)
 
 
-def floor_per_sample(tif: Path, cache: Path, samples: int, fmt: str) -> tuple[float, float, float]:
-    """CPU seconds per sample of the bare library calls for the build's samples (see the module doc),
-    and the median read_features / bare-osmium-pass times (s) over the same boxes."""
+FLOOR_PARTS = ("osmium pass", "rasterize", "read+warp", "photo", "masks", "label COG", "sha256")
+
+
+def floor_per_sample(tif: Path, cache: Path, samples: int, fmt: str) -> tuple[dict[str, float], float, float, float]:
+    """Per sample, the CPU seconds of each bare library call doing the build's work (see the module
+    doc), Pillow's PNG level 1 for the photo (the encoder osmseg used before), and the median
+    read_features / bare-osmium-pass times (s) over the same boxes."""
     table = load_class_table("classes13.toml")
     config = BuildConfig(out_dir=Path("unused"), area=Area("Helsinki", LAT, LON, RADIUS_KM), imagery="", zoom=18,
                          samples=samples, seed=0)
     source = LocalFileSource(HELSINKI, cache / "osm")
     grids = [g for g in (attempt_grid(config, s, 0) for s in range(samples)) if g is not None]
     src = rasterio.open(tif)
-    palette = table.palette()  # the colour mask: one lookup, as np.take in ClassTable.colorize
-    total, t_read, t_bare = 0.0, [], []
+    palette = table.palette()
+    parts = dict.fromkeys(FLOOR_PARTS, 0.0)
+    pillow, t_read, t_bare = 0.0, [], []
+
+    def timed_cpu(part: str, fn):  # type: ignore[no-untyped-def]
+        start = time.process_time()
+        result = fn()
+        parts[part] += time.process_time() - start
+        return result
+
     for grid in grids:
         box = source.fetch(pad_bbox(grid.bbox, config.osm_padding_m)).paths[0]
         features = read_features([box], grid, table)  # not timed: the shapes the bare rasteriser burns
         shapes = [(f.geometry, f.class_id) for f in sorted(features, key=lambda f: f.order)]
+        timed_cpu("osmium pass", lambda: sum(1 for _ in osmium.FileProcessor(str(box)).with_locations()))
+        labels = timed_cpu("rasterize", lambda: bare_rasterize(shapes, out_shape=(grid.height, grid.width),
+                                                               transform=grid.transform, fill=0, dtype="uint8"))
+
+        def read_warp() -> np.ndarray:
+            window = from_bounds(*transform_bounds("EPSG:3857", src.crs, *grid.xy_bounds), src.transform)
+            window = window.round_offsets().round_lengths().intersection(Window(0, 0, src.width, src.height))
+            data = src.read(window=window)
+            rgb = np.zeros((3, grid.height, grid.width), np.uint8)
+            reproject(data, rgb, src_transform=src.window_transform(window), src_crs=src.crs,
+                      dst_transform=grid.transform, dst_crs="EPSG:3857", resampling=Resampling.bilinear)
+            return np.ascontiguousarray(rgb.transpose(1, 2, 0))
+
+        photo = timed_cpu("read+warp", read_warp)
+        files = [timed_cpu("photo", lambda: encode_png(photo, PHOTO_COMPRESS_LEVEL) if fmt == "png"
+                           else encode_jpeg(photo)),
+                 *timed_cpu("masks", lambda: [encode_png(np.take(palette, labels, axis=0), COMPRESS_LEVEL),
+                                              encode_png(labels, COMPRESS_LEVEL, runs=True)]),
+                 timed_cpu("label COG", lambda: encode_cog(labels, "EPSG:3857", grid.transform, classes=True,
+                                                           describe=lambda dst: write_class_metadata(dst, table)))]
+        timed_cpu("sha256", lambda: [hashlib.sha256(data).hexdigest() for data in files])
         start = time.process_time()
-        for _ in osmium.FileProcessor(str(box)).with_locations():
-            pass
-        labels = bare_rasterize(shapes, out_shape=(grid.height, grid.width), transform=grid.transform, fill=0,
-                                dtype="uint8")
-        window = from_bounds(*transform_bounds("EPSG:3857", src.crs, *grid.xy_bounds), src.transform)
-        window = window.round_offsets().round_lengths().intersection(Window(0, 0, src.width, src.height))
-        data = src.read(window=window)
-        rgb = np.zeros((3, grid.height, grid.width), np.uint8)
-        reproject(data, rgb, src_transform=src.window_transform(window), src_crs=src.crs,
-                  dst_transform=grid.transform, dst_crs="EPSG:3857", resampling=Resampling.bilinear)
-        photo = np.ascontiguousarray(rgb.transpose(1, 2, 0))
-        files = [encode_png(photo, PHOTO_COMPRESS_LEVEL) if fmt == "png" else encode_jpeg(photo),
-                 encode_png(palette[labels], COMPRESS_LEVEL), encode_png(labels, COMPRESS_LEVEL, runs=True),
-                 encode_cog(labels, "EPSG:3857", grid.transform, classes=True,
-                            describe=lambda dst: write_class_metadata(dst, table))]
-        for data_bytes in files:
-            hashlib.sha256(data_bytes).hexdigest()
-        total += time.process_time() - start
+        Image.fromarray(photo).save(io.BytesIO(), format="PNG", compress_level=1)
+        pillow += time.process_time() - start
         t_read.append(_timed(lambda: read_features([box], grid, table)))
         t_bare.append(_timed(lambda: sum(1 for _ in osmium.FileProcessor(str(box)).with_locations())))
-    return total / len(grids), statistics.median(t_read), statistics.median(t_bare)
+    n = len(grids)
+    return {k: v / n for k, v in parts.items()}, pillow / n, statistics.median(t_read), statistics.median(t_bare)
 
 
 def _timed(fn, repeat: int = 3) -> float:
@@ -220,10 +278,12 @@ def main() -> None:
     parser.add_argument("--long", type=int, default=0, help="also one all-cores JPEG build of this many samples "
                         "with RSS at 100, 500, ... (e.g. 2000)")
     args = parser.parse_args()
+    logging.disable(logging.WARNING)  # this script's own reads repair the extract's edge objects quietly
     if not (HELSINKI.exists() and PHOTO.exists()):
         sys.exit(f"skipped: {HELSINKI} or {PHOTO} is absent (../shared/data)")
     cores = available_cores()
     n = args.samples
+    adopt_orphans()
     with tempfile.TemporaryDirectory(prefix="bench-build-") as tmp:
         work = Path(tmp)
         tif = work / "photo-3067.tif"
@@ -239,27 +299,34 @@ def main() -> None:
                 run, _ = run_build(work / f"w{workers}-{fmt}", cache, tif, n, workers, fmt)
                 runs[workers, fmt] = run
                 print(f"warm      {workers} worker{'s' if workers > 1 else ' '} {fmt}  {run.wall:7.2f} s  "
-                      f"{run.accepted / run.wall:5.2f} samples/s  {run.cpu / run.accepted * 1000:6.0f} ms CPU/sample  "
-                      f"peak RSS {run.peak_mb:5.0f} MB")
+                      f"{run.accepted / run.wall:5.2f} samples/s (steady {run.steady:5.2f})  "
+                      f"{run.cpu / run.accepted * 1000:4.0f} ms CPU/sample  peak RSS {run.peak_mb:4.0f} MB")
             if cores > 1:
                 one, every = runs[1, fmt], runs[cores, fmt]
                 same = tree(work / f"w1-{fmt}") == tree(work / f"w{cores}-{fmt}")
-                print(f"scaling   {fmt}: {cores} workers / 1 worker = {one.wall / every.wall:4.2f}x samples/s; "
-                      f"identical bytes: {'yes' if same else 'NO'}")
+                print(f"scaling   {fmt}: {cores} workers / 1 worker = {one.wall / every.wall:4.2f}x samples/s "
+                      f"(steady {every.steady / one.steady:4.2f}x); identical bytes: {'yes' if same else 'NO'}")
         # marginal CPU per sample: builds of n and of 1 sample, so fixed costs (imports, start-up) cancel
         for fmt in ("png", "jpg"):
-            single, _ = run_build(work / f"one-{fmt}", cache, tif, 1, 1, fmt)
-            marginal = (runs[1, fmt].cpu - single.cpu) / (n - 1)
-            floor, t_read, t_bare = floor_per_sample(tif, cache, n, fmt)
-            print(f"floor     {fmt}: bare calls {floor * 1000:6.0f} ms CPU/sample; build {marginal * 1000:6.0f} ms "
-                  f"marginal CPU/sample (fixed {single.cpu - marginal:4.2f} s) = {marginal / floor:4.2f}x the floor")
+            # the fixed cost (start-up, finalising): the least CPU of three 1-sample builds
+            fixed = min(run_build(work / f"one-{fmt}", cache, tif, 1, 1, fmt)[0].cpu for _ in range(3))
+            marginal = (runs[1, fmt].cpu - fixed) / (n - 1)
+            parts, pillow, t_read, t_bare = floor_per_sample(tif, cache, n, fmt)
+            floor = sum(parts.values())
+            print(f"floor     {fmt}: bare calls {floor * 1000:4.0f} ms CPU/sample = "
+                  + " + ".join(f"{k} {v * 1000:.0f}" for k, v in parts.items()))
+            print(f"          build {marginal * 1000:4.0f} ms marginal CPU/sample (fixed {fixed - marginal:4.2f} s)"
+                  f" = {marginal / floor:4.2f}x the floor"
+                  + (f"; with Pillow's PNG level 1 for the photo ({pillow * 1000:.0f} ms) the floor would be "
+                     f"{(floor - parts['photo'] + pillow) * 1000:.0f} ms" if fmt == "png" else ""))
         print(f"read_features {t_read * 1000:6.1f} ms  bare osmium pass {t_bare * 1000:6.1f} ms  "
               f"ratio {t_read / t_bare:4.2f} (median over {n} boxes)")
         if args.long:
             marks = tuple(m for m in (100, 500, 1000, 2000, 5000, 10000, 20000) if m < args.long) + (args.long,)
             run, seen = run_build(work / "long", cache, tif, args.long, cores, "jpg", watch=marks)
             print(f"long      {args.long} samples jpg, {cores} workers: {run.wall:7.1f} s "
-                  f"{run.accepted / run.wall:5.2f} samples/s, peak RSS {run.peak_mb:5.0f} MB")
+                  f"{run.accepted / run.wall:5.2f} samples/s (steady {run.steady:5.2f}; first sample after "
+                  f"{run.first:4.1f} s, dataset files in {run.last:4.1f} s), peak RSS {run.peak_mb:5.0f} MB")
             for mark in marks:
                 builder, worker = seen.get(mark, (float("nan"), float("nan")))
                 print(f"          RSS at {mark:6d} samples: builder {builder:6.0f} MB, largest worker {worker:6.0f} MB")

@@ -31,7 +31,7 @@ from osmseg.records import SlotOutcome
 from osmseg.sampling import check_room
 from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions
 from osmseg.state import BuildState
-from osmseg.workers import FirstSamples, SlotRunner
+from osmseg.workers import FirstSamples, SlotRunner, start_fork_server
 
 logger = logging.getLogger(__name__)
 
@@ -111,6 +111,8 @@ def build(
     start = time.monotonic()
     check_config(config)
     summary = BuildSummary(out_dir=config.out_dir)
+    if config.worker_count(len(config.my_slots())) > 1:
+        start_fork_server()
     with HttpClient(http_config(config)) as client:
         # every source and option is checked before anything is written into the output folder:
         # a command refused here leaves no state that the corrected command would be refused by

@@ -21,11 +21,14 @@ label masks; 0 means no feature covers the pixel.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
+import shapely
 from rasterio.enums import MergeAlg
 from rasterio.features import rasterize as _burn
+from shapely.geometry.base import BaseGeometry
 
 from osmseg.classes import ClassTable
 from osmseg.errors import ClassTableError
@@ -48,8 +51,32 @@ def rasterize(features: Iterable[Feature], grid: SampleGrid, table: ClassTable |
     shape = (grid.height, grid.width)
     if not items:
         return np.zeros(shape, dtype=np.uint8)
-    return _burn(((f.geometry, f.class_id) for f in items), out_shape=shape, transform=grid.transform,
-                 fill=0, all_touched=False, merge_alg=MergeAlg.replace, dtype="uint8")
+    return _burn(zip(geojson_polygons([f.geometry for f in items]), (f.class_id for f in items)), out_shape=shape,
+                 transform=grid.transform, fill=0, all_touched=False, merge_alg=MergeAlg.replace, dtype="uint8")
+
+
+def geojson_polygons(geometries: Sequence[BaseGeometry]) -> list[dict[str, Any]]:
+    """GeoJSON MultiPolygon mappings of (Multi)Polygons, their coordinates taken out in bulk.
+
+    What rasterio's rasterizer reads; shapely's own ``__geo_interface__`` walks every vertex in
+    Python, which took three quarters of the time of rasterising a city sample.
+
+    >>> import shapely
+    >>> geojson_polygons([shapely.box(0, 0, 1, 1)])[0]["coordinates"][0][0][:2]
+    [[1.0, 0.0], [1.0, 1.0]]
+    """
+    parts, owner = shapely.get_parts(np.asarray(geometries, dtype=object), return_index=True)
+    rings, part = shapely.get_rings(parts, return_index=True)
+    coords, ring = shapely.get_coordinates(rings, return_index=True)
+    points = coords.tolist()  # one conversion, then a slice per ring
+    cuts = [0, *(np.flatnonzero(np.diff(ring)) + 1).tolist(), len(points)]
+    polygons: list[list[list[list[float]]]] = [[] for _ in parts]
+    for start, end, p in zip(cuts, cuts[1:], part.tolist()):
+        polygons[p].append(points[start:end])
+    shapes: list[list[list[list[list[float]]]]] = [[] for _ in geometries]
+    for polygon, g in zip(polygons, owner.tolist()):
+        shapes[g].append(polygon)
+    return [{"type": "MultiPolygon", "coordinates": c} for c in shapes]
 
 
 def to_table(labels: np.ndarray, source: ClassTable, target: ClassTable) -> np.ndarray:

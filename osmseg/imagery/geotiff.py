@@ -200,24 +200,28 @@ class GeoTiffProvider:
                 f"sampling area (lon {west:.5f}..{east:.5f}, lat {south:.5f}..{north:.5f}): sample where the "
                 "imagery is (--bbox/--lat/--lon), or give the GeoTIFF of this area")
 
-    def _source_window(self, src: DatasetReader, grid: SampleGrid) -> Window | None:
+    @staticmethod
+    def _source_window(src: DatasetReader, grid: SampleGrid) -> tuple[Window | None, bool]:
         """The source pixels under ``grid`` plus a margin for the resampling kernel (wider when
-        downsampling), clipped to the raster; None when the grid misses the raster."""
+        downsampling), clipped to the raster (None when the grid misses it), and whether nothing
+        was clipped: then every grid pixel's resampling kernel lies on the raster."""
         try:
             left, bottom, right, top = transform_bounds(WEB_MERCATOR, src.crs, *grid.xy_bounds, densify_pts=21)
         except (ValueError, RasterioError):
-            return Window(0, 0, src.width, src.height)
+            return Window(0, 0, src.width, src.height), False
         corners = [~src.transform * (x, y) for x in (left, right) for y in (bottom, top)]
         cols, rows = zip(*corners, strict=True)
         if not all(math.isfinite(v) for v in cols + rows):
-            return Window(0, 0, src.width, src.height)
+            return Window(0, 0, src.width, src.height), False
         ratio = max((max(cols) - min(cols)) / grid.width, (max(rows) - min(rows)) / grid.height)
         margin = max(2, math.ceil(ratio) + 1)
-        col0, row0 = max(0, math.floor(min(cols)) - margin), max(0, math.floor(min(rows)) - margin)
-        col1, row1 = min(src.width, math.ceil(max(cols)) + margin), min(src.height, math.ceil(max(rows)) + margin)
+        col0, row0 = math.floor(min(cols)) - margin, math.floor(min(rows)) - margin
+        col1, row1 = math.ceil(max(cols)) + margin, math.ceil(max(rows)) + margin
+        inside = col0 >= 0 and row0 >= 0 and col1 <= src.width and row1 <= src.height
+        col0, row0, col1, row1 = max(0, col0), max(0, row0), min(src.width, col1), min(src.height, row1)
         if col1 <= col0 or row1 <= row0:
-            return None
-        return Window(col0, row0, col1 - col0, row1 - row0)
+            return None, False
+        return Window(col0, row0, col1 - col0, row1 - row0), inside
 
     @staticmethod
     def _scales(src: DatasetReader, grid: SampleGrid) -> dict[str, str]:
@@ -243,7 +247,7 @@ class GeoTiffProvider:
         valid = np.zeros((grid.height, grid.width), dtype=bool)
         try:
             src = self._dataset()
-            window = self._source_window(src, grid)
+            window, inside = self._source_window(src, grid)
             if window is not None:
                 colorinterp = src.colorinterp
                 unique = sorted(set(self.bands))
@@ -258,10 +262,13 @@ class GeoTiffProvider:
                 elif not self._has_alpha and any(MaskFlags.all_valid not in f for f in src.mask_flag_enums):
                     data = np.concatenate([data, src.dataset_mask(window=window)[np.newaxis]])
                 has_alpha = len(data) > len(unique)
-                out = np.zeros((len(unique) + 1, grid.height, grid.width), dtype=np.uint8)
+                # a grid whose every kernel lies on the raster, which marks no pixel invalid, is valid
+                # all over: the colour bands alone are warped (the same values, a quarter less work)
+                whole = inside and not has_alpha
+                out = np.zeros((len(unique) + (0 if whole else 1), grid.height, grid.width), dtype=np.uint8)
                 reproject(data, out, src_transform=src.window_transform(window), src_crs=src.crs,
                           dst_transform=grid.transform, dst_crs=WEB_MERCATOR, resampling=Resampling.bilinear,
-                          src_alpha=len(data) if has_alpha else 0, dst_alpha=len(unique) + 1,
+                          src_alpha=len(data) if has_alpha else 0, dst_alpha=0 if whole else len(unique) + 1,
                           **self._scales(src, grid))
         except RasterioError as exc:
             cause = exc.__cause__ or exc.__context__
@@ -272,7 +279,8 @@ class GeoTiffProvider:
             ) from None
         if window is not None:
             planes = {band: out[i] for i, band in enumerate(unique)}
-            valid = out[-1] >= ALPHA_VALID  # bilinear alpha fades at the footprint edge
+            # bilinear alpha fades at the footprint edge
+            valid = np.ones(out.shape[1:], dtype=bool) if whole else out[-1] >= ALPHA_VALID
             rgb = np.stack([planes[b] for b in self.bands], axis=-1)
             rgb[~valid] = 0
         info: dict[str, Any] = {

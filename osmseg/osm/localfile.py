@@ -51,6 +51,7 @@ every source shares.
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -73,7 +74,7 @@ from osmseg.osm.store import (
     read_done,
     write_done,
 )
-from osmseg.output.atomic import atomic_path
+from osmseg.output.atomic import atomic_path, atomic_write_text
 
 logger = logging.getLogger(__name__)
 
@@ -273,9 +274,22 @@ class LocalFileSource:
         return self._readable
 
     def timestamp(self) -> tuple[str | None, str]:
-        """The input file's data timestamp and its origin (see :func:`osm_file_timestamp`)."""
+        """The input file's data timestamp and its origin (see :func:`osm_file_timestamp`).
+
+        Kept in the work folder under the file's identity: a file without a header timestamp is
+        read whole to find its newest element, which every worker process and every rerun would
+        otherwise do again.
+        """
         if self._timestamp is None:
-            self._timestamp = osm_file_timestamp(self.path)
+            digest = hashlib.sha256("\n".join(self._identity).encode()).hexdigest()[:16]
+            kept = self.workdir / f"timestamp_{digest}.json"
+            try:
+                stamp, origin = json.loads(kept.read_text(encoding="utf-8"))
+                self._timestamp = (None if stamp is None else str(stamp), str(origin))
+            except (OSError, ValueError, TypeError):
+                self._timestamp = osm_file_timestamp(self.path)
+                self.workdir.mkdir(parents=True, exist_ok=True)
+                atomic_write_text(kept, json.dumps(list(self._timestamp)) + "\n")
         return self._timestamp
 
     def prepare(self, bboxes: Sequence[LngLatBBox]) -> Path:
