@@ -132,7 +132,7 @@ def build(
             _count(summary, outcome)
             if outcome.status == "accepted":
                 first.accepted(slot)
-        regions = prepare_osm(config, pipe, todo)
+        regions = prepare_osm(config, pipe, mine, todo)
         finished = len(mine) - len(todo)
         report(progress, "build", finished, len(mine), "sample")
         with SlotRunner(config, pipe, state, env, config.worker_count(len(todo)), regions) as runner:
@@ -155,15 +155,17 @@ def build(
     return summary
 
 
-def prepare_osm(config: BuildConfig, pipe: Pipeline, todo: list[int]) -> tuple[LngLatBBox, ...]:
-    """Cut, from a local OSM file, one region file for the build (the sampling area, or the first
-    attempts' boxes of a country-sized area) and then every first attempt's box of ``todo``, in
-    passes over the file whose number does not grow with the samples. Returns the region boxes
-    (worker processes find the region by them). Other sources: nothing to do."""
+def prepare_osm(config: BuildConfig, pipe: Pipeline, mine: list[int], todo: list[int]) -> tuple[LngLatBBox, ...]:
+    """Cut, from a local OSM file, one region file for this process's slots ``mine`` (the sampling
+    area, or the first attempts' boxes of a country-sized area: the same region however far the
+    build has got, so a resumed or requeued shard finds it), then every first attempt's box of
+    the unfinished slots ``todo``, in passes over the file whose number does not grow with the
+    samples. Returns the region boxes (worker processes find the region by them). Other
+    sources: nothing to do."""
     prepare = getattr(pipe.osm, "prepare", None)
     if not todo or not callable(prepare):
         return ()
-    regions = osm_regions(config, todo)
+    regions = osm_regions(config, mine)
     prepare(list(regions))
     cut = getattr(pipe.osm, "cut", None)
     if callable(cut):

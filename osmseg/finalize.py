@@ -5,19 +5,24 @@ When every slot of a build has an outcome, :func:`finalize` writes ``manifest.js
 ``class_histogram.png`` (and the zip). A dataset of tens of thousands of samples has a
 manifest of tens of megabytes; to keep the builder's memory flat, the samples and rejections
 are never all in memory at once: :class:`SlotRecords` reads the slot records of the build
-state once to index them (a few numbers per sample: where its entry is, its bounds, its tile
-key), and the writers then iterate :class:`SampleEntries` / :class:`RejectionEntries`, lazy
-sequences that read each entry from its record as they go. The manifest is written in pieces
+state once, copying the entries into two JSON-lines files of a temporary folder and keeping a
+few numbers per sample (where its line is, its bounds, its tile key), and the writers then
+iterate :class:`SampleEntries` / :class:`RejectionEntries`, lazy sequences that read each
+entry from those files as they go. The manifest is written in pieces
 (:func:`osmseg.output.manifest.write_manifest`) with exactly the bytes one ``json.dumps``
-would give. Imports: osmseg core below it (output, state, records, sampling).
+(sorted keys, indent 2, UTF-8 unescaped) would give. Imports: osmseg core below it (output,
+state, records, sampling).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
+import tempfile
 from collections import Counter
 from collections.abc import Iterator, Sequence
-from typing import Any, overload
+from pathlib import Path
+from typing import IO, Any, overload
 
 import numpy as np
 
@@ -45,62 +50,86 @@ __all__ = ["RejectionEntries", "SampleEntries", "SlotRecords", "finalize"]
 
 
 class SlotRecords:
-    """An index of a finished build's slot records: which slots hold a sample, how many rejections
-    each has, each sample's bounds and tile key, and the counts the summary needs. Reading it is
-    one pass over the records; it keeps a few numbers per slot, not the entries."""
+    """A finished build's slot records, read once: the samples' and rejections' manifest entries
+    copied, one JSON line each, into two files of a temporary folder of the build state (read in
+    sequence by the writers, a few times, where a shared file system would pay for every small
+    record opened again), plus what the summary needs: each sample's bounds (for overlap groups) and tile key
+    (for duplicates), counts. It keeps a few numbers per sample, never the entries. Use it as a
+    context manager: the temporary folder goes when it closes."""
 
     def __init__(self, state: BuildState, slots: int) -> None:
         self.state = state
-        self.sample_slots: list[int] = []
-        self.rejection_slots: list[tuple[int, int]] = []  # (slot, rejections of that slot)
+        self._folder = tempfile.TemporaryDirectory(prefix="entries-", dir=state.root)  # beside the records
+        folder = Path(self._folder.name)
+        self.files = {"samples": folder / "samples.jsonl", "rejected": folder / "rejected.jsonl"}
+        self.offsets: dict[str, list[int]] = {"samples": [], "rejected": []}  # where each entry's line starts
         self.rejected_by_reason: Counter[str] = Counter()
         self.osm_unplaced = 0
         bounds: list[tuple[float, float, float, float]] = []
         tiles: Counter[bytes] = Counter()
-        for slot in range(slots):
-            outcome = self.outcome(slot)
-            if outcome.rejected:
-                self.rejection_slots.append((slot, len(outcome.rejected)))
-            for r in outcome.rejected:
-                self.rejected_by_reason[str(r["reason"])] += 1
-                self.osm_unplaced += int(r.get("osm_unplaced", 0))
-            if outcome.sample is not None:
-                sample = outcome.sample
-                self.sample_slots.append(slot)
-                left, bottom, right, top = (float(v) for v in sample["bounds_3857"])
-                bounds.append((left, bottom, right, top))
-                tiles[hashlib.blake2b("/".join(t["quadkey"] for t in sample["tiles"]).encode(),
-                                      digest_size=16).digest()] += 1
-                self.osm_unplaced += int(sample.get("osm_unplaced", 0))
+        with open(self.files["samples"], "wb") as samples, open(self.files["rejected"], "wb") as rejected:
+            for slot in range(slots):
+                outcome = self._outcome(slot)
+                for r in outcome.rejected:
+                    self.rejected_by_reason[str(r["reason"])] += 1
+                    self.osm_unplaced += int(r.get("osm_unplaced", 0))
+                    self._add(rejected, "rejected", dict(r, slot=slot))
+                if outcome.sample is not None:
+                    sample = outcome.sample
+                    left, bottom, right, top = (float(v) for v in sample["bounds_3857"])
+                    bounds.append((left, bottom, right, top))
+                    tiles[hashlib.blake2b("/".join(t["quadkey"] for t in sample["tiles"]).encode(),
+                                          digest_size=16).digest()] += 1
+                    self.osm_unplaced += int(sample.get("osm_unplaced", 0))
+                    self._add(samples, "samples", sample)
         self.groups = np.asarray(overlap_groups(bounds), dtype=np.int64)
         sizes = Counter(self.groups.tolist())
         self.duplicate_samples = sum(n - 1 for n in tiles.values())
         self.overlapping_samples = sum(1 for g in self.groups.tolist() if sizes[g] > 1)
         self.overlap_group_count = len(sizes)
-        self.rejected_count = sum(n for _, n in self.rejection_slots)
 
-    def outcome(self, slot: int) -> SlotOutcome:
+    def _outcome(self, slot: int) -> SlotOutcome:
         outcome = self.state.slot(slot)
         if outcome is None:
             raise DatasetError(f"slot {slot} of {self.state.root.parent} has no outcome yet: run the same build "
                                "command again to finish it")
         return outcome
 
+    def _add(self, file: IO[bytes], kind: str, entry: dict[str, Any]) -> None:
+        self.offsets[kind].append(file.tell())
+        file.write(json.dumps(entry, ensure_ascii=False).encode("utf-8") + b"\n")
 
-class SampleEntries(Sequence[dict[str, Any]]):
-    """The manifest's ``samples``, read from the slot records as they are iterated (with each
-    sample's ``overlap_group``)."""
+    def entries(self, kind: str) -> Iterator[dict[str, Any]]:
+        """The entries of ``kind`` ("samples" or "rejected"), in slot order."""
+        with open(self.files[kind], "rb") as f:
+            for line in f:
+                yield json.loads(line)
+
+    def entry(self, kind: str, i: int) -> dict[str, Any]:
+        with open(self.files[kind], "rb") as f:
+            f.seek(self.offsets[kind][i])
+            return dict(json.loads(f.readline()))
+
+    def __enter__(self) -> SlotRecords:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._folder.cleanup()
+
+
+class _Entries(Sequence[dict[str, Any]]):
+    """A manifest list (samples or rejections) read from :class:`SlotRecords` as it is iterated."""
+
+    kind = ""
 
     def __init__(self, records: SlotRecords) -> None:
         self.records = records
 
     def __len__(self) -> int:
-        return len(self.records.sample_slots)
+        return len(self.records.offsets[self.kind])
 
     def _entry(self, i: int) -> dict[str, Any]:
-        sample = self.records.outcome(self.records.sample_slots[i]).sample
-        assert sample is not None
-        return {**sample, "overlap_group": int(self.records.groups[i])}
+        return self.records.entry(self.kind, i)
 
     @overload
     def __getitem__(self, index: int) -> dict[str, Any]: ...
@@ -112,38 +141,26 @@ class SampleEntries(Sequence[dict[str, Any]]):
         return self._entry(range(len(self))[index])
 
     def __iter__(self) -> Iterator[dict[str, Any]]:
-        for i in range(len(self)):
-            yield self._entry(i)
+        return self.records.entries(self.kind)
 
 
-class RejectionEntries(Sequence[dict[str, Any]]):
-    """The manifest's ``rejected``: every rejected attempt, slot by slot, read as iterated."""
+class SampleEntries(_Entries):
+    """The manifest's ``samples``, each with its ``overlap_group``."""
 
-    def __init__(self, records: SlotRecords) -> None:
-        self.records = records
+    kind = "samples"
 
-    def __len__(self) -> int:
-        return self.records.rejected_count
-
-    @overload
-    def __getitem__(self, index: int) -> dict[str, Any]: ...
-    @overload
-    def __getitem__(self, index: slice) -> list[dict[str, Any]]: ...
-    def __getitem__(self, index: int | slice) -> dict[str, Any] | list[dict[str, Any]]:
-        if isinstance(index, slice):
-            wanted = set(range(len(self))[index])
-            return [r for i, r in enumerate(self) if i in wanted]
-        i = range(len(self))[index]
-        for slot, n in self.records.rejection_slots:
-            if i < n:
-                return dict(self.records.outcome(slot).rejected[i], slot=slot)
-            i -= n
-        raise IndexError(index)
+    def _entry(self, i: int) -> dict[str, Any]:
+        return {**self.records.entry(self.kind, i), "overlap_group": int(self.records.groups[i])}
 
     def __iter__(self) -> Iterator[dict[str, Any]]:
-        for slot, _ in self.records.rejection_slots:
-            for r in self.records.outcome(slot).rejected:
-                yield dict(r, slot=slot)
+        for sample, group in zip(self.records.entries(self.kind), self.records.groups.tolist()):
+            yield {**sample, "overlap_group": group}
+
+
+class RejectionEntries(_Entries):
+    """The manifest's ``rejected``: every rejected attempt, slot by slot, with its slot."""
+
+    kind = "rejected"
 
 
 def finalize(
@@ -158,7 +175,12 @@ def finalize(
 
     Returns the manifest's ``summary``. Every slot of the build must have its outcome recorded.
     """
-    records = SlotRecords(state, config.samples)
+    with SlotRecords(state, config.samples) as records:
+        return _write_dataset_files(config, table, state, records, imagery_info, osm_info, command_line)
+
+
+def _write_dataset_files(config: BuildConfig, table: ClassTable, state: BuildState, records: SlotRecords,
+                         imagery_info: dict[str, Any], osm_info: dict[str, Any], command_line: str) -> dict[str, Any]:
     samples, rejected = SampleEntries(records), RejectionEntries(records)
     area = config.area
     summary = summary_entry(samples, rejected, requested=config.samples, max_attempts=config.samples * config.max_tries)

@@ -140,11 +140,13 @@ def grey_std(rgb: np.ndarray, valid: np.ndarray | None = None) -> float:
     50.0
     >>> grey_std(rgb, np.array([[True, False], [True, False]]))
     50.0
+    >>> grey_std(np.array([[[255, 255, 255], [0, 0, 0]]], np.uint8))  # no 8- or 16-bit overflow
+    127.5
     """
     flat = np.ascontiguousarray(rgb, dtype=np.uint8).reshape(-1, 3)
-    luma = flat[:, 0] * np.int32(299)
-    luma += flat[:, 1] * np.int32(587)
-    luma += flat[:, 2] * np.int32(114)
+    luma = np.multiply(flat[:, 0], 299, dtype=np.int32)  # int32 whatever numpy's promotion rules
+    luma += np.multiply(flat[:, 1], 587, dtype=np.int32)
+    luma += np.multiply(flat[:, 2], 114, dtype=np.int32)
     count = luma.size
     if valid is not None and not valid.all():
         luma *= np.asarray(valid, dtype=bool).reshape(-1)  # invalid pixels add nothing to the sums

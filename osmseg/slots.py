@@ -108,13 +108,15 @@ def open_pipeline(config: BuildConfig, client: HttpClient, env: dict[str, str]) 
     return Pipeline(imagery=imagery, osm=osm, table=table, rules=rules)
 
 
-def osm_regions(config: BuildConfig, todo: list[int]) -> tuple[LngLatBBox, ...]:
-    """The boxes to cut one region file for from a local OSM file before ``todo`` is built: the
-    sampling area as one box, or for a country-sized area just the first attempts' boxes."""
+def osm_regions(config: BuildConfig, slots: list[int]) -> tuple[LngLatBBox, ...]:
+    """The boxes to cut one region file for from a local OSM file before ``slots`` are built: the
+    sampling area as one box, or for a country-sized area the boxes of every attempt those
+    slots may make (their centres are seeded, so known now): a rejected attempt's next box is
+    then cut from the region too, never from the country's file again."""
     area = sampling_box(config)
     if (area.east - area.west) * (area.north - area.south) <= PREPARE_AREA_MAX_DEG2:
         return (area,)
-    grids = [g for g in (attempt_grid(config, s, 0) for s in todo) if g is not None]
+    grids = [g for g in (attempt_grid(config, s, a) for s in slots for a in range(config.max_tries)) if g is not None]
     return tuple(pad_bbox(g.bbox, config.osm_padding_m) for g in grids)
 
 

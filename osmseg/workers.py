@@ -49,6 +49,7 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
+from queue import Empty
 from types import TracebackType
 from typing import Any
 
@@ -68,6 +69,8 @@ logger = logging.getLogger(__name__)
 #: Slots queued per worker beyond the one it builds: enough to keep it busy, few enough that
 #: an interrupted build has little queued work to drop and memory does not grow with the build.
 QUEUED_PER_WORKER = 2
+#: GDAL block cache of a worker in MB, unless GDAL_CACHEMAX says otherwise.
+WORKER_GDAL_CACHE_MB = 256
 #: Modules the fork server imports once, so that each worker starts without importing them.
 PRELOAD = ["osmseg.slots"]
 
@@ -88,11 +91,13 @@ class WorkerSetup:
 
 
 class _Worker:
-    """The state of one worker process: its pipeline and the build state it records into."""
+    """The state of one worker process: its pipeline and the build state it records into, or
+    why it could not open them (raised by its first task, so it reaches the build as it is)."""
 
     pipe: Pipeline
     state: BuildState
     config: BuildConfig
+    failure: BaseException | None = None
 
 
 _WORKER = _Worker()
@@ -107,6 +112,9 @@ def _die_with_build(pid: int) -> None:
     (Linux), or polls it elsewhere, and exits the process when the build is gone. Every write of
     a worker is atomic, so stopping it anywhere loses nothing but the slot in progress.
     """
+    if os.name == "nt":  # os.kill(pid, 0) would send the build a Ctrl-C there; spawn's pipes end workers
+        return
+
     def watch() -> None:
         try:
             fd = os.pidfd_open(pid)
@@ -137,29 +145,67 @@ def _start_worker(setup: WorkerSetup) -> None:
         root.removeHandler(handler)
     root.addHandler(logging.handlers.QueueHandler(setup.log_queue))
     root.setLevel(setup.log_level)
-    client = HttpClient(http_config(setup.config, setup.gate_dir))
-    multiprocessing.util.Finalize(client, client.close, exitpriority=10)  # atexit does not run in workers
-    pipe = open_pipeline(setup.config, client, setup.env)
-    prepare = getattr(pipe.osm, "prepare", None)
-    if setup.regions and callable(prepare):
-        prepare(list(setup.regions))  # the parent cut it: this only finds the region file
-    state = BuildState(setup.config.out_dir)
-    state.identity = setup.config.identity()
+    # the build's environment, not the fork server's (started earlier, maybe before a notebook set
+    # GDAL_*, AWS_* or PROJ_* variables): the libraries read it from os.environ
+    os.environ.update(setup.env)
+    # GDAL's block cache is 5 % of the machine's memory per process unless told: with a worker per
+    # core that is a third of it in caches that random samples barely reuse
+    os.environ.setdefault("GDAL_CACHEMAX", str(WORKER_GDAL_CACHE_MB))
+    try:
+        client = HttpClient(http_config(setup.config, setup.gate_dir))
+        multiprocessing.util.Finalize(client, client.close, exitpriority=10)  # atexit does not run in workers
+        pipe = open_pipeline(setup.config, client, setup.env)
+        prepare = getattr(pipe.osm, "prepare", None)
+        if setup.regions and callable(prepare):
+            prepare(list(setup.regions))  # the parent cut it: this only finds the region file
+        state = BuildState(setup.config.out_dir)
+        state.identity = setup.config.identity()
+    except Exception as exc:  # an initializer's error would only say "a worker process died"
+        _WORKER.failure = exc
+        return
     _WORKER.pipe, _WORKER.state, _WORKER.config = pipe, state, setup.config
 
 
 def _build_slot(slot: int, keep_thumbnails: bool) -> SlotOutcome:
     """Pool task: build one slot in this worker."""
+    if _WORKER.failure is not None:
+        raise _WORKER.failure
     return run_slot(_WORKER.config, _WORKER.pipe, _WORKER.state, slot, keep_thumbnails)
 
 
-class _Forward:
-    """Hands a record from a worker to the parent's logger of the same name."""
+class _LogForwarder:
+    """Hands the records workers put on ``queue`` to the parent's loggers of the same names.
 
-    level = logging.NOTSET
+    A thread of its own (not ``logging.handlers.QueueListener``): stopping a listener puts a
+    sentinel on the queue, which needs the queue's write lock, and a worker killed while it
+    wrote a record (Ctrl-C) may have died holding that lock: the build would hang on exit. This
+    thread only reads, with a timeout, and after a kill it is not waited for at all (it is a
+    daemon; a record cut in half by the kill may leave it blocked, harmlessly).
+    """
 
-    def handle(self, record: logging.LogRecord) -> None:
-        logging.getLogger(record.name).handle(record)
+    def __init__(self, queue: Any) -> None:
+        self.queue = queue
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="osmseg-worker-logs", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while True:
+            try:
+                record = self.queue.get(timeout=0.1)
+            except Empty:
+                if self.stopping.is_set():
+                    return
+                continue
+            except (EOFError, OSError):  # the queue was closed under us
+                return
+            logging.getLogger(record.name).handle(record)
+
+    def stop(self, drain: bool) -> None:
+        """Stop; with ``drain`` (the workers ended normally) after forwarding every record left."""
+        self.stopping.set()
+        if drain:
+            self.thread.join(timeout=10)
 
 
 class FirstSamples:
@@ -202,6 +248,7 @@ class SlotRunner:
         self.regions = regions
         self._stack = ExitStack()
         self._pool: ProcessPoolExecutor | None = None
+        self._logs: _LogForwarder | None = None
 
     def __enter__(self) -> SlotRunner:
         if self.workers > 1:
@@ -209,22 +256,22 @@ class SlotRunner:
         return self
 
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        clean = kind is None
         try:
             if self._pool is not None:
-                if kind is None:
+                if clean:
                     self._pool.shutdown(wait=True)
                 else:  # an error or Ctrl-C: drop queued slots and stop the workers now
                     _kill(self._pool)
         finally:
+            if self._logs is not None:
+                self._logs.stop(drain=clean)
             self._stack.close()
 
     def _start_pool(self) -> None:
         context = _context()
         queue = context.Queue()
-        listener = logging.handlers.QueueListener(queue, _Forward())  # type: ignore[arg-type]
-        listener.start()
-        self._stack.callback(queue.close)
-        self._stack.callback(listener.stop)
+        self._logs = _LogForwarder(queue)
         gate_dir = Path(self._stack.enter_context(tempfile.TemporaryDirectory(prefix="osmseg-hosts-")))
         setup = WorkerSetup(config=self.config, env=self.env, regions=self.regions, gate_dir=gate_dir,
                             log_queue=queue, log_level=logging.getLogger().getEffectiveLevel(), parent=os.getpid())
@@ -244,6 +291,14 @@ class SlotRunner:
         yield from self._run_pool(self._pool, slots, first)
 
     def _run_pool(self, pool: ProcessPoolExecutor, slots: list[int], first: FirstSamples) -> Iterator[SlotOutcome]:
+        try:
+            yield from self._feed(pool, slots, first)
+        except BrokenProcessPool:
+            raise DatasetError("a worker process died (killed, or out of memory?): run the same command again to "
+                               "resume, with fewer --workers if memory is short") from None
+
+    def _feed(self, pool: ProcessPoolExecutor, slots: list[int], first: FirstSamples) -> Iterator[SlotOutcome]:
+        """Keep each worker busy with a few slots queued (in slot order); yield outcomes as they come."""
         pending: set[Future[SlotOutcome]] = set()
         queue = iter(slots)
         limit = self.workers * (1 + QUEUED_PER_WORKER)
@@ -255,11 +310,7 @@ class SlotRunner:
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
-                try:
-                    outcome = future.result()
-                except BrokenProcessPool:
-                    raise DatasetError("a worker process died (killed, or out of memory?): run the same command "
-                                       "again to resume, with fewer --workers if memory is short") from None
+                outcome = future.result()
                 if outcome.status == "accepted":
                     first.accepted(outcome.slot)
                 yield outcome

@@ -310,7 +310,8 @@ def test_osm_xml_that_stays_malformed_fails_that_sample_only_and_a_rerun_finishe
         services: Services, clean: Clean, tmp_path: Path) -> None:
     services.fault(MAP, lambda n: Reply(200, BROKEN_XML, {"Content-Type": "text/xml"}) if n > 1 else None)
     out, cache = tmp_path / "ds", tmp_path / "cache"
-    args = build_args(services.server, out, cache)
+    # one process, so that "the second map call" is slot 1's (two workers may ask in either order)
+    args = build_args(services.server, out, cache, "--workers", "1")
 
     failed = run_cli(*args)
 
@@ -415,7 +416,8 @@ def test_ctrl_c_stops_cleanly_and_the_same_command_resumes(services: Services, c
         if path != MAP:
             services.fault(path, lambda n, good=good: Reply(good.status, good.body, good.headers, delay=0.1))
     out = tmp_path / "ds"
-    args = build_args(services.server, out, tmp_path / "cache")
+    # one process: the interrupt lands while slot 1 is being built (tests/test_build_workers.py stops workers)
+    args = build_args(services.server, out, tmp_path / "cache", "--workers", "1")
     # a background job of a non-interactive shell (CI, `make test &`) inherits SIGINT ignored, and
     # Python then never turns it into KeyboardInterrupt: give the build the terminal's default
     proc = subprocess.Popen([sys.executable, "-m", "osmseg", "-q", *args], env={**os.environ, "TILE_KEY": SECRET},

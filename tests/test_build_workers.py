@@ -77,6 +77,14 @@ def descendants(pid: int) -> set[int]:
     return found
 
 
+def wait_gone(pids: set[int], seconds: float = 10.0) -> bool:
+    """Whether every process of ``pids`` has ended within ``seconds``."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and any(alive(p) for p in pids):
+        time.sleep(0.05)
+    return not any(alive(p) for p in pids)
+
+
 def alive(pid: int) -> bool:
     try:
         status = Path(f"/proc/{pid}/status").read_text()
@@ -111,41 +119,23 @@ def test_two_workers_write_the_bytes_of_one(tmp_path: Path, imagery_tif: Path, o
     assert tree_bytes(out) == one_worker
 
 
-def test_a_killed_build_with_workers_leaves_no_worker_and_resumes_to_the_same_bytes(
-        tmp_path: Path, imagery_tif: Path, one_worker: dict[str, bytes]) -> None:
+@pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGINT], ids=["kill -9", "Ctrl-C"])
+def test_a_build_stopped_with_workers_leaves_no_worker_and_resumes_to_the_same_bytes(
+        tmp_path: Path, imagery_tif: Path, one_worker: dict[str, bytes], stop: signal.Signals) -> None:
     out = tmp_path / "ds"
     proc = popen_build(*build_args(out, imagery_tif, "--workers", "2"))
     wait_for_slots(out, proc, 1)
     workers = descendants(proc.pid)
     assert workers, "the build started no worker process"
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and any(alive(p) for p in workers):
-        time.sleep(0.05)
-    assert not any(alive(p) for p in workers), "workers outlived their killed build"
-    assert not (out / "manifest.json").exists(), "the build finished before it could be killed"
-
-    result = run_cli(*build_args(out, imagery_tif, "--workers", "2"))
-    assert result.exit_code == 0, result.output
-    assert tree_bytes(out) == one_worker
-
-
-def test_ctrl_c_stops_every_worker_and_the_same_command_resumes(
-        tmp_path: Path, imagery_tif: Path, one_worker: dict[str, bytes]) -> None:
-    out = tmp_path / "ds"
-    proc = popen_build(*build_args(out, imagery_tif, "--workers", "2"))
-    wait_for_slots(out, proc, 1)
-    workers = descendants(proc.pid)
-    proc.send_signal(signal.SIGINT)
-    stdout, stderr = proc.communicate(timeout=30)
-    assert proc.returncode == 130, stderr.decode()
-    assert stderr.decode().strip() == "interrupted: rerun the same command to resume; finished work is kept"
-    deadline = time.monotonic() + 10  # the fork server and resource tracker end once the build has
-    while time.monotonic() < deadline and any(alive(p) for p in workers):
-        time.sleep(0.05)
-    assert not any(alive(p) for p in workers)
-    assert not list(out.glob("*/.*.tmp")), "a half-written file was left"
+    proc.send_signal(stop)
+    _, stderr = proc.communicate(timeout=30)
+    if stop == signal.SIGINT:  # Ctrl-C: the build stops its workers itself and says how to go on
+        assert proc.returncode == 130, stderr.decode()
+        assert stderr.decode().strip() == "interrupted: rerun the same command to resume; finished work is kept"
+        assert not list(out.glob("*/.*.tmp")), "a half-written file was left"
+    # kill -9: each worker sees its build gone and ends (the fork server and resource tracker follow)
+    assert wait_gone(workers), "workers outlived their stopped build"
+    assert not (out / "manifest.json").exists(), "the build finished before it could be stopped"
 
     result = run_cli(*build_args(out, imagery_tif, "--workers", "2"))
     assert result.exit_code == 0, result.output
@@ -224,3 +214,24 @@ def test_workers_share_the_per_host_limit_and_a_retry_after(services: Services, 
     assert len(pause) == 1  # the centre tile is in every sample: it was asked for, and refused once
     during = [s.path for s in services.server.requests() if pause[0] + 0.05 < s.arrived < pause[0] + 0.95]
     assert during == [], f"requests sent to the host while it was paused: {during}"
+
+
+def test_a_worker_that_cannot_open_its_sources_says_why_in_one_line(tmp_path: Path) -> None:
+    """A worker whose sources fail to open (the GeoTIFF went away after the build checked it) raises
+    the source's own one-line error in the build, not "a worker process died"."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from osmseg.buildconfig import BuildConfig
+    from osmseg.errors import ConfigError
+    from osmseg.places import Area
+    from osmseg.workers import WorkerSetup, _build_slot, _context, _start_worker
+
+    config = BuildConfig(out_dir=tmp_path / "ds", area=Area("t", LAT, LON, 0.08),
+                         imagery=f"geotiff:{tmp_path / 'gone.tif'}", osm=str(TINYCITY), samples=1,
+                         cache_dir=tmp_path / "cache")
+    context = _context()
+    setup = WorkerSetup(config=config, env={}, regions=(), gate_dir=None, log_queue=context.Queue(),
+                        log_level=30, parent=os.getpid())
+    with ProcessPoolExecutor(1, mp_context=context, initializer=_start_worker, initargs=(setup,)) as pool:
+        with pytest.raises(ConfigError, match="gone.tif does not exist"):
+            pool.submit(_build_slot, 0, False).result(timeout=120)

@@ -36,6 +36,26 @@ def can_mount_tmpfs(tmp_path: Path) -> list[str] | None:
     return prefix if ok else None
 
 
+def build_twice_on_a_full_disk(prefix: list[str], tmp_path: Path, build: list[str], out: Path, size: str, fill: str,
+                               env: dict[str, str] | None = None) -> tuple[str, str, str, str]:
+    """Run ``build`` (``--out out``, cache on a tmpfs of ``size`` filled with ``fill`` bytes), free the
+    space, run it again; the first run's stderr and exit status, then the second's."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    command = " ".join(f"'{a}'" for a in [*build, "--out", str(out), "--cache-dir", str(disk / "cache")])
+    script = f"""
+        mount -t tmpfs -o size={size} tmpfs {disk}
+        head -c {fill} /dev/zero > {disk}/filler
+        {command} 2> {tmp_path}/first.err; echo $? > {tmp_path}/first.code
+        ls -A {out} > {tmp_path}/first.ls
+        rm {disk}/filler                               # the user frees space
+        {command} 2> {tmp_path}/second.err; echo $? > {tmp_path}/second.code
+    """
+    subprocess.run([*prefix, "sh", "-c", script], env=env, check=True, timeout=600)
+    return tuple((tmp_path / name).read_text() for name in  # type: ignore[return-value]
+                 ("first.err", "first.code", "second.err", "second.code"))
+
+
 def tree_bytes(root: Path) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
             if p.is_file() and ".osmseg-build" not in p.parts}
@@ -53,29 +73,17 @@ def test_a_full_cache_disk_stops_in_one_line_and_the_rerun_after_freeing_space_f
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
 
-    disk, out = tmp_path / "disk", tmp_path / "ds"
-    disk.mkdir()
-    command = " ".join(f"'{a}'" for a in [*build, "--out", str(out), "--cache-dir", str(disk / "cache")])
-    script = f"""
-        mount -t tmpfs -o size=16m tmpfs {disk}
-        head -c 13000k /dev/zero > {disk}/filler       # leaves ~3 MB: the cache needs ~10.5 MB
-        {command} 2> {tmp_path}/first.err; echo $? > {tmp_path}/first.code
-        ls -A {out} > {tmp_path}/first.ls
-        rm {disk}/filler                               # the user frees space
-        {command} 2> {tmp_path}/second.err; echo $? > {tmp_path}/second.code
-    """
-    subprocess.run([*prefix, "sh", "-c", script], env=env, check=True, timeout=600)
-
-    first = (tmp_path / "first.err").read_text()
-    assert (tmp_path / "first.code").read_text().strip() == "1", first
+    out = tmp_path / "ds"
+    # 13000k of 16m leaves ~3 MB: the cache needs ~10.5 MB
+    first, code, second, second_code = build_twice_on_a_full_disk(prefix, tmp_path, build, out, "16m", "13000k", env)
+    assert code.strip() == "1", first
     lines = first.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("Error:"), first
     assert "Traceback" not in first and "cache" in lines[0] and ("full" in lines[0] or "space" in lines[0])
     assert "run the same command again" in lines[0]
     assert "manifest.json" not in (tmp_path / "first.ls").read_text().split()  # not finished, nothing faked
 
-    second = (tmp_path / "second.err").read_text()
-    assert (tmp_path / "second.code").read_text().strip() == "0", second
+    assert second_code.strip() == "0", second
     assert tree_bytes(out) == tree_bytes(clean)
     assert json.loads((out / "manifest.json").read_text())["summary"]["accepted"] == 4
 
@@ -98,21 +106,11 @@ def test_a_full_disk_while_cutting_a_local_osm_file_is_one_line_and_the_rerun_fi
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
 
-    disk, out = tmp_path / "disk", tmp_path / "ds"
-    disk.mkdir()
-    command = " ".join(f"'{a}'" for a in [*build, "--out", str(out), "--cache-dir", str(disk / "cache")])
-    script = f"""
-        mount -t tmpfs -o size=2m tmpfs {disk}
-        head -c 2040k /dev/zero > {disk}/filler        # leaves ~8 KB: less than the region file itself
-        {command} 2> {tmp_path}/first.err; echo $? > {tmp_path}/first.code
-        rm {disk}/filler
-        {command} 2> {tmp_path}/second.err; echo $? > {tmp_path}/second.code
-    """
-    subprocess.run([*prefix, "sh", "-c", script], check=True, timeout=600)
-    first = (tmp_path / "first.err").read_text()
-    assert (tmp_path / "first.code").read_text().strip() == "1", first
+    out = tmp_path / "ds"
+    # 2040k of 2m leaves ~8 KB: less than the region file itself
+    first, code, second, second_code = build_twice_on_a_full_disk(prefix, tmp_path, build, out, "2m", "2040k")
+    assert code.strip() == "1", first
     lines = first.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("Error:") and "disk is full" in lines[0], first
-    second = (tmp_path / "second.err").read_text()
-    assert (tmp_path / "second.code").read_text().strip() == "0", second
+    assert second_code.strip() == "0", second
     assert tree_bytes(out) == tree_bytes(clean)

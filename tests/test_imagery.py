@@ -672,7 +672,7 @@ def test_geotiff_window_read_gives_the_pixels_of_warping_the_whole_raster(tmp_pa
             out = np.zeros((4, grid.height, grid.width), np.uint8)
             reproject(whole, out, src_transform=src.transform, src_crs=src.crs, dst_transform=grid.transform,
                       dst_crs="EPSG:3857", resampling=Resampling.bilinear, src_alpha=4, dst_alpha=4,
-                      **provider._scales(src, grid))
+                      **provider._scales(src.crs, src.transform, grid))
         valid = out[3] >= 128
         assert np.array_equal(got.valid, valid), zoom
         assert np.array_equal(got.rgb[valid], out[:3].transpose(1, 2, 0)[valid]), zoom

@@ -193,7 +193,8 @@ def main(argv: list[str] | None = None) -> None:
                 return session
 
         osmseg.build.HttpClient = RecordingClient  # type: ignore[misc]  # this script only
-        config = replace(demo_config(work / "demo-out"), cache_dir=None, cassette=None)
+        # one process: the recording client patched in here is this process's (workers would make their own)
+        config = replace(demo_config(work / "demo-out"), cache_dir=None, cassette=None, workers=1)
         summary = build(config, env={"BING_MAPS_KEY": "demo-key-not-secret"})
     print(f"wrote {args.out} ({args.out.stat().st_size // 1024} KiB): {summary.accepted} samples accepted, "
           f"{sum(summary.rejected.values())} attempts rejected")

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from affine import Affine
 import rasterio
 import rasterio.warp
 from rasterio.crs import CRS
@@ -201,18 +202,19 @@ class GeoTiffProvider:
                 "imagery is (--bbox/--lat/--lon), or give the GeoTIFF of this area")
 
     @staticmethod
-    def _source_window(src: DatasetReader, grid: SampleGrid) -> tuple[Window | None, bool]:
+    def _source_window(src: DatasetReader, grid: SampleGrid) -> tuple[Window | None, bool, float]:
         """The source pixels under ``grid`` plus a margin for the resampling kernel (wider when
-        downsampling), clipped to the raster (None when the grid misses it), and whether nothing
-        was clipped: then every grid pixel's resampling kernel lies on the raster."""
+        downsampling), clipped to the raster (None when the grid misses it); whether nothing was
+        clipped (then every grid pixel's resampling kernel lies on the raster); and about how many
+        source pixels a grid pixel spans."""
         try:
             left, bottom, right, top = transform_bounds(WEB_MERCATOR, src.crs, *grid.xy_bounds, densify_pts=21)
         except (ValueError, RasterioError):
-            return Window(0, 0, src.width, src.height), False
+            return Window(0, 0, src.width, src.height), False, 1.0
         corners = [~src.transform * (x, y) for x in (left, right) for y in (bottom, top)]
         cols, rows = zip(*corners, strict=True)
         if not all(math.isfinite(v) for v in cols + rows):
-            return Window(0, 0, src.width, src.height), False
+            return Window(0, 0, src.width, src.height), False, 1.0
         ratio = max((max(cols) - min(cols)) / grid.width, (max(rows) - min(rows)) / grid.height)
         margin = max(2, math.ceil(ratio) + 1)
         col0, row0 = math.floor(min(cols)) - margin, math.floor(min(rows)) - margin
@@ -220,21 +222,22 @@ class GeoTiffProvider:
         inside = col0 >= 0 and row0 >= 0 and col1 <= src.width and row1 <= src.height
         col0, row0, col1, row1 = max(0, col0), max(0, row0), min(src.width, col1), min(src.height, row1)
         if col1 <= col0 or row1 <= row0:
-            return None, False
-        return Window(col0, row0, col1 - col0, row1 - row0), inside
+            return None, False, ratio
+        return Window(col0, row0, col1 - col0, row1 - row0), inside, ratio
 
     @staticmethod
-    def _scales(src: DatasetReader, grid: SampleGrid) -> dict[str, str]:
-        """The warper's ``XSCALE``/``YSCALE``: destination pixels per source pixel along the grid's
-        horizontal and vertical centre lines (their length in source pixels, rotation included).
-        Empty when the source CRS cannot place them (GDAL then estimates, as before)."""
+    def _scales(crs: CRS, transform: Affine, grid: SampleGrid) -> dict[str, str]:
+        """The warper's ``XSCALE``/``YSCALE``: destination pixels per source pixel (of a raster with
+        ``transform`` in ``crs``) along the grid's horizontal and vertical centre lines (their
+        length in source pixels, rotation included). Empty when the CRS cannot place them (GDAL
+        then estimates)."""
         left, bottom, right, top = grid.xy_bounds
         cx, cy = (left + right) / 2, (bottom + top) / 2
         try:
-            xs, ys = rasterio.warp.transform(WEB_MERCATOR, src.crs, [left, right, cx, cx], [cy, cy, bottom, top])
+            xs, ys = rasterio.warp.transform(WEB_MERCATOR, crs, [left, right, cx, cx], [cy, cy, bottom, top])
         except (ValueError, RasterioError):
             return {}
-        pixels = [~src.transform * (x, y) for x, y in zip(xs, ys, strict=True)]
+        pixels = [~transform * (x, y) for x, y in zip(xs, ys, strict=True)]
         across = math.dist(pixels[0], pixels[1])
         down = math.dist(pixels[2], pixels[3])
         if not (math.isfinite(across) and math.isfinite(down) and across > 0 and down > 0):
@@ -247,29 +250,40 @@ class GeoTiffProvider:
         valid = np.zeros((grid.height, grid.width), dtype=bool)
         try:
             src = self._dataset()
-            window, inside = self._source_window(src, grid)
+            window, inside, ratio = self._source_window(src, grid)
             if window is not None:
                 colorinterp = src.colorinterp
                 unique = sorted(set(self.bands))
                 indexes = list(unique)
                 if self._has_alpha:
                     indexes.append(colorinterp.index(ColorInterp.alpha) + 1)
-                data = src.read(indexes, window=window)
+                # imagery much finer than the sample is read averaged to twice the sample's resolution
+                # (from the raster's overviews where it has them): memory and time then stay those of
+                # a sample whatever the zoom, and the warp's kernel still sees every source pixel
+                step = ratio / 2 if ratio > 2 else 1.0
+                shape = (max(1, math.ceil(window.height / step)), max(1, math.ceil(window.width / step)))
+
+                def sized(*count: int) -> dict[str, Any]:  # how to read ``count`` bands (none: a 2-D mask)
+                    return {} if step == 1.0 else {"out_shape": (*count, *shape), "resampling": Resampling.average}
+
+                data = src.read(indexes, window=window, **sized(len(indexes)))
                 if not self._has_alpha and src.nodata is not None:
                     # as GDAL's warper (UNIFIED_SRC_NODATA): invalid only where every band is nodata
-                    masks = src.read_masks(window=window)
+                    masks = src.read_masks(window=window, **sized(src.count))
                     data = np.concatenate([data, (masks.max(axis=0))[np.newaxis]])
                 elif not self._has_alpha and any(MaskFlags.all_valid not in f for f in src.mask_flag_enums):
-                    data = np.concatenate([data, src.dataset_mask(window=window)[np.newaxis]])
+                    data = np.concatenate([data, src.dataset_mask(window=window, **sized())[np.newaxis]])
                 has_alpha = len(data) > len(unique)
                 # a grid whose every kernel lies on the raster, which marks no pixel invalid, is valid
                 # all over: the colour bands alone are warped (the same values, a quarter less work)
                 whole = inside and not has_alpha
+                transform = src.window_transform(window) * Affine.scale(window.width / data.shape[2],
+                                                                         window.height / data.shape[1])
                 out = np.zeros((len(unique) + (0 if whole else 1), grid.height, grid.width), dtype=np.uint8)
-                reproject(data, out, src_transform=src.window_transform(window), src_crs=src.crs,
+                reproject(data, out, src_transform=transform, src_crs=src.crs,
                           dst_transform=grid.transform, dst_crs=WEB_MERCATOR, resampling=Resampling.bilinear,
                           src_alpha=len(data) if has_alpha else 0, dst_alpha=0 if whole else len(unique) + 1,
-                          **self._scales(src, grid))
+                          **self._scales(src.crs, transform, grid))
         except RasterioError as exc:
             cause = exc.__cause__ or exc.__context__
             why = str(cause or exc).splitlines()[0] if str(cause or exc) else type(exc).__name__

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import errno
 import logging
-import resource
 import shutil
 from array import array
 from collections.abc import Callable, Sequence
@@ -341,6 +340,10 @@ def keep_sets(index: _Index, box: LngLatBBox, reach: float) -> tuple[Ints, Ints,
 
 def batch_size(wanted: int = DEFAULT_BATCH) -> int:
     """``wanted``, or fewer when the process may not open two files per box of a batch."""
+    try:
+        import resource  # POSIX only
+    except ImportError:
+        return wanted
     soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
     if soft == resource.RLIM_INFINITY:
         return wanted

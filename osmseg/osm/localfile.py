@@ -53,7 +53,8 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-from collections.abc import Iterable, Sequence
+import math
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -88,11 +89,47 @@ DEFAULT_REACH = 1000.0
 # -- extracting ------------------------------------------------------------------------------------
 
 
-def _in_any(lon: float, lat: float, boxes: Sequence[LngLatBBox]) -> bool:
-    for b in boxes:
-        if b.west <= lon <= b.east and b.south <= lat <= b.north:
-            return True
-    return False
+class BoxGrid:
+    """Boxes bucketed in a grid of cells about one box in size, to find the boxes a point or a
+    segment may touch without trying each: cutting a region for the first attempts of thousands
+    of samples asks this of every node of a country's file.
+
+    >>> grid = BoxGrid([LngLatBBox(0, 0, 1, 1), LngLatBBox(5, 5, 6, 6)])
+    >>> grid.contains(0.5, 0.5), grid.contains(3, 3), grid.contains(6, 6)
+    (True, False, True)
+    """
+
+    def __init__(self, boxes: Sequence[LngLatBBox]) -> None:
+        self.boxes = list(boxes)
+        self.width = max((b.east - b.west for b in self.boxes), default=1.0) or 1.0
+        self.height = max((b.north - b.south for b in self.boxes), default=1.0) or 1.0
+        self.cells: dict[tuple[int, int], list[LngLatBBox]] = {}
+        for b in self.boxes:
+            for cell in self._cells(b.west, b.south, b.east, b.north):
+                self.cells.setdefault(cell, []).append(b)
+
+    def _cells(self, west: float, south: float, east: float, north: float) -> Iterator[tuple[int, int]]:
+        x0, x1 = math.floor(west / self.width), math.floor(east / self.width)
+        y0, y1 = math.floor(south / self.height), math.floor(north / self.height)
+        return ((x, y) for x in range(x0, x1 + 1) for y in range(y0, y1 + 1))
+
+    def near(self, west: float, south: float, east: float, north: float) -> list[LngLatBBox]:
+        """The boxes of the cells that the box west..east, south..north touches (a superset of those it meets)."""
+        if len(self.cells) <= 8:  # a few boxes: all of them
+            return self.boxes
+        found: dict[int, LngLatBBox] = {}
+        for cell in self._cells(west, south, east, north):
+            for b in self.cells.get(cell, ()):
+                found[id(b)] = b
+        return list(found.values())
+
+    def contains(self, lon: float, lat: float) -> bool:
+        """True if a box holds the point (edges included)."""
+        cell = (math.floor(lon / self.width), math.floor(lat / self.height))
+        for b in self.cells.get(cell, ()) if len(self.boxes) > 8 else self.boxes:
+            if b.west <= lon <= b.east and b.south <= lat <= b.north:
+                return True
+        return False
 
 
 def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: float = DEFAULT_REACH) -> dict[str, int]:
@@ -109,6 +146,7 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
         raise ValueError("write_extract needs at least one box")
     src_name = str(src)
     envelope = union_boxes(boxes)
+    grid = BoxGrid(boxes)
     try:
         keep_nodes, around = _nodes_near(src_name, boxes, reach)
         keep_ways: set[int] = set()
@@ -116,7 +154,7 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
             if not isinstance(way, osmium.osm.Way):  # never: the processor reads ways only
                 continue
             refs = [nd.ref for nd in way.nodes]
-            if not keep_nodes.isdisjoint(refs) or (not around.keys().isdisjoint(refs) and _crosses(refs, around, boxes)):
+            if not keep_nodes.isdisjoint(refs) or (not around.keys().isdisjoint(refs) and _crosses(refs, around, grid)):
                 keep_ways.add(way.id)
         keep_relations: set[int] = set()
         member_ways: set[int] = set()
@@ -152,6 +190,7 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
 def _nodes_near(src: str, boxes: Sequence[LngLatBBox], reach: float) -> tuple[set[int], dict[int, tuple[float, float]]]:
     """Ids of the nodes inside one of ``boxes``, and locations of those outside but within ``reach`` m."""
     grown = [pad_bbox(b, reach) for b in boxes]
+    in_boxes, in_grown = BoxGrid(boxes), BoxGrid(grown)
     w, s, e, n = union_boxes(grown)
     single = len(boxes) == 1
     inside: set[int] = set()
@@ -165,18 +204,21 @@ def _nodes_near(src: str, boxes: Sequence[LngLatBBox], reach: float) -> tuple[se
         lon, lat = loc.lon, loc.lat
         if not (w <= lon <= e and s <= lat <= n):
             continue
-        if _in_any(lon, lat, boxes):
+        if in_boxes.contains(lon, lat):
             inside.add(node.id)
-        elif single or _in_any(lon, lat, grown):
+        elif single or in_grown.contains(lon, lat):
             around[node.id] = (lon, lat)
     return inside, around
 
 
-def _crosses(refs: list[int], around: dict[int, tuple[float, float]], boxes: Sequence[LngLatBBox]) -> bool:
+def _crosses(refs: list[int], around: dict[int, tuple[float, float]], boxes: BoxGrid) -> bool:
     """True if a segment between two consecutive located nodes of a way crosses one of ``boxes``."""
     for a, b in zip(refs, refs[1:]):
         p, q = around.get(a), around.get(b)
-        if p is not None and q is not None and any(segment_hits_box(p, q, box) for box in boxes):
+        if p is None or q is None:
+            continue
+        near = boxes.near(min(p[0], q[0]), min(p[1], q[1]), max(p[0], q[0]), max(p[1], q[1]))
+        if any(segment_hits_box(p, q, box) for box in near):
             return True
     return False
 

@@ -10,10 +10,12 @@ the real name.
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import os
 import re
 import socket
+import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -46,12 +48,18 @@ FOREIGN_TEMP_SECONDS = 3600.0
 
 
 def _owner() -> str:
-    """``HOST-PID`` of this process, as temporary file names carry it (host made name-safe).
+    """``HOST-PID`` of this process, as temporary file names carry it (host made name-safe). On
+    Linux HOST also names the process-id namespace: containers that share a host name (host
+    networking) but not their process ids must not judge each other's pids.
 
     >>> _owner().rsplit("-", 1)[1] == str(os.getpid())
     True
     """
     host = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
+    try:
+        host += f"_{os.stat('/proc/self/ns/pid').st_ino}"
+    except OSError:  # not Linux
+        pass
     return f"{host}-{os.getpid()}"
 
 
@@ -92,7 +100,7 @@ def sweep_temp_files(folder: Path) -> int:
         owner = parts[1] if len(parts) == 3 else ""
         host, _, pid = owner.rpartition("-")
         if host and pid.isdigit():
-            if host == here:
+            if host == here and os.name != "nt":  # (Windows cannot be asked safely: os.kill(pid, 0) is a Ctrl-C)
                 stale = not _alive(int(pid))
             else:
                 try:
@@ -157,3 +165,29 @@ def atomic_write_text(path: Path, text: str, durable: bool = True) -> Path:
     """Write UTF-8 ``text`` with ``\\n`` line endings to ``path`` atomically (``durable``: as
     :func:`atomic_write_bytes`)."""
     return atomic_write_bytes(path, text.encode("utf-8"), durable=durable)
+
+
+def sync_file_system(folder: Path) -> bool:
+    """Make every write to ``folder``'s file system durable at once; False where that cannot be
+    asked (then callers fsync file by file).
+
+    Linux: ``syncfs`` on that file system only, so a shared machine's other disks (other jobs'
+    dirty data) are not flushed with it; elsewhere with POSIX ``sync``, every file system.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            fd = os.open(folder, os.O_RDONLY)
+            try:
+                if libc.syncfs(fd) == 0:
+                    return True
+            finally:
+                os.close(fd)
+        except (OSError, AttributeError):
+            pass
+    sync = getattr(os, "sync", None)
+    if sync is None:
+        return False
+    sync()
+    return True
+

@@ -180,7 +180,8 @@ def class_totals(samples: Iterable[dict[str, Any]]) -> dict[str, int]:
 def manifest_text(manifest: dict[str, Any]) -> str:
     """The manifest as deterministic JSON text (sorted keys, indent 2, UTF-8, trailing newline).
 
-    >>> manifest_text({"b": [], "a": {"x": 1}}) == json.dumps({"b": [], "a": {"x": 1}}, sort_keys=True, indent=2) + "\\n"
+    >>> m = {"b": [], "a": {"x": "São Paulo"}}
+    >>> manifest_text(m) == json.dumps(m, sort_keys=True, indent=2, ensure_ascii=False) + "\\n"
     True
     """
     return "".join(manifest_chunks(manifest))
@@ -200,7 +201,8 @@ def manifest_chunks(manifest: dict[str, Any]) -> Iterable[str]:
 
     ``samples`` and ``rejected`` may be any sequences of entries, also lazy ones that read each
     entry as it is iterated (a build's finaliser passes such): the whole text is never in memory,
-    and its bytes are exactly those of one ``json.dumps(manifest, sort_keys=True, indent=2)``.
+    and its bytes are exactly those of one ``json.dumps(manifest, sort_keys=True, indent=2,
+    ensure_ascii=False)``.
     """
     yield "{"
     for n, key in enumerate(sorted(manifest)):

@@ -37,7 +37,7 @@ reads each entry from disk as it is iterated: :func:`write_stac` iterates it thr
 manifest's shape; what STAC needs and the dates undated samples span; the items, made, written
 and dropped a sample at a time, the Collection's extent gathered on the way) and keeps only the
 sample names, so its memory does not grow with the entries. The item files are made durable
-by one ``os.sync()``, not an fsync each (see :func:`write_stac`).
+by one ``syncfs`` of their file system, not an fsync each (see :func:`write_stac`).
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ with warnings.catch_warnings():  # pystac flags the label extension "unmaintaine
 from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from osmseg.grid import TILE_SIZE
-from osmseg.output.atomic import atomic_path, atomic_write_text
+from osmseg.output.atomic import atomic_path, atomic_write_text, sync_file_system
 from osmseg.output.attribution import ATTRIBUTION_NAME, ODBL_URL, OSM_COPYRIGHT_URL, LabelSource
 from osmseg.output.datasheet import DATASHEET_NAME
 from osmseg.output.manifest import MANIFEST_NAME, build_identity, validate_manifest
@@ -409,7 +409,7 @@ def _remove_stale_items(folder: Path, names: set[str]) -> None:
     if folder.is_dir():
         with os.scandir(folder) as entries:
             for name in sorted(e.name for e in entries if stale(e.name)):
-                (folder / name).unlink()
+                (folder / name).unlink(missing_ok=True)  # (two shards may finalise at once)
 
 
 def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
@@ -427,12 +427,13 @@ def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
     Collection's extent and summaries (:class:`_Facts`). Only the sample names stay in memory.
 
     The item files are written without an fsync each (which cost more than making the item)
-    and made durable together by one ``os.sync()`` before the Collection and the Catalog are
+    and made durable together by one ``syncfs`` of their file system
+    (:func:`~osmseg.output.atomic.sync_file_system`) before the Collection and the Catalog are
     written (these keep their fsync), so the Collection written here lists durable items only.
     A power loss before that sync can leave item files empty or old; this Collection, the
     Catalog and the manifest (which the build writes after the catalog) are then not written
     yet, and a rerun of the same build command rewrites the whole catalog (this is a pure
-    function of the manifest). Where ``os.sync`` does not exist (Windows), each item is fsynced.
+    function of the manifest). Where that cannot be asked (Windows), each item is fsynced.
     """
     validate_manifest(manifest)
     table = ClassTable.from_dict(manifest["classes"], where="manifest classes")
@@ -447,7 +448,7 @@ def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
     root = Path(out_dir).resolve() / STAC_DIR
     up = [pystac.Link(rel, f"../{target}", pystac.MediaType.JSON, collection.title)  # every item's links
           for rel, target in (("root", CATALOG_NAME), ("parent", COLLECTION_NAME), ("collection", COLLECTION_NAME))]
-    facts, bulk = _Facts(), hasattr(os, "sync")
+    facts = _Facts()
     for sample in manifest["samples"]:
         pair = _items(sample, table, classes, pixels, known, source)  # checked by _survey
         facts.add(pair[0])
@@ -455,9 +456,13 @@ def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
             item.collection_id = collection.id
             doc = item.to_dict(include_self_link=False, transform_hrefs=False)
             doc["links"] += [link.to_dict(transform_href=False) for link in up]
-            atomic_write_text(root / ITEMS_DIR / f"{item.id}.json", _json_text(doc), durable=not bulk)
-    if bulk:
-        os.sync()  # the items, durable before a file that lists them (see above)
+            atomic_write_text(root / ITEMS_DIR / f"{item.id}.json", _json_text(doc), durable=False)
+    # the items, durable before a file that lists them (see above)
+    if names and not sync_file_system(root / ITEMS_DIR):
+        for name in names:
+            for item_id in (name, name + IMAGE_ITEM_SUFFIX):
+                with open(root / ITEMS_DIR / f"{item_id}.json", "rb") as f:
+                    os.fsync(f.fileno())
     facts.describe(collection, manifest["area"])
     catalog = pystac.Catalog(f"{collection.id}-catalog", title=collection.title,
                              description=f"osmseg dataset: Collection {collection.id}; per sample a label item NAME "

@@ -79,7 +79,8 @@ def sample_paths(name: str, image_format: str = "png") -> dict[str, str]:
 
 
 def encode_png(array: np.ndarray, level: int = COMPRESS_LEVEL, *, runs: bool = False) -> bytes:
-    """PNG bytes of an ``(H, W)`` (greyscale) or ``(H, W, 3)`` (RGB) uint8 array; no metadata chunks.
+    """PNG bytes of an ``(H, W)`` (greyscale), ``(H, W, 3)`` (RGB) or ``(H, W, 4)`` (RGBA) uint8 array;
+    no metadata chunks.
 
     Encoded by libpng through imagecodecs with fixed settings (zlib ``level``, the "up" row
     filter, and with ``runs`` zlib's run-length strategy, for class-id masks), so the same
@@ -90,7 +91,7 @@ def encode_png(array: np.ndarray, level: int = COMPRESS_LEVEL, *, runs: bool = F
     """
     data = np.ascontiguousarray(array, dtype=np.uint8)
     if data.ndim not in (2, 3) or (data.ndim == 3 and data.shape[2] not in (3, 4)):
-        raise DatasetError(f"a PNG needs an (H, W) or (H, W, 3) array, got shape {data.shape}")
+        raise DatasetError(f"a PNG needs an (H, W), (H, W, 3) or (H, W, 4) array, got shape {data.shape}")
     options: dict[str, int] = {"level": level, "filter": PNG_FILTER_UP}
     if runs:
         options["strategy"] = ZLIB_RLE
