@@ -22,9 +22,10 @@ How the workers are made and kept in line:
   same name, so the caller's handlers and filters (the CLI's ``-q``/``-v``) apply as in one
   process. The parent's logging is never configured here; a worker only forwards.
 * **Stopping**: workers ignore SIGINT (Ctrl-C reaches the whole process group); the parent
-  drops what is queued and kills the workers, whose every write is atomic. A worker also ends
-  when the build process ends in any other way (``kill -9``: :func:`_die_with_build`), so no
-  worker is left writing behind a rerun's back.
+  drops what is queued and stops the workers (SIGTERM: the slot being built unwinds and removes
+  its temporary files; a worker still busy after a moment is killed; every write is atomic).
+  A worker also ends when the build process ends in any other way (``kill -9``:
+  :func:`_die_with_build`), so no worker is left writing behind a rerun's back.
 
 Imports: osmseg core below it (slots, state, net).
 """
@@ -69,6 +70,8 @@ logger = logging.getLogger(__name__)
 #: Slots queued per worker beyond the one it builds: enough to keep it busy, few enough that
 #: an interrupted build has little queued work to drop and memory does not grow with the build.
 QUEUED_PER_WORKER = 2
+#: Seconds a stopping worker gets to unwind before it is killed.
+STOP_SECONDS = 3.0
 #: GDAL block cache of a worker in MB, unless GDAL_CACHEMAX says otherwise.
 WORKER_GDAL_CACHE_MB = 256
 #: Modules the fork server imports once, so that each worker starts without importing them.
@@ -139,7 +142,8 @@ def _die_with_build(pid: int) -> None:
 def _start_worker(setup: WorkerSetup) -> None:
     """Pool initializer: forward logging, then open this process's pipeline once."""
     _die_with_build(setup.parent)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when to stop
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when to stop, and says so by SIGTERM
+    signal.signal(signal.SIGTERM, _on_terminate)
     root = logging.getLogger()
     for handler in list(root.handlers):
         root.removeHandler(handler)
@@ -166,11 +170,26 @@ def _start_worker(setup: WorkerSetup) -> None:
     _WORKER.pipe, _WORKER.state, _WORKER.config = pipe, state, setup.config
 
 
+class _Stop(SystemExit):
+    """Raised in a worker by SIGTERM: the build is stopping (Ctrl-C, an error elsewhere)."""
+
+
+def _on_terminate(signum: int, frame: object) -> None:
+    raise _Stop(1)
+
+
 def _build_slot(slot: int, keep_thumbnails: bool) -> SlotOutcome:
-    """Pool task: build one slot in this worker."""
+    """Pool task: build one slot in this worker.
+
+    Stopped by SIGTERM, the slot's code unwinds (every file it was writing under a temporary name
+    is removed) and the worker ends at once, before the pool could hand it another slot.
+    """
     if _WORKER.failure is not None:
         raise _WORKER.failure
-    return run_slot(_WORKER.config, _WORKER.pipe, _WORKER.state, slot, keep_thumbnails)
+    try:
+        return run_slot(_WORKER.config, _WORKER.pipe, _WORKER.state, slot, keep_thumbnails)
+    except _Stop:
+        os._exit(1)
 
 
 class _LogForwarder:
@@ -337,12 +356,17 @@ def _context() -> multiprocessing.context.BaseContext:
 
 
 def _kill(pool: ProcessPoolExecutor) -> None:
-    """Stop a pool at once: drop queued tasks, kill the workers (their writes are atomic), reap them."""
+    """Stop a pool at once: drop queued tasks, ask the workers to stop (SIGTERM: a slot being built
+    unwinds and removes its temporary files), kill those still there after a moment, reap them."""
     processes = list((getattr(pool, "_processes", None) or {}).values())  # before shutdown forgets them
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
         if process.is_alive():
-            process.kill()
+            process.terminate()
+    deadline = time.monotonic() + STOP_SECONDS
     for process in processes:
-        process.join(timeout=10)
+        process.join(timeout=max(0.0, deadline - time.monotonic()))
+        if process.is_alive():  # deep in a library call that does not return to Python soon
+            process.kill()
+            process.join(timeout=10)
     pool.shutdown(wait=True)
