@@ -22,9 +22,11 @@ Lines printed (each build is ``osmseg build`` as a user runs it, in a fresh proc
 * ``floor``: per sample, the bare library calls doing the same work on the same boxes: a
   pyosmium pass over the sample's OSM extract, ``rasterio.features.rasterize`` of its features,
   a windowed read + ``reproject`` of the photo, encoding the photo, the two PNG masks and the
-  label COG with the writer's settings, and SHA-256 of the four files; then the build's
+  label COG with the writer's settings, and SHA-256 of the four files; the same with the photo
+  warped as osmseg warps it (:mod:`osmseg.imagery.remap`: PROJ on a lattice, OpenCV's bilinear
+  ``remap``, four times cheaper than GDAL's warper here); then the build's
   marginal CPU per sample (the 1-worker build's CPU less the least of three 1-sample builds',
-  over the samples but one) divided by it; and the photo's encoding with Pillow's PNG level 1
+  over the samples but one) divided by each; and the photo's encoding with Pillow's PNG level 1
   (the encoder osmseg used before, in the issue's definition of the floor);
 * ``read_features``: median over the boxes of :func:`osmseg.osm.features.read_features`
   beside a bare osmium pass over the same box file;
@@ -69,6 +71,7 @@ from osmseg.osm.localfile import LocalFileSource  # noqa: E402
 from osmseg.output.geotiff import encode_cog, write_class_metadata  # noqa: E402
 from osmseg.output.writer import COMPRESS_LEVEL, PHOTO_COMPRESS_LEVEL, encode_jpeg, encode_png  # noqa: E402
 from osmseg.grid import pad_bbox  # noqa: E402
+from osmseg.imagery.remap import source_pixels, warp_bilinear  # noqa: E402
 from osmseg.places import Area  # noqa: E402
 from osmseg.slots import attempt_grid  # noqa: E402
 
@@ -204,9 +207,11 @@ def _watch(pid: int, out: Path, marks: tuple[int, ...], seen: dict[int, tuple[fl
 FLOOR_PARTS = ("osmium pass", "rasterize", "read+warp", "photo", "masks", "label COG", "sha256")
 
 
-def floor_per_sample(tif: Path, cache: Path, samples: int, fmt: str) -> tuple[dict[str, float], float, float, float]:
+def floor_per_sample(tif: Path, cache: Path, samples: int,
+                     fmt: str) -> tuple[dict[str, float], float, float, float, float]:
     """Per sample, the CPU seconds of each bare library call doing the build's work (see the module
-    doc), Pillow's PNG level 1 for the photo (the encoder osmseg used before), and the median
+    doc), Pillow's PNG level 1 for the photo (the encoder osmseg used before), the same read with
+    osmseg's warp (PROJ on a lattice + ``cv2.remap``) in place of ``reproject``, and the median
     read_features / bare-osmium-pass times (s) over the same boxes."""
     table = load_class_table("classes13.toml")
     config = BuildConfig(out_dir=Path("unused"), area=Area("Helsinki", LAT, LON, RADIUS_KM), imagery="", zoom=18,
@@ -216,7 +221,7 @@ def floor_per_sample(tif: Path, cache: Path, samples: int, fmt: str) -> tuple[di
     src = rasterio.open(tif)
     palette = table.palette()
     parts = dict.fromkeys(FLOOR_PARTS, 0.0)
-    pillow, t_read, t_bare = 0.0, [], []
+    pillow, remapped, t_read, t_bare = 0.0, 0.0, [], []
 
     def timed_cpu(part: str, fn):  # type: ignore[no-untyped-def]
         start = time.process_time()
@@ -242,6 +247,18 @@ def floor_per_sample(tif: Path, cache: Path, samples: int, fmt: str) -> tuple[di
             return np.ascontiguousarray(rgb.transpose(1, 2, 0))
 
         photo = timed_cpu("read+warp", read_warp)
+
+        def read_remap() -> np.ndarray:  # the same window, warped as osmseg warps it
+            window = from_bounds(*transform_bounds("EPSG:3857", src.crs, *grid.xy_bounds), src.transform)
+            window = window.round_offsets().round_lengths().intersection(Window(0, 0, src.width, src.height))
+            data = src.read(window=window)
+            maps = source_pixels("EPSG:3857", grid.transform, (grid.height, grid.width), src.crs,
+                                 src.window_transform(window))
+            return warp_bilinear(data, *maps, alpha=False)
+
+        start = time.process_time()
+        read_remap()
+        remapped += time.process_time() - start
         files = [timed_cpu("photo", lambda: encode_png(photo, PHOTO_COMPRESS_LEVEL) if fmt == "png"
                            else encode_jpeg(photo)),
                  *timed_cpu("masks", lambda: [encode_png(np.take(palette, labels, axis=0), COMPRESS_LEVEL),
@@ -255,7 +272,8 @@ def floor_per_sample(tif: Path, cache: Path, samples: int, fmt: str) -> tuple[di
         t_read.append(_timed(lambda: read_features([box], grid, table)))
         t_bare.append(_timed(lambda: sum(1 for _ in osmium.FileProcessor(str(box)).with_locations())))
     n = len(grids)
-    return {k: v / n for k, v in parts.items()}, pillow / n, statistics.median(t_read), statistics.median(t_bare)
+    return ({k: v / n for k, v in parts.items()}, pillow / n, remapped / n, statistics.median(t_read),
+            statistics.median(t_bare))
 
 
 def _timed(fn, repeat: int = 3) -> float:
@@ -311,12 +329,15 @@ def main() -> None:
             # the fixed cost (start-up, finalising): the least CPU of three 1-sample builds
             fixed = min(run_build(work / f"one-{fmt}", cache, tif, 1, 1, fmt)[0].cpu for _ in range(3))
             marginal = (runs[1, fmt].cpu - fixed) / (n - 1)
-            parts, pillow, t_read, t_bare = floor_per_sample(tif, cache, n, fmt)
+            parts, pillow, remapped, t_read, t_bare = floor_per_sample(tif, cache, n, fmt)
             floor = sum(parts.values())
+            ours = floor - parts["read+warp"] + remapped
             print(f"floor     {fmt}: bare calls {floor * 1000:4.0f} ms CPU/sample = "
                   + " + ".join(f"{k} {v * 1000:.0f}" for k, v in parts.items()))
+            print(f"          with osmseg's warp (PROJ lattice + cv2.remap, {remapped * 1000:.0f} ms) in place of "
+                  f"reproject: {ours * 1000:4.0f} ms")
             print(f"          build {marginal * 1000:4.0f} ms marginal CPU/sample (fixed {fixed - marginal:4.2f} s)"
-                  f" = {marginal / floor:4.2f}x the floor"
+                  f" = {marginal / floor:4.2f}x the floor, {marginal / ours:4.2f}x the floor with osmseg's warp"
                   + (f"; with Pillow's PNG level 1 for the photo ({pillow * 1000:.0f} ms) the floor would be "
                      f"{(floor - parts['photo'] + pillow) * 1000:.0f} ms" if fmt == "png" else ""))
         print(f"read_features {t_read * 1000:6.1f} ms  bare osmium pass {t_bare * 1000:6.1f} ms  "

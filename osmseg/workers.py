@@ -54,6 +54,8 @@ from queue import Empty
 from types import TracebackType
 from typing import Any
 
+import cv2
+
 from osmseg.buildconfig import BuildConfig
 from osmseg.errors import DatasetError
 from osmseg.grid import LngLatBBox
@@ -155,6 +157,8 @@ def _start_worker(setup: WorkerSetup) -> None:
     # GDAL's block cache is 5 % of the machine's memory per process unless told: with a worker per
     # core that is a third of it in caches that random samples barely reuse
     os.environ.setdefault("GDAL_CACHEMAX", str(WORKER_GDAL_CACHE_MB))
+    # a worker per core: OpenCV's own threads (warping imagery) would only compete with the others
+    cv2.setNumThreads(1)
     try:
         client = HttpClient(http_config(setup.config, setup.gate_dir))
         multiprocessing.util.Finalize(client, client.close, exitpriority=10)  # atexit does not run in workers

@@ -34,7 +34,7 @@ from osmseg.errors import (
     RetriesExhausted,
 )
 from osmseg.net.http import CACHE_FILE, DEFAULT_USER_AGENT, HttpClient, HttpConfig
-from osmseg.redact import redact
+from osmseg.redact import SECRET_HEADERS, redact
 
 SECRET = "s3cr3t-K3Y-0123456789"
 FAST = {"backoff": 0.01, "timeout": 5.0}
@@ -562,3 +562,20 @@ def test_a_host_that_cannot_be_reached_at_all_fails_at_once(tmp_path: Path) -> N
     assert time.monotonic() - started < 2.0  # one 0.5 s backoff, not 0.5 + 1 + 2 + 4 + 8
     assert not isinstance(exc.value, RetriesExhausted)  # the whole build stops: every sample would fail
     assert "no connection to 127.0.0.1" in one_line(exc) and "--offline" in one_line(exc)
+
+
+def test_secret_headers_cover_requests_caches_own_list():
+    """osmseg.redact keeps a copy of requests-cache's AUTH_HEADERS (importing requests-cache costs
+    every start-up): a header requests-cache adds must be added there too."""
+    from requests_cache.policy.settings import AUTH_HEADERS
+
+    assert {h.lower() for h in AUTH_HEADERS} <= {h.lower() for h in SECRET_HEADERS}
+
+
+def test_a_build_from_local_files_never_imports_the_http_cache_or_vcrpy():
+    """The command line starts without requests-cache and vcrpy (half a second of every start-up
+    and of every build worker's); they come with the first cached request or cassette."""
+    code = ("import sys, osmseg.cli.main, osmseg.slots, osmseg.workers; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('requests_cache', 'vcr', 'aiohttp')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import mercantile
 import numpy as np
+from scipy import ndimage
 import pytest
 import rasterio
 from PIL import Image
@@ -651,9 +652,12 @@ def test_geotiff_zoomed_out_averages_fine_detail_instead_of_aliasing(tmp_path: P
     assert abs(grey.mean() - 127.5) < 5 and grey.std() < 8, (grey.mean(), grey.std())
 
 
-def test_geotiff_window_read_gives_the_pixels_of_warping_the_whole_raster(tmp_path: Path) -> None:
-    """Reading only the source window under a sample (plus the kernel's margin) changes no pixel:
-    the same warp of the whole raster at the same scale gives the same image."""
+def test_geotiff_warp_matches_gdal_warping_the_whole_raster(tmp_path: Path) -> None:
+    """The window read under a sample plus OpenCV's interpolation at PROJ's coordinates gives GDAL's
+    pixels: ``rasterio.warp.reproject`` (bilinear) of the whole raster, on a noise image (the
+    hardest case: any misplacement shows), in a rotated CRS, at three zooms, also where the
+    sample runs off the raster. Equal up to rounding and OpenCV's 1/32-pixel placement; the
+    validity mask differs only on the footprint's edge."""
     from rasterio.warp import reproject
     from rasterio.enums import Resampling
 
@@ -664,15 +668,21 @@ def test_geotiff_window_read_gives_the_pixels_of_warping_the_whole_raster(tmp_pa
     res = 0.9
     path = _write_tif(tmp_path / "noise.tif", rgb, "EPSG:3067", from_origin(x - 450 * res, y + 450 * res, res, res))
     provider = GeoTiffProvider(path)
-    for zoom, size in ((18, 1), (17, 3), (19, 3)):
-        grid = sample_grid(lon + 0.001, lat - 0.0005, zoom, size=size)
+    for zoom, size, lon_off in ((18, 1, 0.001), (17, 3, 0.001), (19, 3, 0.001), (17, 3, 0.007)):
+        grid = sample_grid(lon + lon_off, lat - 0.0005, zoom, size=size)
         got = provider.fetch(grid)
         with rasterio.open(path) as src:
             whole = np.concatenate([src.read(), np.full((1, 900, 900), 255, np.uint8)])
             out = np.zeros((4, grid.height, grid.width), np.uint8)
             reproject(whole, out, src_transform=src.transform, src_crs=src.crs, dst_transform=grid.transform,
-                      dst_crs="EPSG:3857", resampling=Resampling.bilinear, src_alpha=4, dst_alpha=4,
-                      **provider._scales(src.crs, src.transform, grid))
+                      dst_crs="EPSG:3857", resampling=Resampling.bilinear, src_alpha=4, dst_alpha=4)
         valid = out[3] >= 128
-        assert np.array_equal(got.valid, valid), zoom
-        assert np.array_equal(got.rgb[valid], out[:3].transpose(1, 2, 0)[valid]), zoom
+        assert valid.mean() > 0.2, zoom
+        edge = valid ^ ndimage.binary_erosion(valid, iterations=2)
+        assert not (got.valid ^ valid)[~edge].any(), zoom  # the footprints agree off their edge
+        both = got.valid & valid & ~edge
+        diff = np.abs(got.rgb[both].astype(int) - out[:3].transpose(1, 2, 0)[both])
+        assert diff.mean() < 0.5 and diff.max() <= 4, (zoom, diff.mean(), diff.max())
+        # one output pixel off is plainly different: the comparison sees a misplacement
+        shifted = np.abs(got.rgb[:, 1:][both[:, 1:]].astype(int) - out[:3].transpose(1, 2, 0)[:, :-1][both[:, 1:]])
+        assert shifted.mean() > 10 * diff.mean() + 5, zoom

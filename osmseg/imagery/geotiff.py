@@ -3,21 +3,18 @@
 NAIP, national orthophotos and drone mosaics come in their own projection (UTM, Swiss LV95,
 World Mercator, ...).  The source window under the grid (plus a margin for the resampling
 kernel) is read once, with the raster's validity (its alpha band, or its nodata / internal
-mask as an alpha band), and warped (bilinear) onto the sample's EPSG:3857 grid in one
-``rasterio.warp.reproject`` call, so invalid source pixels do not bleed into valid ones and a
-huge COG is never read whole.
+mask as an alpha band), and interpolated bilinearly onto the sample's EPSG:3857 grid
+(:mod:`osmseg.imagery.remap`: PROJ's exact coordinates on a refined lattice, OpenCV's
+``remap``, colour premultiplied by validity), so invalid source pixels do not bleed into valid
+ones and a huge COG is never read whole. The pixels are GDAL's warper's (bilinear) up to
+rounding, at a quarter of its cost (the tests compare the two).
 
-**One resampling scale per sample.** GDAL's warper chooses the bilinear kernel's width from
-its estimate of the scale (destination pixels per source pixel), made per processing chunk
-from the chunk's shape: a rotated projection (EPSG:3067 against Web Mercator) makes some
-chunks of one sample look like a 0.89 downsampling and others like 0.97, and below 0.95 GDAL
-switches to a kernel 2.5x as wide and as slow, so one image was resampled two ways (the
-``WarpedVRT`` of osmseg <= 0.1 warped 512 x 128 blocks, and paid for the wide kernel). Here the
-scale is measured once from the grid's centre lines in source pixels and given to the warper
-(``XSCALE``/``YSCALE``, which GDAL documents for exactly this: "more reproducible pixel
-output"): every pixel of a sample is resampled alike, downsampling (a zoom coarser than the
-imagery) is filtered by the true factor rather than aliased, and a sample costs about one
-windowed read and one warp.
+**Finer imagery is averaged first.** Where a sample pixel spans more than 1/0.95 source
+pixels (measured once per sample along its centre lines, rotation included; GDAL's warper
+widens its kernel below the same scale), the window is read averaged to the sample's
+resolution (``Resampling.average``, from overviews where the raster has them) and then
+interpolated: detail finer than the sample is averaged rather than aliased, every pixel of a
+sample is resampled alike, and a sample costs one read and one interpolation whatever the zoom.
 
 The file is opened once per process and kept open; a worker process (forked or spawned) opens
 its own, a provider pickles without its handle, and a file replaced on disk is opened again.
@@ -47,17 +44,21 @@ from rasterio.crs import CRS
 from rasterio.enums import ColorInterp, MaskFlags, Resampling
 from rasterio.errors import NotGeoreferencedWarning, RasterioError
 from rasterio.io import DatasetReader
-from rasterio.warp import reproject, transform_bounds
+from rasterio.warp import transform_bounds
 from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError, UnusableImagery
 from osmseg.grid import SampleGrid
 from osmseg.imagery.base import Imagery
 from osmseg.imagery.mosaic import ALPHA_VALID
+from osmseg.imagery.remap import source_pixels, warp_bilinear
 
 logger = logging.getLogger(__name__)
 
 WEB_MERCATOR = CRS.from_epsg(3857)
+# bilinear interpolation alone down to this many grid pixels per source pixel (GDAL's warper
+# widens its bilinear kernel below the same 0.95); finer imagery is averaged first
+MIN_SCALE = 0.95
 #: Grid pixels added around the raster's footprint before warping only that part of the grid:
 #: the warper's approximate transform may place a source pixel up to 1/8 pixel off.
 FOOTPRINT_MARGIN = 2
@@ -226,23 +227,22 @@ class GeoTiffProvider:
         return Window(col0, row0, col1 - col0, row1 - row0), inside, ratio
 
     @staticmethod
-    def _scales(crs: CRS, transform: Affine, grid: SampleGrid) -> dict[str, str]:
-        """The warper's ``XSCALE``/``YSCALE``: destination pixels per source pixel (of a raster with
-        ``transform`` in ``crs``) along the grid's horizontal and vertical centre lines (their
-        length in source pixels, rotation included). Empty when the CRS cannot place them (GDAL
-        then estimates)."""
+    def _decimation(crs: CRS, transform: Affine, grid: SampleGrid, ratio: float) -> float:
+        """How many source pixels (of a raster with ``transform`` in ``crs``) to average into one
+        before interpolating: 1 unless a grid pixel spans more than ``1 / MIN_SCALE`` source pixels
+        along the grid's horizontal or vertical centre line (rotation included), else that span.
+        ``ratio`` (the window's extent over the grid's) stands in when the CRS cannot place them."""
         left, bottom, right, top = grid.xy_bounds
         cx, cy = (left + right) / 2, (bottom + top) / 2
         try:
             xs, ys = rasterio.warp.transform(WEB_MERCATOR, crs, [left, right, cx, cx], [cy, cy, bottom, top])
+            pixels = [~transform * (x, y) for x, y in zip(xs, ys, strict=True)]
+            span = max(math.dist(pixels[0], pixels[1]) / grid.width, math.dist(pixels[2], pixels[3]) / grid.height)
         except (ValueError, RasterioError):
-            return {}
-        pixels = [~transform * (x, y) for x, y in zip(xs, ys, strict=True)]
-        across = math.dist(pixels[0], pixels[1])
-        down = math.dist(pixels[2], pixels[3])
-        if not (math.isfinite(across) and math.isfinite(down) and across > 0 and down > 0):
-            return {}
-        return {"XSCALE": repr(grid.width / across), "YSCALE": repr(grid.height / down)}
+            span = ratio
+        if not math.isfinite(span):
+            span = ratio
+        return span if span * MIN_SCALE > 1.0 else 1.0
 
     def fetch(self, grid: SampleGrid) -> Imagery:
         """The raster warped (bilinear) onto ``grid``; outside its footprint is invalid."""
@@ -257,10 +257,10 @@ class GeoTiffProvider:
                 indexes = list(unique)
                 if self._has_alpha:
                     indexes.append(colorinterp.index(ColorInterp.alpha) + 1)
-                # imagery much finer than the sample is read averaged to twice the sample's resolution
-                # (from the raster's overviews where it has them): memory and time then stay those of
-                # a sample whatever the zoom, and the warp's kernel still sees every source pixel
-                step = ratio / 2 if ratio > 2 else 1.0
+                # imagery finer than the sample is read averaged to about the sample's resolution
+                # (from the raster's overviews where it has them), as bilinear interpolation alone
+                # would alias it: memory and time then stay those of a sample whatever the zoom
+                step = self._decimation(src.crs, src.window_transform(window), grid, ratio)
                 shape = (max(1, math.ceil(window.height / step)), max(1, math.ceil(window.width / step)))
 
                 def sized(*count: int) -> dict[str, Any]:  # how to read ``count`` bands (none: a 2-D mask)
@@ -275,15 +275,16 @@ class GeoTiffProvider:
                     data = np.concatenate([data, src.dataset_mask(window=window, **sized())[np.newaxis]])
                 has_alpha = len(data) > len(unique)
                 # a grid whose every kernel lies on the raster, which marks no pixel invalid, is valid
-                # all over: the colour bands alone are warped (the same values, a quarter less work)
+                # all over: the colour bands alone are warped; elsewhere the raster's footprint ends
+                # within the window, and outside it is alpha 0
                 whole = inside and not has_alpha
+                if not whole and not has_alpha:
+                    data = np.concatenate([data, np.full((1, *data.shape[1:]), 255, np.uint8)])
                 transform = src.window_transform(window) * Affine.scale(window.width / data.shape[2],
                                                                          window.height / data.shape[1])
-                out = np.zeros((len(unique) + (0 if whole else 1), grid.height, grid.width), dtype=np.uint8)
-                reproject(data, out, src_transform=transform, src_crs=src.crs,
-                          dst_transform=grid.transform, dst_crs=WEB_MERCATOR, resampling=Resampling.bilinear,
-                          src_alpha=len(data) if has_alpha else 0, dst_alpha=0 if whole else len(unique) + 1,
-                          **self._scales(src.crs, transform, grid))
+                mapx, mapy = source_pixels(WEB_MERCATOR, grid.transform, (grid.height, grid.width), src.crs,
+                                           transform)
+                out = warp_bilinear(data, mapx, mapy, alpha=not whole)
         except RasterioError as exc:
             cause = exc.__cause__ or exc.__context__
             why = str(cause or exc).splitlines()[0] if str(cause or exc) else type(exc).__name__
@@ -292,9 +293,9 @@ class GeoTiffProvider:
                 "the file looks truncated or corrupt; download or export it again"
             ) from None
         if window is not None:
-            planes = {band: out[i] for i, band in enumerate(unique)}
+            planes = {band: out[..., i] for i, band in enumerate(unique)}
             # bilinear alpha fades at the footprint edge
-            valid = np.ones(out.shape[1:], dtype=bool) if whole else out[-1] >= ALPHA_VALID
+            valid = np.ones(out.shape[:2], dtype=bool) if whole else out[..., -1] >= ALPHA_VALID
             rgb = np.stack([planes[b] for b in self.bands], axis=-1)
             rgb[~valid] = 0
         info: dict[str, Any] = {

@@ -27,20 +27,20 @@ import io
 import threading
 from collections import Counter
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
 
 import requests
 from requests.adapters import HTTPAdapter
 from urllib3 import HTTPResponse
 from urllib3._collections import HTTPHeaderDict
-from vcr.request import Request as VcrRequest
-from vcr.serialize import deserialize, serialize
-from vcr.serializers import yamlserializer
 
 from osmseg.errors import ConfigError, OfflineCacheMiss
 from osmseg.redact import SECRET_HEADERS, SECRET_PARAMS, redact
 from osmseg.output.atomic import atomic_write_bytes
+
+if TYPE_CHECKING:
+    from vcr.request import Request as VcrRequest
 
 #: Statuses worth retrying: rate limits and server-side trouble (the HTTP client retries them;
 #: a recording keeps only the answer that finally came).
@@ -49,6 +49,16 @@ RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
 Mode = Literal["record", "replay"]
 _SECRETS = {p.lower() for p in SECRET_PARAMS}
 _DROP_HEADERS = {h.lower() for h in SECRET_HEADERS} | {"content-encoding", "transfer-encoding"}
+
+
+def _vcr_load(text: str) -> tuple[list[VcrRequest], list[dict[str, Any]]]:
+    """vcrpy's parse of a cassette. vcrpy is imported when a cassette is used, not with this
+    module: importing it patches in aiohttp and costs a third of a second of every start-up."""
+    from vcr.serialize import deserialize
+    from vcr.serializers import yamlserializer
+
+    requests_, responses = deserialize(text, yamlserializer)
+    return requests_, responses
 
 
 def read_cassette_text(path: Path) -> str:
@@ -134,7 +144,7 @@ class ReplayAdapter(HTTPAdapter):
         if not self.path.is_file():
             raise ConfigError(f"replay cassette {self.path} does not exist: record it first with --record {self.path}")
         try:
-            loaded = deserialize(read_cassette_text(self.path), yamlserializer)
+            loaded = _vcr_load(read_cassette_text(self.path))
         except Exception as exc:  # vcrpy raises ValueError/yaml errors/KeyError on bad files
             raise ConfigError(f"{self.path} is not a vcrpy cassette ({type(exc).__name__}); record it again") from None
         requests_, responses = loaded[0], loaded[1]
@@ -179,7 +189,7 @@ class RecordAdapter(HTTPAdapter):
         self._responses: list[dict[str, Any]] = []
         self._seen: dict[tuple[Any, ...], dict[str, Any]] = {}
         if self.path.is_file() and read_cassette_text(self.path).strip():
-            loaded = deserialize(read_cassette_text(self.path), yamlserializer)
+            loaded = _vcr_load(read_cassette_text(self.path))
             for req, resp in zip(loaded[0], loaded[1]):
                 self._keep(req, resp)
 
@@ -201,6 +211,8 @@ class RecordAdapter(HTTPAdapter):
         body = response.content  # read it all: a truncated body raises here, and is retried
         if response.status_code not in RETRY_STATUSES:
             headers = {k: [v] for k, v in request.headers.items() if k.lower() not in _DROP_HEADERS}
+            from vcr.request import Request as VcrRequest  # see _vcr_load
+
             req = VcrRequest(request.method, clean_url(request.url), clean_body(request_body(request)) or None, headers)
             resp_headers = {k: [redact(v) if k.lower() == "location" else v]
                             for k, v in response.headers.items() if k.lower() not in _DROP_HEADERS}
@@ -216,5 +228,8 @@ class RecordAdapter(HTTPAdapter):
         """Write the cassette atomically (sorted by URL so recordings diff well)."""
         with self._lock:
             pairs = sorted(zip(self._requests, self._responses), key=lambda p: (p[0].uri, p[0].method))
+        from vcr.serialize import serialize  # see _vcr_load
+        from vcr.serializers import yamlserializer
+
         text = serialize({"requests": [p[0] for p in pairs], "responses": [p[1] for p in pairs]}, yamlserializer)
         write_cassette_text(self.path, text)

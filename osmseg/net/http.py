@@ -44,7 +44,6 @@ from urllib.parse import urlsplit
 
 import requests
 from requests.adapters import HTTPAdapter
-from requests_cache import NEVER_EXPIRE, CachedSession
 
 from osmseg import __version__
 from osmseg.errors import (
@@ -59,7 +58,6 @@ from osmseg.errors import (
     ServiceUnavailable,
     first_line,
 )
-from osmseg.net.cache import LockedSQLiteCache
 from osmseg.net.failures import (
     BAD_URL_EXCEPTIONS,
     NO_CONNECTION,
@@ -229,8 +227,9 @@ class HttpClient:
         (after the server is fixed) ask again instead of failing the same way.
         """
         key = getattr(response, "cache_key", None)
-        if key and isinstance(self._session, CachedSession):
-            self._session.cache.delete(key)
+        cache = getattr(self._session, "cache", None)  # a CachedSession's
+        if key and cache is not None:
+            cache.delete(key)
 
     @contextmanager
     def usable(self, response: requests.Response) -> Iterator[None]:
@@ -278,6 +277,12 @@ class HttpClient:
         cfg = self.config
         session: requests.Session
         if cfg.cache_dir is not None:
+            # imported here: requests-cache (with vcrpy) is half a second of every command's and every
+            # build worker's start-up, and a build from local files never needs it
+            from requests_cache import NEVER_EXPIRE, CachedSession
+
+            from osmseg.net.cache import LockedSQLiteCache
+
             Path(cfg.cache_dir).mkdir(parents=True, exist_ok=True)
             backend = LockedSQLiteCache(Path(cfg.cache_dir) / CACHE_FILE, busy_timeout=30_000)
             session = CachedSession(
@@ -480,5 +485,6 @@ class HttpClient:
 
     def _cache_declared_ok(self, response: requests.Response) -> None:
         """Store a non-2xx answer the caller declared valid (requests-cache skips them)."""
-        if isinstance(self._session, CachedSession) and not self.config.offline:
-            self._session.cache.save_response(response)
+        cache = getattr(self._session, "cache", None)  # a CachedSession's
+        if cache is not None and not self.config.offline:
+            cache.save_response(response)
