@@ -144,15 +144,20 @@ def run_build(out: Path, cache: Path, tif: Path, samples: int, workers: int, fmt
     shutil.rmtree(out, ignore_errors=True)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    proc = subprocess.Popen(build_args(out, cache, tif, samples, workers, fmt), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE)
-    seen: dict[int, tuple[float, float]] = {}
-    times: dict[int, float] = {}
-    stop = threading.Event()
-    threading.Thread(target=_watch, args=(proc.pid, out, (1, samples, *watch), seen, times, stop, start),
-                     daemon=True).start()
-    _, err = proc.communicate()
-    wall = time.perf_counter() - start
+    # stderr to a file, not a pipe: the wall time ends when the command does (a shell's prompt
+    # returns), not when the fork server, which holds a copy of stderr, has finished exiting too
+    with tempfile.TemporaryFile() as err_file:
+        proc = subprocess.Popen(build_args(out, cache, tif, samples, workers, fmt), stdout=subprocess.DEVNULL,
+                                stderr=err_file)
+        seen: dict[int, tuple[float, float]] = {}
+        times: dict[int, float] = {}
+        stop = threading.Event()
+        threading.Thread(target=_watch, args=(proc.pid, out, (1, samples, *watch), seen, times, stop, start),
+                         daemon=True).start()
+        proc.wait()
+        wall = time.perf_counter() - start
+        err_file.seek(0)
+        err = err_file.read()
     stop.set()
     reap_all()
     if proc.returncode != 0:

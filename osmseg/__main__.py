@@ -1,5 +1,5 @@
 """``python -m osmseg`` (and ``torchrun -m osmseg``) runs the command line."""
 
-from osmseg.cli.main import cli
+from osmseg.cli.launch import main
 
-cli()
+main()

@@ -31,7 +31,8 @@ from osmseg.records import SlotOutcome
 from osmseg.sampling import check_room
 from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions
 from osmseg.state import BuildState
-from osmseg.workers import FirstSamples, SlotRunner, start_fork_server
+from osmseg.processes import start_fork_server
+from osmseg.workers import FirstSamples, SlotRunner
 
 logger = logging.getLogger(__name__)
 

@@ -3,14 +3,12 @@
 Kept apart from :mod:`osmseg.build` so that the code run for one slot (:mod:`osmseg.slots`),
 the worker processes (:mod:`osmseg.workers`) and the build itself share one definition
 without importing each other. Imports: osmseg core below it (places, grid, rejection, redact,
-sampling, errors).
+sampling, processes, errors).
 """
 
 from __future__ import annotations
 
 import json
-import math
-import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,6 +16,7 @@ from typing import Any
 from osmseg.errors import ConfigError
 from osmseg.grid import TILE_SIZE, LngLatBBox, ground_resolution, pad_bbox
 from osmseg.places import Area, normalise_name
+from osmseg.processes import available_cores
 from osmseg.redact import redact
 from osmseg.rejection import FilterConfig
 
@@ -27,35 +26,6 @@ __all__ = ["DEFAULT_ZOOM", "BuildConfig", "Shard", "available_cores", "sampling_
 #: Fine enough that footways, single trees and small buildings are several pixels wide, coarse
 #: enough that Bing/Esri cover every preset area at this level.
 DEFAULT_ZOOM = 18
-
-
-def available_cores() -> int:
-    """The cores this process may use: its CPU affinity where the OS has one (a Slurm allocation
-    of 4 cores on a 64-core node gives 4), else the machine's count, and no more than a cgroup's
-    CPU quota allows (a container given 2 CPUs: ``docker --cpus 2``, a Kubernetes CPU limit).
-
-    >>> available_cores() >= 1
-    True
-    """
-    affinity = getattr(os, "sched_getaffinity", None)
-    cores = len(affinity(0)) if affinity is not None else (os.cpu_count() or 1)
-    quota = _cgroup_cpu_quota()
-    return max(1, min(cores, math.ceil(quota)) if quota else cores)
-
-
-def _cgroup_cpu_quota() -> float | None:
-    """CPUs the cgroup's CFS quota allows (cgroup v2 ``cpu.max``, or v1), or None when unlimited."""
-    try:
-        quota, period = Path("/sys/fs/cgroup/cpu.max").read_text().split()[:2]
-        return None if quota == "max" else int(quota) / int(period)
-    except (OSError, ValueError):
-        pass
-    try:
-        quota_us = int(Path("/sys/fs/cgroup/cpu/cpu.cfs_quota_us").read_text())
-        period_us = int(Path("/sys/fs/cgroup/cpu/cpu.cfs_period_us").read_text())
-        return None if quota_us <= 0 or period_us <= 0 else quota_us / period_us
-    except (OSError, ValueError):
-        return None
 
 
 @dataclass(frozen=True)

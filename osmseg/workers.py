@@ -8,10 +8,11 @@ interrupted at any moment resumes from its state folder like a single-process on
 
 How the workers are made and kept in line:
 
-* **Processes from a fork server** (``spawn`` where there is none): a plain ``fork`` of a
-  process that has already read a PBF would inherit libosmium's thread pool without its
-  threads, and hang. The fork server imports osmseg once; each worker then starts in
-  milliseconds.
+* **Processes from a fork server** (``spawn`` where there is none;
+  :func:`osmseg.processes.worker_context`): a plain ``fork`` of a process that has already
+  read a PBF would inherit libosmium's thread pool without its threads, and hang. The fork
+  server imports osmseg once; each worker then starts in milliseconds. ``osmseg build``
+  starts the server before it imports the builder (:mod:`osmseg.cli.launch`).
 * **One pipeline per worker**, opened once (:func:`osmseg.slots.open_pipeline`): its own HTTP
   client, imagery provider (a local GeoTIFF stays open) and OSM source, on the region file the
   parent cut before starting them.
@@ -36,7 +37,6 @@ import bisect
 import logging
 import logging.handlers
 import multiprocessing
-import multiprocessing.forkserver
 import multiprocessing.util
 import os
 import select
@@ -61,11 +61,12 @@ from osmseg.errors import DatasetError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
 from osmseg.output.overview import OVERVIEW_SAMPLES
+from osmseg.processes import worker_context
 from osmseg.records import SlotOutcome
 from osmseg.slots import Pipeline, http_config, open_pipeline, run_slot
 from osmseg.state import BuildState
 
-__all__ = ["FirstSamples", "SlotRunner", "WorkerSetup", "start_fork_server"]
+__all__ = ["FirstSamples", "SlotRunner", "WorkerSetup"]
 
 logger = logging.getLogger(__name__)
 
@@ -76,8 +77,6 @@ QUEUED_PER_WORKER = 2
 STOP_SECONDS = 3.0
 #: GDAL block cache of a worker in MB, unless GDAL_CACHEMAX says otherwise.
 WORKER_GDAL_CACHE_MB = 256
-#: Modules the fork server imports once, so that each worker starts without importing them.
-PRELOAD = ["osmseg.slots"]
 
 
 @dataclass(frozen=True)
@@ -292,7 +291,7 @@ class SlotRunner:
             self._stack.close()
 
     def _start_pool(self) -> None:
-        context = _context()
+        context = worker_context()
         queue = context.Queue()
         self._logs = _LogForwarder(queue)
         gate_dir = Path(self._stack.enter_context(tempfile.TemporaryDirectory(prefix="osmseg-hosts-")))
@@ -341,22 +340,6 @@ class SlotRunner:
                 pending.add(submit(slot))
                 if len(pending) >= limit:
                     break
-
-
-def start_fork_server() -> None:
-    """Start the fork server now, so that it imports osmseg while the build checks its sources
-    and cuts its OSM data, instead of after (a second or so off every build with workers)."""
-    if isinstance(_context(), multiprocessing.context.ForkServerContext):
-        multiprocessing.forkserver.ensure_running()
-
-
-def _context() -> multiprocessing.context.BaseContext:
-    """A fork server where the platform has one (see the module doc), else spawn."""
-    if "forkserver" in multiprocessing.get_all_start_methods():
-        context = multiprocessing.get_context("forkserver")
-        context.set_forkserver_preload(PRELOAD)
-        return context
-    return multiprocessing.get_context("spawn")
 
 
 def _kill(pool: ProcessPoolExecutor) -> None:

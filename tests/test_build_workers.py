@@ -230,14 +230,65 @@ def test_a_worker_that_cannot_open_its_sources_says_why_in_one_line(tmp_path: Pa
     from osmseg.buildconfig import BuildConfig
     from osmseg.errors import ConfigError
     from osmseg.places import Area
-    from osmseg.workers import WorkerSetup, _build_slot, _context, _start_worker
+    from osmseg.processes import worker_context
+    from osmseg.workers import WorkerSetup, _build_slot, _start_worker
 
     config = BuildConfig(out_dir=tmp_path / "ds", area=Area("t", LAT, LON, 0.08),
                          imagery=f"geotiff:{tmp_path / 'gone.tif'}", osm=str(TINYCITY), samples=1,
                          cache_dir=tmp_path / "cache")
-    context = _context()
+    context = worker_context()
     setup = WorkerSetup(config=config, env={}, regions=(), gate_dir=None, log_queue=context.Queue(),
                         log_level=30, parent=os.getpid())
     with ProcessPoolExecutor(1, mp_context=context, initializer=_start_worker, initargs=(setup,)) as pool:
         with pytest.raises(ConfigError, match="gone.tif does not exist"):
             pool.submit(_build_slot, 0, False).result(timeout=120)
+
+
+# -- the executable starts the fork server before it imports the builder ---------------------------
+
+EARLY_SERVER = """
+import importlib.abc, os, sys
+seen = {}
+class Watch(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name == "osmseg.build" and "children" not in seen:  # the builder is about to be imported
+            pid = os.getpid()
+            seen["children"] = [open(f"/proc/{c}/cmdline", "rb").read().decode(errors="replace")
+                                for t in os.listdir(f"/proc/{pid}/task")
+                                for c in open(f"/proc/{pid}/task/{t}/children").read().split()]
+        return None
+sys.meta_path.insert(0, Watch())
+sys.argv = ["osmseg", *sys.argv[1:]]
+try:
+    from osmseg.cli.launch import main
+    main()
+finally:
+    print(repr(seen.get("children")), file=sys.stderr)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="reads children from Linux's /proc")
+@pytest.mark.parametrize("workers, early", [("2", True), ("1", False)])
+def test_the_executable_starts_the_fork_server_before_it_imports_the_builder(
+        tmp_path: Path, imagery_tif: Path, workers: str, early: bool) -> None:
+    """``osmseg build --workers 2``: the fork server is already running (importing osmseg for the
+    workers) when the command imports the builder, so both import side by side; ``--workers 1``
+    starts none. The build itself is unchanged: one sample, exit 0."""
+    run = subprocess.run([sys.executable, "-c", EARLY_SERVER, "-q",
+                          *build_args(tmp_path / "ds", imagery_tif, "--workers", workers, samples=2)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    children = eval(run.stderr.strip().splitlines()[-1])  # noqa: S307 (our own repr of a list of str)
+    servers = [c for c in children if "forkserver" in c]
+    assert len(servers) == (1 if early else 0), children
+    assert (tmp_path / "ds" / "manifest.json").exists()
+
+
+def test_the_executable_imports_nothing_heavy_before_it_starts_the_server() -> None:
+    """The launcher's own imports are the standard library's: anything heavier would delay the
+    very server start it exists for."""
+    code = ("import sys; import osmseg.cli.launch; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numpy', 'click', 'rasterio', 'pyproj', "
+            "'cv2', 'osmium', 'requests') or m in ('osmseg.build', 'osmseg.cli.main')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

@@ -1,4 +1,5 @@
-"""The ``osmseg`` command line: the group (:mod:`osmseg.cli.main`), the core's own commands
+"""The ``osmseg`` command line: the executable (:mod:`osmseg.cli.launch`: starts a build's fork
+server before the group is imported), the group (:mod:`osmseg.cli.main`), the core's own commands
 (``build``, ``verify``, ``bing-key``) and what every command shares (:mod:`osmseg.cli.common`:
 logging set-up, progress bars, errors as exit codes 1 and 2).
 
