@@ -18,7 +18,9 @@ import math
 import multiprocessing
 import multiprocessing.context
 import multiprocessing.forkserver
+import multiprocessing.resource_tracker
 import os
+import signal
 from pathlib import Path
 
 __all__ = ["PRELOAD", "available_cores", "start_fork_server", "worker_context"]
@@ -67,8 +69,25 @@ def worker_context() -> multiprocessing.context.BaseContext:
 
 def start_fork_server() -> bool:
     """Start the workers' fork server now (it imports :data:`PRELOAD` in the background), unless
-    it runs already or the platform has none. True when there is one."""
+    it runs already or the platform has none. True when there is one.
+
+    SIGINT is blocked while the server is started, as the standard library does for its
+    resource tracker: the server inherits the mask across ``exec``, so a Ctrl-C while it is
+    still importing stops the command with one message, not also the server's traceback (its
+    workers ignore SIGINT; the build stops them). A Ctrl-C meanwhile stays pending for this
+    process and arrives when the mask is lifted: nothing is lost.
+    """
     if not isinstance(worker_context(), multiprocessing.context.ForkServerContext):
         return False
-    multiprocessing.forkserver.ensure_running()
+    if not hasattr(signal, "pthread_sigmask"):
+        multiprocessing.forkserver.ensure_running()
+        return True
+    # the resource tracker first: starting it lifts a SIGINT block of the caller's (it blocks and
+    # unblocks SIGINT around its own start), and the server's start would start it
+    multiprocessing.resource_tracker.ensure_running()
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        multiprocessing.forkserver.ensure_running()
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     return True

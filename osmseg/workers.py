@@ -28,7 +28,7 @@ How the workers are made and kept in line:
   A worker also ends when the build process ends in any other way (``kill -9``:
   :func:`_die_with_build`), so no worker is left writing behind a rerun's back.
 
-Imports: osmseg core below it (slots, state, net).
+Imports: osmseg core below it (slots, state, net, processes).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import ExitStack
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from queue import Empty
@@ -144,7 +144,9 @@ def _start_worker(setup: WorkerSetup) -> None:
     """Pool initializer: forward logging, then open this process's pipeline once."""
     _die_with_build(setup.parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when to stop, and says so by SIGTERM
-    signal.signal(signal.SIGTERM, _on_terminate)
+    # stopped while opening its sources (Ctrl-C as a build starts), a worker has written nothing:
+    # it ends at once and quietly, not with an "Exception in initializer" traceback in the build's log
+    signal.signal(signal.SIGTERM, _end_now)
     root = logging.getLogger()
     for handler in list(root.handlers):
         root.removeHandler(handler)
@@ -170,6 +172,8 @@ def _start_worker(setup: WorkerSetup) -> None:
     except Exception as exc:  # an initializer's error would only say "a worker process died"
         _WORKER.failure = exc
         return
+    finally:
+        signal.signal(signal.SIGTERM, _on_terminate)  # from here on a slot may be writing: unwind it
     _WORKER.pipe, _WORKER.state, _WORKER.config = pipe, state, setup.config
 
 
@@ -179,6 +183,10 @@ class _Stop(SystemExit):
 
 def _on_terminate(signum: int, frame: object) -> None:
     raise _Stop(1)
+
+
+def _end_now(signum: int, frame: object) -> None:
+    os._exit(1)
 
 
 def _build_slot(slot: int, keep_thumbnails: bool) -> SlotOutcome:
@@ -325,10 +333,11 @@ class SlotRunner:
         queue = iter(slots)
         limit = self.workers * (1 + QUEUED_PER_WORKER)
         submit: Callable[[int], Future[SlotOutcome]] = lambda s: pool.submit(_build_slot, s, first.may_show(s))
-        for slot in queue:
-            pending.add(submit(slot))
-            if len(pending) >= limit:
-                break
+        with _interrupts_deferred():  # the first submits start the worker processes
+            for slot in queue:
+                pending.add(submit(slot))
+                if len(pending) >= limit:
+                    break
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
@@ -340,6 +349,29 @@ class SlotRunner:
                 pending.add(submit(slot))
                 if len(pending) >= limit:
                     break
+
+
+@contextmanager
+def _interrupts_deferred() -> Iterator[None]:
+    """Hold a Ctrl-C back until the block is done, then raise it.
+
+    Around the submits that start worker processes: interrupted between the fork server's fork
+    and the pool noting the new process, the build would stop without stopping that worker, which
+    then fails to unpickle its start-up data (the build's semaphores are gone) with a traceback.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[tuple[int, Any]] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append((signum, frame)))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if caught and callable(previous):
+            previous(*caught[0])  # Python's default handler raises KeyboardInterrupt
+        elif caught and previous == signal.SIG_DFL:
+            raise KeyboardInterrupt
 
 
 def _kill(pool: ProcessPoolExecutor) -> None:

@@ -142,6 +142,42 @@ def test_a_build_stopped_with_workers_leaves_no_worker_and_resumes_to_the_same_b
     assert tree_bytes(out) == one_worker
 
 
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+@pytest.mark.parametrize("moment", ["server importing", "workers starting", "workers opening sources"])
+def test_ctrl_c_while_a_build_with_workers_starts_says_one_line(tmp_path: Path, imagery_tif: Path,
+                                                                moment: str) -> None:
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while the fork server is
+    still importing, while the pool forks its workers, or while they open their sources: exit 130
+    and no traceback from any of the processes, however early it comes."""
+    out = tmp_path / "ds"
+    proc = subprocess.Popen([sys.executable, "-m", "osmseg", "-q",
+                             *build_args(out, imagery_tif, "--workers", "2", samples=6)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None:
+        below = descendants(proc.pid)
+        servers = [p for p in below if b"forkserver" in _cmdline(p)]
+        if servers and (moment == "server importing" or descendants(servers[0])):
+            break
+        time.sleep(0.002)
+    if moment == "workers opening sources":
+        time.sleep(0.03)
+    assert proc.poll() is None, "the build ended before it could be interrupted"
+    os.killpg(proc.pid, signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr.decode()
+    assert "Traceback" not in stderr.decode() and "Exception in initializer" not in stderr.decode(), stderr.decode()
+    result = run_cli(*build_args(out, imagery_tif, "--workers", "2", samples=6))  # and the folder resumes
+    assert result.exit_code == 0, result.output
+
 def test_shards_started_at_once_on_one_folder_make_the_one_process_dataset(
         tmp_path: Path, imagery_tif: Path, one_worker: dict[str, bytes]) -> None:
     """As a Slurm array job: N processes, --shard K/N, one shared --out, started together."""
@@ -263,22 +299,24 @@ try:
     from osmseg.cli.launch import main
     main()
 finally:
-    print(repr(seen.get("children")), file=sys.stderr)
+    print("CHILDREN", repr(seen.get("children")), file=sys.stderr)
 """
 
 
-@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="reads children from Linux's /proc")
+@pytest.mark.skipif(not Path(f"/proc/{os.getpid()}/task/{os.getpid()}/children").exists(),
+                    reason="reads a process's children from Linux's /proc")
 @pytest.mark.parametrize("workers, early", [("2", True), ("1", False)])
 def test_the_executable_starts_the_fork_server_before_it_imports_the_builder(
         tmp_path: Path, imagery_tif: Path, workers: str, early: bool) -> None:
     """``osmseg build --workers 2``: the fork server is already running (importing osmseg for the
     workers) when the command imports the builder, so both import side by side; ``--workers 1``
-    starts none. The build itself is unchanged: one sample, exit 0."""
+    starts none. The build itself is unchanged: two samples (two slots, so two workers), exit 0."""
     run = subprocess.run([sys.executable, "-c", EARLY_SERVER, "-q",
                           *build_args(tmp_path / "ds", imagery_tif, "--workers", workers, samples=2)],
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
-    children = eval(run.stderr.strip().splitlines()[-1])  # noqa: S307 (our own repr of a list of str)
+    said = [line for line in run.stderr.splitlines() if line.startswith("CHILDREN ")]
+    children = eval(said[-1].split(" ", 1)[1])  # noqa: S307 (our own repr of a list of str)
     servers = [c for c in children if "forkserver" in c]
     assert len(servers) == (1 if early else 0), children
     assert (tmp_path / "ds" / "manifest.json").exists()

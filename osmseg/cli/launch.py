@@ -58,8 +58,13 @@ def builds_with_workers(args: Sequence[str], cores: int | None = None) -> bool:
 
 def main() -> None:
     """Run the ``osmseg`` command line (console script ``osmseg``, ``python -m osmseg``)."""
-    if builds_with_workers(sys.argv[1:]):
-        start_fork_server()
-    from osmseg.cli.main import cli  # after the server has started: the reason for this module
-
+    try:
+        if builds_with_workers(sys.argv[1:]):
+            try:
+                start_fork_server()
+            except OSError:  # no room for its socket, no file descriptors left: the build tries again, and says why
+                pass
+        from osmseg.cli.main import cli  # after the server has started: the reason for this module
+    except KeyboardInterrupt:  # Ctrl-C before the command runs: the exit status of one, without a traceback
+        sys.exit(130)
     cli()
