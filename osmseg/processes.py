@@ -78,10 +78,7 @@ def start_fork_server() -> bool:
     process and arrives when the mask is lifted: nothing is lost.
     """
     if not isinstance(worker_context(), multiprocessing.context.ForkServerContext):
-        return False
-    if not hasattr(signal, "pthread_sigmask"):
-        multiprocessing.forkserver.ensure_running()
-        return True
+        return False  # (where there is a fork server, POSIX, there is pthread_sigmask)
     # the resource tracker first: starting it lifts a SIGINT block of the caller's (it blocks and
     # unblocks SIGINT around its own start), and the server's start would start it
     multiprocessing.resource_tracker.ensure_running()

@@ -59,9 +59,6 @@ WEB_MERCATOR = CRS.from_epsg(3857)
 # bilinear interpolation alone down to this many grid pixels per source pixel (GDAL's warper
 # widens its bilinear kernel below the same 0.95); finer imagery is averaged first
 MIN_SCALE = 0.95
-#: Grid pixels added around the raster's footprint before warping only that part of the grid:
-#: the warper's approximate transform may place a source pixel up to 1/8 pixel off.
-FOOTPRINT_MARGIN = 2
 
 
 def rgb_bands(colorinterp: tuple[ColorInterp, ...]) -> tuple[int, int, int]:
