@@ -22,16 +22,15 @@ from osmseg.buildconfig import DEFAULT_ZOOM, BuildConfig, Shard, sampling_box
 from osmseg.errors import ConfigError
 from osmseg.grid import LngLatBBox, ground_resolution, pad_bbox
 from osmseg.net.http import HttpClient
-from osmseg.finalize import finalize
+from osmseg.finalize import ENTRIES_PREFIX, finalize
 from osmseg.output.atomic import sweep_temp_files as sweep_temp
-from osmseg.output.manifest import SAMPLE_DIRS
 from osmseg.output.writer import IMAGE_FORMATS
 from osmseg.progress import Progress, report
 from osmseg.records import SlotOutcome
 from osmseg.sampling import check_room
 from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions
-from osmseg.state import BuildState
-from osmseg.processes import start_fork_server
+from osmseg.state import STATE_DIR, BuildState
+from osmseg.processes import start_fork_server, sweep_owned
 from osmseg.workers import FirstSamples, SlotRunner
 
 logger = logging.getLogger(__name__)
@@ -119,41 +118,50 @@ def build(
         # a command refused here leaves no state that the corrected command would be refused by
         pipe = open_pipeline(config, client, env)
         config.out_dir.mkdir(parents=True, exist_ok=True)
-        sweep_temp_files(config.out_dir)
         state = BuildState(config.out_dir)
-        state.check_config(config.identity())
-        mine = config.my_slots()
-        first = FirstSamples()
-        todo: list[int] = []
-        for slot in mine:  # finished slots are counted, not kept: memory does not grow with the build
-            outcome = state.slot(slot)
-            if outcome is None:
-                todo.append(slot)
-                continue
+        try:
+            _build_slots(config, pipe, state, env, progress, command_line, summary)
+        finally:
+            state.release()
+    summary.seconds = time.monotonic() - start
+    return summary
+
+
+def _build_slots(config: BuildConfig, pipe: Pipeline, state: BuildState, env: dict[str, str],
+                 progress: Progress | None, command_line: str, summary: BuildSummary) -> None:
+    """The body of :func:`build` while it holds the output folder: build the unfinished slots of
+    this shard, then, when every slot of the build has its outcome, the dataset-level files."""
+    state.claim(config.identity(), command_line)  # refuses a folder another build holds now
+    sweep_work_area(config.out_dir)  # only now: what is left is a killed process's, or a sharer's live files
+    mine = config.my_slots()
+    first = FirstSamples()
+    todo: list[int] = []
+    for slot in mine:  # finished slots are counted, not kept: memory does not grow with the build
+        outcome = state.slot(slot)
+        if outcome is None:
+            todo.append(slot)
+            continue
+        _count(summary, outcome)
+        if outcome.status == "accepted":
+            first.accepted(slot)
+    regions = prepare_osm(config, pipe, mine, todo)
+    finished = len(mine) - len(todo)
+    report(progress, "build", finished, len(mine), "sample")
+    with SlotRunner(config, pipe, state, env, config.worker_count(len(todo)), regions) as runner:
+        for count, outcome in enumerate(runner.run(todo, first), start=finished + 1):
             _count(summary, outcome)
-            if outcome.status == "accepted":
-                first.accepted(slot)
-        regions = prepare_osm(config, pipe, mine, todo)
-        finished = len(mine) - len(todo)
-        report(progress, "build", finished, len(mine), "sample")
-        with SlotRunner(config, pipe, state, env, config.worker_count(len(todo)), regions) as runner:
-            for count, outcome in enumerate(runner.run(todo, first), start=finished + 1):
-                _count(summary, outcome)
-                counts = {"failed": len(summary.failed)} if summary.failed else {}
-                report(progress, "build", count, len(mine), "sample", accepted=summary.accepted,
-                       rejected=sum(summary.rejected.values()), **counts)
-        imagery_info, osm_info = pipe.imagery.describe(), pipe.osm.describe()
+            counts = {"failed": len(summary.failed)} if summary.failed else {}
+            report(progress, "build", count, len(mine), "sample", accepted=summary.accepted,
+                   rejected=sum(summary.rejected.values()), **counts)
     summary.pending_other_shards = sum(not state.has_slot(s) for s in range(config.samples))
     if summary.pending_other_shards == 0:
-        state.check_owner()  # another command took the folder over meanwhile
-        whole = finalize(config, pipe.table, state, imagery_info, osm_info, command_line)
+        state.check_owner()  # the folder was deleted meanwhile (or taken where there are no locks)
+        whole = finalize(config, pipe.table, state, pipe.imagery.describe(), pipe.osm.describe(), command_line)
         summary.dataset_accepted = whole["accepted"]  # every shard's samples, not only ours
         summary.duplicates = whole["duplicate_samples"]
         summary.overlapping = whole["overlapping_samples"]
         summary.groups = whole["overlap_groups"]
         summary.finalized = True
-    summary.seconds = time.monotonic() - start
-    return summary
 
 
 def prepare_osm(config: BuildConfig, pipe: Pipeline, mine: list[int], todo: list[int]) -> tuple[LngLatBBox, ...]:
@@ -188,11 +196,16 @@ def check_config(config: BuildConfig) -> None:
         raise ConfigError(f"--out {config.out_dir} is a file; give a folder (new, or a build to resume)")
 
 
-def sweep_temp_files(out_dir: Path) -> None:
-    """Remove the temporary files a killed build left in the sample folders (never read, only
-    litter); those of live writers, such as a shard started at the same time, stay."""
-    for folder in SAMPLE_DIRS:
-        sweep_temp(out_dir / folder)
+def sweep_work_area(out_dir: Path) -> None:
+    """Remove what killed processes left in the output folder: temporary files (``.NAME.*.tmp``)
+    in every folder of the dataset and its build state, and the build state's temporary folders
+    (``entries-*`` of an interrupted finalize). Never read, only litter; those of live writers,
+    such as a shard started at the same time, stay."""
+    for folder, dirs, _ in os.walk(out_dir):
+        sweep_temp(Path(folder))
+        if Path(folder).name == STATE_DIR:
+            sweep_owned(Path(folder), ENTRIES_PREFIX)
+            dirs[:] = [d for d in dirs if d not in ("osm",)]  # (cut OSM files: written atomically, and many)
 
 
 def _count(summary: BuildSummary, outcome: SlotOutcome) -> None:

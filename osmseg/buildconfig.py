@@ -85,6 +85,7 @@ class BuildConfig:
     cassette_mode: str = "replay"
     no_overlap: bool = False  # --no-overlap: every attempt gets its own tile block (osmseg.sampling)
     workers: int = 0  # --workers N: processes building samples; 0 = every available core
+    tile_size: int | None = None  # --tile-size: px of a tile server's tiles (None: as the provider says)
 
     def identity(self) -> dict[str, Any]:
         """What decides the dataset's content; recorded in the state and the manifest.
@@ -110,6 +111,7 @@ class BuildConfig:
             "osm_padding_m": self.osm_padding_m,
             # only when asked, so that a folder built before the option existed still resumes
             **({"sampling": "blocks (--no-overlap)"} if self.no_overlap else {}),
+            **({"tile_size": self.tile_size} if self.tile_size is not None else {}),
         }
 
     def my_slots(self) -> list[int]:

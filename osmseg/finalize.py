@@ -42,11 +42,15 @@ from osmseg.output import (
 )
 from osmseg.output.manifest import FORMAT, FORMAT_VERSION, config_entry
 from osmseg.output.stac import write_stac
+from osmseg.processes import owner
 from osmseg.records import SlotOutcome
 from osmseg.sampling import overlap_groups
 from osmseg.state import BuildState
 
-__all__ = ["RejectionEntries", "SampleEntries", "SlotRecords", "finalize"]
+__all__ = ["ENTRIES_PREFIX", "RejectionEntries", "SampleEntries", "SlotRecords", "finalize"]
+
+#: The temporary folder of a finalize in the build state: ``entries-HOST-PID-RANDOM``.
+ENTRIES_PREFIX = "entries-"
 
 
 class SlotRecords:
@@ -59,7 +63,8 @@ class SlotRecords:
 
     def __init__(self, state: BuildState, slots: int) -> None:
         self.state = state
-        self._folder = tempfile.TemporaryDirectory(prefix="entries-", dir=state.root)  # beside the records
+        # beside the records, named by its owner: the next run sweeps it when a kill left it
+        self._folder = tempfile.TemporaryDirectory(prefix=f"{ENTRIES_PREFIX}{owner()}-", dir=state.root)
         folder = Path(self._folder.name)
         self.files = {"samples": folder / "samples.jsonl", "rejected": folder / "rejected.jsonl"}
         self.offsets: dict[str, list[int]] = {"samples": [], "rejected": []}  # where each entry's line starts

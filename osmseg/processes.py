@@ -9,6 +9,15 @@ osmseg (about 0.7 s) while the command does the same, instead of after it, and t
 Why a fork server (``spawn`` where the platform has none): a plain ``fork`` of a process that
 has already read a PBF would inherit libosmium's thread pool without its threads, and hang. The
 server imports :data:`PRELOAD` once; each worker is then forked from it in milliseconds.
+
+It also says who owns a temporary thing and whether that owner is still there
+(:func:`owner`, :func:`owner_gone`): temporary files and folders carry ``HOST-PID`` in their
+names, so the next run can sweep what a killed process left (:func:`sweep_owned`) without
+touching what a live one (a worker, a shard started at the same time) is still writing. The
+command line gives each run its own temporary folder (:func:`use_private_temp_dir`), so what
+the standard library, the fork server and the workers put in ``$TMPDIR`` goes with the run, or
+with the next run after a ``kill -9``. And a ``SIGTERM`` ends a command as a Ctrl-C does
+(:func:`terminate_by_exception`): everything unwinds and removes its temporary files.
 Imports: the standard library only.
 """
 
@@ -19,11 +28,34 @@ import multiprocessing
 import multiprocessing.context
 import multiprocessing.forkserver
 import multiprocessing.resource_tracker
+import multiprocessing.util
 import os
+import re
+import shutil
 import signal
+import socket
+import sys
+import tempfile
+import time
 from pathlib import Path
+from types import FrameType
 
-__all__ = ["PRELOAD", "available_cores", "start_fork_server", "worker_context"]
+__all__ = ["FOREIGN_SECONDS", "INTERRUPTED", "PRELOAD", "TERMINATED", "Terminated", "available_cores", "owner", "owner_gone", "start_fork_server",
+           "sweep_owned", "terminate_by_exception", "use_private_temp_dir", "worker_context"]
+
+#: A temporary thing left by a process on another machine (a shard of a cluster build on a shared
+#: folder) is swept only this long after its last change: no write of osmseg takes that long, and
+#: whether that process still runs cannot be asked from here.
+FOREIGN_SECONDS = 3600.0
+#: What a command stopped by Ctrl-C says (exit 130), and one stopped by SIGTERM (exit 143).
+INTERRUPTED = "interrupted: rerun the same command to resume; finished work is kept"
+TERMINATED = "terminated (SIGTERM): rerun the same command to resume; finished work is kept"
+#: How this run's own temporary folder in ``$TMPDIR`` is named: ``osmseg-HOST-PID-RANDOM``.
+PRIVATE_TEMP_PREFIX = "osmseg-run-"
+#: The socket the fork server listens on, inside the temporary folder (multiprocessing's names),
+#: and the longest name a Unix socket may have (Linux: 108 bytes with the final NUL).
+_FORK_SERVER_SOCKET = "/pymp-abcdefgh/listener-abcdefgh"
+_SOCKET_PATH_MAX = 100
 
 #: Modules the fork server imports once, so that each worker starts without importing them.
 PRELOAD = ["osmseg.slots"]
@@ -88,3 +120,137 @@ def start_fork_server() -> bool:
     finally:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     return True
+
+
+def owner() -> str:
+    """``HOST-PID`` of this process, as temporary names carry it (host made name-safe). On Linux
+    HOST also names the process-id namespace: containers that share a host name (host
+    networking) but not their process ids must not judge each other's pids.
+
+    >>> owner().rsplit("-", 1)[1] == str(os.getpid())
+    True
+    """
+    host = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
+    try:
+        host += f"_{os.stat('/proc/self/ns/pid').st_ino}"
+    except OSError:  # not Linux
+        pass
+    return f"{host}-{os.getpid()}"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def owner_gone(name_owner: str, path: Path) -> bool:
+    """Whether the process ``HOST-PID`` that named ``path`` will never come back to it.
+
+    One of this machine is gone when its pid is; one of another machine (or one that cannot be
+    asked: Windows, where ``os.kill(pid, 0)`` would send a Ctrl-C) once ``path`` has been
+    unchanged for :data:`FOREIGN_SECONDS`; a name without an owner always is.
+
+    >>> owner_gone(owner(), Path(".")), owner_gone("", Path("."))
+    (False, True)
+    """
+    host, _, pid = name_owner.rpartition("-")
+    if not (host and pid.isdigit()):
+        return True
+    if host == owner().rsplit("-", 1)[0] and os.name != "nt":
+        return not _alive(int(pid))
+    try:
+        return time.time() - path.stat().st_mtime > FOREIGN_SECONDS
+    except OSError:
+        return False  # gone already, or not ours to judge
+
+
+def sweep_owned(folder: Path, prefix: str) -> int:
+    """Remove the files and folders ``PREFIX`` + ``HOST-PID-...`` in ``folder`` whose owner is gone
+    (:func:`owner_gone`); how many. Those of live processes stay."""
+    removed = 0
+    try:
+        entries = list(Path(folder).glob(f"{glob_escape(prefix)}*"))
+    except OSError:
+        return 0
+    for entry in entries:
+        match = re.match(r"(.+-\d+)-", entry.name[len(prefix):])
+        if match is None or not owner_gone(match.group(1), entry):
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            try:
+                entry.unlink()
+            except OSError:
+                continue
+        removed += 1
+    return removed
+
+
+def glob_escape(text: str) -> str:
+    """``text`` with glob's special characters escaped.
+
+    >>> glob_escape("entries-[1]*")
+    'entries-[[]1][*]'
+    """
+    return re.sub(r"([*?\[])", r"[\1]", text)
+
+
+def use_private_temp_dir() -> Path | None:
+    """Give this run its own temporary folder in ``$TMPDIR`` (and first sweep those of runs that
+    were killed): ``TMPDIR`` and :mod:`tempfile` point at it from now on, so the folders the
+    standard library makes (``pymp-*`` of the fork server), the fork server and the workers'
+    own, and GDAL's go inside, and it is removed when this process exits. A ``kill -9`` leaves
+    it, and the next run of any osmseg command removes it. For the command line only: a library
+    never changes its caller's environment. None (nothing changed) where ``$TMPDIR`` cannot
+    take it."""
+    base = Path(tempfile.gettempdir())
+    prefix = f"{PRIVATE_TEMP_PREFIX}{owner()}-"
+    try:
+        sweep_owned(base, PRIVATE_TEMP_PREFIX)
+        if len(str(base / prefix)) + 8 + len(_FORK_SERVER_SOCKET) > _SOCKET_PATH_MAX:
+            return None  # the fork server's socket in it would have too long a name: keep $TMPDIR as it is
+        private = Path(tempfile.mkdtemp(prefix=prefix, dir=base))
+    except OSError:
+        return None
+    os.environ["TMPDIR"] = str(private)
+    tempfile.tempdir = str(private)
+    # at exit after multiprocessing's own clean-up of its folder inside (priority -100), not before it
+    multiprocessing.util.Finalize(None, shutil.rmtree, args=(str(private), True), exitpriority=-200)
+    return private
+
+
+class Terminated(BaseException):
+    """Raised in the main thread by ``SIGTERM`` (see :func:`terminate_by_exception`): a command
+    asked to end (``kill``, a batch scheduler's time limit, ``docker stop``) unwinds as it does
+    for a Ctrl-C, so temporary files are removed and workers stopped, and says so."""
+
+
+def _on_sigterm(signum: int, frame: FrameType | None) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: a second kill must not cut the clean-up short
+    raise Terminated()
+
+
+def terminate_by_exception() -> None:
+    """Turn this process's ``SIGTERM`` into :class:`Terminated` in the main thread (the command line's
+    choice: a library leaves its caller's signal handlers alone)."""
+    signal.signal(signal.SIGTERM, _on_sigterm)
+
+
+def quiet_resource_tracker() -> None:
+    """Keep the resource tracker's "leaked semaphore objects" warning for itself.
+
+    After a ``kill -9`` of a build the tracker (a process of its own) removes the semaphores the
+    build held, as it should, but first warns about them on the terminal the user killed the
+    build from. It takes its warning filters from this interpreter's ``-W`` options when it
+    starts, so one added here before it starts keeps it quiet; an interrupted or terminated
+    build releases its semaphores itself and leaves the tracker nothing to warn about.
+    """
+    rule = "ignore:resource_tracker:UserWarning"
+    if rule not in sys.warnoptions:
+        sys.warnoptions.append(rule)

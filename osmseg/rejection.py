@@ -6,8 +6,9 @@ nothing useful. A sample is rejected when
 1. ``unlabeled``: at least ``max_unlabeled`` (70 %) of its pixels are unlabeled (class 0);
 2. ``single_class``: fewer than ``min_classes`` (2) distinct OSM classes appear in it
    (unlabeled does not count: it is the absence of a label, not a class);
-3. ``placeholder_imagery``: the provider said that some tile has no imagery (Bing's
-   "no imagery" placeholder, marked in a response header);
+3. ``placeholder_imagery``: some tile has no imagery: the provider said so (Bing's "no
+   imagery" placeholder, marked in a response header; a 404), or the tile is of one colour
+   (the "no imagery here" fill of most tile servers; :func:`osmseg.imagery.mosaic.is_uniform`);
 4. ``missing_imagery``: more than ``max_invalid_imagery`` of its pixels have no imagery
    (outside a GeoTIFF's footprint, transparent or missing tiles);
 5. ``low_contrast``: the standard deviation of its grey levels (over pixels that have
@@ -180,19 +181,25 @@ def check_labels(labels: np.ndarray, config: FilterConfig) -> Rejection | None:
     return None
 
 
-def check_imagery(rgb: np.ndarray, valid: np.ndarray, placeholder_tiles: int, config: FilterConfig) -> Rejection | None:
+def check_imagery(rgb: np.ndarray, valid: np.ndarray, placeholder_tiles: int, config: FilterConfig,
+                  uniform_tiles: int = 0) -> Rejection | None:
     """The imagery checks (``placeholder_imagery``, ``missing_imagery``, ``low_contrast``); None when it passes.
+
+    ``placeholder_tiles`` counts the tiles without imagery, ``uniform_tiles`` of them of one colour.
 
     >>> rgb = np.zeros((4, 4, 3), np.uint8); valid = np.ones((4, 4), bool); valid[0, 0] = False
     >>> check_imagery(rgb, valid, 0, FilterConfig())
     Rejection(reason='missing_imagery', detail='6.2% of pixels without imagery > 0.0%')
+    >>> check_imagery(rgb, valid, 2, FilterConfig(), uniform_tiles=1).detail
+    '2 placeholder (no imagery) tiles (1 of one colour) > 0'
     """
     if rgb.ndim != 3 or rgb.shape[2] != 3 or valid.shape != rgb.shape[:2]:
         raise ValueError(f"rgb must be (H, W, 3) and valid (H, W); got {rgb.shape} and {valid.shape}")
     if placeholder_tiles > config.max_placeholder_tiles:
+        uniform = f" ({uniform_tiles} of one colour)" if uniform_tiles else ""
         return Rejection(
             "placeholder_imagery",
-            f"{placeholder_tiles} placeholder (no imagery) tile{'s' if placeholder_tiles != 1 else ''}"
+            f"{placeholder_tiles} placeholder (no imagery) tile{'s' if placeholder_tiles != 1 else ''}{uniform}"
             f" > {config.max_placeholder_tiles}",
         )
     invalid = (valid.size - int(np.count_nonzero(valid))) / valid.size  # not 1 - valid/size: 1 - 0.99 > 0.01

@@ -97,7 +97,7 @@ def open_pipeline(config: BuildConfig, client: HttpClient, env: dict[str, str]) 
     table = load_class_table(config.classes)
     rules = table.base or table
     workdir = (config.cache_dir or config.out_dir / ".osmseg-build") / "osm"
-    imagery = make_provider(config.imagery, client, env)
+    imagery = make_provider(config.imagery, client, env, tile_size=config.tile_size)
     check_zoom = getattr(imagery, "check_zoom", None)
     if callable(check_zoom):  # a provider that knows its zoom range says so before anything is written
         check_zoom(config.zoom)
@@ -142,14 +142,18 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int,
     imagery = None
     if rejection is None:
         imagery = pipe.imagery.fetch(grid)
-        rejection = check_imagery(imagery.rgb, imagery.valid, imagery.placeholder_tiles, config.filters)
+        rejection = check_imagery(imagery.rgb, imagery.valid, imagery.placeholder_tiles, config.filters,
+                                  uniform_tiles=imagery.uniform_tiles)
     # OSM objects of a class that could not be drawn at all (their nodes have no location in the
     # data): recorded for rejected attempts too, so an empty mask is never a silent one
     unplaced = {"osm_unplaced": features.unplaced} if features.unplaced else {}
     if rejection is not None or imagery is None:
         assert rejection is not None
         problems = {"osm_problems": list(features.problems)} if features.problems else {}
-        return Attempt.rejected({**rejection_entry(lon, lat, rejection, attempt=attempt), **problems, **unplaced})
+        # which tiles were of one colour (placeholders a server answered as tiles), for the manifest
+        uniform = {"uniform_tiles": imagery.info["uniform_tiles"]} if imagery and imagery.uniform_tiles else {}
+        return Attempt.rejected({**rejection_entry(lon, lat, rejection, attempt=attempt), **problems, **unplaced,
+                                 **uniform})
     name = f"{config.prefix}_{slot:05d}"
     written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format)
     if thumbnails is not None:

@@ -7,6 +7,10 @@ leaves ``.osmseg-build/slots/SSSSS.json``. Because a slot's outcome depends only
 seed, the slot number and the (cached) data, an interrupted build rerun with the same
 command redoes nothing finished and ends byte-identical to an uninterrupted one, and a
 build split with ``--shard K/N`` (slots ``i % N == K-1``) gives the same dataset as one run.
+
+A build holds its folder for its whole life (:meth:`BuildState.claim`, an OS lock that the
+shards of the same build share: :mod:`osmseg.folderlock`), so a command with other options
+started at the same moment is refused at once instead of writing its samples among ours.
 """
 
 from __future__ import annotations
@@ -16,10 +20,10 @@ from pathlib import Path
 from typing import Any
 
 from osmseg.errors import DatasetError
+from osmseg.folderlock import STATE_DIR, FolderLock
 from osmseg.output.atomic import atomic_write_text
 from osmseg.records import Attempt, SlotOutcome
 
-STATE_DIR = ".osmseg-build"
 
 
 def atomic_write_json(path: Path, obj: Any) -> None:
@@ -33,6 +37,35 @@ class BuildState:
     def __init__(self, out_dir: Path) -> None:
         self.root = out_dir / STATE_DIR
         self.identity: dict[str, Any] | None = None  # set by check_config
+        self.lock = FolderLock(self.root)
+
+    def claim(self, config: dict[str, Any], command: str) -> None:
+        """Take the folder for the build ``config`` (its identity, as :meth:`check_config` takes it)
+        until :meth:`release` or the end of this process: an OS lock, shared with processes of the
+        same build (its shards and workers). Refuses, with what holds it, a folder that a build with
+        other options holds now; otherwise checks or records the options (:meth:`check_config`).
+        ``command`` (without secrets) names this process to a command that is refused."""
+        with self.lock.deciding() as others:
+            if others:
+                self.identity = config
+                recorded = self.recorded_config() or {}
+                if recorded != config:
+                    raise DatasetError(f"{self.root.parent} is being built by another osmseg build "
+                                       f"({self.lock.describe_holders()}) with other options (differs in: "
+                                       f"{', '.join(_differences(recorded, config)) or 'its options file'}): "
+                                       "wait for it to end, or use another --out")
+            else:
+                self.check_config(config)
+            self.lock.hold(command or "osmseg build")
+
+    def join(self, config: dict[str, Any]) -> None:
+        """Hold the folder with the build process that claimed it (a worker of that build)."""
+        self.identity = config
+        self.lock.hold("")
+
+    def release(self) -> None:
+        """Let go of the folder (the end of the process does it too)."""
+        self.lock.release()
 
     def check_config(self, config: dict[str, Any]) -> None:
         """Record the build's identity, or refuse to mix two different builds in one folder.
@@ -49,9 +82,8 @@ class BuildState:
         recorded = self.recorded_config()
         if recorded is not None and recorded != config:
             if self.has_samples():
-                changed = sorted(k for k in set(recorded) | set(config) if recorded.get(k) != config.get(k))
                 raise DatasetError(
-                    f"{self.root.parent} holds a different build (differs in: {', '.join(changed)}); "
+                    f"{self.root.parent} holds a different build (differs in: {', '.join(_differences(recorded, config))}); "
                     "use a new --out, or the same options to resume it"
                 )
             for folder in ("attempts", "slots", "failures"):  # the old options' work: not this build's
@@ -101,9 +133,13 @@ class BuildState:
         Called before each record: a shard started with other options cannot then leave its
         samples in a folder whose manifest will describe another build.
         """
-        if self.identity is not None and self.recorded_config() != self.identity:
-            raise DatasetError(f"{self.root.parent} was taken over by a build with other options while this one "
-                               "ran; use a new --out for one of them")
+        if self.identity is None or self.recorded_config() == self.identity:
+            return
+        if not self.config_path.exists():
+            raise DatasetError(f"{self.root.parent} was deleted while this build ran (its build state is gone): "
+                               "run the same command again to build it anew")
+        raise DatasetError(f"{self.root.parent} was taken over by a build with other options while this one "
+                           "ran; use a new --out for one of them")
 
     def _attempt_path(self, slot: int, attempt: int) -> Path:
         return self.root / "attempts" / f"{slot:05d}-{attempt:02d}.json"
@@ -140,6 +176,15 @@ class BuildState:
     def record_slot(self, outcome: SlotOutcome) -> None:
         self.check_owner()
         atomic_write_json(self._slot_path(outcome.slot), outcome.to_json())
+
+
+def _differences(recorded: dict[str, Any], config: dict[str, Any]) -> list[str]:
+    """The options (identity keys) in which two builds differ.
+
+    >>> _differences({"seed": 3, "zoom": 18}, {"seed": 4, "zoom": 18, "classes": "c6"})
+    ['classes', 'seed']
+    """
+    return sorted(k for k in set(recorded) | set(config) if recorded.get(k) != config.get(k))
 
 
 def _read_json(path: Path) -> dict[str, Any] | None:

@@ -168,7 +168,7 @@ def _start_worker(setup: WorkerSetup) -> None:
         if setup.regions and callable(prepare):
             prepare(list(setup.regions))  # the parent cut it: this only finds the region file
         state = BuildState(setup.config.out_dir)
-        state.identity = setup.config.identity()
+        state.join(setup.config.identity())  # the folder stays held while a worker may still write
     except Exception as exc:  # an initializer's error would only say "a worker process died"
         _WORKER.failure = exc
         return
@@ -353,7 +353,8 @@ class SlotRunner:
 
 @contextmanager
 def _interrupts_deferred() -> Iterator[None]:
-    """Hold a Ctrl-C back until the block is done, then raise it.
+    """Hold a Ctrl-C (and a SIGTERM the command line turned into an exception) back until the
+    block is done, then deliver it to the handler that was there.
 
     Around the submits that start worker processes: interrupted between the fork server's fork
     and the pool noting the new process, the build would stop without stopping that worker, which
@@ -363,15 +364,21 @@ def _interrupts_deferred() -> Iterator[None]:
         yield
         return
     caught: list[tuple[int, Any]] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append((signum, frame)))
+    # SIGINT unless ignored; SIGTERM where the command line made it an exception (else it kills at once)
+    deferred = [s for s in (signal.SIGINT, signal.SIGTERM)
+                if signal.getsignal(s) != signal.SIG_IGN and (s == signal.SIGINT or callable(signal.getsignal(s)))]
+    previous = {s: signal.signal(s, lambda signum, frame: caught.append((signum, frame))) for s in deferred}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
-        if caught and callable(previous):
-            previous(*caught[0])  # Python's default handler raises KeyboardInterrupt
-        elif caught and previous == signal.SIG_DFL:
-            raise KeyboardInterrupt
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        if caught:
+            handler = previous[signal.Signals(caught[0][0])]
+            if callable(handler):
+                handler(*caught[0])  # Python's default SIGINT handler raises KeyboardInterrupt
+            else:  # SIGINT set to its default action: what Python's own handler would have raised
+                raise KeyboardInterrupt
 
 
 def _kill(pool: ProcessPoolExecutor) -> None:

@@ -368,6 +368,32 @@ def test_a_tile_that_keeps_failing_fails_its_sample_only_and_a_rerun_finishes(
     assert tree_bytes(out) == clean.files
 
 
+def test_a_tile_in_a_redirect_loop_fails_its_sample_only_and_a_rerun_finishes(
+        services: Services, clean: Clean, tmp_path: Path) -> None:
+    """A server that redirects a tile to itself forever: requests gives up after 30 redirects with an
+    exception that is an OSError; it must end in that sample's failure record, not the build."""
+    tile = clean.tile_only_in_second()
+    loop = Reply(301, headers={"Location": services.server.url(tile) + f"?key={SECRET}"})
+    services.fault(tile, lambda n: loop)
+    out = tmp_path / "ds"
+    args = build_args(services.server, out, tmp_path / "cache")
+
+    failed = run_cli(*args)
+
+    message = assert_one_error_line(failed, "redirect loop", tile, "1 of 2 samples could not be fetched", "again")
+    assert SECRET not in message and "key=REDACTED" in message
+    assert services.seen[tile] == 6 * 31  # the first try and 5 retries, each followed through 30 redirects
+    records = list((out / ".osmseg-build" / "failures").glob("*.json"))
+    assert len(records) == 1 and "redirect loop" in json.loads(records[0].read_text())["reason"]
+    assert SECRET not in records[0].read_text()
+    assert assert_nothing_half_written(out) == [clean.manifest["samples"][0]["name"]]
+
+    services.reset()  # the tile server is fixed
+    rerun = run_cli(*args)
+    assert rerun.exit_code == 0, rerun.output
+    assert tree_bytes(out) == clean.files
+
+
 def test_the_key_is_sent_but_never_written_or_logged(
         services: Services, clean: Clean, tmp_path: Path,
         monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
@@ -442,6 +468,82 @@ def test_ctrl_c_stops_cleanly_and_the_same_command_resumes(services: Services, c
     assert tree_bytes(out) == clean.files
 
 
+# -- tiles that are answered but wrong ------------------------------------------------------------
+
+
+def png(size: int, colour: tuple[int, int, int] | None = None) -> bytes:
+    """A valid PNG of ``size`` px: noise, or one ``colour``."""
+    pixels = (np.full((size, size, 3), colour, np.uint8) if colour is not None
+              else np.random.default_rng(size).integers(0, 256, (size, size, 3), dtype=np.uint8))
+    buf = io.BytesIO()
+    Image.fromarray(pixels).save(buf, "PNG")
+    return buf.getvalue()
+
+
+def uniform_tiles(image: Path) -> list[tuple[int, int]]:
+    """The 256 px tile blocks of a sample image that are of one colour (read with PIL and numpy)."""
+    with Image.open(image) as im:
+        rgb = np.asarray(im.convert("RGB"))
+    found = []
+    for row in range(0, rgb.shape[0], TILE_SIZE):
+        for col in range(0, rgb.shape[1], TILE_SIZE):
+            block = rgb[row:row + TILE_SIZE, col:col + TILE_SIZE].reshape(-1, 3)
+            if (block.max(axis=0) == block.min(axis=0)).all():
+                found.append((row // TILE_SIZE, col // TILE_SIZE))
+    return found
+
+
+def test_a_tile_of_the_wrong_size_is_fetched_again_and_never_kept(
+        services: Services, clean: Clean, tmp_path: Path) -> None:
+    """A 200 with a valid 128 px PNG (a thumbnail, another pyramid's tile) is as wrong as a broken
+    body: fetched again, never stretched into a sample, never cached for a rebuild to replay."""
+    first, second = clean.tiles(0), clean.tiles(1)
+    thumbnail = Reply(200, png(128), {"Content-Type": "image/png"})
+    services.fault(first[3], lambda n: thumbnail if n == 1 else None)
+    services.fault(second[7], lambda n: thumbnail if n <= 2 else None)
+    args = build_args(services.server, tmp_path / "ds", tmp_path / "cache")
+
+    result = run_cli(*args)
+
+    assert result.exit_code == 0, result.output
+    assert services.seen[first[3]] == 2 and services.seen[second[7]] == 3  # asked again after each
+    assert tree_bytes(tmp_path / "ds") == clean.files
+    # what the cache holds is what passed: a rebuild from it alone gives the same bytes
+    offline = run_cli(*build_args(services.server, tmp_path / "again", tmp_path / "cache", "--offline"))
+    assert offline.exit_code == 0, offline.output
+    assert tree_bytes(tmp_path / "again") == clean.files
+
+
+def test_a_tile_that_stays_the_wrong_size_fails_its_sample_and_says_why(
+        services: Services, clean: Clean, tmp_path: Path) -> None:
+    tile = clean.tile_only_in_second()
+    services.fault(tile, lambda n: Reply(200, png(128), {"Content-Type": "image/png"}))
+    failed = run_cli(*build_args(services.server, tmp_path / "ds", tmp_path / "cache"))
+    assert_one_error_line(failed, tile, "is 128x128 px where this provider's tiles are 256x256 px",
+                          "1 of 2 samples could not be fetched")
+
+
+def test_a_tile_of_one_colour_rejects_its_sample_as_placeholder_imagery(
+        services: Services, clean: Clean, tmp_path: Path) -> None:
+    """The "no imagery here" tile of most servers is a valid image of one colour: each is counted, and
+    a sample holding one is rejected; no accepted image holds a tile of one colour."""
+    tile = clean.tile_only_in_second()
+    services.fault(tile, lambda n: Reply(200, png(256, (255, 255, 255)), {"Content-Type": "image/png"}))
+    out = tmp_path / "ds"
+
+    result = run_cli(*build_args(services.server, out, tmp_path / "cache"))
+
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((out / "manifest.json").read_text())
+    reasons = [r for r in manifest["rejected"] if r["reason"] == "placeholder_imagery"]
+    assert reasons and all("(1 of one colour)" in r["detail"] for r in reasons), manifest["rejected"]
+    assert all(r["uniform_tiles"] == [tile.removeprefix("/tiles/").removesuffix(".png")] for r in reasons)
+    assert manifest["samples"], "no sample was accepted"
+    for sample in manifest["samples"]:
+        assert sample["imagery"]["uniform_tiles"] == []
+        assert uniform_tiles(out / next(f for f in sample["files"] if f.startswith("images/"))) == []
+
+
 # -- a flaky network: every kind of fault at once ------------------------------------------------
 
 #: the kinds of fault a real server, proxy or network gives, each as a Reply for a good answer
@@ -454,7 +556,9 @@ FAULT_KINDS: dict[str, Callable[[str, Reply], Reply]] = {
     "cut body": lambda path, good: Reply(good.status, good.body, good.headers, truncate=len(good.data) // 2),
     "dropped": lambda path, good: Reply(good.status, good.body, good.headers, truncate=0),
     "slow": lambda path, good: Reply(good.status, good.body, good.headers, delay=1.5),
-    # a 200 with a corrupt body: a proxy's HTML page, a PNG cut short with a correct length, bad XML
+    # a 200 with a corrupt body: a proxy's HTML page, a PNG cut short with a correct length, bad XML,
+    # a valid image of the wrong size (a thumbnail), a tile of one colour (a placeholder, then the good tile)
+    "thumbnail": lambda path, good: Reply(200, BROKEN_XML if path == MAP else png(128), good.headers),
     "html page": lambda path, good: Reply(200, "<html><body>Service temporarily unavailable</body></html>",
                                           {"Content-Type": "text/html"}),
     "broken body": lambda path, good: Reply(200, BROKEN_XML if path == MAP else good.data[: len(good.data) // 3],

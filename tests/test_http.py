@@ -12,6 +12,7 @@ import itertools
 import logging
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import threading
@@ -380,6 +381,35 @@ def test_retry_after_pauses_the_whole_host(http_server: ScriptedServer) -> None:
     assert other.arrived - first_429 >= 0.8
 
 
+def test_an_answer_is_cached_only_once_it_has_passed_the_callers_check(tmp_path: Path) -> None:
+    """Between the answer and its check, a kill must not leave an unchecked answer in the cache: the
+    check runs while the cache (read by sqlite3 itself) holds nothing, and a refused answer is never
+    written at all."""
+    db = tmp_path / "cache" / CACHE_FILE
+
+    def stored() -> int:
+        with sqlite3.connect(db) as connection:
+            return int(connection.execute("SELECT COUNT(*) FROM responses").fetchone()[0])
+
+    during: list[int] = []
+
+    def check(response: object) -> bytes:
+        during.append(stored())
+        content = response.content  # type: ignore[attr-defined]
+        if content == b"bad":
+            raise CorruptResponse("not a tile")
+        return content
+
+    with ScriptedServer() as server:
+        server.script("/good.png", Reply(200, b"good"))
+        server.script("/bad-then-good.png", Reply(200, b"bad"), Reply(200, b"good"))
+        with client(tmp_path / "cache", backoff=0) as http:
+            assert http.fetch(server.url("/good.png"), check)[1] == b"good"
+            assert during == [0] and stored() == 1
+            assert http.fetch(server.url("/bad-then-good.png"), check)[1] == b"good"
+            assert during == [0, 1, 1] and stored() == 2
+
+
 # -- record / replay ----------------------------------------------------------------------------
 
 
@@ -435,6 +465,21 @@ def test_replay_miss_is_one_line_offline_error(tmp_path: Path) -> None:
     message = one_line(err.value)
     assert "/not-recorded?key=REDACTED" in message and str(path) in message
     assert SECRET not in message
+
+
+def test_record_follows_a_redirect_to_the_same_path_on_another_port(tmp_path: Path) -> None:
+    """Recordings match without the port (a cassette replays against another test server); a
+    recording must still not answer a redirect's target with the redirect itself, forever."""
+    path = tmp_path / "moved.yaml"
+    with ScriptedServer() as old, ScriptedServer() as new:
+        old.script("/tiles/1/0/0.png", Reply(301, headers={"Location": new.url("/tiles/1/0/0.png")}))
+        new.script("/tiles/1/0/0.png", Reply(200, b"the tile", {"Content-Type": "image/png"}))
+        with client(cassette=path, cassette_mode="record") as http:
+            assert http.get(old.url("/tiles/1/0/0.png")).content == b"the tile"
+        assert (old.count("/tiles/1/0/0.png"), new.count("/tiles/1/0/0.png")) == (1, 1)
+        recorded_url = old.url("/tiles/1/0/0.png")
+    with client(cassette=path, cassette_mode="replay") as http:  # both servers are gone
+        assert http.get(recorded_url).content == b"the tile"
 
 
 def test_replay_of_missing_cassette_is_config_error(tmp_path: Path) -> None:

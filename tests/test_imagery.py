@@ -38,6 +38,7 @@ from osmseg.imagery import (
     make_provider,
 )
 from osmseg.imagery.bing import AUTH_MESSAGE
+from osmseg.imagery.mosaic import assemble
 from osmseg.net.http import HttpClient, HttpConfig
 
 from conftest import TEST_DATA, shared_path
@@ -363,16 +364,21 @@ def test_xyz_http_template_needs_a_client():
 
 
 def test_xyz_file_tiles_land_at_their_offsets(grid):
-    provider = make_provider(f"xyz:file://{DATA}/tiles/{{z}}/{{x}}/{{y}}.png", None)
-    imagery = provider.fetch(grid)  # default thread pool
+    template = f"xyz:file://{DATA}/tiles/{{z}}/{{x}}/{{y}}.png"
+    provider = make_provider(template, None)
+    # tile 4 of the folder is a 512 px tile among 256 px ones: never stretched silently
+    with pytest.raises(ImageryError, match=r"18/\d+/\d+ .* is 512x512 px where this provider's tiles are 256x256 px: "
+                                           r"if the provider's tiles are 512 px, declare it with --tile-size 512"):
+        provider.fetch(grid)  # default thread pool
+    retina = make_provider(template, None, tile_size=512)
+    parts = [(retina if index == 4 else provider).fetch_tile(tile) for index, tile in enumerate(grid.tiles)]
+    rgb, valid, placeholders = assemble(grid, parts)
     for index in (1, 2, 3, 5, 7, 8):
-        assert_tile_in_place(imagery.rgb, grid, index, tol=0)
-        assert tile_area(imagery.valid, grid, index).all()
-    assert_tile_in_place(imagery.rgb, grid, 4, tol=2)  # 512 px tile resampled to 256
-    assert not tile_area(imagery.valid, grid, 0)[:, :128].any()  # transparent half
-    assert (
-        imagery.placeholder_tiles == 1 and not tile_area(imagery.valid, grid, 6).any()
-    )  # missing file
+        assert_tile_in_place(rgb, grid, index, tol=0)
+        assert tile_area(valid, grid, index).all()
+    assert_tile_in_place(rgb, grid, 4, tol=2)  # 512 px tile, declared, resampled to 256
+    assert not tile_area(valid, grid, 0)[:, :128].any()  # transparent half
+    assert placeholders == 1 and not tile_area(valid, grid, 6).any()  # missing file
 
 
 def test_xyz_file_truncated_tile_is_an_imagery_error():
@@ -392,9 +398,15 @@ def test_xyz_file_tms_rows(tmp_path, grid):
             target = tmp_path / str(tile.z) / str(tile.x) / f"{2**tile.z - 1 - tile.y}.png"
             target.parent.mkdir(parents=True, exist_ok=True)
             target.write_bytes(source.read_bytes())
-    xyz = XYZProvider(f"file://{DATA}/tiles/{{z}}/{{x}}/{{y}}.png").fetch(grid)
-    tms = XYZProvider(f"file://{tmp_path}/{{z}}/{{x}}/{{-y}}.png").fetch(grid)
-    assert np.array_equal(xyz.rgb, tms.rgb) and np.array_equal(xyz.valid, tms.valid)
+    xyz = XYZProvider(f"file://{DATA}/tiles/{{z}}/{{x}}/{{y}}.png")
+    tms = XYZProvider(f"file://{tmp_path}/{{z}}/{{x}}/{{-y}}.png")
+    for index, tile in enumerate(grid.tiles):
+        if index == 4:  # the folder's 512 px tile: refused by both alike (test above)
+            continue
+        a, b = xyz.fetch_tile(tile), tms.fetch_tile(tile)
+        assert a.placeholder == b.placeholder and (a.rgb is None) == (b.rgb is None), index
+        if a.rgb is not None and b.rgb is not None:
+            assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.valid, b.valid), index
 
 
 # -- GeoTIFF ----------------------------------------------------------------------------------

@@ -98,6 +98,9 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
               help="Tile zoom. 18 = ~0.6 m/px at the equator, ~0.37 m/px at 52°N (see docs).")
 @click.option("--imagery", help="A provider name (Esri.WorldImagery, GeoportailFrance.orthos, USGS.USImagery, ...; "
               "docs/imagery.md) | xyz:TEMPLATE | geotiff:PATH | bing (needs BING_MAPS_KEY) [bing].")
+@click.option("--tile-size", type=click.Choice(["256", "512", "1024"]), default=None,
+              help="Px of the tile server's tiles, when the provider does not say (a 512-px or @2x server); "
+                   "every tile is checked against it [256; 512 for an @2x template].")
 @click.option("--osm", default="api", show_default=True, help="api | overpass | PATH.osm(.pbf) | geojson:PATH (see docs/osm.md).")
 @click.option("--classes", default="classes13.toml", show_default=True, help="Class table: classes13.toml or classes6.toml or a path.")
 @click.option("--image-format", type=click.Choice(["png", "jpg", "cog"]), default="png", show_default=True,
@@ -129,7 +132,8 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
 @click.pass_context
 @report_errors
 def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: float | None, radius_km: float | None,
-                  bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, osm: str, classes: str,
+                  bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, tile_size: str | None,
+                  osm: str, classes: str,
                   image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float, max_missing_imagery: float,
                   max_placeholder_tiles: int,
                   max_tries: int, no_overlap: bool, out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool,
@@ -159,7 +163,8 @@ def build_config(*, city: str | None, lat: float | None, lon: float | None, radi
                  image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float,
                  max_missing_imagery: float, max_placeholder_tiles: int, max_tries: int, no_overlap: bool,
                  out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool, shard: str | None,
-                 make_zip: bool, record: Path | None, replay: Path | None, workers: int = 0) -> BuildConfig:
+                 make_zip: bool, record: Path | None, replay: Path | None, workers: int = 0,
+                 tile_size: str | None = None) -> BuildConfig:
     """The :class:`BuildConfig` that ``osmseg build``'s options (by parameter name) describe."""
     if record and replay:
         raise ConfigError("--record and --replay exclude each other")
@@ -172,6 +177,7 @@ def build_config(*, city: str | None, lat: float | None, lon: float | None, radi
         samples=samples, seed=seed, zoom=zoom, classes=classes, image_format=image_format, filters=filters,
         max_tries=max_tries, cache_dir=cache_dir or default_cache_dir(), offline=offline, http_timeout=http_timeout,
         shard=Shard.parse(shard) if shard else None, zip=make_zip, no_overlap=no_overlap, workers=workers,
+        tile_size=int(tile_size) if tile_size else None,
     )
     if record or replay:
         config = replace(config, cassette=record or replay, cassette_mode="record" if record else "replay")
@@ -197,7 +203,8 @@ def content_options(config: BuildConfig) -> dict[str, Any]:
     return {
         "city": None, "lat": None, "lon": None, "radius_km": None, "bbox": None, **where,
         "samples": config.samples, "seed": config.seed, "zoom": config.zoom,
-        "imagery": redact(config.imagery), "osm": redact(config.osm), "classes": config.classes,
+        "imagery": redact(config.imagery), "tile_size": config.tile_size, "osm": redact(config.osm),
+        "classes": config.classes,
         "image_format": config.image_format, "max_unlabeled": f.max_unlabeled, "min_classes": f.min_classes,
         "min_contrast": f.min_contrast, "max_missing_imagery": f.max_invalid_imagery,
         "max_placeholder_tiles": f.max_placeholder_tiles, "max_tries": config.max_tries,

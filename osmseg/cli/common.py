@@ -17,6 +17,7 @@ import click
 from tqdm import tqdm
 
 from osmseg.errors import ConfigError, OsmsegError
+from osmseg.processes import INTERRUPTED, TERMINATED, Terminated
 from osmseg.progress import Progress, Step
 from osmseg.redact import RedactingFilter
 from osmseg.output.manifest import command_line
@@ -146,8 +147,11 @@ def report_errors(func: F) -> F:
             where = f"{exc.filename}: " if exc.filename else ""
             raise click.ClickException(f"{where}{exc.strerror or exc}; check the path and its permissions") from None
         except KeyboardInterrupt:
-            click.echo("interrupted: rerun the same command to resume; finished work is kept", err=True)
+            click.echo(INTERRUPTED, err=True)
             sys.exit(130)
+        except Terminated:
+            click.echo(TERMINATED, err=True)
+            sys.exit(143)
 
     return wrapper  # type: ignore[return-value]
 

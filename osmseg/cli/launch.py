@@ -19,7 +19,16 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from osmseg.processes import available_cores, start_fork_server
+from osmseg.processes import (
+    INTERRUPTED,
+    TERMINATED,
+    Terminated,
+    available_cores,
+    quiet_resource_tracker,
+    start_fork_server,
+    terminate_by_exception,
+    use_private_temp_dir,
+)
 
 __all__ = ["builds_with_workers", "main"]
 
@@ -57,14 +66,33 @@ def builds_with_workers(args: Sequence[str], cores: int | None = None) -> bool:
 
 
 def main() -> None:
-    """Run the ``osmseg`` command line (console script ``osmseg``, ``python -m osmseg``)."""
+    """Run the ``osmseg`` command line (console script ``osmseg``, ``python -m osmseg``).
+
+    Before anything else: a SIGTERM becomes an exception that unwinds the command like a Ctrl-C
+    (temporary files removed, workers stopped) and ends it with one line and exit 143; the run
+    gets its own temporary folder, removed at its end (or by the next run after a ``kill -9``);
+    the resource tracker keeps its warnings about what a killed build held to itself.
+    """
+    terminate_by_exception()
     try:
+        use_private_temp_dir()
+        quiet_resource_tracker()
         if builds_with_workers(sys.argv[1:]):
             try:
                 start_fork_server()
             except OSError:  # no room for its socket, no file descriptors left: the build tries again, and says why
                 pass
         from osmseg.cli.main import cli  # after the server has started: the reason for this module
-    except KeyboardInterrupt:  # Ctrl-C before the command runs: the exit status of one, without a traceback
-        sys.exit(130)
-    cli()
+    except KeyboardInterrupt:  # Ctrl-C before the command runs: the line and exit status of one, no traceback
+        _end(INTERRUPTED, 130)
+    except Terminated:
+        _end(TERMINATED, 143)
+    try:
+        cli()
+    except Terminated:  # what report_errors does not see: a SIGTERM while click parses the line
+        _end(TERMINATED, 143)
+
+
+def _end(line: str, status: int) -> None:
+    print(line, file=sys.stderr)
+    sys.exit(status)

@@ -75,18 +75,23 @@ def missing_bing_key(asked: bool) -> str:
 
 
 def make_provider(
-    spec: str, client: HttpClient | None, env: Mapping[str, str] = os.environ
+    spec: str, client: HttpClient | None, env: Mapping[str, str] = os.environ, tile_size: int | None = None
 ) -> ImageryProvider:
     """The provider an ``--imagery`` spec names.
 
     ``client`` is the build's shared HTTP client (None is enough for ``geotiff:`` and
     ``xyz:file://``).  ``env`` supplies ``BING_MAPS_KEY``, ``{env:NAME}`` template keys and
     the ``<FAMILY>_API_KEY`` of named providers.  Any other spec is looked up as an
-    xyzservices name (:mod:`osmseg.imagery.providers`).
+    xyzservices name (:mod:`osmseg.imagery.providers`). ``tile_size`` (``--tile-size``) declares
+    the px of a tile server's tiles where the provider does not say (every tile is checked
+    against it); Bing's metadata says it, a GeoTIFF has no tiles.
     """
     spec = spec.strip()
     kind, _, arg = spec.partition(":")
     kind = kind.lower()
+    if tile_size is not None and (kind in ("bing", "geotiff") or spec.lower().endswith(RASTER_SUFFIXES)):
+        raise ConfigError(f"--tile-size is for tile servers (xyz:TEMPLATE, a provider name); --imagery {kind} says "
+                          "its own: leave --tile-size out")
     if kind == "bing":
         key = env.get(BING_KEY_ENV, "")
         if not key:
@@ -100,7 +105,7 @@ def make_provider(
             raise ConfigError(
                 "--imagery xyz: needs a template, e.g. xyz:https://host/{z}/{x}/{y}.png"
             )
-        return XYZProvider(arg, client, env=env)
+        return XYZProvider(arg, client, env=env, tile_size=tile_size)
     if kind == "geotiff":
         if not arg:
             raise ConfigError("--imagery geotiff: needs a path, e.g. geotiff:ortho.tif")
@@ -109,7 +114,7 @@ def make_provider(
         return GeoTiffProvider(spec)
     entry = find_tile_provider(spec)
     if entry is not None:
-        return NamedProvider(entry, client, env=env)
+        return NamedProvider(entry, client, env=env, tile_size=tile_size)
     close = close_names(spec)
     hint = f"; close names: {', '.join(close)}" if close else ""
     raise ConfigError(f"unknown imagery {spec!r}: use {CHOICES}{hint}")

@@ -23,7 +23,9 @@ class Imagery:
         rgb: ``(H, W, 3)`` uint8 image on the sample grid.
         valid: ``(H, W)`` bool, False where the provider had no imagery (Bing "no tile"
             placeholders, transparent/empty tiles, outside a GeoTIFF's footprint).
-        placeholder_tiles: number of tiles the provider marked as "no imagery here".
+        placeholder_tiles: number of tiles without imagery: those the provider marked as "no
+            imagery here" and those of one colour.
+        uniform_tiles: how many of ``placeholder_tiles`` are tiles of one colour.
         info: JSON-able provenance for the manifest (provider, tile URLs with keys removed,
             capture dates when known). Never holds an API key.
     """
@@ -32,6 +34,7 @@ class Imagery:
     valid: np.ndarray
     placeholder_tiles: int = 0
     info: dict[str, Any] = field(default_factory=dict)
+    uniform_tiles: int = 0
 
 
 class ImageryProvider(Protocol):

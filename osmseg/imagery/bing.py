@@ -32,6 +32,7 @@ from osmseg.imagery.mosaic import (
     assemble,
     decode_tile,
     fetch_tiles,
+    tile_lists,
     tile_name,
 )
 from osmseg.net.http import HttpClient
@@ -186,6 +187,7 @@ class BingProvider:
             "subdomains": [str(s) for s in resource.get("imageUrlSubdomains") or []],
             "zoom_min": int(resource.get("zoomMin") or 1),
             "zoom_max": int(resource.get("zoomMax") or 21),
+            "tile_size": int(resource.get("imageWidth") or 256),  # what Bing says its tiles are
             "vintage_start": resource.get("vintageStart"),
             "vintage_end": resource.get("vintageEnd"),
             "brand_logo_uri": body.get("brandLogoUri"),
@@ -214,7 +216,7 @@ class BingProvider:
         def parse(response: Any) -> TilePixels:
             if is_no_tile(response.headers) or not response.content:
                 return NO_IMAGERY
-            return decode_tile(response.content, what)
+            return decode_tile(response.content, what, int(self.metadata()["tile_size"]))
 
         # a 200 whose bytes are not an image is fetched again like a 5xx before it fails the sample
         response, pixels = self._client.fetch(url, parse, ok_statuses=(404,), corrupt=(ImageryError,))
@@ -235,19 +237,19 @@ class BingProvider:
             )
         parts = fetch_tiles(grid.tiles, self.fetch_tile, self.workers)
         rgb, valid, placeholders = assemble(grid, parts)
+        lists = tile_lists(grid, parts)
         info: dict[str, Any] = {
             "provider": self.name,
             "imagery_set": self.imagery_set,
             "image_url": redact(meta["image_url"]),
-            "no_imagery_tiles": [
-                tile_name(t) for t, p in zip(grid.tiles, parts, strict=True) if p.placeholder
-            ],
+            **lists,
             "suppliers": covering_suppliers(meta["resource"], grid.bbox, grid.zoom),
             "copyright": meta["copyright"],
         }
         if meta["vintage_start"] or meta["vintage_end"]:
             info["vintage"] = [meta["vintage_start"], meta["vintage_end"]]
-        return Imagery(rgb=rgb, valid=valid, placeholder_tiles=placeholders, info=info)
+        return Imagery(rgb=rgb, valid=valid, placeholder_tiles=placeholders, info=info,
+                       uniform_tiles=len(lists["uniform_tiles"]))
 
     def describe(self) -> dict[str, Any]:
         """Imagery set, tile template, logo and copyright for the manifest (needs the metadata)."""

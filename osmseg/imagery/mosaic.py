@@ -8,6 +8,19 @@ file) becomes an invalid area instead of an error; bytes that are not an image r
 :class:`~osmseg.errors.ImageryError` naming the tile, because they mean something upstream
 is wrong (an error page served as a tile, a damaged file) and silently blanking them would
 hide it.
+
+Every tile is checked before it is used (and, over HTTP, before it is cached):
+
+* **its size**: a tile that is not the provider's declared tile size (256 px, or 512 for
+  "@2x"/512-px providers, which are resampled to the 256-px grid) is an
+  :class:`~osmseg.errors.ImageryError`: a 128-px thumbnail or a tile of another pyramid
+  answered in its place would otherwise be stretched into a sample that looks fine;
+* **whether it holds imagery at all**: a tile of one colour (:func:`is_uniform`: the "no
+  imagery here" fill of most servers, a blank white or black tile) is a placeholder, counted
+  per sample (``uniform_tiles`` in the manifest) and rejected as ``placeholder_imagery`` as
+  the provider's own "no tile" answers are. Real imagery never has every pixel of a 256-px
+  tile within :data:`UNIFORM_SPREAD` grey levels of each other (sensor and JPEG noise alone
+  exceed it).
 """
 
 from __future__ import annotations
@@ -30,6 +43,11 @@ logger = logging.getLogger(__name__)
 
 #: alpha at or above this counts as imagery; below it (transparent tile parts) is invalid
 ALPHA_VALID = 128
+#: a tile whose pixels (with imagery) all lie within this many levels of each other, in each
+#: band, is one colour: a placeholder (JPEG of a flat fill varies by 1-2 levels)
+UNIFORM_SPREAD = 3
+#: tile sizes a provider may declare (256-px tiles; 512 and 1024 for "@2x"/"@4x" and 512-px servers)
+TILE_SIZES = (256, 512, 1024)
 
 
 @dataclass(frozen=True)
@@ -39,17 +57,22 @@ class TilePixels:
     Attributes:
         rgb: ``(256, 256, 3)`` uint8, or None for "no imagery".
         valid: ``(256, 256)`` bool (False where the tile is transparent), or None.
-        placeholder: True when the provider said it has no imagery for this tile
-            (Bing's ``X-VE-Tile-Info: no-tile``, HTTP 404/204, a missing file).
+        placeholder: True when the provider has no imagery for this tile: it said so
+            (Bing's ``X-VE-Tile-Info: no-tile``, HTTP 404/204, a missing file), or the tile is
+            of one colour (``uniform``).
+        uniform: True when the tile was answered but is of one colour (:func:`is_uniform`).
     """
 
     rgb: np.ndarray | None
     valid: np.ndarray | None
     placeholder: bool = False
+    uniform: bool = False
 
 
 #: the result for a tile the provider has no imagery for
 NO_IMAGERY = TilePixels(rgb=None, valid=None, placeholder=True)
+#: the result for a tile of one colour: a placeholder that was answered as a tile
+UNIFORM_TILE = TilePixels(rgb=None, valid=None, placeholder=True, uniform=True)
 
 
 def tile_name(tile: mercantile.Tile) -> str:
@@ -61,17 +84,25 @@ def tile_name(tile: mercantile.Tile) -> str:
     return f"{tile.z}/{tile.x}/{tile.y}"
 
 
-def decode_tile(data: bytes, what: str) -> TilePixels:
-    """Decode PNG/JPEG/WebP tile bytes into RGB pixels and a validity mask.
+def decode_tile(data: bytes, what: str, tile_size: int = TILE_SIZE) -> TilePixels:
+    """Decode PNG/JPEG/WebP tile bytes into RGB pixels and a validity mask, after checking them.
 
     Transparent pixels (alpha below :data:`ALPHA_VALID`, or a palette's transparent index)
-    are invalid.  Tiles of another size (512 px "retina" tiles) are resampled to 256 px so
-    they fit the grid.  ``what`` names the tile in error messages (``"tile 18/1/2 from ..."``).
+    are invalid.  The tile must be ``tile_size`` px square, the provider's declared size
+    (512-px tiles are then resampled to the 256-px grid); a tile of one colour is
+    :data:`UNIFORM_TILE`.  ``what`` names the tile in error messages (``"tile 18/1/2 from ..."``).
 
     >>> buf = io.BytesIO(); Image.new("RGBA", (256, 256), (10, 20, 30, 0)).save(buf, "PNG")
     >>> px = decode_tile(buf.getvalue(), "tile 1/0/0")
     >>> px.rgb.shape, bool(px.valid.any())
     ((256, 256, 3), False)
+    >>> buf = io.BytesIO(); Image.new("RGB", (256, 256), (255, 255, 255)).save(buf, "PNG")
+    >>> decode_tile(buf.getvalue(), "tile 1/0/0").uniform
+    True
+    >>> buf = io.BytesIO(); Image.new("RGB", (128, 128)).save(buf, "PNG")
+    >>> decode_tile(buf.getvalue(), "tile 1/0/0")
+    Traceback (most recent call last):
+    osmseg.errors.ImageryError: tile 1/0/0 is 128x128 px where this provider's tiles are 256x256 px: a broken or substituted tile
     >>> decode_tile(b"<html>Service unavailable</html>", "tile 1/0/0")
     Traceback (most recent call last):
     osmseg.errors.ImageryError: tile 1/0/0 is not a readable image (32 bytes starting b'<html>Serv'): check the URL template / tile file
@@ -93,6 +124,12 @@ def decode_tile(data: bytes, what: str) -> TilePixels:
             f"{what} is not a readable image ({len(data)} bytes starting {data[:10]!r}): "
             "check the URL template / tile file"
         ) from None
+    if image.size != (tile_size, tile_size):
+        width, height = image.size
+        declare = (f": if the provider's tiles are {width} px, declare it with --tile-size {width}"
+                   if width == height and width in TILE_SIZES else ": a broken or substituted tile")
+        raise ImageryError(f"{what} is {width}x{height} px where this provider's tiles are "
+                           f"{tile_size}x{tile_size} px{declare}")
     if image.mode in ("RGBA", "LA", "PA", "La", "RGBa") or "transparency" in image.info:
         rgba = image.convert("RGBA")
     else:
@@ -106,7 +143,29 @@ def decode_tile(data: bytes, what: str) -> TilePixels:
     else:
         valid = np.ones((TILE_SIZE, TILE_SIZE), dtype=bool)
         rgb = pixels
+    if is_uniform(rgb, valid):
+        logger.debug("%s is of one colour: a placeholder, not imagery", what)
+        return UNIFORM_TILE
     return TilePixels(rgb=rgb, valid=valid)
+
+
+def is_uniform(rgb: np.ndarray, valid: np.ndarray) -> bool:
+    """Whether a tile is of one colour: at least half of it has imagery, and every pixel of that
+    lies within :data:`UNIFORM_SPREAD` levels of the others in each band.
+
+    >>> rgb = np.full((4, 4, 3), 200, np.uint8); every = np.ones((4, 4), bool)
+    >>> is_uniform(rgb, every)
+    True
+    >>> rgb[0, 0] = 180; is_uniform(rgb, every)
+    False
+    >>> corner = np.zeros((4, 4), bool); corner[1:, 1:] = True; is_uniform(rgb, corner)
+    True
+    """
+    count = int(np.count_nonzero(valid))
+    if count * 2 < valid.size:
+        return False
+    pixels = rgb.reshape(-1, 3) if count == valid.size else rgb[valid]
+    return bool((pixels.max(axis=0).astype(np.int16) - pixels.min(axis=0) <= UNIFORM_SPREAD).all())
 
 
 def fetch_tiles(
@@ -138,7 +197,7 @@ def assemble(grid: SampleGrid, parts: Sequence[TilePixels]) -> tuple[np.ndarray,
     """Paste per-tile pixels into the sample image: ``(rgb, valid, placeholder_count)``.
 
     ``parts[i]`` belongs to ``grid.tiles[i]`` and lands at ``grid.tile_offset(i)``.
-    Tiles without imagery stay black and invalid.
+    Tiles without imagery (placeholders, uniform tiles included) stay black and invalid.
     """
     if len(parts) != len(grid.tiles):
         raise ValueError(f"expected {len(grid.tiles)} tiles, got {len(parts)}")
@@ -153,3 +212,11 @@ def assemble(grid: SampleGrid, parts: Sequence[TilePixels]) -> tuple[np.ndarray,
         rgb[row : row + TILE_SIZE, col : col + TILE_SIZE] = part.rgb
         valid[row : row + TILE_SIZE, col : col + TILE_SIZE] = part.valid
     return rgb, valid, placeholders
+
+
+def tile_lists(grid: SampleGrid, parts: Sequence[TilePixels]) -> dict[str, list[str]]:
+    """The manifest's lists of a sample's tiles without imagery: those the provider said it has
+    no imagery for (``no_imagery_tiles``) and those of one colour (``uniform_tiles``)."""
+    pairs = list(zip(grid.tiles, parts, strict=True))
+    return {"no_imagery_tiles": [tile_name(t) for t, p in pairs if p.placeholder and not p.uniform],
+            "uniform_tiles": [tile_name(t) for t, p in pairs if p.uniform]}

@@ -205,6 +205,7 @@ class NamedProvider(XYZProvider):
         client: the shared HTTP client.
         env: where ``<FAMILY>_API_KEY`` comes from (default: ``os.environ``).
         workers: tiles fetched at once (the client's per-host limit applies too).
+        tile_size: the px of the server's tiles, when the entry does not say (its ``tileSize``).
     """
 
     name = "xyzservices"
@@ -216,6 +217,7 @@ class NamedProvider(XYZProvider):
         *,
         env: Mapping[str, str] | None = None,
         workers: int = 4,
+        tile_size: int | None = None,
     ) -> None:
         env = os.environ if env is None else env
         self.provider_name = str(provider.name)
@@ -238,7 +240,10 @@ class NamedProvider(XYZProvider):
         )
         self.terms = next((p.terms for p in AERIAL_PROVIDERS if p.name == self.provider_name), UNREVIEWED)
         attribution = str(provider.get("attribution") or "") or None
-        super().__init__(tile_template(provider, self.key_envs), client, env=env, attribution=attribution, workers=workers)
+        if tile_size is None and "tileSize" in provider:
+            tile_size = int(provider["tileSize"])
+        super().__init__(tile_template(provider, self.key_envs), client, env=env, attribution=attribution,
+                         workers=workers, tile_size=tile_size)
         self._warn_if_unsuitable(provider)
 
     def _warn_if_unsuitable(self, provider: TileProvider) -> None:

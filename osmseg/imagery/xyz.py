@@ -40,14 +40,16 @@ from typing import Any
 import mercantile
 
 from osmseg.errors import ConfigError, HTTPStatusError, ImageryError, NetworkError
-from osmseg.grid import SampleGrid
+from osmseg.grid import TILE_SIZE, SampleGrid
 from osmseg.imagery.base import Imagery
 from osmseg.imagery.mosaic import (
     NO_IMAGERY,
+    TILE_SIZES,
     TilePixels,
     assemble,
     decode_tile,
     fetch_tiles,
+    tile_lists,
     tile_name,
 )
 from osmseg.net.http import HttpClient
@@ -188,6 +190,25 @@ def fill_template(
     return _PLACEHOLDER.sub(replace, template)
 
 
+def declared_tile_size(template: str, asked: int | None = None) -> int:
+    """The tile size in px a template's server answers with: ``asked`` (``--tile-size``), else 512
+    for an ``@2x`` (retina) template, else 256. Tiles of 512 px cover the extent of a 256-px tile
+    of the same ``z/x/y`` with twice the pixels; osmseg resamples them to its 256-px grid.
+
+    >>> declared_tile_size("https://h/{z}/{x}/{y}@2x.png"), declared_tile_size("https://h/{z}/{x}/{y}.png", 512)
+    (512, 512)
+    >>> declared_tile_size("https://h/{z}/{x}/{y}.png", 300)
+    Traceback (most recent call last):
+    osmseg.errors.ConfigError: --tile-size 300: give one of 256, 512, 1024 (the px of the server's tiles)
+    """
+    if asked is None:
+        return 2 * TILE_SIZE if "@2x" in template else TILE_SIZE
+    if asked not in TILE_SIZES:
+        raise ConfigError(f"--tile-size {asked}: give one of {', '.join(map(str, TILE_SIZES))} (the px of the "
+                          "server's tiles)")
+    return asked
+
+
 class XYZProvider:
     """Tiles from a ``{z}/{x}/{y}`` or ``{q}`` URL template, or a ``file://`` tile folder.
 
@@ -197,6 +218,8 @@ class XYZProvider:
         env: where ``{env:NAME}`` values come from (default: ``os.environ``).
         attribution: the provider's required attribution (default: from the host).
         workers: tiles fetched at once (the client's per-host limit applies too).
+        tile_size: the size in px of the server's tiles (:func:`declared_tile_size`: 512 for an
+            ``@2x`` template, else 256, unless given): every tile is checked against it.
     """
 
     name = "xyz"
@@ -209,8 +232,10 @@ class XYZProvider:
         env: Mapping[str, str] | None = None,
         attribution: str | None = None,
         workers: int = 4,
+        tile_size: int | None = None,
     ) -> None:
         self._secrets = parse_template(template, os.environ if env is None else env)
+        self.tile_size = declared_tile_size(template, tile_size)
         self.template = template
         self.is_local = template.startswith("file://")
         if self.is_local:
@@ -267,7 +292,7 @@ class XYZProvider:
                 # a 200 whose bytes are not an image (an HTML error page, a PNG cut short by a
                 # proxy) is fetched again like a 5xx before it fails the sample
                 response, pixels = self._client.fetch(
-                    url, lambda r: decode_tile(r.content, what) if r.content else NO_IMAGERY,
+                    url, lambda r: decode_tile(r.content, what, self.tile_size) if r.content else NO_IMAGERY,
                     ok_statuses=(204, 404), corrupt=(ImageryError,))
             except HTTPStatusError as exc:
                 raise type(exc)(self._scrub(str(exc)), exc.status) from None
@@ -277,20 +302,21 @@ class XYZProvider:
                 logger.debug("server has no %s (HTTP %s)", what, response.status_code)
                 return NO_IMAGERY
             return pixels
-        return decode_tile(data, what)
+        return decode_tile(data, what, self.tile_size)
 
     def fetch(self, grid: SampleGrid) -> Imagery:
         """The sample's tiles merged into one image on ``grid``."""
         parts = fetch_tiles(grid.tiles, self.fetch_tile, self.workers)
         rgb, valid, placeholders = assemble(grid, parts)
-        missing = [tile_name(t) for t, p in zip(grid.tiles, parts, strict=True) if p.placeholder]
+        lists = tile_lists(grid, parts)
         info: dict[str, Any] = {
             "provider": self.name,
             "template": self.display_template,
-            "no_imagery_tiles": missing,
+            **lists,
             "attribution": self.attribution,
         }
-        return Imagery(rgb=rgb, valid=valid, placeholder_tiles=placeholders, info=info)
+        return Imagery(rgb=rgb, valid=valid, placeholder_tiles=placeholders, info=info,
+                       uniform_tiles=len(lists["uniform_tiles"]))
 
     def describe(self) -> dict[str, Any]:
         """Provider, template (keys not expanded) and attribution, for the manifest."""
@@ -298,4 +324,5 @@ class XYZProvider:
             "provider": self.name,
             "template": self.display_template,
             "attribution": self.attribution,
+            **({"tile_size": self.tile_size} if self.tile_size != TILE_SIZE else {}),
         }

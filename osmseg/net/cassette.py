@@ -13,8 +13,11 @@ classes process-wide, this is a transport adapter mounted on the one
   works on top of it (vcrpy's stand-in responses cannot be cached).
 
 Matching: method, scheme, host, path, query (order-free) and body, with secret parameters
-removed on both sides, and not the port — a cassette recorded with one key, or against a
-test server, replays with another or none. Recordings drop secret parameters and headers,
+removed on both sides, and the port where it can: a replay takes the answer recorded for the
+same port, else the first recorded for any port — a cassette recorded with one key, or
+against a test server, replays with another or none. A recording only ever answers from what it
+recorded for the same port: a server that redirects to the same path on another port is then
+asked there, instead of being answered its own redirect again and again. Recordings drop secret parameters and headers,
 skip transient answers (429/5xx: the retry that followed is recorded), store bodies decoded,
 and are written atomically when the client closes. A path ending in ``.gz`` is read and
 written gzip-compressed (deterministically), which keeps an embedded cassette small.
@@ -106,15 +109,19 @@ def request_body(request: requests.PreparedRequest) -> bytes | str | None:
     return body
 
 
-def match_key(method: str, url: str, body: bytes | str | None) -> tuple[str, str, str, str, tuple[tuple[str, str], ...], bytes]:
-    """What must agree between a live request and a recorded one.
+def match_key(method: str, url: str, body: bytes | str | None,
+              port: bool = False) -> tuple[str, str, str, str, tuple[tuple[str, str], ...], bytes, int | None]:
+    """What must agree between a live request and a recorded one (the port only with ``port``).
 
     >>> match_key("GET", "https://h:8443/p?b=2&a=1&key=x", None)[:5]
     ('GET', 'https', 'h', '/p', (('a', '1'), ('b', '2')))
+    >>> match_key("GET", "http://h:8001/p", None)[-1], match_key("GET", "http://h:8001/p", None, port=True)[-1]
+    (None, 8001)
     """
     parts = urlsplit(url)
     query = tuple(sorted((k, v) for k, v in parse_qsl(parts.query, keep_blank_values=True) if k.lower() not in _SECRETS))
-    return (method.upper(), parts.scheme, parts.hostname or "", parts.path, query, clean_body(body))
+    return (method.upper(), parts.scheme, parts.hostname or "", parts.path, query, clean_body(body),
+            (parts.port or {"http": 80, "https": 443}.get(parts.scheme)) if port else None)
 
 
 def recorded_response(adapter: HTTPAdapter, request: requests.PreparedRequest, recorded: dict[str, Any]) -> requests.Response:
@@ -150,26 +157,28 @@ class ReplayAdapter(HTTPAdapter):
         requests_, responses = loaded[0], loaded[1]
         #: how many times each recorded URL (secrets removed) was answered
         self.plays: Counter[str] = Counter()
-        self._answers: dict[tuple[Any, ...], dict[str, Any]] = {}
-        self._urls: dict[tuple[Any, ...], str] = {}
+        #: (answer, recorded URL) by the match key with the port, and without it
+        self._answers: dict[tuple[Any, ...], tuple[dict[str, Any], str]] = {}
         for req, resp in zip(requests_, responses):
-            key = match_key(req.method, req.uri, req.body)
-            self._answers.setdefault(key, resp)
-            self._urls.setdefault(key, clean_url(req.uri))
+            for key in (match_key(req.method, req.uri, req.body, port=True), match_key(req.method, req.uri, req.body)):
+                self._answers.setdefault(key, (resp, clean_url(req.uri)))
 
     def unplayed(self) -> list[str]:
         """Recorded URLs that no request has asked for yet (tests use it to check coverage)."""
-        return sorted(url for url in set(self._urls.values()) if not self.plays[url])
+        return sorted(url for url in {url for _, url in self._answers.values()} if not self.plays[url])
 
     def send(self, request: requests.PreparedRequest, **kwargs: Any) -> requests.Response:  # type: ignore[override]
         assert request.method is not None and request.url is not None
-        recorded = self._answers.get(match_key(request.method, request.url, request_body(request)))
-        if recorded is None:
+        body = request_body(request)
+        found = (self._answers.get(match_key(request.method, request.url, body, port=True))
+                 or self._answers.get(match_key(request.method, request.url, body)))
+        if found is None:
             raise OfflineCacheMiss(
                 f"{request.method} {redact(request.url)} is not in the replay cassette {self.path}: "
                 f"record it with --record {self.path} (needs the network), or drop --replay"
             )
-        self.plays[clean_url(request.url)] += 1
+        recorded, url = found
+        self.plays[url] += 1
         return recorded_response(self, request, recorded)
 
 
@@ -194,7 +203,7 @@ class RecordAdapter(HTTPAdapter):
                 self._keep(req, resp)
 
     def _keep(self, req: VcrRequest, resp: dict[str, Any]) -> None:
-        key = match_key(req.method, req.uri, req.body)
+        key = match_key(req.method, req.uri, req.body, port=True)
         with self._lock:
             if key not in self._seen:
                 self._seen[key] = resp
@@ -204,7 +213,7 @@ class RecordAdapter(HTTPAdapter):
     def send(self, request: requests.PreparedRequest, **kwargs: Any) -> requests.Response:  # type: ignore[override]
         assert request.method is not None and request.url is not None
         with self._lock:
-            known = self._seen.get(match_key(request.method, request.url, request_body(request)))
+            known = self._seen.get(match_key(request.method, request.url, request_body(request), port=True))
         if known is not None:
             return recorded_response(self, request, known)
         response = super().send(request, **kwargs)

@@ -73,7 +73,23 @@ def retry_after(response: requests.Response) -> float | None:
 
 
 def describe_failure(exc: BaseException, timeout: float) -> str:
-    """A short, secret-free phrase for a transport failure."""
+    """A short, secret-free phrase for a transport failure: any exception of requests that is not
+    the caller's URL's own fault (a redirect loop, a redirect to an unusable URL, a broken header
+    or TLS handshake as well as timeouts and dropped connections).
+
+    >>> describe_failure(requests.exceptions.TooManyRedirects("Exceeded 30 redirects."), 30)
+    'redirect loop (more than 30 redirects)'
+    """
+    if isinstance(exc, requests.exceptions.TooManyRedirects):
+        return "redirect loop (more than 30 redirects)"
+    if isinstance(exc, requests.exceptions.SSLError):
+        return "connection failed (TLS/certificate check failed: check the host name and the system's CA certificates)"
+    if isinstance(exc, BAD_URL_EXCEPTIONS):  # the URL asked was checked before it was sent: a redirect's
+        return "redirected to an unusable URL"
+    if isinstance(exc, requests.exceptions.InvalidHeader):
+        return "malformed HTTP header in the answer"
+    if not isinstance(exc, RETRY_EXCEPTIONS):
+        return f"request failed ({type(exc).__name__})"
     if isinstance(exc, requests.exceptions.ConnectTimeout):
         return f"no connection within {timeout:g} s"
     if isinstance(exc, requests.exceptions.Timeout):

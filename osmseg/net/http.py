@@ -6,7 +6,10 @@ Every remote call (Bing, XYZ tiles, the OSM API, Overpass) goes through :class:`
 * **On-disk cache** (requests-cache, SQLite at ``cache_dir/http.sqlite``): each write is one
   SQLite transaction, so ``kill -9`` never leaves a half-written entry.  2xx answers are kept
   forever (tiles and a fixed OSM query are stable; delete the folder to refresh); server
-  ``Cache-Control`` is ignored.  A non-2xx answer is cached only if the caller listed it in
+  ``Cache-Control`` is ignored.  An answer is stored only once it has passed every check of
+  its caller (:meth:`HttpClient.fetch`'s ``parse``: a tile decoded at the provider's tile
+  size, OSM XML that parses): a wrong answer is never written, so no kill between the write
+  and the check can leave it to be replayed forever.  A non-2xx answer is cached only if the caller listed it in
   ``ok_statuses``: the caller declared it valid (a tile server's 404 for "no tile here"), and
   an ``--offline`` rebuild must see the same answer.
 * **Retries** with exponential backoff on 429/500/502/503/504, connection errors, timeouts,
@@ -61,7 +64,6 @@ from osmseg.errors import (
 from osmseg.net.failures import (
     BAD_URL_EXCEPTIONS,
     NO_CONNECTION,
-    RETRY_EXCEPTIONS,
     HostGate,
     describe_failure,
     retry_after,
@@ -294,6 +296,7 @@ class HttpClient:
                 ignored_parameters=(*SECRET_PARAMS, *SECRET_HEADERS),
                 match_headers=False,
                 only_if_cached=cfg.offline,
+                read_only=True,  # answers are stored by _store, once they have passed the caller's checks
             )
         else:
             session = requests.Session()
@@ -362,9 +365,12 @@ class HttpClient:
             elif self._accept(method, shown, outcome, ok_statuses):
                 self._answered.add(host)
                 if parse is None or not 200 <= outcome.status_code < 300:
+                    self._store(outcome)
                     return outcome, None
                 try:
-                    return outcome, parse(outcome)
+                    parsed = parse(outcome)
+                    self._store(outcome)  # only now: nothing unchecked is ever cached
+                    return outcome, parsed
                 except corrupt as exc:  # a 200 with a body nobody can use: like a 5xx, not the end
                     if cfg.offline:  # the cache is all there is: keep it, and say what to do
                         raise RetriesExhausted(f"{method} {shown}: the cached answer is unusable "
@@ -377,7 +383,7 @@ class HttpClient:
                         self.forget(outcome)
                     raise
                 # anything else (a full disk while storing what was parsed) is not the answer's fault:
-                # it propagates, and the good answer stays cached
+                # it propagates (and the answer, not yet checked to the end, is not cached)
             else:  # a status worth retrying
                 self._answered.add(host)
                 problem, last_status = f"HTTP {outcome.status_code}", outcome.status_code
@@ -430,14 +436,13 @@ class HttpClient:
                     headers=dict(headers) if headers else None,
                     timeout=(timeout, timeout),
                 )
-        except BAD_URL_EXCEPTIONS:
-            raise ConfigError(f"{method} {shown}: not a valid http(s) URL") from None
-        except requests.exceptions.SSLError:
-            raise NetworkError(
-                f"{method} {shown}: TLS/certificate check failed: "
-                "check the host name and the system's CA certificates"
-            ) from None
-        except RETRY_EXCEPTIONS as exc:
+        except requests.exceptions.RequestException as exc:
+            if isinstance(exc, BAD_URL_EXCEPTIONS) and urlsplit(url).scheme.lower() not in ("http", "https"):
+                raise ConfigError(f"{method} {shown}: not a valid http(s) URL") from None
+            # everything else requests can raise (a redirect loop or a redirect to an unusable URL, a broken
+            # header, a TLS failure as well as dropped connections) is this request's failure, never the
+            # build's: another attempt, then RetriesExhausted for the caller (a build fails that sample's
+            # attempt and goes on; a host that never answered stops the build at once, below)
             return describe_failure(exc, timeout)
 
     def _accept(
@@ -458,9 +463,7 @@ class HttpClient:
         if 200 <= status < 300:
             return True
         if status in ok_statuses:
-            if not from_cache:
-                self._cache_declared_ok(response)
-            return True
+            return True  # stored by the caller of _accept, as a 2xx is
         if status in (401, 403):
             raise AuthError(
                 f"{method} {shown} was refused (HTTP {status}): {status_hint(status)}", status
@@ -483,8 +486,8 @@ class HttpClient:
             raise ConfigError(f"not a valid http(s) URL: {redact(url)}") from None
         return str(prepared.url)
 
-    def _cache_declared_ok(self, response: requests.Response) -> None:
-        """Store a non-2xx answer the caller declared valid (requests-cache skips them)."""
+    def _store(self, response: requests.Response) -> None:
+        """Write an answer that passed its caller's checks to the cache (not one read from it)."""
         cache = getattr(self._session, "cache", None)  # a CachedSession's
-        if cache is not None and not self.config.offline:
+        if cache is not None and not self.config.offline and not getattr(response, "from_cache", False):
             cache.save_response(response)

@@ -13,14 +13,13 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
-import re
-import socket
 import sys
 import tempfile
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+from osmseg.processes import FOREIGN_SECONDS, owner, owner_gone
 
 
 def sha256_bytes(data: bytes) -> str:
@@ -41,26 +40,17 @@ def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
     return digest.hexdigest()
 
 
-#: A temporary file left by a writer on another machine (a shard of a cluster build on a shared
-#: folder) is removed by :func:`sweep_temp_files` only this long after its last change: no write
-#: of osmseg takes that long, and whether that writer still runs cannot be asked from here.
-FOREIGN_TEMP_SECONDS = 3600.0
+#: (kept for callers of earlier releases) see :data:`osmseg.processes.FOREIGN_SECONDS`
+FOREIGN_TEMP_SECONDS = FOREIGN_SECONDS
 
 
 def _owner() -> str:
-    """``HOST-PID`` of this process, as temporary file names carry it (host made name-safe). On
-    Linux HOST also names the process-id namespace: containers that share a host name (host
-    networking) but not their process ids must not judge each other's pids.
+    """``HOST-PID`` of this process (:func:`osmseg.processes.owner`).
 
     >>> _owner().rsplit("-", 1)[1] == str(os.getpid())
     True
     """
-    host = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
-    try:
-        host += f"_{os.stat('/proc/self/ns/pid').st_ino}"
-    except OSError:  # not Linux
-        pass
-    return f"{host}-{os.getpid()}"
+    return owner()
 
 
 def temp_path_for(path: Path) -> Path:
@@ -75,41 +65,19 @@ def temp_path_for(path: Path) -> Path:
     return Path(tmp)
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process
-        return True
-    return True
-
-
 def sweep_temp_files(folder: Path) -> int:
     """Remove the ``.NAME.*.tmp`` files in ``folder`` that no live writer will finish; how many.
 
     A file of this machine goes when its writing process is gone (a build killed mid-write); one
     named by another machine only once unchanged for :data:`FOREIGN_TEMP_SECONDS`, and one of the
-    older unnamed kind always. Files being written by a live process (a worker of this build,
-    another shard started at the same time on the same folder) are left alone.
+    older unnamed kind always (:func:`osmseg.processes.owner_gone`). Files being written by a live
+    process (a worker of this build, another shard started at the same time on the same folder)
+    are left alone.
     """
-    here = _owner().rsplit("-", 1)[0]
     removed = 0
     for tmp in Path(folder).glob(".*.tmp"):
         parts = tmp.name[1:-len(".tmp")].rsplit(".", 2)
-        owner = parts[1] if len(parts) == 3 else ""
-        host, _, pid = owner.rpartition("-")
-        if host and pid.isdigit():
-            if host == here and os.name != "nt":  # (Windows cannot be asked safely: os.kill(pid, 0) is a Ctrl-C)
-                stale = not _alive(int(pid))
-            else:
-                try:
-                    stale = time.time() - tmp.stat().st_mtime > FOREIGN_TEMP_SECONDS
-                except OSError:
-                    continue
-        else:
-            stale = True
-        if stale:
+        if owner_gone(parts[1] if len(parts) == 3 else "", tmp):
             tmp.unlink(missing_ok=True)
             removed += 1
     return removed

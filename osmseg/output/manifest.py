@@ -23,6 +23,7 @@ from typing import Any
 import mercantile
 
 from osmseg.errors import DatasetError
+from osmseg.folderlock import STATE_DIR, FolderLock
 from osmseg.rejection import REASONS, Rejection
 from osmseg.grid import SampleGrid
 from osmseg.redact import redact
@@ -238,8 +239,16 @@ def manifest_path(path: Path) -> Path:
 
 
 def read_manifest(path: Path) -> dict[str, Any]:
-    """Read and validate a manifest (a dataset folder or the manifest file itself)."""
+    """Read and validate a manifest (a dataset folder or the manifest file itself).
+
+    Refuses a dataset that a build holds now (:mod:`osmseg.folderlock`): its files and manifest
+    are still being written, and what would be read may not be what the build ends with.
+    """
     file = manifest_path(path)
+    busy = FolderLock.busy(file.parent / STATE_DIR)
+    if busy is not None:
+        raise DatasetError(f"{file.parent} is being built now ({busy.describe_holders()}): use it when the build has "
+                           "ended")
     try:
         manifest = json.loads(file.read_text(encoding="utf-8"))
     except FileNotFoundError:
