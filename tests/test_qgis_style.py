@@ -45,7 +45,7 @@ def built(tmp_path_factory: pytest.TempPathFactory, imagery_tif: Path) -> tuple[
 def palette_of(qml: Path) -> dict[int, tuple[str, str]]:
     """{value: (colour, label)} of the paletted renderer of a QGIS style, read with minidom."""
     root = minidom.parse(str(qml)).documentElement
-    assert root.tagName == "qgis"
+    assert root is not None and root.tagName == "qgis"
     (renderer,) = root.getElementsByTagName("rasterrenderer")
     assert (renderer.getAttribute("type"), renderer.getAttribute("band")) == ("paletted", "1")
     entries = renderer.getElementsByTagName("paletteEntry")
