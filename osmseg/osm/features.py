@@ -7,7 +7,8 @@ matches its tags and geometry kind; ``natural=coastline`` ways become sea (see
 :mod:`osmseg.osm.coastline`).  Geometries are projected to EPSG:3857; lines are buffered to
 their ground width and tree nodes to crowns (metres on the ground are ``1/cos(lat)`` Web
 Mercator metres at the feature's own latitude, so that its pixels do not depend on the sample
-box: see :func:`mercator_scale`); everything is clipped to the sample box plus a small margin.
+box: :func:`~osmseg.osm.geometry.mercator_scale`); everything is clipped to the sample box plus
+a small margin.
 
 Python does little per object: osmium's filters keep away the objects no rule can match; a
 class decision looks up only the tags it depends on, memoised across objects and reads
@@ -65,7 +66,7 @@ from osmseg.classes import ClassDef, ClassTable
 from osmseg.errors import OSMDataError
 from osmseg.grid import SampleGrid, XYBounds
 from osmseg.osm.coastline import sea_polygon
-from osmseg.osm.geometry import even_odd, polygonal, to_mercator
+from osmseg.osm.geometry import even_odd, mercator_scale, polygonal, to_mercator
 from osmseg.osm.objects import (Member, SecondPass, Shapes, WayRule, as_linestring_wkb, clip_to, few_points,
                                 key_filter, located_runs, member_lines, rules_of, spells_no_area_relation)
 from osmseg.osm.renumber import original_id, write_renumbered
@@ -475,24 +476,6 @@ class _Collector:
                 cls = classes[i]
                 out.append(Feature(cls.id, cls.order, polygon, ids[i], kinds[i]))
         return out
-
-
-def mercator_scale(lonlat: np.ndarray) -> np.ndarray:
-    """Web Mercator metres per ground metre at each lon/lat geometry: ``1/cos(latitude)`` at the
-    middle of its own latitude span.
-
-    Taken from the feature itself, never from the sample it is drawn in: a road or crown then has
-    the same Web Mercator outline, and so the same pixels, in every sample box that sees it (the
-    scale at the sample's centre made two overlapping samples disagree where an edge passed near
-    a pixel centre). Over a feature's span the scale varies by ``tan(lat) * dlat`` (5e-4 for a
-    2 km way at 60 N: 5 mm on a 10 m road).
-
-    >>> import shapely
-    >>> mercator_scale(np.array([shapely.Point(24.9, 60.0), shapely.LineString([(0, -1), (1, 1)])])).round(6).tolist()
-    [2.0, 1.0]
-    """
-    _, south, _, north = shapely.bounds(lonlat).T
-    return 1.0 / np.cos(np.radians((south + north) / 2))
 
 
 _KINDS = {"n": "node", "w": "way", "r": "relation"}
