@@ -154,6 +154,7 @@ HELSINKI_PAIRS = [
 ]
 
 
+@pytest.mark.shared_data
 @pytest.mark.parametrize("zoom, centre_a, centre_b", HELSINKI_PAIRS)
 def test_overlapping_helsinki_samples_agree_on_every_shared_pixel(
         zoom: int, centre_a: tuple[float, float], centre_b: tuple[float, float]) -> None:
@@ -166,6 +167,7 @@ def test_overlapping_helsinki_samples_agree_on_every_shared_pixel(
     assert int(differ.sum()) == 0, f"{int(differ.sum())} shared pixels differ (class pairs {pairs})"
 
 
+@pytest.mark.shared_data
 def test_torchgeo_merge_of_an_overlapping_helsinki_cog_build_is_each_samples_labels_png(tmp_path: Path) -> None:
     """An overlapping COG build from the real Helsinki extract (imagery painted from the same OSM in
     EPSG:3857), read by torchgeo alone: the mask it merges at each sample's box, whichever of the
