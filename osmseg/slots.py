@@ -155,7 +155,8 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int,
         return Attempt.rejected({**rejection_entry(lon, lat, rejection, attempt=attempt), **problems, **unplaced,
                                  **uniform})
     name = f"{config.prefix}_{slot:05d}"
-    written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format)
+    written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format,
+                           valid=imagery.valid)
     if thumbnails is not None:
         # the overview shows the image as a reader decodes it: a JPEG's own pixels, not the ones encoded
         shown = read_rgb(config.out_dir / _image_file(written)) if config.image_format == "jpg" else imagery.rgb

@@ -103,7 +103,7 @@ def test_cog_images_and_labels_share_one_grid_and_are_cloud_optimized(tmp_path: 
     for sample in manifest["samples"]:
         name = sample["name"]
         assert set(sample["files"]) == {f"images/{name}.tif", f"segmented/{name}.png", f"labels/{name}.png",
-                                        f"geo/{name}.tif"}
+                                        f"geo/{name}.tif", f"geo/{name}.qml"}
         image_path, label_path = cog_out / "images" / f"{name}.tif", cog_out / "geo" / f"{name}.tif"
         for path in (image_path, label_path):
             valid, errors, _ = cog_validate(str(path))

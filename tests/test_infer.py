@@ -10,6 +10,7 @@ whole-image processing if every block sees exactly the right windows.
 from __future__ import annotations
 
 import tracemalloc
+from xml.dom import minidom
 
 import numpy as np
 import pytest
@@ -310,7 +311,11 @@ def test_geotiff_in_geotiff_out_keeps_georeference(tmp_path) -> None:
     assert cog_validate(str(out))[0], cog_validate(str(out))  # a Cloud-Optimized GeoTIFF, by rio-cogeo
     colour = np.asarray(Image.open(tmp_path / "out" / "colour.png"))
     assert np.array_equal(colour, spec.palette()[truth])
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["colour.png", "mask.tif"]  # no temp files
+    # beside the mask its QGIS style, naming the classes in QGIS's legend (read with another XML library)
+    entries = minidom.parse(str(tmp_path / "out" / "mask.qml")).getElementsByTagName("paletteEntry")
+    assert [(e.getAttribute("value"), e.getAttribute("label")) for e in entries] == \
+        [(str(c.id), c.name) for c in sorted((spec.table.unlabeled, *spec.table.classes), key=lambda c: c.id)]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["colour.png", "mask.qml", "mask.tif"]  # no temp files
     assert out.stat().st_mode & 0o777 == 0o644  # readable by others, like the dataset files
 
 

@@ -71,7 +71,7 @@ def test_write_sample_is_byte_identical_on_rewrite(tmp_path: Path, sample_arrays
     second = write_sample(tmp_path / "b", "s0", rgb, labels, TABLE, GRID)
     again = write_sample(tmp_path / "a", "s0", rgb, labels, TABLE, GRID)  # over itself
     assert first == second == again
-    assert sorted(first["files"]) == ["geo/s0.tif", "images/s0.png", "labels/s0.png", "segmented/s0.png"]
+    assert sorted(first["files"]) == ["geo/s0.qml", "geo/s0.tif", "images/s0.png", "labels/s0.png", "segmented/s0.png"]
     a, b = files_in(tmp_path / "a"), files_in(tmp_path / "b")
     assert a == b
     assert not [name for name in a if Path(name).name.startswith(".")], "temp files left behind"
@@ -141,6 +141,33 @@ def test_geotiff_is_georeferenced_and_holds_the_labels(tmp_path: Path, sample_ar
     assert (x, y) == pytest.approx((nw.left, nw.top))
     assert not list(tmp_path.glob("geo/*.aux.xml")), "GDAL sidecar written"
     assert np.array_equal(read_label(tmp_path / "geo/s0.tif"), labels)
+
+
+def test_a_cog_photo_marks_the_pixels_without_imagery_in_an_internal_mask(tmp_path: Path, sample_arrays) -> None:
+    """Missing imagery (here a band of columns and a corner) is masked, not just black: rasterio's
+    dataset_mask() gives 0 exactly there, at full size and in the overviews; rio-cogeo still
+    validates the file, no .msk sidecar is written; a photo with every pixel has no mask."""
+    from rio_cogeo.cogeo import cog_validate
+    rgb, labels = sample_arrays
+    valid = np.ones(labels.shape, bool)
+    valid[:, 1000:] = False
+    valid[:300, :200] = False
+    rgb = np.where(valid[:, :, None], np.maximum(rgb, 1), 0).astype(np.uint8)
+    write_sample(tmp_path / "cut", "s0", rgb, labels, TABLE, GRID, "cog", valid=valid)
+    path = tmp_path / "cut" / "images" / "s0.tif"
+    assert cog_validate(str(path))[0], cog_validate(str(path))
+    assert sorted(p.name for p in path.parent.iterdir()) == ["s0.tif"]
+    with rasterio.open(path) as src:
+        assert src.mask_flag_enums == ([rasterio.enums.MaskFlags.per_dataset],) * 3
+        assert np.array_equal(src.dataset_mask(), np.where(valid, 255, 0))
+        assert np.array_equal(src.read().transpose(1, 2, 0), rgb)  # the pixels themselves are as given
+        masked = src.read(1, masked=True)
+        assert np.array_equal(masked.mask, ~valid)
+        half = src.dataset_mask(out_shape=(640, 640))
+        assert (half[:, 502:] == 0).all() and (half[160:, :498] == 255).all()
+    write_sample(tmp_path / "whole", "s0", rgb, labels, TABLE, GRID, "cog", valid=np.ones(labels.shape, bool))
+    with rasterio.open(tmp_path / "whole" / "images" / "s0.tif") as src:
+        assert src.mask_flag_enums == ([rasterio.enums.MaskFlags.all_valid],) * 3
 
 
 def test_bad_input_gives_one_line_errors(tmp_path: Path, sample_arrays) -> None:

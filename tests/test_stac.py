@@ -105,7 +105,7 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict[st
 
 
 LABEL_SCHEMA = LabelExtension.get_schema_uri()
-LABEL_ASSETS = ["labels", "labels_png", "segmented", "image"]  # the order of a label item's assets
+LABEL_ASSETS = ["labels", "labels_style", "labels_png", "segmented", "image"]  # the order of a label item's assets
 
 
 def items_of(out: Path) -> tuple[pystac.Collection, list[pystac.Item], dict[str, pystac.Item]]:
@@ -233,6 +233,10 @@ def test_every_asset_is_a_file_with_the_recorded_checksum(built: tuple[Path, Pat
         assert item.assets["labels_png"].media_type == "image/png"
         assert item.assets["labels"].roles == ["labels"] and item.assets["labels_png"].roles == ["labels"]
         assert Path(item.assets["labels"].href).parts[-2:] == ("geo", f"{item.id}.tif")
+        style = item.assets["labels_style"]  # the QGIS style beside the label COG: no classes, not labels
+        assert Path(style.href).parts[-2:] == ("geo", f"{item.id}.qml")
+        assert (style.media_type, style.roles) == ("application/xml", ["metadata"])
+        assert "classification:classes" not in style.extra_fields and "license" not in style.extra_fields
     assert seen == listed
     assert list(collection.item_assets) == LABEL_ASSETS
     for asset in collection.assets.values():

@@ -303,3 +303,57 @@ def test_rasterio_and_rio_cogeo_see_the_same_grid_and_valid_cogs(out: Path, samp
                 assert ov.shape == (SIDE // factor, SIDE // factor)
                 assert set(np.unique(ov.read(1))) <= set(np.unique(classes))
                 assert ov.transform.almost_equals(expected * Affine.scale(factor), precision=1e-9)
+
+
+def test_missing_imagery_is_masked_in_the_image_cog_and_torchgeo_still_reads_it(tmp_path: Path) -> None:
+    """A local GeoTIFF that covers only the west 3 of a sample's 5 tile columns, and a build that
+    keeps such samples (``--max-missing-imagery 0.5``): images/NAME.tif marks the east 2 columns
+    in its internal mask (rasterio's dataset_mask(), an independent reader), not only with black
+    pixels; rio-cogeo validates it; torchgeo indexes and reads it, and the globbed ``geo/`` folder
+    with the QGIS styles beside the rasters (torchgeo's default glob "*" sees them too)."""
+    import mercantile
+    from rasterio.transform import from_origin
+
+    from osmseg.demo.render import render_aerial
+    from osmseg.grid import sample_grid
+    from osmseg.osm.features import read_features
+    from osmseg.rasterize import rasterize
+
+    tile = mercantile.tile(LON, LAT, 18)
+    w, s, e, n = mercantile.bounds(tile)
+    lon, lat = (w + e) / 2, (s + n) / 2  # a tile centre: the one sample's block is known
+    grid = sample_grid(lon, lat, 18)
+    labels = rasterize(read_features([TINYCITY], grid, TABLE), grid, TABLE)
+    covered = 3 * 256  # columns with imagery
+    rgb = render_aerial(labels, seed=5)[:, :covered].transpose(2, 0, 1)
+    left, _, _, top = grid.xy_bounds
+    source = tmp_path / "west.tif"
+    with rasterio.open(source, "w", driver="GTiff", width=covered, height=SIDE, count=3, dtype="uint8",
+                       crs="EPSG:3857", transform=from_origin(left, top, grid.pixel_size, grid.pixel_size)) as dst:
+        dst.write(rgb)
+    out = tmp_path / "ds"
+    result = CliRunner().invoke(cli, [
+        "-q", "build", "--lat", str(lat), "--lon", str(lon), "--radius-km", "0.001", "--samples", "1",
+        "--seed", "1", "--image-format", "cog", "--imagery", f"geotiff:{source}", "--osm", str(TINYCITY),
+        "--max-missing-imagery", "0.5", "--out", str(out), "--cache-dir", str(tmp_path / "cache")],
+        catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    (sample,) = json.loads((out / "manifest.json").read_text())["samples"]
+    assert sample["imagery"]["valid_fraction"] == pytest.approx(0.6, abs=0.005)
+    path = out / "images" / f"{sample['name']}.tif"
+    assert cog_validate(str(path))[0], cog_validate(str(path))
+    with rasterio.open(path) as src:
+        mask = src.dataset_mask()
+        assert (mask[:, :covered - 1] == 255).all() and (mask[:, covered + 1:] == 0).all()
+        assert np.array_equal(src.read(masked=True).mask.any(axis=0), mask == 0)
+    images = AerialImages(out / "images")
+    xmin, ymin, xmax, ymax = sample["bounds_3857"]
+    got = images[xmin:xmax, ymin:ymax]["image"].numpy()
+    assert got.shape == (3, SIDE, SIDE)
+    assert np.array_equal(got[:, :, :covered - 1], read_cog(path)[:, :, :covered - 1])
+    assert (got[:, :, covered + 1:] == 0).all()
+
+    class AnyFile(RasterDataset):  # torchgeo's default filename_glob "*": the .qml files are globbed too
+        is_image = False
+
+    assert sorted(Path(p).name for p in AnyFile(out / "geo").index.filepath) == [f"{sample['name']}.tif"]

@@ -245,7 +245,7 @@ def test_predict_compares_the_input_resolution_with_the_training_data_and_resamp
     assert plain.exit_code == 0, plain.output
     warned = [r.getMessage() for r in caplog.records if "trained on" in r.getMessage()]
     assert len(warned) == 1 and "0.9 m pixels" in warned[0] and "--resolution model" in warned[0]
-    assert sorted(p.name for p in (tmp_path / "plain").iterdir()) == ["coarse.tif", "coarse_color.tif"]
+    assert sorted(p.name for p in (tmp_path / "plain").iterdir()) == ["coarse.qml", "coarse.tif", "coarse_color.tif"]
 
     caplog.clear()
     with caplog.at_level("WARNING"):

@@ -73,7 +73,8 @@ def train_command(ctx: click.Context, dataset: Path, out_dir: Path, config_file:
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Folder for the masks: NAME.png (class ids) and NAME_color.png for PNG/JPEG inputs; "
-                   "NAME.tif and NAME_color.tif (Cloud-Optimized GeoTIFFs, georeferenced) for GeoTIFF inputs.")
+                   "NAME.tif and NAME_color.tif (Cloud-Optimized GeoTIFFs, georeferenced) for GeoTIFF inputs, with "
+                   "NAME.qml, the QGIS style naming the classes.")
 @click.option("--mode", type=click.Choice(["split-join", "rescale"]), default="split-join", show_default=True,
               help="split-join: windows of the training patch size; rescale: letterbox the whole image into one.")
 @click.option("--join", type=click.Choice(["blend", "crop"]), default="blend", show_default=True,

@@ -38,6 +38,7 @@ from osmseg.errors import ConfigError, ImageryError
 from osmseg.grid import ground_pixel_size
 from osmseg.output.atomic import temp_path_for
 from osmseg.output.geotiff import cog_file, write_class_metadata
+from osmseg.output.style import qml_style, style_path
 from osmseg.progress import Progress
 from training.checkpoint import model_from_checkpoint
 from training.infer import (
@@ -195,7 +196,8 @@ class PredictConfig:
 
     def outputs(self, src: Path) -> tuple[Path, Path]:
         """Where the class mask and the colour mask of input ``src`` go: NAME.png and
-        NAME_color.png, or NAME.tif and NAME_color.tif for a GeoTIFF (georeferenced, block-written)."""
+        NAME_color.png, or NAME.tif and NAME_color.tif for a GeoTIFF (georeferenced, block-written;
+        NAME.qml, the mask's QGIS style, beside them)."""
         suffix = ".tif" if src.suffix.lower() in (".tif", ".tiff") else ".png"
         return self.out_dir / f"{src.stem}{suffix}", self.out_dir / f"{src.stem}_color{suffix}"
 
@@ -232,7 +234,8 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
 
     ``dst`` ending in .png gets an 8-bit greyscale PNG of class ids (the whole mask is held in
     memory); ending in .tif a Cloud-Optimized GeoTIFF with the source's CRS and transform, the
-    class colour table and names (:mod:`osmseg.output.geotiff`), predicted block by block.
+    class colour table and names (:mod:`osmseg.output.geotiff`), predicted block by block, and
+    beside it ``NAME.qml``, its QGIS style (:mod:`osmseg.output.style`).
     ``colour_dst`` (.png, or .tif beside a .tif mask) gets an RGB picture in the class colours.
     ``resolution_m``: a georeferenced input is first resampled (bilinear, on the fly) to pixels of
     that ground size, predicted there, and the classes brought back onto the input's own grid
@@ -269,6 +272,8 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
                             _regrid(stage, dict(profile, height=source.height, width=source.width, **georef),
                                     spec, block_size)
                         cog_file(stage, tmp, classes=True)
+        with _atomic(Path(style_path(str(dst)))) as tmp:  # QGIS's legend then names the classes
+            tmp.write_bytes(qml_style(spec.table))
     if colour is not None:
         _write_colour(dst, colour, lut, block_size)
     return dst

@@ -6,7 +6,9 @@ never builds an in-memory OSM model.  Each object gets the first class of the ta
 matches its tags and geometry kind; ``natural=coastline`` ways become sea (see
 :mod:`osmseg.osm.coastline`).  Geometries are projected to EPSG:3857; lines are buffered to
 their ground width and tree nodes to crowns (metres on the ground are ``1/cos(lat)`` Web
-Mercator metres); everything is clipped to the sample box plus a small margin.
+Mercator metres at the feature's own latitude, so that its pixels do not depend on the sample
+box: :func:`~osmseg.osm.geometry.mercator_scale`); everything is clipped to the sample box plus
+a small margin.
 
 Python does little per object: osmium's filters keep away the objects no rule can match; a
 class decision looks up only the tags it depends on, memoised across objects and reads
@@ -64,7 +66,7 @@ from osmseg.classes import ClassDef, ClassTable
 from osmseg.errors import OSMDataError
 from osmseg.grid import SampleGrid, XYBounds
 from osmseg.osm.coastline import sea_polygon
-from osmseg.osm.geometry import even_odd, polygonal, to_mercator
+from osmseg.osm.geometry import even_odd, mercator_scale, polygonal, to_mercator
 from osmseg.osm.objects import (Member, SecondPass, Shapes, WayRule, as_linestring_wkb, clip_to, few_points,
                                 key_filter, located_runs, member_lines, rules_of, spells_no_area_relation)
 from osmseg.osm.renumber import original_id, write_renumbered
@@ -444,9 +446,9 @@ class _Collector:
 
     def _project(self, clip: XYBounds) -> list[Feature]:
         kinds, classes, ids, widths, notes = zip(*self.items)
-        geom = to_mercator(self.shapes.build())
-        # ground metres -> Web Mercator metres: divide by cos(lat), the grid's pixel-size ratio
-        half = np.array(widths, dtype=float) / 2 * (self.grid.pixel_size / self.grid.ground_resolution)
+        lonlat = self.shapes.build()
+        geom = to_mercator(lonlat)
+        half = np.array(widths, dtype=float) / 2 * mercator_scale(lonlat)
         pad = np.nan_to_num(half, nan=0.0)
         x0, y0, x1, y1 = shapely.bounds(geom).T
         near = (x1 >= clip.left - pad) & (x0 <= clip.right + pad) & (y1 >= clip.bottom - pad) & (y0 <= clip.top + pad)

@@ -36,6 +36,23 @@ def to_mercator(geoms: np.ndarray) -> np.ndarray:
     return shapely.transform(geoms, lonlat_to_mercator)
 
 
+def mercator_scale(lonlat: np.ndarray) -> np.ndarray:
+    """Web Mercator metres per ground metre at each lon/lat geometry: ``1/cos(latitude)`` at the
+    middle of its own latitude span.
+
+    Taken from the feature itself, never from the sample it is drawn in: a road or crown then has
+    the same Web Mercator outline, and so the same pixels, in every sample box that sees it (the
+    scale at the sample's centre made two overlapping samples disagree where an edge passed near
+    a pixel centre). Over a feature's span the scale varies by ``tan(lat) * dlat`` (5e-4 for a
+    2 km way at 60 N: 5 mm on a 10 m road).
+
+    >>> mercator_scale(np.array([shapely.Point(24.9, 60.0), shapely.LineString([(0, -1), (1, 1)])])).round(6).tolist()
+    [2.0, 1.0]
+    """
+    _, south, _, north = shapely.bounds(lonlat).T
+    return 1.0 / np.cos(np.radians(np.clip((south + north) / 2, -MAX_LAT, MAX_LAT)))  # as projected
+
+
 def polygonal(geom: BaseGeometry) -> BaseGeometry | None:
     """The polygon parts of ``geom`` (make_valid and clipping can leave lines and points)."""
     if geom is None or geom.is_empty:

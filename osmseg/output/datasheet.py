@@ -139,7 +139,8 @@ def render_datasheet(manifest: dict[str, Any]) -> str:
         f"  | `images/` | aerial image, {_FORMAT_TEXT.get(fmt, 'RGB ' + fmt.upper())} |",
         "  | `segmented/` | labels in class colours, RGB PNG, same file names |",
         "  | `labels/` | class ids, 8-bit greyscale PNG (0 = unlabeled) |",
-        "  | `geo/` | class ids as Cloud-Optimized GeoTIFF in EPSG:3857 with a colour table and class names (QGIS, torchgeo) |",
+        "  | `geo/` | class ids as Cloud-Optimized GeoTIFF in EPSG:3857 with a colour table and class names (QGIS, torchgeo), "
+        "and beside each its QGIS style (`.qml`: class colours and names in QGIS's legend) |",
         "",
         f"- **Area.** {_area_text(area)}.",
         f"- **Ground resolution.** zoom {zoom}: {res_text} per pixel at the samples' latitudes.",

@@ -117,11 +117,14 @@ def read_class_table(src: DatasetReader | str | Path, band: int = 1) -> ClassTab
 
 
 def encode_cog(array: np.ndarray, crs: Any, transform: Affine, *, classes: bool,
-               describe: Callable[[DatasetWriter], None] | None = None) -> bytes:
+               describe: Callable[[DatasetWriter], None] | None = None, mask: np.ndarray | None = None) -> bytes:
     """COG bytes of ``array`` (``(H, W)`` class ids or ``(H, W, 3)`` RGB, uint8) on a grid.
 
     ``describe(dataset)`` may add metadata (class tags, band descriptions) before the copy
-    into the COG layout; tags, colour tables and descriptions are carried over.
+    into the COG layout; tags, colour tables and descriptions are carried over. ``mask``
+    (``(H, W)`` bool, False where there is no data) becomes the file's internal mask band (a
+    GDAL per-dataset mask, with overviews), which the COG driver writes after each level's
+    image data as the COG layout wants.
     """
     data = np.ascontiguousarray(array if array.ndim == 3 else array[:, :, None], dtype=np.uint8)
     height, width, count = data.shape
@@ -132,6 +135,8 @@ def encode_cog(array: np.ndarray, crs: Any, transform: Affine, *, classes: bool,
     with MemoryFile() as staging:
         with staging.open(**profile) as dst:
             dst.write(data.transpose(2, 0, 1))
+            if mask is not None:
+                dst.write_mask(np.where(mask, 255, 0).astype(np.uint8))
             if describe is not None:
                 describe(dst)
         with staging.open() as src:

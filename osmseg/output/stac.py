@@ -8,8 +8,9 @@ as the label extension (and Radiant MLHub, Raster Vision's ``read_stac``) has th
 * the **label item** ``NAME``: the label extension (``label:type`` raster, ``label:tasks``
   segmentation, ``label:classes`` = class ids, ``label:overviews`` = pixels per class name),
   assets in this order: ``labels`` (``geo/NAME.tif``, the class-id COG: *first*, as readers
-  take the first asset for the label raster), ``labels_png``, ``segmented``, ``image`` (last,
-  so that one item still shows every file); one ``source`` link to the image item;
+  take the first asset for the label raster), ``labels_style`` (``geo/NAME.qml``, its QGIS
+  style, role ``metadata``), ``labels_png``, ``segmented``, ``image`` (last, so that one item
+  still shows every file); one ``source`` link to the image item;
 * the **image item** ``NAME_image``: the imagery, asset ``image`` only (role ``data``).
 
 Both hold the WGS84 footprint, ``gsd``, ``osmseg:zoom`` and the grid the rasters share
@@ -90,6 +91,8 @@ ASSET_KINDS = {
     "segmented": ("segmented", ["visual"], "Labels in class colours, RGB"),
     "images": ("image", ["data"], "Aerial image, RGB"),
 }
+#: sidecar files of a sample raster, by suffix: (asset key suffix, roles, title); listed after their raster
+SIDECARS = {".qml": ("style", ["metadata"], "QGIS layer style: the class colours and names in QGIS's legend")}
 #: dataset-level files, as Collection assets: key -> (file, media type, role)
 COLLECTION_ASSETS = {
     "manifest": (MANIFEST_NAME, pystac.MediaType.JSON, "metadata"),
@@ -101,7 +104,7 @@ COLLECTION_ASSETS = {
 CLASS_ID_FOLDERS = ("labels", "geo")
 COG_FOLDERS = ("images", "geo")  # their .tif files are Cloud-Optimized GeoTIFFs
 _MEDIA_TYPES = {".png": pystac.MediaType.PNG, ".jpg": pystac.MediaType.JPEG, ".jpeg": pystac.MediaType.JPEG,
-                ".tif": pystac.MediaType.GEOTIFF, ".tiff": pystac.MediaType.GEOTIFF}
+                ".tif": pystac.MediaType.GEOTIFF, ".tiff": pystac.MediaType.GEOTIFF, ".qml": pystac.MediaType.XML}
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 _HEX64 = re.compile(r"[0-9a-f]{64}")
 _FOLDS = (min, min, max, max, min, max, min, max)  # how _Facts.folded gathers each value
@@ -188,27 +191,36 @@ def _counts(sample: dict[str, Any], table: ClassTable) -> list[tuple[str, int]]:
 
 def _asset_plan(name: str, files: dict[str, str]) -> list[tuple[str, str, str, str]]:
     """(asset key, file, sha256, folder) per file of a sample, in the label item's asset order:
-    :data:`ASSET_KINDS` order, other files before ``images/``. Keys by folder (``image_tif`` when
-    a folder has two files)."""
+    :data:`ASSET_KINDS` order, other files before ``images/``, a :data:`SIDECARS` file after its
+    folder's raster. Keys by folder (``image_tif`` when a folder has two files; ``labels_style``
+    for the style beside ``geo/``'s raster)."""
     paths = {rel: PurePosixPath(rel) for rel in files}
-    folders = Counter(path.parts[0] for path in paths.values())
+    folders = Counter(path.parts[0] for path in paths.values() if not _is_sidecar(path))
     for folder in ("geo", "images"):  # the label raster (first asset) and the image item's asset
         if folders[folder] != 1:
             raise DatasetError(f"manifest: sample {name} lists {folders[folder]} {folder}/ files, not one")
     rank = {folder: i for i, folder in enumerate(ASSET_KINDS)}
     plan: dict[str, tuple[str, str, str, str]] = {}
-    for rel, digest in sorted(files.items(), key=lambda f: (rank.get(paths[f[0]].parts[0], 2.5), f[0])):
+    for rel, digest in sorted(files.items(), key=lambda f: (rank.get(paths[f[0]].parts[0], 2.5),
+                                                            _is_sidecar(paths[f[0]]), f[0])):
         path = paths[rel]
         if not _HEX64.fullmatch(digest):
             raise DatasetError(f"manifest: sample {name} {rel}: {digest!r} is not a sha256 hex digest")
         folder = path.parts[0] if len(path.parts) > 1 else ""
         key = ASSET_KINDS[folder][0] if folder in ASSET_KINDS else folder or path.stem
-        if folders[path.parts[0]] > 1:
+        if _is_sidecar(path):
+            key = f"{key}_{SIDECARS[path.suffix.lower()][0]}"
+        elif folders[path.parts[0]] > 1:
             key = f"{key}_{path.suffix.lstrip('.').lower()}"
         if key in plan:
             raise DatasetError(f"manifest: sample {name}: two files make asset {key!r}, one is {rel}")
         plan[key] = (key, rel, digest, folder)
     return list(plan.values())
+
+
+def _is_sidecar(path: PurePosixPath) -> bool:
+    """True for a :data:`SIDECARS` file of a sample folder (``geo/NAME.qml``), not one of its rasters."""
+    return len(path.parts) > 1 and path.suffix.lower() in SIDECARS
 
 
 def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classification], pixels: int,
@@ -242,12 +254,16 @@ def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classificati
         label_classes=[LabelClasses.create(sorted(table.by_id), None)],
         label_tasks=list(TASKS), label_methods=list(METHODS), label_overviews=[overview])
     for key, rel, digest, folder in _asset_plan(name, sample["files"]):  # the images/ one in the image item too
-        _, roles, title = ASSET_KINDS.get(folder, ("", [], None))
+        sidecar = _is_sidecar(PurePosixPath(rel))
+        kind: tuple[str, list[str], str | None] = ("", [], None)
+        _, roles, title = SIDECARS[PurePosixPath(rel).suffix.lower()] if sidecar else ASSET_KINDS.get(folder, kind)
         asset = pystac.Asset(href=f"../../{rel}", title=title, media_type=media_type(rel), roles=list(roles))
-        for item in (label_item, image_item) if folder == "images" else (label_item,):
+        for item in (label_item, image_item) if folder == "images" and not sidecar else (label_item,):
             copy = asset.clone()
             item.add_asset(key, copy)
             FileExtension.ext(copy, add_if_missing=True).checksum = "1220" + digest
+            if sidecar:
+                continue  # osmseg's own file, made from the class table: no data licence, no classes
             if folder in ASSET_KINDS and folder != "images":
                 copy.extra_fields["license"] = source.spdx or "other"  # a GeoJSON source: its own terms
             if folder in CLASS_ID_FOLDERS:

@@ -8,6 +8,8 @@ For a sample called ``NAME`` in dataset folder ``OUT``::
     OUT/labels/NAME.png      the class ids, 8-bit greyscale (0 = unlabeled)
     OUT/geo/NAME.tif         the class ids as a Cloud-Optimized GeoTIFF in EPSG:3857 with a colour
                              table and class names (osmseg.output.geotiff)
+    OUT/geo/NAME.qml         its QGIS style: QGIS opens NAME.tif with the classes' colours and names
+                             in the legend (osmseg.output.style)
 
 Every file is encoded in memory with fixed options and no timestamps, hashed, and written
 atomically, so the same inputs give byte-identical files and the manifest's SHA-256 is the
@@ -30,6 +32,7 @@ from osmseg.errors import ConfigError, DatasetError
 from osmseg.grid import SampleGrid
 from osmseg.output.atomic import atomic_write_bytes, sha256_bytes
 from osmseg.output.geotiff import encode_cog, write_class_metadata
+from osmseg.output.style import qml_style, style_path
 
 IMAGE_FORMATS = ("png", "jpg", "cog")
 #: file suffix of the image of each format
@@ -75,6 +78,7 @@ def sample_paths(name: str, image_format: str = "png") -> dict[str, str]:
         "segmented": f"segmented/{name}.png",
         "labels": f"labels/{name}.png",
         "geo": f"geo/{name}.tif",
+        "geo_style": style_path(f"geo/{name}.tif"),
     }
 
 
@@ -120,22 +124,29 @@ def encode_label_geotiff(labels: np.ndarray, table: ClassTable, grid: SampleGrid
                       describe=lambda dst: write_class_metadata(dst, table))
 
 
-def encode_image_cog(rgb: np.ndarray, grid: SampleGrid) -> bytes:
+def encode_image_cog(rgb: np.ndarray, grid: SampleGrid, valid: np.ndarray | None = None) -> bytes:
     """Cloud-Optimized GeoTIFF bytes of the RGB photo on ``grid``: the label GeoTIFF's very grid.
 
-    Lossless (DEFLATE with horizontal differencing), averaged overviews, photometric RGB.
+    Lossless (DEFLATE with horizontal differencing), averaged overviews, photometric RGB. Where
+    ``valid`` (``(H, W)`` bool) is False the provider had no imagery: the file then carries an
+    internal mask band (0 there, 255 elsewhere; its overviews too), so GIS tools draw those
+    pixels transparent, ``rasterio``'s ``dataset_mask()`` and ``read(masked=True)`` mark them,
+    and torchgeo's merge takes an overlapping sample's pixels there instead of black ones. A
+    photo without missing pixels has no mask.
     """
-    return encode_cog(rgb, "EPSG:3857", grid.transform, classes=False)
+    mask = None if valid is None or bool(np.all(valid)) else np.asarray(valid, dtype=bool)
+    return encode_cog(rgb, "EPSG:3857", grid.transform, classes=False, mask=mask)
 
 
-def encode_image(rgb: np.ndarray, grid: SampleGrid, image_format: str, jpeg_quality: int = 95) -> bytes:
-    """The aerial image's bytes in ``image_format`` (png, jpg or cog)."""
+def encode_image(rgb: np.ndarray, grid: SampleGrid, image_format: str, jpeg_quality: int = 95,
+                 valid: np.ndarray | None = None) -> bytes:
+    """The aerial image's bytes in ``image_format`` (png, jpg or cog; ``valid``: see :func:`encode_image_cog`)."""
     if image_format == "png":
         return encode_png(rgb, PHOTO_COMPRESS_LEVEL)
     if image_format == "jpg":
         return encode_jpeg(rgb, jpeg_quality)
     if image_format == "cog":
-        return encode_image_cog(rgb, grid)
+        return encode_image_cog(rgb, grid, valid)
     raise ConfigError(f"image format must be one of {', '.join(IMAGE_FORMATS)}, got {image_format!r}")
 
 
@@ -164,8 +175,10 @@ def write_sample(
     grid: SampleGrid,
     image_format: str = "png",
     jpeg_quality: int = 95,
+    valid: np.ndarray | None = None,
 ) -> dict[str, Any]:
-    """Write the four files of one sample atomically.
+    """Write the five files of one sample atomically (``valid``: the pixels that have imagery,
+    marked in a COG photo's mask; see :func:`encode_image_cog`).
 
     Returns ``{"files": {relative path: sha256}, "class_histogram": {class name: pixels}}``
     for the manifest (see :func:`osmseg.output.manifest.sample_entry`).
@@ -178,12 +191,15 @@ def write_sample(
         )
     if rgb.dtype != np.uint8 or labels.dtype != np.uint8:
         raise DatasetError(f"sample {name}: image and labels must be uint8, got {rgb.dtype} and {labels.dtype}")
+    if valid is not None and valid.shape != shape:
+        raise DatasetError(f"sample {name}: the valid-imagery mask is {valid.shape}, not {shape} (the grid)")
     histogram = class_histogram(labels, table)
     encoded = {
-        paths["image"]: encode_image(rgb, grid, image_format, jpeg_quality),
+        paths["image"]: encode_image(rgb, grid, image_format, jpeg_quality, valid),
         paths["segmented"]: encode_png(table.colorize(labels)),
         paths["labels"]: encode_png(labels, runs=True),
         paths["geo"]: encode_label_geotiff(labels, table, grid),
+        paths["geo_style"]: qml_style(table),
     }
     out_dir = Path(out_dir)
     files = {}
