@@ -83,3 +83,72 @@ def test_the_shipped_class_tables_load_with_a_colour_per_class(name: str) -> Non
     table = load_class_table(name)
     colours = [c.color for c in (table.unlabeled, *table.classes)]
     assert len(set(colours)) == len(colours) == len(table.classes) + 1
+
+
+# --------------------------------------------------------------------------- b. panoramas
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """An aerial mask of tinycity (0.3 m/px), the panorama rendered at its centre (1232x224), that
+    panorama turned into a 224x1232 portrait, a 90° photo cut from it, and their class table."""
+    from localization.render import render_panorama
+    from osmseg.grid import sample_grid
+    from osmseg.osm.features import read_features
+    from osmseg.rasterize import rasterize
+
+    root = tmp_path_factory.mktemp("scene")
+    table = load_class_table("classes13.toml")
+    grid = sample_grid(LON, LAT, 18, size=3)
+    mask = rasterize(read_features([TINYCITY], grid, table), grid, table)
+    Image.fromarray(mask).save(root / "aerial.png")
+    pano = render_panorama(mask, table, 0.3, (384.0, 384.0)).labels
+    assert pano.shape == (224, 1232)
+    Image.fromarray(pano).save(root / "pano.png")
+    Image.fromarray(np.ascontiguousarray(pano.T)).save(root / "portrait.png")
+    Image.fromarray(np.ascontiguousarray(pano[:, 462:770])).save(root / "photo.png")  # 308 columns: 90° ahead
+    sky = (DATA_DIR / "classes13.toml").read_text() + '\n[[classes]]\nid = 14\nname = "sky"\ncolor = [135, 206, 250]\n'
+    (root / "ground.toml").write_text(sky)
+    return {name: root / f"{name}.png" for name in ("aerial", "pano", "portrait", "photo")} | {
+        "table": root / "ground.toml"}
+
+
+def localize(scene: dict[str, Path], ground: str, *extra: str) -> Result:
+    return run("localize", "--aerial", str(scene["aerial"]), "--aerial-table", "classes13.toml", "--resolution", "0.3",
+               "--ground", str(scene[ground]), "--ground-classes", "aerial13", "--ground-table", str(scene["table"]),
+               *extra)
+
+
+@pytest.mark.parametrize("method", ["profile", "paper"])
+def test_a_portrait_image_is_refused_as_a_panorama(scene: dict[str, Path], method: str) -> None:
+    result = localize(scene, "portrait", "--method", method)
+    assert result.exit_code == 2, result.output  # was: exit 0, confidence 1.000, every posterior 1.0
+    line = error_line(result)
+    assert "portrait.png is 224x1232 pixels, which cannot be a 360° panorama" in line, line
+    assert ("--fov" if method == "profile" else "--no-panorama") in line
+
+
+def test_panoramas_and_photos_of_their_shape_are_still_localized(scene: dict[str, Path]) -> None:
+    pano = localize(scene, "pano")
+    assert pano.exit_code == 0, pano.output
+    assert "confidence" in pano.stderr
+    photo = localize(scene, "photo", "--fov", "90")
+    assert photo.exit_code == 0, photo.output
+    crop = localize(scene, "portrait", "--method", "paper", "--no-panorama")  # an aerial crop has no such shape
+    assert "cannot be" not in crop.output
+    tall_photo = localize(scene, "portrait", "--fov", "90")
+    assert tall_photo.exit_code == 2 and "cannot be a photo 90° wide" in error_line(tall_photo)
+
+
+def test_localize_bench_refuses_portrait_panoramas(tmp_path: Path, scene: dict[str, Path]) -> None:
+    pairs = tmp_path / "pairs"
+    for side, text in (("aerial", "100 100 Building\n300 120 Road\n500 600 Tree\n"),
+                       ("ground", "100 100 Building\n150 120 Road\n200 600 Tree\n")):
+        (pairs / side).mkdir(parents=True)
+        (pairs / side / "a.txt").write_text(text)
+    result = run("localize-bench", str(pairs), "--out", str(tmp_path / "out"), "--aerial-size", "750x750",
+                 "--ground-size", "224x1232", "--method", "paper")
+    assert result.exit_code == 2 and "224x1232 pixels, which cannot be a 360° panorama" in error_line(result)
+    rendered = run("localize-bench", str(scene["aerial"]), "--resolution", "0.3", "--out", str(tmp_path / "r"),
+                   "-n", "1", "--width", "224", "--height", "1232")
+    assert rendered.exit_code == 2 and "cannot be a 360° panorama" in error_line(rendered)
