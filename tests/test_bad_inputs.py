@@ -152,3 +152,94 @@ def test_localize_bench_refuses_portrait_panoramas(tmp_path: Path, scene: dict[s
     rendered = run("localize-bench", str(scene["aerial"]), "--resolution", "0.3", "--out", str(tmp_path / "r"),
                    "-n", "1", "--width", "224", "--height", "1232")
     assert rendered.exit_code == 2 and "cannot be a 360° panorama" in error_line(rendered)
+
+
+# --------------------------------------------------------------------------- f. 16-bit and paletted GeoTIFFs
+
+
+def variants(source: Path, folder: Path, window: Window | None = None) -> dict[str, Path]:
+    """``source`` (8-bit RGB) as 16-bit (full range), 12-bit (NBITS=12), paletted (64 colours), and
+    that palette expanded to 8-bit RGB by numpy: pairs that must read as the same colours."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with rasterio.open(source) as src:
+        rgb = src.read(window=window)
+        profile = dict(src.profile, width=rgb.shape[2], height=rgb.shape[1],
+                       transform=src.window_transform(window) if window else src.transform)
+    paths = {name: folder / f"{name}.tif" for name in ("rgb8", "rgb16", "rgb12", "palette", "expanded")}
+    with rasterio.open(paths["rgb8"], "w", **profile) as dst:
+        dst.write(rgb)
+    with rasterio.open(paths["rgb16"], "w", **dict(profile, dtype="uint16")) as dst:
+        dst.write(rgb.astype(np.uint16) * 257)
+    with rasterio.open(paths["rgb12"], "w", **dict(profile, dtype="uint16", nbits=12)) as dst:
+        dst.write(np.rint(rgb.astype(np.float64) * 4095 / 255).astype(np.uint16))
+    quantized = Image.fromarray(rgb.transpose(1, 2, 0)).quantize(64, dither=Image.Dither.NONE)
+    index = np.asarray(quantized)
+    colours = np.array(quantized.getpalette()[:3 * 64], np.uint8).reshape(64, 3)
+    with rasterio.open(paths["palette"], "w", **dict(profile, count=1, photometric="palette")) as dst:
+        dst.write(index, 1)
+        dst.write_colormap(1, {i: (*map(int, c), 255) for i, c in enumerate(colours)})
+    with rasterio.open(paths["expanded"], "w", **profile) as dst:
+        dst.write(colours[index].transpose(2, 0, 1))
+    return paths
+
+
+def test_build_reads_16_bit_and_paletted_geotiffs_as_their_8_bit_colours(tmp_path: Path, imagery_tif: Path) -> None:
+    tifs = variants(imagery_tif, tmp_path / "tifs")
+    built = {}
+    for name, path in tifs.items():
+        result = run("-q", *build_args(tmp_path / name, f"geotiff:{path}"))
+        assert result.exit_code == 0, result.output  # was: "is uint16, not 8-bit" / "is a paletted raster"
+        built[name] = images_of(tmp_path / name)
+    assert len(built["rgb8"]) == 2
+    for name, same_as in (("rgb16", "rgb8"), ("rgb12", "rgb8"), ("palette", "expanded")):
+        assert built[name].keys() == built[same_as].keys()
+        for key, pixels in built[name].items():
+            assert np.array_equal(pixels, built[same_as][key]), (name, key)
+
+
+def test_predict_reads_16_bit_and_paletted_geotiffs_as_build_does(tmp_path: Path, imagery_tif: Path) -> None:
+    torch = pytest.importorskip("torch")
+    from training.checkpoint import save_checkpoint
+    from training.model import build_model, model_spec
+
+    tifs = variants(imagery_tif, tmp_path / "tifs", Window(900, 900, 200, 160))
+    torch.manual_seed(0)  # an untrained network: any colour change changes its classes somewhere
+    spec = model_spec("airsegnet6", 0.0625, input_size=(64, 96))
+    save_checkpoint(tmp_path / "model.pt", {"spec": spec, "model": build_model(spec).state_dict()})
+    result = run("-q", "predict", str(tmp_path / "model.pt"), *map(str, tifs.values()), "--out", str(tmp_path / "p"),
+                 "--device", "cpu")
+    assert result.exit_code == 0, result.output
+
+    def mask(name: str) -> np.ndarray:
+        with rasterio.open(tmp_path / "p" / f"{name}.tif") as ds:
+            return ds.read(1)
+    assert len(np.unique(mask("rgb8"))) > 1
+    assert np.array_equal(mask("rgb16"), mask("rgb8")) and np.array_equal(mask("rgb12"), mask("rgb8"))
+    assert np.array_equal(mask("palette"), mask("expanded"))  # was: the palette's indices, read as grey
+
+
+def test_build_and_predict_see_the_same_colours_of_16_bit_and_paletted_rasters(tmp_path: Path,
+                                                                             imagery_tif: Path) -> None:
+    """The one reading rule, read back by each reader: osmseg.images.read_rgb, the builder's
+    provider on a grid that is the raster's own, predict's block reader; the colours expected are
+    the 8-bit source's and the numpy-expanded palette's, as rasterio reads them."""
+    from osmseg.grid import sample_grid
+    from osmseg.imagery.geotiff import GeoTiffProvider
+    from osmseg.images import read_rgb
+    from training.infer import RasterSource
+
+    grid = sample_grid(LON, LAT, 18, size=1)  # a 256x256 raster on the sample's grid: the warp is the identity
+    with rasterio.open(imagery_tif) as src:
+        profile = dict(src.profile, crs="EPSG:3857", transform=grid.transform, width=256, height=256)
+        pixels = src.read(window=Window(1000, 1000, 256, 256))
+    with rasterio.open(tmp_path / "on-grid.tif", "w", **profile) as dst:
+        dst.write(pixels)
+    tifs = variants(tmp_path / "on-grid.tif", tmp_path / "tifs")
+    with rasterio.open(tifs["expanded"]) as ds:
+        expanded = ds.read().transpose(1, 2, 0)
+    for name, path in tifs.items():
+        want = expanded if name in ("palette", "expanded") else pixels.transpose(1, 2, 0)
+        assert np.array_equal(read_rgb(path), want), name
+        assert np.array_equal(GeoTiffProvider(path).fetch(grid).rgb, want), name
+        with rasterio.open(path) as ds:
+            assert np.array_equal(RasterSource(ds, path.name).read((0, 256, 0, 256)), want), name

@@ -333,9 +333,10 @@ def _resampled(source: Source, georef: dict[str, Any], factor: float) -> Iterato
         return
     width, height = max(1, round(source.width * factor)), max(1, round(source.height * factor))
     transform = georef["transform"] * Affine.scale(source.width / width, source.height / height)
+    resampling = Resampling.nearest if source.rule.nearest else Resampling.bilinear  # palette indices: nearest
     with WarpedVRT(source.dataset, crs=georef["crs"], transform=transform, width=width, height=height,
-                   resampling=Resampling.bilinear) as vrt:
-        yield RasterSource(vrt, source.name), {"crs": georef["crs"], "transform": transform}
+                   resampling=resampling) as vrt:
+        yield RasterSource(vrt, source.name, source.rule), {"crs": georef["crs"], "transform": transform}
 
 
 def _write_colour(mask: Path, colour: Path, lut: np.ndarray, block_size: int | None) -> None:
