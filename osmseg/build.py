@@ -29,7 +29,7 @@ from osmseg.output.writer import IMAGE_FORMATS
 from osmseg.progress import Progress, report
 from osmseg.records import SlotOutcome
 from osmseg.sampling import check_room
-from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions
+from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions, warn_upsampling
 from osmseg.state import BuildState
 from osmseg.processes import start_fork_server
 from osmseg.workers import FirstSamples, SlotRunner
@@ -118,6 +118,7 @@ def build(
         # every source and option is checked before anything is written into the output folder:
         # a command refused here leaves no state that the corrected command would be refused by
         pipe = open_pipeline(config, client, env)
+        warn_upsampling(config, pipe.imagery)  # here, not in open_pipeline: workers open theirs too
         config.out_dir.mkdir(parents=True, exist_ok=True)
         sweep_temp_files(config.out_dir)
         state = BuildState(config.out_dir)

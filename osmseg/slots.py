@@ -15,6 +15,7 @@ processes and still write the bytes of a single-process build. Imports: osmseg c
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,8 @@ import numpy as np
 from osmseg.buildconfig import BuildConfig, sampling_box
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import RetriesExhausted
-from osmseg.grid import LngLatBBox, SampleGrid, pad_bbox, sample_grid
+from osmseg.grid import (LngLatBBox, SampleGrid, ground_resolution, pad_bbox, resolution_mismatch, sample_grid,
+                         zoom_for_resolution)
 from osmseg.imagery import make_provider
 from osmseg.imagery.base import ImageryProvider
 from osmseg.images import read_rgb
@@ -40,8 +42,10 @@ from osmseg.rejection import check_imagery, check_labels
 from osmseg.sampling import block_attempt_centre
 from osmseg.state import BuildState
 
+logger = logging.getLogger(__name__)
+
 __all__ = ["HOST_LIMITS", "Pipeline", "attempt_centre", "attempt_rng", "http_config", "open_pipeline",
-           "osm_regions", "run_attempt", "run_slot"]
+           "osm_regions", "run_attempt", "run_slot", "warn_upsampling"]
 
 #: Per-host request limits: the OSM API and Overpass ask for at most 2 concurrent connections.
 HOST_LIMITS = {**DEFAULT_HOST_LIMITS, "dev.virtualearth.net": 2}
@@ -106,6 +110,24 @@ def open_pipeline(config: BuildConfig, client: HttpClient, env: dict[str, str]) 
         check_covers(*sampling_box(config))
     osm = make_osm_source(config.osm, client, workdir, rules)
     return Pipeline(imagery=imagery, osm=osm, table=table, rules=rules)
+
+
+def warn_upsampling(config: BuildConfig, imagery: ImageryProvider) -> None:
+    """Warn (call it once per build) when ``--zoom`` asks for sample pixels much finer than a local
+    raster's (``resolution_m``): each raster pixel would be stretched over several sample pixels,
+    blurred, with no detail gained. The threshold is the one ``osmseg predict`` warns at
+    (:data:`~osmseg.grid.RESOLUTION_MISMATCH`); the message names the zoom that matches the raster."""
+    source_m = getattr(imagery, "resolution_m", None)
+    if source_m is None:
+        return
+    sample_m = ground_resolution(config.area.lat, config.zoom)
+    factor = resolution_mismatch(source_m, sample_m)
+    if factor is None or source_m < sample_m:  # a coarser zoom averages the raster: nothing is invented
+        return
+    where = getattr(imagery, "path", imagery.name)
+    logger.warning("%s has %.3g m pixels, but --zoom %d makes %.3g m sample pixels: the imagery is upsampled "
+                   "%.1fx (blurred, no detail gained); --zoom %d matches the raster", where, source_m, config.zoom,
+                   sample_m, factor, zoom_for_resolution(config.area.lat, source_m))
 
 
 def osm_regions(config: BuildConfig, slots: list[int]) -> tuple[LngLatBBox, ...]:

@@ -154,6 +154,28 @@ def test_localize_bench_refuses_portrait_panoramas(tmp_path: Path, scene: dict[s
     assert rendered.exit_code == 2 and "cannot be a 360° panorama" in error_line(rendered)
 
 
+# --------------------------------------------------------------------------- c. zoom finer than a raster
+
+
+def osmseg_process(*args: str) -> subprocess.CompletedProcess[str]:
+    """``python -m osmseg ARGS`` in a process of its own: the log lines a user's terminal shows."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")]))
+    return subprocess.run([sys.executable, "-m", "osmseg", *args], env=env, capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_build_warns_once_when_the_zoom_upsamples_a_geotiff(tmp_path: Path, imagery_tif: Path) -> None:
+    fine = osmseg_process(*build_args(tmp_path / "z20", f"geotiff:{imagery_tif}", "--zoom", "20", "--max-tries",
+                                      "2")[:-2], "--workers", "2")
+    assert fine.returncode in (0, 1), fine.stderr  # the warning is the point, not what the filters kept
+    warnings = [line for line in fine.stderr.splitlines() if "upsampled" in line]
+    assert len(warnings) == 1, fine.stderr  # once per build, not once per worker
+    assert "0.298 m pixels" in warnings[0] and "--zoom 20" in warnings[0], warnings[0]
+    assert "upsampled 4.0x" in warnings[0] and "--zoom 18 matches the raster" in warnings[0], warnings[0]
+    matched = osmseg_process(*build_args(tmp_path / "z18", f"geotiff:{imagery_tif}", "--zoom", "18"))
+    assert matched.returncode == 0 and "upsampled" not in matched.stderr, matched.stderr
+
+
 # --------------------------------------------------------------------------- f. 16-bit and paletted GeoTIFFs
 
 

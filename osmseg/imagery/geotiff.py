@@ -50,7 +50,7 @@ from rasterio.warp import transform_bounds
 from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError, UnusableImagery
-from osmseg.grid import SampleGrid
+from osmseg.grid import SampleGrid, ground_pixel_size
 from osmseg.imagery.base import Imagery
 from osmseg.imagery.mosaic import ALPHA_VALID
 from osmseg.imagery.remap import source_pixels, warp_bilinear
@@ -165,6 +165,8 @@ class GeoTiffProvider:
             self.bounds = tuple(src.bounds)
             self.size = (src.width, src.height)
             self.count = src.count
+            # ground metres per pixel (None for a CRS not tied to the Earth): warns of upsampling zooms
+            self.resolution_m = ground_pixel_size(crs, src.transform, src.width, src.height)
             self._has_alpha = ColorInterp.alpha in colorinterp
             self._footprint = mercator_footprint(src)
         except BaseException:
