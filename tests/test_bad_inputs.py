@@ -176,6 +176,27 @@ def test_build_warns_once_when_the_zoom_upsamples_a_geotiff(tmp_path: Path, imag
     assert matched.returncode == 0 and "upsampled" not in matched.stderr, matched.stderr
 
 
+# --------------------------------------------------------------------------- d. fewer samples than asked
+
+
+def test_a_build_that_keeps_fewer_samples_than_asked_says_so(tmp_path: Path, imagery_tif: Path) -> None:
+    """1 of 8: exit 0 (the dataset is written, complete for its options, and a rerun gives the same
+    one), with one line saying how many, why, and what to change."""
+    args = build_args(tmp_path / "ds", f"geotiff:{imagery_tif}", "--max-tries", "1", samples=8)
+    args[args.index("--radius-km") + 1] = "0.3"
+    for _ in range(2):  # the rerun says it again, and changes nothing
+        result = run(*args)
+        assert result.exit_code == 0, result.output
+        assert len(list((tmp_path / "ds" / "images").glob("*.png"))) == 1
+        lines = [line for line in result.stderr.splitlines() if line.startswith("incomplete:")]
+        assert lines == ["incomplete: the dataset holds 1 of the 8 samples asked for: 7 slots gave up after "
+                         "--max-tries 1 rejected attempt (reasons above and in manifest.json); the same command "
+                         "gives the same dataset again: for more, build into a new --out with a higher "
+                         "--max-tries, looser filters or a larger area"], result.stderr
+    summary = json.loads((tmp_path / "ds" / "manifest.json").read_text())["summary"]
+    assert (summary["accepted"], summary["requested"], summary["complete"]) == (1, 8, False)
+
+
 # --------------------------------------------------------------------------- f. 16-bit and paletted GeoTIFFs
 
 
