@@ -61,6 +61,7 @@ class BuildSummary:
     exhausted: int = 0  # slots that ran out of tile blocks of the area (--no-overlap)
     dataset_accepted: int = 0  # samples in the finished dataset (all shards), once the manifest is written
     asked: int = 0  # --samples
+    osm_empty: int = 0  # rejected attempts whose OSM data held no object of any class
     max_tries: int = 0  # --max-tries
 
     def lines(self) -> list[str]:
@@ -234,3 +235,4 @@ def _count(summary: BuildSummary, outcome: SlotOutcome) -> None:
     else:
         summary.gave_up += 1
     summary.rejected.update(r["reason"] for r in outcome.rejected)
+    summary.osm_empty += sum(1 for r in outcome.rejected if r.get("osm_empty"))

@@ -38,7 +38,7 @@ from osmseg.output import rejection_entry, sample_entry, write_sample
 from osmseg.output.overview import write_thumbnails
 from osmseg.rasterize import rasterize, to_table
 from osmseg.records import Attempt, SlotOutcome
-from osmseg.rejection import check_imagery, check_labels
+from osmseg.rejection import FilterConfig, check_imagery, check_labels
 from osmseg.sampling import block_attempt_centre
 from osmseg.state import BuildState
 
@@ -105,11 +105,27 @@ def open_pipeline(config: BuildConfig, client: HttpClient, env: dict[str, str]) 
     check_zoom = getattr(imagery, "check_zoom", None)
     if callable(check_zoom):  # a provider that knows its zoom range says so before anything is written
         check_zoom(config.zoom)
-    check_covers = getattr(imagery, "check_covers", None)
-    if callable(check_covers):  # a local raster that misses the area: every sample would be rejected
-        check_covers(*sampling_box(config))
     osm = make_osm_source(config.osm, client, workdir, rules)
+    # then whether the local sources hold anything over the area at all (a raster, a tile folder,
+    # an OSM file of another place): every sample would be rejected, so it is said before the build
+    area = sampling_box(config)
+    check_covers = getattr(imagery, "check_covers", None)
+    if callable(check_covers) and rejects_no_imagery(config.filters):
+        check_covers(*area, zoom=config.zoom)
+    check_osm = getattr(osm, "check_covers", None)
+    if callable(check_osm):
+        check_osm(*area)
     return Pipeline(imagery=imagery, osm=osm, table=table, rules=rules)
+
+
+def rejects_no_imagery(filters: FilterConfig) -> bool:
+    """Whether ``filters`` reject a sample without any imagery (the default: yes). Builds that keep
+    such samples (``--max-missing-imagery 1 --min-contrast 0``: labels alone) need no imagery there.
+
+    >>> rejects_no_imagery(FilterConfig()), rejects_no_imagery(FilterConfig(max_invalid_imagery=1, min_contrast=0))
+    (True, False)
+    """
+    return check_imagery(np.zeros((1, 1, 3), np.uint8), np.zeros((1, 1), bool), 0, filters) is not None
 
 
 def warn_upsampling(config: BuildConfig, imagery: ImageryProvider) -> None:
@@ -171,7 +187,10 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int,
     if rejection is not None or imagery is None:
         assert rejection is not None
         problems = {"osm_problems": list(features.problems)} if features.problems else {}
-        return Attempt.rejected({**rejection_entry(lon, lat, rejection, attempt=attempt), **problems, **unplaced})
+        # no OSM object of any class in the box: when every attempt says so, the source has no data there
+        empty = {"osm_empty": True} if not features.features and not features.unplaced else {}
+        return Attempt.rejected({**rejection_entry(lon, lat, rejection, attempt=attempt), **problems, **unplaced,
+                                 **empty})
     name = f"{config.prefix}_{slot:05d}"
     written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format)
     if thumbnails is not None:

@@ -197,6 +197,73 @@ def test_a_build_that_keeps_fewer_samples_than_asked_says_so(tmp_path: Path, ima
     assert (summary["accepted"], summary["requested"], summary["complete"]) == (1, 8, False)
 
 
+# --------------------------------------------------------------------------- e. sources that miss the area
+
+
+@pytest.mark.parametrize("header", [True, False])
+def test_an_osm_file_of_another_place_is_refused_before_anything_is_built(tmp_path: Path, header: bool) -> None:
+    osm = TINYCITY
+    if not header:  # no <bounds>: the extent of its nodes tells
+        osm = tmp_path / "nobounds.osm"
+        osm.write_text("".join(line for line in TINYCITY.read_text().splitlines(True) if "<bounds" not in line))
+    args = build_args(tmp_path / "ds", f"xyz:file://{TILES}/{{z}}/{{x}}/{{y}}.png", where=BERLIN)
+    args[args.index(str(TINYCITY))] = str(osm)
+    result = run(*args)
+    assert result.exit_code == 2, result.output  # was: 20 attempts, then "loosen the filters"
+    line = error_line(result)
+    assert f"--osm {osm} covers lon 24.93" in line and "which misses the sampling area (lon 13.3" in line, line
+    assert ("its header's bounds" if header else "the extent of its nodes") in line
+    assert not (tmp_path / "ds").exists()
+
+
+@pytest.mark.parametrize(("where", "zoom", "says"), [
+    ((), "18", "sample where the tiles are"),  # tinycity: the tiles are in Berlin
+    (BERLIN, "19", "the folder has tiles at zoom 18: give one of them as --zoom"),
+    (("--bbox", "23,59,26,61"), "18", "sample where the tiles are"),  # too many tiles to try: the folder is listed
+])
+def test_a_tile_folder_without_a_tile_over_the_area_is_refused(tmp_path: Path, where: tuple[str, ...], zoom: str,
+                                                                says: str) -> None:
+    args = build_args(tmp_path / "ds", f"xyz:file://{TILES}/{{z}}/{{x}}/{{y}}.png", "--zoom", zoom, where=where)
+    if where and where[0] == "--bbox":
+        del args[args.index("--radius-km"):args.index("--radius-km") + 2]
+    result = run(*args)
+    assert result.exit_code == 2, result.output
+    line = error_line(result)
+    assert f"has no tile at zoom {zoom} over the sampling area" in line and says in line, line
+    assert not (tmp_path / "ds").exists()
+
+
+def test_a_tile_folder_is_not_needed_where_samples_may_lack_imagery(tmp_path: Path) -> None:
+    """Labels alone (no imagery kept or asked for): an empty folder is what the user meant."""
+    (tmp_path / "none").mkdir()
+    result = run(*build_args(tmp_path / "ds", f"xyz:file://{tmp_path}/none/{{z}}/{{x}}/{{y}}.png",
+                             "--max-missing-imagery", "1", "--max-placeholder-tiles", "25", "--min-contrast", "0",
+                             "--max-tries", "3"))
+    assert "has no tile" not in result.output
+
+
+def test_a_server_with_no_imagery_there_is_named_in_the_final_error(tmp_path: Path, http_server) -> None:
+    result = run(*build_args(tmp_path / "ds", "xyz:" + http_server.url("/t/{z}/{x}/{y}.png"), "--max-tries", "2"))
+    assert result.exit_code == 1, result.output  # every tile answered 404
+    line = error_line(result)
+    assert "all 4 attempts were rejected for missing imagery" in line, line
+    assert "has no imagery over the sampling area at --zoom 18" in line and "loosen the filters" not in line
+
+
+def test_an_osm_service_with_no_data_there_is_named_in_the_final_error(tmp_path: Path, imagery_tif: Path,
+                                                                        http_server) -> None:
+    from servers import Reply
+
+    http_server.script("/api/0.6/map", Reply(200, '<?xml version="1.0"?>\n<osm version="0.6" generator="t"/>\n',
+                                             {"Content-Type": "text/xml; charset=utf-8"}))
+    args = build_args(tmp_path / "ds", f"geotiff:{imagery_tif}", "--max-tries", "2")
+    args[args.index(str(TINYCITY))] = "api:" + http_server.url("/api/0.6")
+    result = run(*args)
+    assert result.exit_code == 1, result.output
+    line = error_line(result)
+    assert "had no object of any class in any of the 4 attempts' areas, so it has no data there" in line, line
+
+
 # --------------------------------------------------------------------------- f. 16-bit and paletted GeoTIFFs
 
 

@@ -183,9 +183,10 @@ class GeoTiffProvider:
             return self._open()
         return self._src
 
-    def check_covers(self, west: float, south: float, east: float, north: float) -> None:
+    def check_covers(self, west: float, south: float, east: float, north: float, zoom: int | None = None) -> None:
         """ConfigError when the raster's footprint misses the sampling area (lon/lat degrees) entirely:
-        every sample would be rejected as missing imagery, so say it before the build."""
+        every sample would be rejected as missing imagery, so say it before the build. (``zoom``:
+        any, a raster is resampled to it.)"""
         try:
             left, bottom, right, top = transform_bounds(self.crs, "EPSG:4326", *self.bounds, densify_pts=21)
         except (ValueError, RasterioError):  # a CRS with no lon/lat: nothing to compare
