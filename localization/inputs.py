@@ -18,7 +18,7 @@ import numpy as np
 
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.images import read_raster
+from osmseg.images import is_tiff, read_raster, read_rgb
 from osmseg.output.manifest import MANIFEST_NAME, read_manifest
 
 logger = logging.getLogger(__name__)
@@ -163,6 +163,14 @@ def _drawable(pixels: np.ndarray) -> np.ndarray | None:
     return None
 
 
+def _photo(path: Path, pixels: np.ndarray) -> np.ndarray | None:
+    """The RGB photo a model sees (to segment it, or for landmark features): a GeoTIFF as every
+    osmseg imagery reader takes it (:func:`osmseg.images.read_rgb`: 16-bit values scaled by their
+    declared depth, a colour table looked up, as ``osmseg build`` and ``predict`` do), else ``pixels``
+    as drawn (None if they are no image)."""
+    return read_rgb(path) if is_tiff(path) else _drawable(pixels)
+
+
 def _segmented_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: SideOptions,
                     dictionary: Any) -> Side:
     """Segment an RGB image with ``opts.checkpoint`` (needs PyTorch), then read its mask."""
@@ -172,7 +180,7 @@ def _segmented_side(path: Path, pixels: np.ndarray, resolution: float | None, op
     from training.checkpoint import model_from_checkpoint
     from training.infer import predict_array
 
-    rgb = _drawable(pixels)
+    rgb = _photo(path, pixels)
     if rgb is None:
         raise ConfigError(f"{path}: --{opts.name}-checkpoint needs an RGB image, got {pixels.shape}")
     model, spec = model_from_checkpoint(opts.checkpoint)  # type: ignore[arg-type]
@@ -227,7 +235,7 @@ def with_photo(side: Side, path: Path | None, name: str) -> Side:
     """``side`` with the RGB photo of ``--NAME-image`` (for landmark features; drawn under the pictures)."""
     if path is None:
         return side
-    rgb, lm = _drawable(_read_image(path)[0]), side.landmarks
+    rgb, lm = _photo(path, _read_image(path)[0]), side.landmarks
     if rgb is None or rgb.shape[:2] != (lm.height, lm.width):
         got = "not an RGB image" if rgb is None else f"{rgb.shape[1]}x{rgb.shape[0]}"
         raise ConfigError(f"--{name}-image {path.name} is {got}; the {name} landmarks need the {lm.width}x{lm.height} "

@@ -41,7 +41,7 @@ from localization.compare import confidence_of, method_summary
 from localization.landmark_files import read_landmarks
 from localization.landmarks import LandmarkClasses, Landmarks, load_landmark_classes
 from localization.pipeline import METHODS, LocalizeConfig, aerial_graph, profile_index, run, run_profile
-from localization.profile import Camera
+from localization.profile import Camera, check_view_shape
 from localization.result import DEFAULT_P
 from localization.search import ProfileConfig
 from osmseg import __version__
@@ -183,6 +183,9 @@ def load_pairs(folder: Path, config: PairsConfig = PairsConfig()) -> list[Pair]:
     for name in names:
         aw, ah = _size(aerial_images.get(name), config.aerial_size, aerial_files[name], "aerial")
         gw, gh = _size(ground_images.get(name), config.ground_size, ground_files[name], "ground")
+        check_view_shape(gw, gh, 360.0, f"the panorama of {ground_files[name]}",
+                         "give the panoramas' size (--ground-size WIDTHxHEIGHT, CVUSA's is 1232x224)"
+                         if config.ground_size else "put the panorama's own image beside it, or give --ground-size")
         aerial = read_landmarks(aerial_files[name], classes, aw, ah)
         ground = read_landmarks(ground_files[name], classes, gw, gh, panorama=True)
         centre = (aw / 2, ah / 2) if config.conventions == "authors" else ((aw - 1) / 2, (ah - 1) / 2)

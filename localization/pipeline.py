@@ -28,7 +28,7 @@ from localization.inputs import Side, SideOptions, load_side, with_photo
 from localization.landmarks import Landmarks
 from localization.match import DEFAULT_P, Localization, localize, match_cliques, unanswered
 from localization.profile import (AerialLandmarkIndex, AerialMaskIndex, Camera, QueryProfile, SemanticMap,
-                                  query_from_landmarks, query_from_mask, ray_radii)
+                                  check_view_shape, query_from_landmarks, query_from_mask, ray_radii)
 from localization.refine import HIERARCHY, localize_hierarchical
 from localization.search import AerialIndex, ProfileConfig, localize_profile
 from osmseg.errors import ConfigError, DatasetError
@@ -202,6 +202,7 @@ def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path
     """Read both sides, localize, and (with ``out_dir``) write ``result.json`` and the pictures."""
     aerial = load_side(request.aerial, request.aerial_options)
     ground = load_side(request.ground, request.ground_options)
+    _check_ground_shape(ground, request, config)
     _check_sides(aerial, ground, request)
     aerial = with_photo(aerial, request.aerial_image, "aerial")
     ground = with_photo(ground, request.ground_image, "ground")
@@ -261,6 +262,26 @@ def _profile_result(request: LocalizeFiles, config: LocalizeConfig, aerial: Side
     g = ground.landmarks
     camera = Camera(g.width, g.height, hfov_deg=config.fov_deg, camera_height_m=config.camera_height_m)
     return run_profile(config.profile, index, ground.semantic if ground.semantic is not None else g, camera)
+
+
+def _check_ground_shape(ground: Side, request: LocalizeFiles, config: LocalizeConfig) -> None:
+    """ConfigError when the ground image cannot be the view the command takes it for: a 360° panorama
+    (``--panorama``, the default), or with the profile method a photo of ``--fov`` degrees. An
+    aerial crop (the paper method with ``--no-panorama``) has no such shape."""
+    opts, g = request.ground_options, ground.landmarks
+    photo = config.method == "profile" and config.fov_deg < 360
+    if not (opts.panorama or photo):
+        return
+    hfov = config.fov_deg if config.method == "profile" else 360.0
+    fixes = ["give the photo" if photo else "give the panorama"]
+    if config.method == "profile":
+        fixes.append(f"{'its true' if photo else 'for a photo its'} field of view (--fov DEGREES, at most "
+                     f"{180 * g.width / g.height:.0f} for this shape)")
+    else:
+        fixes.append("--no-panorama for an aerial crop")
+    if ground.semantic is None:  # a landmark file: its size may be a guess
+        fixes.append("the size of its image (--ground-size WIDTHxHEIGHT)")
+    check_view_shape(g.width, g.height, hfov, f"--ground {request.ground.name}", ", or ".join(fixes))
 
 
 def _check_sides(aerial: Side, ground: Side, request: LocalizeFiles) -> None:

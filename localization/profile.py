@@ -48,7 +48,7 @@ from osmseg.errors import ConfigError
 
 __all__ = ["OTHER", "STANDING_MASK_CLASSES", "STANDING_LANDMARKS", "SemanticMap", "Camera", "QueryProfile", "semantic_map",
            "query_from_mask", "query_from_landmarks", "AerialMaskIndex", "AerialLandmarkIndex", "ray_radii",
-           "OPAQUE_LANDMARKS", "HALF_WIDTHS_M", "first_hits", "seen_fraction"]
+           "OPAQUE_LANDMARKS", "HALF_WIDTHS_M", "first_hits", "seen_fraction", "check_view_shape"]
 
 #: Mask classes that stand up from the ground and hide what lies behind them (case-insensitive).
 STANDING_MASK_CLASSES = ("building", "tree")
@@ -60,6 +60,31 @@ STANDING_LANDMARKS = ("building", "vegetation")
 OPAQUE_LANDMARKS = ("building",)
 #: Half-widths (m) an opaque landmark point may stand for; its predicted profile is the mean over them.
 HALF_WIDTHS_M = (4.0, 6.0, 8.0)
+#: How far beyond 180 degrees (nadir to zenith) a view may span from its top row to its bottom one:
+#: room for a panorama padded by a few rows (an equirectangular 2:1 image spans exactly 180).
+VERTICAL_SPAN_TOLERANCE = 0.05
+
+
+def check_view_shape(width: int, height: int, hfov_deg: float, what: str, fix: str) -> None:
+    """ConfigError when a ``width`` x ``height`` image cannot show ``hfov_deg`` degrees around the horizon.
+
+    Every method takes a ground view's pixels as square in angle (:class:`Camera`, the renderer,
+    CVUSA's 1232x224 panoramas), so the image spans ``height * hfov / width`` degrees from top to
+    bottom, and no camera sees more than the 180 from nadir to zenith: a 360-degree panorama is
+    at least twice as wide as high. ``what`` names the image, ``fix`` says what to give instead.
+
+    >>> check_view_shape(1232, 224, 360, "pano.png", "give a panorama")
+    >>> check_view_shape(224, 1232, 360, "--ground portrait.png", "give a panorama")
+    Traceback (most recent call last):
+    osmseg.errors.ConfigError: --ground portrait.png is 224x1232 pixels, which cannot be a 360° panorama: its square pixels would span 1980° from top to bottom, more than the 180° from nadir to zenith (a panorama is at least twice as wide as high, e.g. 1232x224); give a panorama
+    """
+    span = height * hfov_deg / width
+    if span <= 180.0 * (1 + VERTICAL_SPAN_TOLERANCE):
+        return
+    view = "a 360° panorama" if hfov_deg >= 360 else f"a photo {hfov_deg:g}° wide"
+    shape = " (a panorama is at least twice as wide as high, e.g. 1232x224)" if hfov_deg >= 360 else ""
+    raise ConfigError(f"{what} is {width}x{height} pixels, which cannot be {view}: its square pixels would span "
+                      f"{span:.0f}° from top to bottom, more than the 180° from nadir to zenith{shape}; {fix}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,6 +154,11 @@ class Camera:
             raise ConfigError(f"horizontal field of view must be in (0, 360] degrees, got {self.hfov_deg:g}")
         if not self.camera_height_m > 0:
             raise ConfigError(f"camera height must be a positive number of metres, got {self.camera_height_m:g}")
+        span = self.step * self.height
+        if span > 180.0 * (1 + VERTICAL_SPAN_TOLERANCE):
+            raise ConfigError(f"a {self.width}x{self.height} query of {self.step:.3g}° rows spans {span:.0f}° from "
+                              "top to bottom, more than the 180° from nadir to zenith: give a wider image or a "
+                              "narrower field of view")
 
     @property
     def step(self) -> float:

@@ -28,7 +28,7 @@ from osmseg.output.writer import IMAGE_FORMATS
 from osmseg.progress import Progress, report
 from osmseg.records import SlotOutcome
 from osmseg.sampling import check_room
-from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions
+from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions, warn_upsampling
 from osmseg.state import STATE_DIR, BuildState
 from osmseg.processes import start_fork_server, sweep_owned
 from osmseg.workers import FirstSamples, SlotRunner
@@ -59,6 +59,9 @@ class BuildSummary:
     no_overlap: bool = False
     exhausted: int = 0  # slots that ran out of tile blocks of the area (--no-overlap)
     dataset_accepted: int = 0  # samples in the finished dataset (all shards), once the manifest is written
+    asked: int = 0  # --samples
+    osm_empty: int = 0  # rejected attempts whose OSM data held no object of any class
+    max_tries: int = 0  # --max-tries
 
     def lines(self) -> list[str]:
         reasons = ", ".join(f"{n} {r}" for r, n in sorted(self.rejected.items())) or "none"
@@ -80,11 +83,14 @@ class BuildSummary:
             groups = f"{self.groups} spatial group{'s' if self.groups != 1 else ''}"
             out.append(f"{self.overlapping} of {self.dataset_accepted} samples overlap another ({groups}{repeat}): training "
                        "keeps each group in one split; --no-overlap draws samples that never overlap")
-        if self.exhausted:
-            out.append(f"{self.exhausted} slots ran out of tile blocks of the area (--no-overlap gives every attempt "
-                       "its own): widen the area, or ask for fewer --samples")
-        if self.gave_up - self.exhausted > 0:
-            out.append(f"{self.gave_up - self.exhausted} slots hit --max-tries without an accepted sample")
+        if self.finalized and 0 < self.dataset_accepted < self.asked:
+            out.append(self.incomplete())
+        else:
+            if self.exhausted:
+                out.append(f"{self.exhausted} slots ran out of tile blocks of the area (--no-overlap gives every "
+                           "attempt its own): widen the area, or ask for fewer --samples")
+            if self.gave_up - self.exhausted > 0:
+                out.append(f"{self.gave_up - self.exhausted} slots hit --max-tries without an accepted sample")
         if self.failed:
             out.append(f"{len(self.failed)} samples could not be fetched (services kept failing through every retry); "
                        "their reasons are in .osmseg-build/failures/")
@@ -92,6 +98,28 @@ class BuildSummary:
         if pending > 0:
             out.append(f"{pending} slots belong to other shards and are not built yet")
         return out
+
+    def incomplete(self) -> str:
+        """The line of a finished dataset holding fewer samples than asked: how many, why, what to do.
+
+        The build still succeeds (exit 0): the dataset is complete for its options (its manifest
+        says ``"complete": false`` and ``"requested"``), and the same command gives the same one again.
+
+        >>> BuildSummary(Path("ds"), gave_up=7, finalized=True, dataset_accepted=1, asked=8, max_tries=10).incomplete()
+        'incomplete: the dataset holds 1 of the 8 samples asked for: 7 slots gave up after --max-tries 10 rejected attempts (reasons above and in manifest.json); the same command gives the same dataset again: for more, build into a new --out with a higher --max-tries, looser filters or a larger area'
+        """
+        missing = self.asked - self.dataset_accepted
+        tries = self.gave_up - self.exhausted
+        causes = ([f"{tries} slot{'s' if tries != 1 else ''} gave up after --max-tries {self.max_tries} rejected "
+                   f"attempt{'s' if self.max_tries != 1 else ''}"] if tries else [])
+        if self.exhausted:
+            causes.append(f"{self.exhausted} slot{'s' if self.exhausted != 1 else ''} ran out of tile blocks of the "
+                          "area (--no-overlap)")
+        why = " and ".join(causes) if causes and self.gave_up == missing else f"{missing} slots gave up"
+        more = "a higher --max-tries, looser filters or a larger area" if tries or not self.exhausted else "a larger area"
+        return (f"incomplete: the dataset holds {self.dataset_accepted} of the {self.asked} samples asked for: {why} "
+                f"(reasons above and in manifest.json); the same command gives the same dataset again: for more, "
+                f"build into a new --out with {more}")
 
 
 def build(
@@ -110,13 +138,14 @@ def build(
     env = dict(os.environ if env is None else env)
     start = time.monotonic()
     check_config(config)
-    summary = BuildSummary(out_dir=config.out_dir)
+    summary = BuildSummary(out_dir=config.out_dir, asked=config.samples, max_tries=config.max_tries)
     if config.worker_count(len(config.my_slots())) > 1:
         start_fork_server()
     with HttpClient(http_config(config)) as client:
         # every source and option is checked before anything is written into the output folder:
         # a command refused here leaves no state that the corrected command would be refused by
         pipe = open_pipeline(config, client, env)
+        warn_upsampling(config, pipe.imagery)  # here, not in open_pipeline: workers open theirs too
         config.out_dir.mkdir(parents=True, exist_ok=True)
         state = BuildState(config.out_dir)
         try:
@@ -219,3 +248,4 @@ def _count(summary: BuildSummary, outcome: SlotOutcome) -> None:
     else:
         summary.gave_up += 1
     summary.rejected.update(r["reason"] for r in outcome.rejected)
+    summary.osm_empty += sum(1 for r in outcome.rejected if r.get("osm_empty"))

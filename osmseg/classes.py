@@ -302,6 +302,26 @@ def _color(value: Any, where: str) -> RGB:
     return (value[0], value[1], value[2])
 
 
+def check_distinct_colors(name: str, classes: tuple[ClassDef, ...]) -> None:
+    """ClassTableError naming the first two classes (unlabeled included) that share a colour.
+
+    The colour masks (``segmented/*.png``, ``*_color.png``) are read back by colour, so two
+    classes of one colour would make them ambiguous.
+
+    >>> a, b = ClassDef(1, "building", (255, 255, 0)), ClassDef(5, "forest", (255, 255, 0))
+    >>> check_distinct_colors("mine.toml", (a, b))
+    Traceback (most recent call last):
+    osmseg.errors.ClassTableError: mine.toml: classes 'building' (id 1) and 'forest' (id 5) have the same colour [255, 255, 0]: give each class its own colour, or the colour masks cannot tell them apart
+    """
+    seen: dict[RGB, ClassDef] = {}
+    for c in classes:
+        first = seen.setdefault(c.color, c)
+        if first is not c:
+            raise ClassTableError(
+                f"{name}: classes {first.name!r} (id {first.id}) and {c.name!r} (id {c.id}) have the same colour "
+                f"{list(c.color)}: give each class its own colour, or the colour masks cannot tell them apart")
+
+
 def load_class_table(name: str = "classes13.toml") -> ClassTable:
     """Read a class table from ``data_manifests/`` (or a path), checking it as it goes."""
     raw = load_toml(name)
@@ -348,6 +368,7 @@ def load_class_table(name: str = "classes13.toml") -> ClassTable:
     if len(set(ids)) != len(ids) or unlabeled.id in ids or not all(0 <= i < 256 for i in ids):
         raise ClassTableError(f"{name}: class ids must be unique, in 0..255 and not the unlabeled id "
                               f"{unlabeled.id}, got {ids}")
+    check_distinct_colors(name, (unlabeled, *classes))
     try:
         hidden = tuple(Rule(geometry="any", tags=dict(tags)) for tags in raw.get("hidden", ()))
     except (TypeError, ValueError):

@@ -27,6 +27,10 @@ from pyproj.exceptions import CRSError, ProjError
 
 TILE_SIZE = 256
 EARTH_CIRCUMFERENCE = 2 * math.pi * 6378137.0
+#: Pixels more than this many times larger or smaller than the ones wanted are worth a warning:
+#: ``osmseg predict`` when an input's are that far from the training data's, ``osmseg build``
+#: when ``--zoom`` asks for pixels that much finer than a local raster's (upsampled, no detail).
+RESOLUTION_MISMATCH = 1.5
 
 
 class LngLatBBox(NamedTuple):
@@ -146,6 +150,28 @@ def ground_resolution(lat: float, zoom: int) -> float:
     0.363
     """
     return math.cos(math.radians(lat)) * EARTH_CIRCUMFERENCE / (TILE_SIZE * 2**zoom)
+
+
+def resolution_mismatch(pixel_m: float, wanted_m: float) -> float | None:
+    """How many times (> 1) ``pixel_m`` pixels are larger or smaller than ``wanted_m`` ones, when
+    that is more than :data:`RESOLUTION_MISMATCH`; None when they are close enough to say nothing.
+
+    >>> resolution_mismatch(0.51, 0.3), resolution_mismatch(0.3, 0.6), resolution_mismatch(0.4, 0.3)
+    (1.7, 2.0, None)
+    """
+    factor = max(pixel_m / wanted_m, wanted_m / pixel_m)
+    return round(factor, 6) if factor > RESOLUTION_MISMATCH else None
+
+
+def zoom_for_resolution(lat: float, metres: float) -> int:
+    """The tile zoom (0..23) whose pixels at ``lat`` are nearest ``metres`` (in ratio): the ``--zoom``
+    that matches a raster of that resolution.
+
+    >>> zoom_for_resolution(60.17, 0.3), zoom_for_resolution(0.0, 0.6), zoom_for_resolution(0.0, 0.45)
+    (18, 18, 18)
+    """
+    exact = math.log2(math.cos(math.radians(lat)) * EARTH_CIRCUMFERENCE / (TILE_SIZE * metres))
+    return min(23, max(0, round(exact)))
 
 
 def pad_bbox(bbox: LngLatBBox, metres: float) -> LngLatBBox:

@@ -15,6 +15,7 @@ processes and still write the bytes of a single-process build. Imports: osmseg c
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,8 @@ import numpy as np
 from osmseg.buildconfig import BuildConfig, sampling_box
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import RetriesExhausted
-from osmseg.grid import LngLatBBox, SampleGrid, pad_bbox, sample_grid
+from osmseg.grid import (LngLatBBox, SampleGrid, ground_resolution, pad_bbox, resolution_mismatch, sample_grid,
+                         zoom_for_resolution)
 from osmseg.imagery import make_provider
 from osmseg.imagery.base import ImageryProvider
 from osmseg.images import read_rgb
@@ -36,12 +38,14 @@ from osmseg.output import rejection_entry, sample_entry, write_sample
 from osmseg.output.overview import write_thumbnails
 from osmseg.rasterize import rasterize, to_table
 from osmseg.records import Attempt, SlotOutcome
-from osmseg.rejection import check_imagery, check_labels
+from osmseg.rejection import FilterConfig, check_imagery, check_labels
 from osmseg.sampling import block_attempt_centre
 from osmseg.state import BuildState
 
+logger = logging.getLogger(__name__)
+
 __all__ = ["HOST_LIMITS", "Pipeline", "attempt_centre", "attempt_rng", "http_config", "open_pipeline",
-           "osm_regions", "run_attempt", "run_slot"]
+           "osm_regions", "run_attempt", "run_slot", "warn_upsampling"]
 
 #: Per-host request limits: the OSM API and Overpass ask for at most 2 concurrent connections.
 HOST_LIMITS = {**DEFAULT_HOST_LIMITS, "dev.virtualearth.net": 2}
@@ -101,11 +105,45 @@ def open_pipeline(config: BuildConfig, client: HttpClient, env: dict[str, str]) 
     check_zoom = getattr(imagery, "check_zoom", None)
     if callable(check_zoom):  # a provider that knows its zoom range says so before anything is written
         check_zoom(config.zoom)
-    check_covers = getattr(imagery, "check_covers", None)
-    if callable(check_covers):  # a local raster that misses the area: every sample would be rejected
-        check_covers(*sampling_box(config))
     osm = make_osm_source(config.osm, client, workdir, rules)
+    # then whether the local sources hold anything over the area at all (a raster, a tile folder,
+    # an OSM file of another place): every sample would be rejected, so it is said before the build
+    area = sampling_box(config)
+    check_covers = getattr(imagery, "check_covers", None)
+    if callable(check_covers) and rejects_no_imagery(config.filters):
+        check_covers(*area, zoom=config.zoom)
+    check_osm = getattr(osm, "check_covers", None)
+    if callable(check_osm):
+        check_osm(*area)
     return Pipeline(imagery=imagery, osm=osm, table=table, rules=rules)
+
+
+def rejects_no_imagery(filters: FilterConfig) -> bool:
+    """Whether ``filters`` reject a sample without any imagery (the default: yes). Builds that keep
+    such samples (``--max-missing-imagery 1 --min-contrast 0``: labels alone) need no imagery there.
+
+    >>> rejects_no_imagery(FilterConfig()), rejects_no_imagery(FilterConfig(max_invalid_imagery=1, min_contrast=0))
+    (True, False)
+    """
+    return check_imagery(np.zeros((1, 1, 3), np.uint8), np.zeros((1, 1), bool), 0, filters) is not None
+
+
+def warn_upsampling(config: BuildConfig, imagery: ImageryProvider) -> None:
+    """Warn (call it once per build) when ``--zoom`` asks for sample pixels much finer than a local
+    raster's (``resolution_m``): each raster pixel would be stretched over several sample pixels,
+    blurred, with no detail gained. The threshold is the one ``osmseg predict`` warns at
+    (:data:`~osmseg.grid.RESOLUTION_MISMATCH`); the message names the zoom that matches the raster."""
+    source_m = getattr(imagery, "resolution_m", None)
+    if source_m is None:
+        return
+    sample_m = ground_resolution(config.area.lat, config.zoom)
+    factor = resolution_mismatch(source_m, sample_m)
+    if factor is None or source_m < sample_m:  # a coarser zoom averages the raster: nothing is invented
+        return
+    where = getattr(imagery, "path", imagery.name)
+    logger.warning("%s has %.3g m pixels, but --zoom %d makes %.3g m sample pixels: the imagery is upsampled "
+                   "%.1fx (blurred, no detail gained); --zoom %d matches the raster", where, source_m, config.zoom,
+                   sample_m, factor, zoom_for_resolution(config.area.lat, source_m))
 
 
 def osm_regions(config: BuildConfig, slots: list[int]) -> tuple[LngLatBBox, ...]:
@@ -152,8 +190,10 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int,
         problems = {"osm_problems": list(features.problems)} if features.problems else {}
         # which tiles were of one colour (placeholders a server answered as tiles), for the manifest
         uniform = {"uniform_tiles": imagery.info["uniform_tiles"]} if imagery and imagery.uniform_tiles else {}
+        # no OSM object of any class in the box: when every attempt says so, the source has no data there
+        empty = {"osm_empty": True} if not features.features and not features.unplaced else {}
         return Attempt.rejected({**rejection_entry(lon, lat, rejection, attempt=attempt), **problems, **unplaced,
-                                 **uniform})
+                                 **uniform, **empty})
     name = f"{config.prefix}_{slot:05d}"
     written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format,
                            valid=imagery.valid)

@@ -409,8 +409,11 @@ def test_band_counts(tmp_path) -> None:
         assert np.array_equal(np.asarray(Image.open(tmp_path / f"{name}.mask.png")), expected), name
     write_tif(tmp_path / "two.tif", np.dstack([grey, alpha]))
     Image.fromarray(np.dstack([grey, alpha])).save(tmp_path / "two.png")
-    write_tif(tmp_path / "deep.tif", image.astype(np.uint16) * 257)
-    for name, what in (("two.tif", "2 bands"), ("two.png", "2 bands"), ("deep.tif", "uint16")):
+    write_tif(tmp_path / "deep.tif", image.astype(np.uint16) * 257)  # 16 bits scaled, as osmseg build reads them
+    predict_file(model, spec, tmp_path / "deep.tif", tmp_path / "deep.mask.png")
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "deep.mask.png")), truth)
+    write_tif(tmp_path / "float.tif", image.astype(np.float32))
+    for name, what in (("two.tif", "2 bands"), ("two.png", "2 bands"), ("float.tif", "float32")):
         with pytest.raises(ImageryError, match=what) as excinfo:
             predict_file(model, spec, tmp_path / name, tmp_path / "x.png")
         one_line_error(excinfo, name)

@@ -48,7 +48,7 @@ from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError
-from osmseg.images import as_rgb
+from osmseg.images import PixelRule, as_rgb, pixel_rule
 from osmseg.progress import Progress, report
 from training.distributed import pick_device
 from training.tiling import Box, WindowGrid, blend_weight, letterbox, nearest_index, pixel_blocks
@@ -223,37 +223,49 @@ class ArraySource:
 
 
 class RasterSource:
-    def __init__(self, dataset: Any, name: str) -> None:
+    """A raster read block by block as 8-bit RGB by :func:`osmseg.images.pixel_rule`: 16-bit values
+    scaled by their declared bit depth, a colour table looked up (its alpha marks empty pixels),
+    as ``osmseg build`` reads the same file. ``rule``: that of the file a WarpedVRT ``dataset`` shows
+    (a VRT does not carry the file's declared bit depth)."""
+
+    def __init__(self, dataset: Any, name: str, rule: PixelRule | None = None) -> None:
         self.dataset, self.name = dataset, name
         self.height, self.width = dataset.height, dataset.width
         if dataset.count not in (1, 3, 4):
             raise ImageryError(f"{name}: {dataset.count} bands; give 1 (grey), 3 (RGB) or 4 (RGBA) bands")
-        if dataset.dtypes[0] != "uint8":
-            raise ImageryError(f"{name}: pixels are {dataset.dtypes[0]}, the model takes 8-bit RGB; "
-                               f"convert it (e.g. gdal_translate -ot Byte -scale)")
-        self.indexes = [1, 1, 1] if dataset.count == 1 else [1, 2, 3]
+        self.rule = rule if rule is not None else pixel_rule(dataset, name)
+        self.palette = self.rule.palette is not None
+        self.indexes = [1] if self.palette else [1, 1, 1] if dataset.count == 1 else [1, 2, 3]
 
     def _read(self, **kwargs: Any) -> np.ndarray:
+        """RGB ``(h, w, 3)``, or a palette's RGBA ``(h, w, 4)``."""
         try:
-            return self.dataset.read(self.indexes, **kwargs).transpose(1, 2, 0)
+            return self.rule.colours(self.dataset.read(self.indexes, **kwargs)).transpose(1, 2, 0)
         except RasterioError as exc:
             raise ImageryError(f"{self.name}: cannot read pixels ({error_reason(exc)}); "
                                f"the file may be truncated or corrupt") from None
 
     def read(self, box: Box) -> np.ndarray:
-        return self._read(window=Window(box[2], box[0], box[3] - box[2], box[1] - box[0]))
+        return self._read(window=Window(box[2], box[0], box[3] - box[2], box[1] - box[0]))[:, :, :3]
 
     def read_resized(self, height: int, width: int) -> np.ndarray:
-        resampling = Resampling.average if height <= self.height else Resampling.bilinear
-        return self._read(out_shape=(3, height, width), resampling=resampling)
+        resampling = (Resampling.nearest if self.rule.nearest else
+                      Resampling.average if height <= self.height else Resampling.bilinear)
+        return self._read(out_shape=(len(self.indexes), height, width), resampling=resampling)[:, :, :3]
 
     @property
     def has_mask(self) -> bool:
-        """True when GDAL knows empty pixels (nodata, alpha band, internal or side-car mask)."""
+        """True when GDAL knows empty pixels (nodata, alpha band, internal or side-car mask), or a
+        colour table has transparent entries."""
+        lut = self.rule.palette
+        if lut is not None:
+            return bool((lut[:, 3] < 255).any())
         return MaskFlags.all_valid not in self.dataset.mask_flag_enums[0]
 
     def valid(self, box: Box) -> np.ndarray:
         window = Window(box[2], box[0], box[3] - box[2], box[1] - box[0])
+        if self.palette:
+            return self._read(window=window)[:, :, 3] >= 128  # the table's alpha, as the builder reads it
         try:
             return self.dataset.read_masks(1, window=window) >= 128  # an alpha band: as the builder, half opaque
         except RasterioError as exc:

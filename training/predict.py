@@ -35,7 +35,7 @@ from rasterio.warp import reproject
 from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError
-from osmseg.grid import ground_pixel_size
+from osmseg.grid import ground_pixel_size, resolution_mismatch
 from osmseg.output.atomic import temp_path_for
 from osmseg.output.geotiff import cog_file, write_class_metadata
 from osmseg.output.style import qml_style, style_path
@@ -167,15 +167,16 @@ def target_resolution(asked: float | str | None, spec: ModelSpec) -> float | Non
 
 
 def check_resolution(pixel_m: float | None, spec: ModelSpec, name: str, asked: float | None) -> None:
-    """Warn when an input's pixels are far (> 1.5x) from the training data's and nothing resamples them."""
+    """Warn when an input's pixels are far (more than :data:`~osmseg.grid.RESOLUTION_MISMATCH`, 1.5x,
+    the threshold ``osmseg build`` warns at too) from the training data's and nothing resamples them."""
     trained = spec.resolution_m
     if asked is not None or pixel_m is None or trained is None:
         return
-    if max(pixel_m / trained, trained / pixel_m) > 1.5:
+    factor = resolution_mismatch(pixel_m, trained)
+    if factor is not None:
         logger.warning("%s has %.3g m pixels but the model was trained on %.3g m pixels: objects look %.1fx %s "
                        "than it learnt them; pass --resolution model to resample the input first", name, pixel_m,
-                       trained, max(pixel_m / trained, trained / pixel_m),
-                       "smaller" if pixel_m > trained else "larger")
+                       trained, factor, "smaller" if pixel_m > trained else "larger")
 
 
 @dataclass(frozen=True)
@@ -338,9 +339,10 @@ def _resampled(source: Source, georef: dict[str, Any], factor: float) -> Iterato
         return
     width, height = max(1, round(source.width * factor)), max(1, round(source.height * factor))
     transform = georef["transform"] * Affine.scale(source.width / width, source.height / height)
+    resampling = Resampling.nearest if source.rule.nearest else Resampling.bilinear  # palette indices: nearest
     with WarpedVRT(source.dataset, crs=georef["crs"], transform=transform, width=width, height=height,
-                   resampling=Resampling.bilinear) as vrt:
-        yield RasterSource(vrt, source.name), {"crs": georef["crs"], "transform": transform}
+                   resampling=resampling) as vrt:
+        yield RasterSource(vrt, source.name, source.rule), {"crs": georef["crs"], "transform": transform}
 
 
 def _write_colour(mask: Path, colour: Path, lut: np.ndarray, block_size: int | None) -> None:

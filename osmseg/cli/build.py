@@ -80,10 +80,31 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
                            f"{'it' if failed == 1 else 'them'}")
     click.echo(str(config.out_dir / "manifest.json") if summary.finalized else str(config.out_dir))
     if summary.finalized and summary.dataset_accepted == 0:
-        more = "widen the area (--no-overlap ran out of tile blocks)" if summary.exhausted else "raise --max-tries"
-        raise DatasetError("no sample was accepted (see the rejection reasons above and in manifest.json): "
-                           f"loosen the filters, {more}, or sample another area")
+        raise no_sample_error(summary, config)
     return summary
+
+
+#: Rejection reasons that say the imagery source had nothing at a sample's place.
+NO_IMAGERY_REASONS = ("missing_imagery", "placeholder_imagery")
+
+
+def no_sample_error(summary: BuildSummary, config: BuildConfig) -> DatasetError:
+    """The error of a finished build without any sample: the source that has nothing over the
+    area when every attempt says so (every one rejected for missing imagery, or every OSM answer
+    without an object of a class), else the filters to loosen."""
+    attempts = sum(summary.rejected.values())
+    zoom = f" at --zoom {config.zoom}"
+    if attempts and sum(summary.rejected[r] for r in NO_IMAGERY_REASONS) == attempts:
+        return DatasetError(f"no sample was accepted: all {attempts} attempts were rejected for missing imagery, so "
+                            f"--imagery {redact(config.imagery)} has no imagery over the sampling area{zoom}: sample "
+                            "where it has imagery (--bbox/--lat/--lon), or give another --zoom or --imagery")
+    if attempts and summary.osm_empty == attempts:
+        return DatasetError(f"no sample was accepted: --osm {redact(config.osm)} had no object of any class in any of "
+                            f"the {attempts} attempts' areas, so it has no data there: sample where it has data "
+                            "(--bbox/--lat/--lon), or give another --osm source")
+    more = "widen the area (--no-overlap ran out of tile blocks)" if summary.exhausted else "raise --max-tries"
+    return DatasetError("no sample was accepted (see the rejection reasons above and in manifest.json): "
+                        f"loosen the filters, {more}, or sample another area")
 
 
 @click.command("build")

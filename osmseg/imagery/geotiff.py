@@ -22,9 +22,11 @@ its own, a provider pickles without its handle, and a file replaced on disk is o
 Pixels outside the raster's footprint, under its nodata value or its alpha/mask band are
 invalid.  Bands: 3+ bands give RGB (by colour interpretation when set, else bands 1-3; a
 4th band is used as alpha only when it is marked alpha, so NAIP's near-infrared band is
-ignored), 1 band (or grey + alpha) is grey replicated to RGB.  Only 8-bit rasters are
-read: for 16-bit or float imagery the right stretch is the user's choice, so the error says
-how to convert.
+ignored), 1 band (or grey + alpha) is grey replicated to RGB, a paletted band is looked up in
+its colour table (read nearest-neighbour: indices cannot be averaged). 16-bit values are
+scaled by their declared bit depth: :func:`osmseg.images.pixel_rule`, the rule ``osmseg
+predict`` reads the same file with. Signed, float or 32-bit imagery needs a stretch that is
+the user's choice, so the error says how to convert.
 """
 
 from __future__ import annotations
@@ -48,10 +50,11 @@ from rasterio.warp import transform_bounds
 from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError, UnusableImagery
-from osmseg.grid import SampleGrid
+from osmseg.grid import SampleGrid, ground_pixel_size
 from osmseg.imagery.base import Imagery
 from osmseg.imagery.mosaic import ALPHA_VALID
 from osmseg.imagery.remap import source_pixels, warp_bilinear
+from osmseg.images import pixel_rule
 
 logger = logging.getLogger(__name__)
 
@@ -150,26 +153,20 @@ class GeoTiffProvider:
             src = rasterio.open(self.path)
         try:
             crs = src.crs
-            dtypes = set(src.dtypes)
             colorinterp = tuple(src.colorinterp)
             if crs is None:
                 raise UnusableImagery(
                     f"{self.path} has no CRS: georeference it first (gdal_edit.py -a_srs EPSG:...)"
                 )
-            if dtypes != {"uint8"}:
-                raise UnusableImagery(
-                    f"{self.path} is {'/'.join(sorted(dtypes))}, not 8-bit: convert it first"
-                    " (gdal_translate -ot Byte -scale ...)"
-                )
-            if ColorInterp.palette in colorinterp:
-                raise UnusableImagery(
-                    f"{self.path} is a paletted raster: expand it first (gdal_translate -expand rgb)"
-                )
+            # 16-bit values and colour tables become 8-bit colour as osmseg predict reads them
+            self._rule = pixel_rule(src, str(self.path), UnusableImagery)
             self.bands = rgb_bands(colorinterp)
             self.crs = crs
             self.bounds = tuple(src.bounds)
             self.size = (src.width, src.height)
             self.count = src.count
+            # ground metres per pixel (None for a CRS not tied to the Earth): warns of upsampling zooms
+            self.resolution_m = ground_pixel_size(crs, src.transform, src.width, src.height)
             self._has_alpha = ColorInterp.alpha in colorinterp
             self._footprint = mercator_footprint(src)
         except BaseException:
@@ -186,9 +183,10 @@ class GeoTiffProvider:
             return self._open()
         return self._src
 
-    def check_covers(self, west: float, south: float, east: float, north: float) -> None:
+    def check_covers(self, west: float, south: float, east: float, north: float, zoom: int | None = None) -> None:
         """ConfigError when the raster's footprint misses the sampling area (lon/lat degrees) entirely:
-        every sample would be rejected as missing imagery, so say it before the build."""
+        every sample would be rejected as missing imagery, so say it before the build. (``zoom``:
+        any, a raster is resampled to it.)"""
         try:
             left, bottom, right, top = transform_bounds(self.crs, "EPSG:4326", *self.bounds, densify_pts=21)
         except (ValueError, RasterioError):  # a CRS with no lon/lat: nothing to compare
@@ -250,25 +248,32 @@ class GeoTiffProvider:
             window, inside, ratio = self._source_window(src, grid)
             if window is not None:
                 colorinterp = src.colorinterp
-                unique = sorted(set(self.bands))
-                indexes = list(unique)
+                palette = self._rule.palette is not None
+                unique = [1, 2, 3] if palette else sorted(set(self.bands))  # a palette: the planes of its RGBA
+                indexes = [1] if palette else list(unique)
                 if self._has_alpha:
                     indexes.append(colorinterp.index(ColorInterp.alpha) + 1)
                 # imagery finer than the sample is read averaged to about the sample's resolution
                 # (from the raster's overviews where it has them), as bilinear interpolation alone
                 # would alias it: memory and time then stay those of a sample whatever the zoom
+                # (palette indices cannot be averaged: they are read nearest-neighbour)
                 step = self._decimation(src.crs, src.window_transform(window), grid, ratio)
                 shape = (max(1, math.ceil(window.height / step)), max(1, math.ceil(window.width / step)))
+                resampling = Resampling.nearest if self._rule.nearest else Resampling.average
 
                 def sized(*count: int) -> dict[str, Any]:  # how to read ``count`` bands (none: a 2-D mask)
-                    return {} if step == 1.0 else {"out_shape": (*count, *shape), "resampling": Resampling.average}
+                    return {} if step == 1.0 else {"out_shape": (*count, *shape), "resampling": resampling}
 
-                data = src.read(indexes, window=window, **sized(len(indexes)))
-                if not self._has_alpha and src.nodata is not None:
+                # a palette's RGBA: its table's alpha (and nodata index) say which pixels have imagery
+                data = self._rule.colours(src.read(indexes, window=window, **sized(len(indexes))))
+                if palette and int(data[3].min()) == 255:
+                    data = data[:3]  # opaque all over: warped as an RGB raster's bands are
+                masked = not palette and not self._has_alpha
+                if masked and src.nodata is not None:
                     # as GDAL's warper (UNIFIED_SRC_NODATA): invalid only where every band is nodata
                     masks = src.read_masks(window=window, **sized(src.count))
                     data = np.concatenate([data, (masks.max(axis=0))[np.newaxis]])
-                elif not self._has_alpha and any(MaskFlags.all_valid not in f for f in src.mask_flag_enums):
+                elif masked and any(MaskFlags.all_valid not in f for f in src.mask_flag_enums):
                     data = np.concatenate([data, src.dataset_mask(window=window, **sized())[np.newaxis]])
                 has_alpha = len(data) > len(unique)
                 # a grid whose every kernel lies on the raster, which marks no pixel invalid, is valid
@@ -293,7 +298,7 @@ class GeoTiffProvider:
             planes = {band: out[..., i] for i, band in enumerate(unique)}
             # bilinear alpha fades at the footprint edge
             valid = np.ones(out.shape[:2], dtype=bool) if whole else out[..., -1] >= ALPHA_VALID
-            rgb = np.stack([planes[b] for b in self.bands], axis=-1)
+            rgb = np.stack([planes[b] for b in ((1, 2, 3) if palette else self.bands)], axis=-1)
             rgb[~valid] = 0
         info: dict[str, Any] = {
             "provider": self.name,

@@ -29,11 +29,12 @@ missing file) are invalid areas, not errors; bytes that are not an image are an
 
 from __future__ import annotations
 
+import glob
 import logging
 import os
 import re
 import urllib.parse
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +67,9 @@ _LITERAL_SECRET = re.compile(
 )
 _USERINFO = re.compile(r"(://[^/@\s:]+):[^/@\s]+@")
 _TILE_KEYS = {"z", "x", "y", "-y", "q"}
+#: A local tile folder is checked for a tile over the sampling area file by file up to this many
+#: tiles (centre first: the first found ends it), and by listing its files at the zoom beyond.
+MAX_TILE_PROBES = 100_000
 _SCHEMES = ("https://", "http://", "file://")
 
 #: attribution lines for well-known imagery hosts (the provider's terms require them)
@@ -267,6 +271,72 @@ class XYZProvider:
         url = fill_template(self.template, tile)
         return url if self.is_local else safe_text(url)
 
+    def _local_path(self, tile: mercantile.Tile) -> Path:
+        """The file of ``tile`` in a ``file://`` template's folder."""
+        return Path(urllib.parse.unquote(fill_template(self.template, tile)[len("file://"):]))
+
+    def check_covers(self, west: float, south: float, east: float, north: float, zoom: int | None = None) -> None:
+        """ConfigError when a ``file://`` tile folder has no tile at ``zoom`` over the sampling area
+        (lon/lat degrees): every sample would be rejected for missing imagery, so say it before
+        the build, with the zooms the folder has. Remote templates: nothing to check here."""
+        if not self.is_local or zoom is None:
+            return
+        nw, se = mercantile.tile(west, north, zoom), mercantile.tile(east, south, zoom)
+        xs, ys = range(nw.x, se.x + 1), range(nw.y, se.y + 1)
+        if len(xs) * len(ys) <= MAX_TILE_PROBES:
+            cx, cy = (nw.x + se.x) / 2, (nw.y + se.y) / 2
+            tiles = sorted(((x, y) for x in xs for y in ys), key=lambda t: (t[0] - cx) ** 2 + (t[1] - cy) ** 2)
+            if any(self._local_path(mercantile.Tile(x, y, zoom)).is_file() for x, y in tiles):
+                return
+        elif self._listed_tile_in(xs, ys, zoom) is not False:
+            return
+        zooms = self._local_zooms()
+        has = (f"the folder has tiles at zoom {', '.join(map(str, zooms))}: give one of them as --zoom, or sample "
+               "where the tiles are (--bbox/--lat/--lon)" if zooms and zoom not in zooms else
+               "sample where the tiles are (--bbox/--lat/--lon), or check the template")
+        raise ConfigError(f"--imagery {self.template} has no tile at zoom {zoom} over the sampling area (lon "
+                          f"{west:.5f}..{east:.5f}, lat {south:.5f}..{north:.5f}; tiles x {xs.start}..{xs.stop - 1}, "
+                          f"y {ys.start}..{ys.stop - 1}): {has}")
+
+    def _listed_tile_in(self, xs: range, ys: range, zoom: int) -> bool | None:
+        """Whether a file the template names at ``zoom`` lies in columns ``xs`` and rows ``ys``, by
+        listing the folder (None when the template cannot be listed)."""
+        listed = self._listed(zoom)
+        return None if listed is None else any(x in xs and y in ys for _, x, y in listed)
+
+    def _local_zooms(self) -> list[int]:
+        """The zooms of the tiles in a ``file://`` folder (none known when it cannot be listed)."""
+        return sorted({z for z, _, _ in self._listed(None) or ()})
+
+    def _listed(self, zoom: int | None) -> Iterator[tuple[int, int, int]] | None:
+        """``(z, x, y)`` of the files in a ``file://`` template's folder, at ``zoom`` or every zoom (None
+        when a placeholder repeats or is an ``{env:NAME}``: then the names cannot be read back)."""
+        parts = re.split(r"(\{[^{}]*\})", urllib.parse.unquote(self.template[len("file://"):]))
+        keys = [p[1:-1] for p in parts[1::2]]
+        if len(set(keys)) != len(keys) or any(k.startswith("env:") for k in keys):
+            return None
+        digits = "+" if zoom is None else f"{{{zoom}}}"
+        groups = {"z": r"(?P<z>\d+)" if zoom is None else str(zoom), "x": r"(?P<x>\d+)", "y": r"(?P<y>\d+)",
+                  "-y": r"(?P<ny>\d+)", "q": f"(?P<q>[0-3]{digits})"}
+        pattern = "".join(glob.escape(p) if i % 2 == 0 else (str(zoom) if p == "{z}" and zoom is not None else "*")
+                          for i, p in enumerate(parts))
+        regex = re.compile("".join(re.escape(p) if i % 2 == 0 else groups[p[1:-1]] for i, p in enumerate(parts)))
+
+        def tiles() -> Iterator[tuple[int, int, int]]:
+            for name in glob.iglob(pattern):
+                m = regex.fullmatch(name)
+                if m is None:
+                    continue
+                found = m.groupdict()
+                if found.get("q"):
+                    t = mercantile.quadkey_to_tile(found["q"])
+                    yield t.z, t.x, t.y
+                    continue
+                z = int(found["z"]) if found.get("z") else int(zoom or 0)
+                y = int(found["y"]) if found.get("y") else 2**z - 1 - int(found["ny"])
+                yield z, int(found["x"]), y
+        return tiles()
+
     def _scrub(self, text: str) -> str:
         """``text`` with every expanded secret replaced by its ``{env:NAME}`` placeholder."""
         for name, value in self._secrets.items():
@@ -277,7 +347,7 @@ class XYZProvider:
         """Pixels of one tile (:data:`NO_IMAGERY` when the server or folder has none)."""
         what = f"tile {tile_name(tile)} ({self.tile_location(tile)})"
         if self.is_local:
-            path = Path(urllib.parse.unquote(fill_template(self.template, tile)[len("file://") :]))
+            path = self._local_path(tile)
             try:
                 data = path.read_bytes()
             except FileNotFoundError:

@@ -66,11 +66,13 @@ from osmseg.osm.base import OsmExtract
 from osmseg.osm.cut import DEFAULT_BATCH, ensure_room, write_extracts
 from osmseg.osm.josm import count_deleted, has_deletions, without_deleted
 from osmseg.osm.store import (
+    NODE_EXTENT,
     OSM_ATTRIBUTION,
     bbox_contains,
     bbox_label,
     cache_name,
     check_bbox,
+    osm_file_extent,
     osm_file_timestamp,
     read_done,
     write_done,
@@ -299,6 +301,7 @@ class LocalFileSource:
         self._timestamp: tuple[str | None, str] | None = None
         self._regions: list[tuple[tuple[LngLatBBox, ...], Path]] = []
         self._readable: Path | None = None
+        self._extent: tuple[LngLatBBox | None, str] | None = None
 
     def readable(self) -> Path:
         """The file to cut from: the input, or (an XML file saved by JOSM with objects marked
@@ -314,6 +317,44 @@ class LocalFileSource:
                                "left out, as in JOSM", self.path, count_deleted(self.path))
                 self._readable = kept
         return self._readable
+
+    def extent(self) -> tuple[LngLatBBox | None, str]:
+        """The lon/lat box the file covers and where that came from (:func:`osm_file_extent`); a node
+        extent that had to be read is kept in the work folder under the file's identity."""
+        if self._extent is None:
+            try:
+                kept = json.loads(self._extent_file().read_text(encoding="utf-8"))
+                self._extent = (LngLatBBox(*(float(v) for v in kept)), NODE_EXTENT)
+            except (OSError, ValueError, TypeError):
+                self._extent = osm_file_extent(self.path)
+        return self._extent
+
+    def _extent_file(self) -> Path:
+        """Where the node extent of this input file (its path, size and time) is kept."""
+        return self.workdir / f"extent_{hashlib.sha256(chr(10).join(self._identity).encode()).hexdigest()[:16]}.json"
+
+    def _keep_extent(self) -> None:
+        """Keep a node extent that had to be read (see :meth:`extent`) for the next process and run."""
+        extent, origin = self.extent()
+        kept = self._extent_file()
+        if extent is not None and origin == NODE_EXTENT and not kept.exists():
+            self.workdir.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(kept, json.dumps(list(extent)) + "\n")
+
+    def check_covers(self, west: float, south: float, east: float, north: float) -> None:
+        """ConfigError when the file's extent (:meth:`extent`) misses the sampling area (lon/lat
+        degrees) entirely: every sample would have an empty mask, so say it before the build."""
+        extent, origin = self.extent()
+        if extent is None:
+            raise ConfigError(f"--osm {self.path} holds no node with a location: give an OSM file with data "
+                              "of the sampling area")
+        if extent.east < west or extent.west > east or extent.north < south or extent.south > north:
+            raise ConfigError(
+                f"--osm {self.path} covers lon {extent.west:.5f}..{extent.east:.5f}, lat {extent.south:.5f}.."
+                f"{extent.north:.5f} ({origin}), which misses the sampling area (lon {west:.5f}..{east:.5f}, "
+                f"lat {south:.5f}..{north:.5f}): sample where the data is (--bbox/--lat/--lon), or give the OSM "
+                "file of this area")
+        self._keep_extent()  # only once it served: a refused command writes nothing
 
     def timestamp(self) -> tuple[str | None, str]:
         """The input file's data timestamp and its origin (see :func:`osm_file_timestamp`).

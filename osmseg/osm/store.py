@@ -4,14 +4,15 @@ Every OSM source (:mod:`.api`, :mod:`.overpass`, :mod:`.localfile`, :mod:`.geojs
 files of a box into its work folder under a deterministic name (:func:`cache_name`), validates
 downloaded XML with osmium before keeping it (:func:`store_osm_xml`), and writes a JSON
 "done" marker after the files (atomically, last: :func:`write_done`), which is what makes a
-rerun reuse them (:func:`read_done`). Also the data's timestamp of a local file
-(:func:`osm_file_timestamp`). Imports: osmseg core below it (errors, grid, osm.base, output.atomic).
+rerun reuse them (:func:`read_done`). Also the data's timestamp and extent of a local file
+(:func:`osm_file_timestamp`, :func:`osm_file_extent`). Imports: osmseg core below it (errors, grid, osm.base, output.atomic).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -158,6 +159,35 @@ def write_done(marker: Path, extract: OsmExtract) -> OsmExtract:
     }
     atomic_write_text(marker, json.dumps(record, indent=1, sort_keys=True) + "\n")
     return extract
+
+
+#: Where :func:`osm_file_extent` found a file's box when its header has none.
+NODE_EXTENT = "the extent of its nodes"
+
+
+def osm_file_extent(path: Path) -> tuple[LngLatBBox | None, str]:
+    """The lon/lat box an OSM file covers and where that came from: the bounding box in its header
+    (``<bounds>``, a PBF header's box: extract tools write one), else the extent of its located
+    nodes (:data:`NODE_EXTENT`, one pass over the file). None for a file without a located node."""
+    try:
+        with osmium.io.Reader(str(path), osmium.osm.NOTHING) as reader:
+            box = reader.header().box()
+        if box.valid():
+            return LngLatBBox(box.bottom_left.lon, box.bottom_left.lat, box.top_right.lon,
+                              box.top_right.lat), "its header's bounds"
+        west = south = math.inf
+        east = north = -math.inf
+        for node in osmium.FileProcessor(str(path), osmium.osm.NODE):
+            if not isinstance(node, osmium.osm.Node):  # never: the processor reads nodes only
+                continue
+            loc = node.location
+            if loc.valid():
+                west, east = min(west, loc.lon), max(east, loc.lon)
+                south, north = min(south, loc.lat), max(north, loc.lat)
+    except RuntimeError as exc:
+        raise OSMDataError(f"--osm {path}: cannot read it as OSM data ({first_line(exc)}); "
+                           "give a valid .osm/.osm.pbf/.osm.bz2 file") from None
+    return (LngLatBBox(west, south, east, north) if west <= east else None), NODE_EXTENT
 
 
 def osm_file_timestamp(path: Path) -> tuple[str | None, str]:
