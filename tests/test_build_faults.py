@@ -33,6 +33,7 @@ import subprocess
 import sys
 import threading
 import zlib
+from xml.etree import ElementTree
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -239,6 +240,8 @@ def assert_nothing_half_written(out: Path) -> list[str]:
         if rel.endswith(".tif"):
             with rasterio.open(out / rel) as geo:
                 assert geo.read(1).shape == (1280, 1280)
+        elif rel.endswith(".qml"):  # the label GeoTIFF's QGIS style
+            assert ElementTree.parse(out / rel).getroot().tag == "qgis"
         else:
             with Image.open(out / rel) as image:
                 image.load()
