@@ -93,7 +93,7 @@ def references(imagery_tif: Path, tmp_path_factory: pytest.TempPathFactory) -> d
     return found
 
 
-@pytest.mark.parametrize("attempt", range(3))
+@pytest.mark.parametrize("attempt", [*range(3), *(pytest.param(i, marks=pytest.mark.slow) for i in range(3, 12))])
 def test_two_builds_with_other_options_started_in_the_same_millisecond_one_owns_the_folder(
         tmp_path: Path, imagery_tif: Path, references: dict[str, dict[str, bytes]], attempt: int) -> None:
     out = tmp_path / "ds"
