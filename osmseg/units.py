@@ -13,29 +13,36 @@ pixels         ``475.5 px``   a tenth of a pixel: about the centimetres above at
 degrees        ``0.5°``       a tenth of a degree: an azimuth bin is 5°
 ratios         ``0.925``      recall, accuracy, IoU, AUC, confidence, posterior (0..1): three
                               decimals show every step of 40 queries (0.025) exactly
-seconds        ``0.188 s``    milliseconds: the per-view times of the localization methods
+seconds        ``0.188 s``    three significant digits: from 4.32 ms (``0.00432 s``) to
+                              minutes, a time is as precise as its measurement
+factors        ``2.66×``      three significant digits: how many times faster or closer
 counts         ``1,525``      thousands separated
-factors        ``2.7×``       a tenth: how many times faster or closer
+rates          ``9.9``        a tenth of a sample per second (``osmseg build``'s throughput)
+grey levels    ``16.4``       a tenth of a level of 0-255, as the rejection reasons say it
 =============  =============  =================================================================
 
 A missing value (no answer, an undefined ratio) is ``-``. Data files (results.json,
 metrics.json) keep their full precision: this is for text read by people.
 
->>> metres(119.3187), pixels(475.496), degrees(0.46), ratio(0.925), seconds(0.18812), count(1525), factor(2.71)
-('119.32 m', '475.5 px', '0.5°', '0.925', '0.188 s', '1,525', '2.7×')
+>>> metres(119.3187), pixels(475.496), degrees(0.46), ratio(0.925), count(1525)
+('119.32 m', '475.5 px', '0.5°', '0.925', '1,525')
+>>> seconds(0.18812), seconds(0.0043219), seconds(21.0), seconds(1234.5), factor(2.658), factor(238.4)
+('0.188 s', '0.00432 s', '21.0 s', '1,234 s', '2.66×', '238×')
 >>> quantity(None, "m"), quantity(12.25, "px"), number(0.31999, "m"), number(0.9, "ratio")
 ('-', '12.2 px', '0.32', '0.900')
 """
 
 from __future__ import annotations
 
-__all__ = ["DECIMALS", "SYMBOLS", "count", "degrees", "factor", "metres", "number", "pixels", "quantity", "ratio",
+__all__ = ["DECIMALS", "SIGNIFICANT", "SYMBOLS", "count", "degrees", "factor", "metres", "number", "pixels", "quantity", "ratio",
            "seconds"]
 
 #: decimals written for each kind of quantity (the table above)
-DECIMALS = {"m": 2, "px": 1, "deg": 1, "ratio": 3, "s": 3, "factor": 1}
+DECIMALS = {"m": 2, "px": 1, "deg": 1, "ratio": 3, "rate": 1, "grey": 1}
+#: significant digits written for the kinds that span orders of magnitude
+SIGNIFICANT = {"s": 3, "factor": 3}
 #: what follows the number, per kind ("" for ratios)
-SYMBOLS = {"m": " m", "px": " px", "deg": "°", "ratio": "", "s": " s", "factor": "×"}
+SYMBOLS = {"m": " m", "px": " px", "deg": "°", "ratio": "", "s": " s", "factor": "×", "rate": "/s", "grey": ""}
 MISSING = "-"
 
 
@@ -43,10 +50,15 @@ def number(value: float | None, kind: str) -> str:
     """``value`` at the precision of ``kind`` (a key of :data:`DECIMALS`), without its unit."""
     if value is None:
         return MISSING
+    if kind in SIGNIFICANT:
+        digits = SIGNIFICANT[kind]
+        if abs(value) >= 10 ** digits:
+            return f"{float(value):,.0f}"
+        return f"{float(value):#.{digits}g}".rstrip(".")
     try:
         decimals = DECIMALS[kind]
     except KeyError:
-        raise ValueError(f"unknown kind of quantity {kind!r}; known: {', '.join(DECIMALS)}") from None
+        raise ValueError(f"unknown kind of quantity {kind!r}; known: {', '.join([*DECIMALS, *SIGNIFICANT])}") from None
     return f"{float(value):.{decimals}f}"
 
 
