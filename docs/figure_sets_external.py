@@ -200,6 +200,12 @@ def speed(ws: Workspace) -> dict[str, Figure]:
     }
 
 
+def megabytes(values: list[float]) -> str:
+    """``"137-212 MB"``, or ``"172 MB"`` when every value rounds alike."""
+    low, high = count(round(min(values))), count(round(max(values)))
+    return f"{low} MB" if low == high else f"{low}-{high} MB"
+
+
 @figure_set("build", "expensive", needs="shared data")
 def build_speed(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_build.py --long 2000 (samples per second and memory of osmseg build, local sources)"""
@@ -220,8 +226,8 @@ def build_speed(ws: Workspace) -> dict[str, Figure]:
         "build.whole.jpg": F(number(warm["jpg"]["rate"], "rate")),
         "build.long.samples": F(count(long["samples"])),
         "build.long.rate": F(number(long["rate"], "rate")),
-        "build.long.builder": F(f"{count(round(min(long['builder_mb'])))}-{count(round(max(long['builder_mb'])))} MB"),
-        "build.long.worker": F(f"{count(round(min(long['worker_mb'])))}-{count(round(max(long['worker_mb'])))} MB"),
+        "build.long.builder": F(megabytes(long["builder_mb"])),
+        "build.long.worker": F(megabytes(long["worker_mb"])),
     }
 
 
