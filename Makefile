@@ -5,7 +5,7 @@ VENV   ?= .venv
 PYTHON ?= python3
 BIN    := $(VENV)/bin
 
-.PHONY: demo test test-slow bench clean
+.PHONY: demo test test-slow bench docs-figures clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +27,11 @@ test-slow: $(VENV)/.installed
 
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_build.py
+
+# every figure README.md and docs/*.md quote from a command, measured again and written in
+# (minutes; PAIRS=DIR: the authors' annotated pairs, github.com/sebagreen/landmark-graph-matching)
+docs-figures: $(VENV)/.installed
+	$(BIN)/python docs/figures.py $(if $(PAIRS),--pairs $(PAIRS))
 
 clean:
 	rm -rf demo-out .pytest_cache

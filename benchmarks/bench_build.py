@@ -32,6 +32,8 @@ Lines printed (each build is ``osmseg build`` as a user runs it, in a fresh proc
   beside a bare osmium pass over the same box file;
 * ``--long N``: one all-cores JPEG build of N samples with the RSS of the builder and of its
   largest worker read from /proc when 100, 500, ... N samples are done.
+
+``--json PATH`` also writes the builds' figures there (what ``docs/figures.py`` quotes).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import io
+import json
 import logging
 import os
 import resource
@@ -51,6 +54,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import osmium
@@ -300,12 +304,14 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=64, help="samples per timed build [64]")
     parser.add_argument("--long", type=int, default=0, help="also one all-cores JPEG build of this many samples "
                         "with RSS at 100, 500, ... (e.g. 2000)")
+    parser.add_argument("--json", type=Path, help="also write the builds' figures to this JSON file")
     args = parser.parse_args()
     logging.disable(logging.WARNING)  # this script's own reads repair the extract's edge objects quietly
     if not (HELSINKI.exists() and PHOTO.exists()):
         sys.exit(f"skipped: {HELSINKI} or {PHOTO} is absent (../shared/data)")
     cores = available_cores()
     n = args.samples
+    figures: dict[str, Any] = {"cores": cores, "samples": n, "warm": {}}
     adopt_orphans()
     with tempfile.TemporaryDirectory(prefix="bench-build-") as tmp:
         work = Path(tmp)
@@ -321,6 +327,9 @@ def main() -> None:
             for workers in sorted({1, cores}):
                 run, _ = run_build(work / f"w{workers}-{fmt}", cache, tif, n, workers, fmt)
                 runs[workers, fmt] = run
+                figures["warm"][f"{workers} {fmt}"] = {"rate": run.accepted / run.wall, "steady": run.steady,
+                                                       "cpu_per_sample_s": run.cpu / run.accepted,
+                                                       "peak_mb": run.peak_mb}
                 print(f"warm      {workers} worker{'s' if workers > 1 else ' '} {fmt}  {run.wall:7.2f} s  "
                       f"{run.accepted / run.wall:5.2f} samples/s (steady {run.steady:5.2f})  "
                       f"{run.cpu / run.accepted * 1000:4.0f} ms CPU/sample  peak RSS {run.peak_mb:4.0f} MB")
@@ -337,6 +346,8 @@ def main() -> None:
             parts, pillow, remapped, t_read, t_bare = floor_per_sample(tif, cache, n, fmt)
             floor = sum(parts.values())
             ours = floor - parts["read+warp"] + remapped
+            figures.setdefault("floor", {})[fmt] = {"parts_s": parts, "floor_s": floor, "remapped_s": remapped,
+                                                    "marginal_s": marginal}
             print(f"floor     {fmt}: bare calls {floor * 1000:4.0f} ms CPU/sample = "
                   + " + ".join(f"{k} {v * 1000:.0f}" for k, v in parts.items()))
             print(f"          with osmseg's warp (PROJ lattice + cv2.remap, {remapped * 1000:.0f} ms) in place of "
@@ -356,6 +367,11 @@ def main() -> None:
             for mark in marks:
                 builder, worker = seen.get(mark, (float("nan"), float("nan")))
                 print(f"          RSS at {mark:6d} samples: builder {builder:6.0f} MB, largest worker {worker:6.0f} MB")
+            figures["long"] = {"samples": args.long, "rate": run.accepted / run.wall, "steady": run.steady,
+                               "builder_mb": [seen[m][0] for m in marks if m in seen],
+                               "worker_mb": [seen[m][1] for m in marks if m in seen]}
+        if args.json:
+            args.json.write_text(json.dumps(figures, indent=2, sort_keys=True))
 
 
 if __name__ == "__main__":

@@ -19,11 +19,14 @@ only that both algorithms give the same cliques). Every figure is measured in th
 * component landmarks (any pixel in the window) by :func:`cliques_fast`; the reference is run
   only on the panorama (on the aerial mask it tests every pixel of every component in each of
   the ~400,000 windows: hours).
+
+``--json PATH`` also writes every printed figure there (what ``docs/figures.py`` quotes).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import time
@@ -46,6 +49,8 @@ HELSINKI = ROOT.parent / "shared" / "data" / "helsinki-osm" / "helsinki.osm.pbf"
 BUILDING, HIGHWAY, FOOTWAY, TREE, GRASS = 1, 2, 9, 13, 3
 # CamVid ids
 SKY, CV_BUILDING, CV_ROAD, CV_PAVEMENT, CV_TREE = 0, 1, 3, 4, 5
+#: every figure printed, by scene and measurement (written by --json)
+FIGURES: dict[str, dict[str, Any]] = {}
 
 
 def timed(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
@@ -113,9 +118,11 @@ def panorama_mask(seed: int = 0, width: int = 1232, height: int = 224) -> np.nda
     return mask
 
 
-def compare(name: str, lm: Landmarks, repeat: int, reference: bool = True) -> None:
+def compare(name: str, lm: Landmarks, repeat: int, reference: bool = True) -> dict[str, Any]:
     t_auto, w = timed(lambda: window_size_auto(lm), repeat)
     t_fast, fast = timed(lambda: cliques_fast(lm, w), repeat)
+    figures: dict[str, Any] = {"landmarks": len(lm), "window": w, "cliques": len(fast), "auto_s": t_auto,
+                               "fast_s": t_fast}
     line = (f"{name:<34} K={len(lm):4d} w={w:4d}  cliques {len(fast):5d}  window_size_auto {t_auto * 1000:6.2f} ms  "
             f"fast {t_fast * 1000:7.2f} ms")
     if reference:
@@ -124,9 +131,11 @@ def compare(name: str, lm: Landmarks, repeat: int, reference: bool = True) -> No
         line += f"  reference {t_ref:7.3f} s  ratio {t_ref / t_fast:7.0f}x  identical: {same}"
         if not same:
             raise SystemExit(f"{name}: cliques_fast differs from cliques_reference")
+        figures.update(reference_s=t_ref, ratio=t_ref / t_fast)
     else:
         line += "  reference skipped (every pixel in every window)"
     print(line)
+    return figures
 
 
 def _same(a: Cliques, b: Cliques) -> bool:
@@ -149,6 +158,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--real", action="store_true", help="also the Helsinki mask of ../shared/data")
+    parser.add_argument("--json", type=Path, help="also write every figure to this JSON file")
     args = parser.parse_args()
     table13 = load_class_table("classes13.toml")
     aerial13, camvid = load_landmark_classes("aerial13"), load_landmark_classes("camvid")
@@ -168,11 +178,13 @@ def main() -> None:
                               args.repeat)
         counts = ", ".join(f"{c} {int((lm.cls == i).sum())}" for i, c in enumerate(lm.classes))
         print(f"{name}: {len(lm)} landmarks ({counts}); extraction {t_extract * 1000:.1f} ms")
-        compare(f"  {mode}", lm, args.repeat)
+        FIGURES[name] = {"landmarks": len(lm), "extract_s": t_extract, mode: compare(f"  {mode}", lm, args.repeat)}
         comp = landmarks_from_mask(mask, table, classes, mode="component", panorama=panorama)
-        compare("  component", comp, args.repeat, reference=panorama)
+        FIGURES[name]["component"] = compare("  component", comp, args.repeat, reference=panorama)
         extracted[name] = (lm, t_extract)
     end_to_end(extracted, args.repeat)
+    if args.json:
+        args.json.write_text(json.dumps(FIGURES, indent=2, sort_keys=True))
 
 
 def end_to_end(extracted: dict[str, tuple[Landmarks, float]], repeat: int) -> None:
@@ -185,6 +197,9 @@ def end_to_end(extracted: dict[str, tuple[Landmarks, float]], repeat: int) -> No
         t_ref, ref = timed(lambda: localize(aerial, pano, fast=False), 1)
         if (fast.map_xy, fast.ties, len(fast.candidates)) != (ref.map_xy, ref.ties, len(ref.candidates)):
             raise SystemExit(f"{name}: localize differs between fast and reference cliques")
+        FIGURES[name]["localize"] = {"candidates": len(fast.candidates), "fast_s": t_fast,
+                                     "with_extraction_s": t_fast + t_aerial + t_pano, "reference_s": t_ref,
+                                     "ratio": t_ref / t_fast}
         print(f"localize panorama in {name}: {len(fast.candidates)} candidates, fast {t_fast * 1000:.1f} ms "
               f"(+ landmark extraction {(t_aerial + t_pano) * 1000:.1f} ms = {(t_fast + t_aerial + t_pano) * 1000:.1f} ms)"
               f"  reference {t_ref:.2f} s  ratio {t_ref / t_fast:.0f}x  same answer: True")

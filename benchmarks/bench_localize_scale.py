@@ -14,12 +14,14 @@ figure is measured in this run, on the seeded street-grid masks of bench_localiz
   heading known and unknown: time, peak memory and the error of the answer.
 
 Peak memory is tracemalloc's (numpy's buffers are traced) in one more run, above what was
-allocated before the call; times are medians of ``--repeat`` untraced runs.
+allocated before the call; times are medians of ``--repeat`` untraced runs. ``--json PATH``
+also writes every figure there (what ``docs/figures.py`` quotes).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import time
@@ -44,6 +46,8 @@ from localization.render import RenderConfig, render_panorama  # noqa: E402
 from localization.search import ProfileConfig  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 
+#: every figure printed (written by --json): graphs by mask size, profile runs by "SIZE HEADING"
+FIGURES: dict[str, dict[str, Any]] = {"graphs": {}, "profile": {}}
 TABLE = load_class_table("classes13.toml")
 CLASSES = load_landmark_classes("aerial13")
 RES = 0.3
@@ -125,6 +129,9 @@ def graphs(repeat: int) -> None:
         assert (new.members == old.members).all() and (new.centers == old.centers).all(), "cliques differ"
         _, query = query_at(mask, (size / 2 + 7, size / 2 + 3))
         t_loc, m_loc, _ = measured(lambda: localize(lm, query, window=w), repeat)
+        FIGURES["graphs"][str(size)] = {"landmarks": len(lm), "cliques": len(new), "banded_s": t_new, "banded_mb": m_new,
+                                        "bitset_s": t_old, "bitset_mb": m_old, "localize_s": t_loc,
+                                        "localize_mb": m_loc}
         print(f"{size:>6} {len(lm):>6} {len(new):>8} {t_new:>9.3f} {m_new:>6.0f} {t_old:>10.3f} {m_old:>6.0f} "
               f"{t_old / t_new:>5.1f}x {t_loc:>15.3f} {m_loc:>6.0f}")
 
@@ -142,6 +149,8 @@ def profile(size: int, repeat: int) -> None:
         query = profile_query(qsem, camera, config)
         t, m, loc = measured(lambda: run_profile(config, index, query), repeat)
         err = float(np.hypot(loc.map_xy[0] - xy[0], loc.map_xy[1] - xy[1])) * RES
+        FIGURES["profile"][f"{size} {'known' if heading is not None else 'unknown'}"] = {
+            "s_per_view": t, "peak_mb": m, "error_m": err, "index_s": t_index}
         print(f"{size:>6} {'known' if heading is not None else 'unknown':>8} {t:>8.2f} {m:>7.0f} {err:>8.2f} "
               f"{t_index:>8.2f} {mask.nbytes / 2**20:>8.0f}")
 
@@ -150,12 +159,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--big", type=int, default=7500, help="side of the city-size mask (pixels at 0.3 m)")
+    parser.add_argument("--json", type=Path, help="also write every figure to this JSON file")
     args = parser.parse_args()
     graphs(args.repeat)
     print("\nprofile method, one rendered view (0.3 m/px):")
     print(f"{'size':>6} {'heading':>8} {'s/view':>8} {'peak MB':>7} {'error m':>8} {'index s':>8} {'mask MB':>8}")
     for size in (1280, args.big):
         profile(size, args.repeat if size <= 1280 else 1)
+    if args.json:
+        args.json.write_text(json.dumps(FIGURES, indent=2, sort_keys=True))
 
 
 if __name__ == "__main__":

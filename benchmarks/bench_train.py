@@ -129,7 +129,7 @@ def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> None:
     if case.device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(case.device)
     config = TrainConfig(dataset=dataset, out_dir=dataset, width=case.width,  # out_dir: nothing is written
-                         batch_size=case.batch, workers=workers, seed=seed, amp=case.amp,
+                         batch_size=case.batch, loader_workers=workers, seed=seed, amp=case.amp,
                          channels_last=case.channels_last, max_steps_per_epoch=case.steps + 1)
     dataset_table = dataset_class_table(dataset)
     table, lut = model_classes(config.model, dataset_table)
@@ -206,7 +206,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=4, help="timed steps of the CPU config")
     parser.add_argument("--full-steps", type=int, default=2, help="timed steps at width 1.0 on the CPU")
     parser.add_argument("--cuda-steps", type=int, default=20, help="timed steps of the CUDA config")
-    parser.add_argument("--workers", type=int, default=2, help="DataLoader workers (cpu.yaml: 2)")
+    parser.add_argument("--loader-workers", type=int, default=2, help="DataLoader workers (cpu.yaml: 2)")
     parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     parser.add_argument("--skip-full", action="store_true", help="leave out width 1.0 on the CPU")
     args = parser.parse_args()
@@ -223,14 +223,14 @@ def main() -> None:
         files = discover(dataset)
         print(f"dataset {dataset if args.dataset else 'osmseg demo'}: {len(files)} images, built/read in "
               f"{time.perf_counter() - start:.1f} s; torch {torch.__version__}, {torch.get_num_threads()} threads, "
-              f"{args.workers} loader workers, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}; "
+              f"{args.loader_workers} loader workers, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}; "
               f"RSS after imports and data {rss_mb():.0f} MB")
         for case in cases:
-            measure(case, dataset, args.workers)
+            measure(case, dataset, args.loader_workers)
         if torch.cuda.is_available():
             gpu = torch.device("cuda")
             measure(Case(f"width 1.0, {torch.cuda.get_device_name(gpu)}, AMP+channels_last", 1.0, 4,
-                         args.cuda_steps, gpu, amp=True, channels_last=True), dataset, args.workers)
+                         args.cuda_steps, gpu, amp=True, channels_last=True), dataset, args.loader_workers)
         else:
             print("CUDA: skipped (no CUDA device here); on a GPU this also measures width 1.0, batch 4, "
                   "AMP + channels_last")

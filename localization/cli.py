@@ -34,9 +34,10 @@ from typing import Any
 
 import click
 
-from osmseg.cli.common import parse_size, progress_bars, report_errors
+from osmseg.cli.common import output_options, parse_size, progress_bars, renamed_option, report_errors, typed_options
 from localization.inputs import SideOptions
 from osmseg.errors import ConfigError
+from osmseg.units import degrees, metres, number, pixels, quantity, ratio
 
 logger = logging.getLogger(__name__)
 
@@ -99,11 +100,13 @@ def _table(result: Any) -> str:
     """The top-k as a fixed-width table."""
     lines = [f"{'rank':>4}  {'x':>8}  {'y':>8}  {'posterior':>10}  {'likelihood':>10}"]
     for rank, ((x, y, post), i) in enumerate(zip(result.top_k, result.order), start=1):
-        lines.append(f"{rank:>4}  {x:>8.1f}  {y:>8.1f}  {post:>10.4f}  {float(result.likelihoods[i]):>10.4f}")
+        lines.append(f"{rank:>4}  {number(x, 'px'):>8}  {number(y, 'px'):>8}  {ratio(post):>10}  "
+                     f"{ratio(float(result.likelihoods[i])):>10}")
     return "\n".join(lines)
 
 
 @click.command("localize")
+@output_options
 @click.option("--aerial", "aerial_path", required=True,
               type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="Aerial label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy) or RGB image "
@@ -115,9 +118,10 @@ def _table(result: Any) -> str:
               help="Landmark class dictionary of the aerial side (data_manifests/landmarks-NAME.toml, or a path).")
 @click.option("--ground-classes", default="camvid", show_default=True,
               help="Landmark class dictionary of the ground side.")
-@click.option("--aerial-table", help="Class table of the aerial mask, e.g. classes13.toml [its dataset's manifest].")
-@click.option("--ground-table", help="Class table of the ground mask [the dictionary's own].")
-@click.option("--aerial-size", help="WIDTHxHEIGHT of the aerial landmark file's image [an image beside it].")
+@click.option("--aerial-table", show_default="its dataset's manifest",
+              help="Class table of the aerial mask, e.g. classes13.toml.")
+@click.option("--ground-table", show_default="the dictionary's own", help="Class table of the ground mask.")
+@click.option("--aerial-size", show_default="an image beside it", help="WIDTHxHEIGHT of the aerial landmark file's image.")
 @click.option("--ground-size", help="WIDTHxHEIGHT of the ground landmark file's image, e.g. 1232x224.")
 @click.option("--aerial-checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="Segment the aerial RGB image with this checkpoint first (needs PyTorch).")
@@ -127,8 +131,8 @@ def _table(result: Any) -> str:
               help="The ground image is a 360-degree panorama (x wraps around); --no-panorama for an aerial crop.")
 @click.option("--window", "window_text", default="auto", show_default=True,
               help="Aerial covisibility window in pixels, or auto: mean + 5 sd of nearest-neighbour distances.")
-@click.option("--ground-window", type=click.IntRange(min=1),
-              help="Ground window [a panorama's height; otherwise the aerial window].")
+@click.option("--ground-window", type=click.IntRange(min=1), show_default="a panorama's height; otherwise the aerial window",
+              help="Ground window in pixels.")
 @click.option("--p", "p", type=click.FloatRange(0, 1, min_open=True), default=0.5, show_default=True,
               help="Candidate extension: add cliques sharing at least this fraction of a relevant clique's landmarks.")
 @click.option("--top-k", type=click.IntRange(min=1), default=5, show_default=True)
@@ -145,7 +149,8 @@ def _table(result: Any) -> str:
 @click.option("--reference", is_flag=True, help="Build graphs with the paper's plain sliding window (slow; a check).")
 @click.option("--truth", "truth_text", help="Ground-truth viewpoint X,Y in aerial pixels: reports the error.")
 @click.option("--resolution", type=click.FloatRange(min=0, min_open=True),
-              help="Metres per aerial pixel, for errors in metres [a GeoTIFF's, or the dataset manifest's].")
+              show_default="a GeoTIFF's, or the dataset manifest's",
+              help="Metres per aerial pixel, for errors in metres.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON instead of a table.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Folder for localization.png, aerial_graph.png, ground_graph.png and result.json.")
@@ -154,14 +159,15 @@ def _table(result: Any) -> str:
 @click.option("--ground-image", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="RGB photo of the ground mask or landmark file.")
 @click.option("--feature-threshold", type=click.FloatRange(min=0, min_open=True),
-              help="Remove edges between landmarks whose encoder features are closer than this (§5.3.2) [off].")
+              show_default="off", help="Remove edges between landmarks whose encoder features are closer than this (§5.3.2).")
 @click.option("--feature-metric", type=click.Choice(["euclidean", "cosine"]), default="cosine", show_default=True)
 @click.option("--feature-reduce", type=click.Choice(["none", "pca", "umap"]), default="pca", show_default=True,
               help="Reduce the features first (umap needs umap-learn). PCA centres them: with 2 landmarks their cosine distance is 2, so nothing is dropped.")
 @click.option("--feature-components", type=click.IntRange(min=1), default=8, show_default=True,
               help="Dimensions --feature-reduce keeps.")
 @click.option("--feature-checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="Checkpoint whose encoder gives the features [the side's --aerial-checkpoint/--ground-checkpoint].")
+              show_default="the side's --aerial-checkpoint/--ground-checkpoint",
+              help="Checkpoint whose encoder gives the features.")
 @click.option("--conventions", type=click.Choice(["osmseg", "authors"]), default="osmseg", show_default=True,
               help="Paper method: osmseg's (windows from pixel 0, each candidate at the mean of its windows, ties "
                    "by the clique's own likelihood) or the authors' MATLAB demo's (windows from pixel 1, the first "
@@ -177,9 +183,8 @@ def _table(result: Any) -> str:
               help="Profile method: horizontal field of view of the ground image in degrees (a photo: 60-120).")
 @click.option("--camera-height", type=click.FloatRange(min=0, min_open=True), default=2.0, show_default=True,
               help="Profile method: metres of the ground camera above the ground.")
-@click.option("--min-confidence", type=click.FloatRange(-1, 1),
-              help="Profile method: below this confidence the answer is 'not in this image' [0.6 for an aerial "
-                   "mask, 0.3 for aerial landmark points].")
+@click.option("--min-confidence", type=click.FloatRange(-1, 1), show_default="0.6 for an aerial mask, 0.3 for aerial "
+              "landmark points", help="Profile method: below this confidence the answer is 'not in this image'.")
 @click.pass_context
 @report_errors
 def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, aerial_classes: str,
@@ -240,8 +245,8 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
         click.echo(_table(result))
     if verbosity >= 0 and not as_json:
         if result.method == "profile" and result.confidence is not None:
-            click.echo(f"profile method: heading {result.heading_deg:.1f} deg, confidence {result.confidence:.3f} "
-                       f"(chance agreement {result.chance:.3f}), {len(result.candidates)} positions at the finest "
+            click.echo(f"profile method: heading {degrees(result.heading_deg)}, confidence {ratio(result.confidence)} "
+                       f"(chance agreement {ratio(result.chance)}), {len(result.candidates)} positions at the finest "
                        "level", err=True)
         elif not result.unanswered:
             ties = f", {result.ties} tied at the top (broken as documented)" if result.ties > 1 else ""
@@ -250,8 +255,8 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
             click.echo(f"{used}, ground window {result.query_window} px, {result.n_cliques} cliques, "
                        f"{len(result.candidates)} candidates{ties}", err=True)
         if report.error_px is not None:
-            click.echo(f"error of the best location: {report.error_px:.1f} px"
-                       + (f" ({report.error_m:.1f} m)" if report.error_m is not None else ""), err=True)
+            click.echo(f"error of the best location: {pixels(report.error_px)}"
+                       + (f" ({metres(report.error_m)})" if report.error_m is not None else ""), err=True)
         if report.written:
             click.echo(f"written: {', '.join(f.name for f in report.written)} in {out_dir}/", err=True)
 
@@ -309,44 +314,46 @@ PAIRS_ONLY = ("aerial_size", "ground_size", "conventions")
 
 def _given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
     """The options among ``names`` that were typed on the command line, as ``--option-names``."""
-    from click.core import ParameterSource
-
     by_name = {p.name: p for p in ctx.command.params}
-    return [max(by_name[n].opts, key=len) for n in names if ctx.get_parameter_source(n) == ParameterSource.COMMANDLINE]
+    typed = typed_options(ctx)
+    return [max(by_name[n].opts, key=len) for n in names if n in typed]
 
 
 @click.command("localize-bench")
+@output_options
 @click.argument("source", type=click.Path(exists=True, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Folder for results.json, errors.png and classes.png.")
-@click.option("-n", "--viewpoints", type=int, default=20, show_default=True, help="Rendered panoramas to localize.")
+@click.option("--viewpoints", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Rendered panoramas to localize, placed round-robin over the masks (-n is build's --samples).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds viewpoints and noise.")
 @click.option("--table", default="classes13.toml", show_default=True,
               help="Class table of a mask file (a dataset folder brings its own).")
-@click.option("--resolution", type=float, help="Ground resolution of a mask file in m/px (a dataset brings its own).")
-@click.option("--landmarks", "landmark_dict", help="Landmark class dictionary (data_manifests/landmarks-*.toml); "
-              "default: the one for the class table.")
+@click.option("--resolution", type=float, show_default="a dataset's own",
+              help="Ground resolution of a mask file in m/px.")
+@click.option("--landmarks", "landmark_dict", show_default="the one for the class table; camvid for annotated pairs",
+              help="Landmark class dictionary (data_manifests/landmarks-*.toml).")
 @click.option("--mode", type=click.Choice(["centroid", "grid", "component"]), default="centroid", show_default=True,
               help="Landmarks as component centroids, grid points or whole components.")
 @click.option("--min-size", type=int, default=50, show_default=True, help="Smallest landmark component (pixels).")
 @click.option("--grid-stride", "stride", type=click.IntRange(min=1), default=50, show_default=True,
               help="Grid step for --mode grid (pixels), as osmseg localize's --grid-stride.")
-@click.option("--window", type=int, help="Aerial covisibility window (pixels); default mu + 5 sigma of "
-              "nearest-neighbour distances.")
+@click.option("--window", type=int, show_default="mu + 5 sigma of nearest-neighbour distances",
+              help="Aerial covisibility window (pixels).")
 @click.option("--p", "p", type=float, default=0.5, show_default=True, help="Covisibility parameter of candidates.")
 @click.option("--top-k", type=int, default=5, show_default=True)
 @click.option("--margin", type=float, default=20.0, show_default=True,
               help="Viewpoints stay this many metres from the mask border.")
-@click.option("--stand-on", multiple=True, help="Classes viewpoints may stand on (repeatable); default every "
-              "flat class but unlabeled and water.")
+@click.option("--stand-on", multiple=True, show_default="every flat class but unlabeled and water",
+              help="Classes viewpoints may stand on (repeatable).")
 @click.option("--subsets/--no-subsets", default=True, show_default=True,
               help="Also localize with every subset of 2, 3... landmark classes.")
 @click.option("--width", type=int, default=1232, show_default=True, help="Panorama width (pixels, 360 degrees).")
 @click.option("--height", type=int, default=224, show_default=True, help="Panorama height (pixels).")
 @click.option("--camera-height", type=float, default=2.0, show_default=True, help="Metres above the ground.")
 @click.option("--max-range", type=float, default=100.0, show_default=True, help="How far the camera sees (m).")
-@click.option("--class-height", multiple=True, metavar="CLASS=METRES",
-              help="Height of a class that occludes (repeatable); default building=10, tree=6, others 0.")
+@click.option("--class-height", multiple=True, metavar="CLASS=METRES", show_default="building=10, tree=6, others 0",
+              help="Height of a class that occludes (repeatable).")
 @click.option("--confusion", type=float, default=0.0, show_default=True,
               help="Noise: fraction of panorama landmarks relabelled as another landmark class.")
 @click.option("--miss-small", type=int, default=0, show_default=True,
@@ -386,6 +393,7 @@ def _given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
 @click.option("--negatives/--no-negatives", default=True, show_default=True,
               help="Also localize each view in another scene: how well each method's confidence separates "
                    "matching from non-matching pairs (ROC AUC).")
+@renamed_option("-n", "viewpoints", type=click.IntRange(min=1), note=" here (-n is build's --samples)")
 @click.pass_context
 @report_errors
 def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, viewpoints: int, seed: int, table: str,
@@ -463,41 +471,53 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
 
 
 def format_summary(results: dict[str, Any]) -> str:
-    """A few lines for the terminal: the full-class summary and the classes trend."""
-    s, b, u = results["summary"], results["baselines"], results.get("unit", "m")
-    in_px = "" if u == "px" else f" (mean {s['mean_error_px']} px)"
-    rec = ", ".join(f"@{r} {u} {v}" for r, v in s["recall_at"].items())
-    second = list(s["recall_at"])[1]
-    lines = [
-        f"{s['n']} {results.get('queries', 'queries')}, classes {'+'.join(results['classes'])}: {s['answered']} "
-        f"answered, {s['unanswered']} unanswered, {s['tied']} tied",
-        f"error: mean {s['mean_error']} {u} / median {s['median_error']} {u}"
-        f"{in_px}; top-5 mean distance {s['top5_mean_distance']} {u}",
-        f"recall {rec}; " + (f"a random candidate: median {b['random_candidate_median']} {u}; "
-                             if b.get("random_candidate_median") is not None else "")
-        + f"blind guesses: image centre {b['centre_guess_mean']} {u}, random {b['random_guess_mean']} {u}",
-    ]
-    for k, entry in sorted(results["by_num_classes"].items(), key=lambda kv: int(kv[0])):
-        e = entry["summary"]
-        lines.append(f"  {k} classes ({len(entry['subsets'])} subsets): median {e['median_error']} {u}, "
-                     f"recall@{second} {u} {e['recall_at'][second]}, unanswered {e['unanswered']}/{e['n']}")
+    """A few lines for the terminal: the default method's result when it ran (else the first
+    method's: :func:`localization.compare.headline`), the blind baselines, the first method's
+    class-subset trend when it was computed (the paper method's), and every method side by side.
+    Figures at the one precision of :mod:`osmseg.units`."""
+    from localization.compare import headline
+
+    u = results.get("unit", "m")
+    b = results["baselines"]
+    name, s = headline(results)
     methods = results.get("methods") or {}
+    first = (results.get("settings", {}).get("methods") or list(methods) or [name])[0]  # the subsets' method
+    rec = ", ".join(f"@{r} {u} {ratio(v)}" for r, v in s["recall_at"].items())
+    second = list(s["recall_at"])[1]
+    in_px = "" if u == "px" else f" ({pixels(s['mean_error_px'])})"
+    lines = [
+        f"{s['n']} {results.get('queries', 'queries')}, classes {'+'.join(results['classes'])}",
+        f"{name + ' method' if name else 'result'}: {s['answered']} answered, {s['unanswered']} unanswered, "
+        f"{s['tied']} tied; error median {quantity(s['median_error'], u)}, mean {quantity(s['mean_error'], u)}"
+        f"{in_px}; top-5 mean distance {quantity(s['top5_mean_distance'], u)}",
+        f"recall {rec}; blind guesses: image centre {quantity(b['centre_guess_mean'], u)}, "
+        f"random {quantity(b['random_guess_mean'], u)}",
+    ]
+    if b.get("random_candidate_median") is not None:
+        lines.append(f"{first} method, a random candidate: median {quantity(b['random_candidate_median'], u)}")
+    by_k = results["by_num_classes"]
+    if len(by_k) > 1:
+        lines.append(f"{first} method by number of landmark classes:")
+        for k, entry in sorted(by_k.items(), key=lambda kv: int(kv[0])):
+            e = entry["summary"]
+            lines.append(f"  {k} classes ({len(entry['subsets'])} subsets): median {quantity(e['median_error'], u)}, "
+                         f"recall@{second} {u} {ratio(e['recall_at'][second])}, unanswered {e['unanswered']}/{e['n']}")
     if methods:
         lines.append(method_table(methods, u))
     return "\n".join(lines)
 
 
 def method_table(methods: dict[str, Any], unit: str) -> str:
-    """The methods side by side: one row each (the numbers of results.json's ``methods``)."""
+    """The methods side by side: one row each (the numbers of results.json's ``methods``), errors
+    in ``unit``, recall and AUC as ratios, heading error in degrees, time in seconds per view."""
     radii = list(next(iter(methods.values()))["recall_at"])
-    head = (f"{'method':<8} {'median':>9} {'mean':>9} " + " ".join(f"{'@' + r + unit:>7}" for r in radii)
-            + f" {'heading':>8} {'AUC':>6} {'s/view':>7}")
+    head = (f"{'method':<8} {'answered':>8} {'median ' + unit:>9} {'mean ' + unit:>9} "
+            + " ".join(f"{'@' + r + unit:>6}" for r in radii) + f" {'heading°':>8} {'AUC':>6} {'s/view':>7}")
     rows = [head]
     for name, m in methods.items():
-        def num(v: Any, fmt: str = ".2f") -> str:
-            return "-" if v is None else format(v, fmt)
-        rows.append(f"{name:<8} {num(m['median_error']):>9} {num(m['mean_error']):>9} "
-                    + " ".join(f"{num(m['recall_at'][r]):>7}" for r in radii)
-                    + f" {num(m['median_heading_error_deg'], '.1f'):>8} {num(m['roc_auc'], '.3f'):>6} "
-                    f"{num(m['localize_mean_s'], '.3f'):>7}")
+        rows.append(f"{name:<8} {str(m['answered']) + '/' + str(m['n']):>8} {number(m['median_error'], unit):>9} "
+                    f"{number(m['mean_error'], unit):>9} "
+                    + " ".join(f"{number(m['recall_at'][r], 'ratio'):>6}" for r in radii)
+                    + f" {number(m['median_heading_error_deg'], 'deg'):>8} {number(m['roc_auc'], 'ratio'):>6} "
+                    f"{number(m['localize_mean_s'], 's'):>7}")
     return "\n".join(rows)

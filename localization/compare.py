@@ -26,13 +26,13 @@ import numpy as np
 
 from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask
 from localization.match import Localization
-from localization.pipeline import AerialGraph, LocalizeConfig, run, run_profile
+from localization.pipeline import DEFAULT_METHOD, AerialGraph, LocalizeConfig, run, run_profile
 from localization.profile import Camera, SemanticMap, semantic_map
 from localization.render import Panorama
 from localization.scores import error_fields, heading_error
 from localization.search import AerialIndex, ProfileConfig
 
-__all__ = ["Query", "confidence_of", "photo_view", "run_method", "roc_auc", "method_summary"]
+__all__ = ["Query", "confidence_of", "headline", "photo_view", "run_method", "roc_auc", "method_summary"]
 
 
 @dataclass(frozen=True)
@@ -135,3 +135,23 @@ def method_summary(records: Sequence[dict[str, Any]], method: str,
         "localize_mean_s": round(float(np.mean([r["localize_s"] for r in rows])), 4) if rows else None,
     })
     return out
+
+
+def headline(results: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """The method a benchmark's summary leads with, and its summary: the default method
+    (``profile``) when it ran, else the first one run. ``results["summary"]`` stays the first
+    method's (the records' fields and the class subsets are its), so a run of ``--method
+    paper,profile`` still headlines with the method a user of ``osmseg localize`` gets.
+
+    >>> headline({"summary": {"n": 1}, "methods": {"paper": {"n": 2}, "profile": {"n": 3}}})
+    ('profile', {'n': 3})
+    >>> headline({"summary": {"n": 1}, "methods": {}})
+    ('', {'n': 1})
+    """
+    methods = results.get("methods") or {}
+    if DEFAULT_METHOD in methods:
+        return DEFAULT_METHOD, methods[DEFAULT_METHOD]
+    if methods:
+        name = next(iter(methods))
+        return name, methods[name]
+    return "", results["summary"]

@@ -16,12 +16,13 @@ from pathlib import Path
 import click
 
 from osmseg.cli.build import run_build
-from osmseg.cli.common import progress_bars, report_errors
+from osmseg.cli.common import output_options, progress_bars, report_errors
 from osmseg.demo import DEMO_CASSETTE, demo_config
 from osmseg.progress import Progress
+from osmseg.units import ratio
 
 #: The demo's training run: the dissertation's recipe at 1/8 of SegNet's width, a few epochs on the CPU.
-DEMO_TRAINING = {"model": "airsegnet13", "width": 0.125, "epochs": 3, "batch_size": 4, "workers": 0, "seed": 0}
+DEMO_TRAINING = {"model": "airsegnet13", "width": 0.125, "epochs": 3, "batch_size": 4, "loader_workers": 0, "seed": 0}
 
 
 def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, progress: Progress | None) -> None:
@@ -41,7 +42,7 @@ def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, pro
     opts = EvalOptions(split="test", device="cpu")
     metrics = run_eval(run_dir / "best.pt", dataset, eval_dir, opts, progress=progress)
     if verbosity >= 0:
-        click.echo(f"test mIoU {metrics['miou']:.3f}, pixel accuracy {metrics['pixel_accuracy']:.3f} "
+        click.echo(f"test mIoU {ratio(metrics['miou'])}, pixel accuracy {ratio(metrics['pixel_accuracy'])} "
                    f"(a tiny model after {epochs} epochs: a smoke test, not a result)", err=True)
         click.echo(f"pictures: {eval_dir}/panels.png, confusion_matrix.png, per_class_iou.png, curves.png; "
                    f"dataset overview: {dataset}/overview.png", err=True)
@@ -73,6 +74,7 @@ def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: Pr
 
 
 @click.command("demo")
+@output_options
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-out"),
               show_default=True, help="Output folder: dataset/, localize/, run/ (training) and eval/ (metrics, pictures).")
 @click.option("--train/--no-train", default=True, show_default=True,

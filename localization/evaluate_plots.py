@@ -14,9 +14,11 @@ from typing import Any
 
 import numpy as np
 
+from localization.compare import headline
 from osmseg.errors import ConfigError
+from osmseg.units import quantity, ratio
 
-__all__ = ["plot_errors", "plot_classes", "plot_confidence"]
+__all__ = ["METHOD_NAMES", "errors_title", "plot_errors", "plot_classes", "plot_confidence"]
 
 
 def _figures() -> Any:
@@ -34,8 +36,26 @@ def _cdf(ax: Any, values: Sequence[float], n: int, **style: Any) -> None:
     ax.step(np.concatenate([[0.0], v]), np.arange(len(v) + 1) / max(n, 1), where="post", **style)
 
 
+#: how the pictures name each method
+METHOD_NAMES = {"paper": "landmark graphs (MAP)", "profile": "angular profiles"}
+
+
+def errors_title(results: dict[str, Any]) -> str:
+    """errors.png's title: the default method's median and recall when it ran, as the terminal
+    summary leads with (:func:`localization.compare.headline`), at :mod:`osmseg.units`' precision."""
+    unit = results.get("unit", "m")
+    name, lead = headline(results)
+    radii = list(lead["recall_at"])
+    middle = radii[len(radii) // 2]
+    method = f"{METHOD_NAMES.get(name, name)}: " if name else ""
+    return (f"Localization error of {lead['n']} {results.get('queries', 'queries')}\n"
+            f"{', '.join(results['classes'])}; {method}median {quantity(lead['median_error'], unit)}, "
+            f"recall@{middle} {unit} {ratio(lead['recall_at'][middle])}")
+
+
 def plot_errors(results: dict[str, Any], path: Path) -> Path:
-    """CDF of the MAP error (all classes), with the top-5 mean distance and two blind guesses."""
+    """CDF of each method's error (all classes), with the top-5 mean distance and two blind guesses;
+    the title gives the default method's median and recall (:func:`localization.compare.headline`)."""
     figures = _figures()
     unit = results.get("unit", "m")
     recs, s = results["viewpoints"], results["summary"]
@@ -43,7 +63,7 @@ def plot_errors(results: dict[str, Any], path: Path) -> Path:
         ax = fig.add_subplot()
         methods = results.get("methods") or {}
         colours = {"paper": "tab:green", "profile": "tab:blue"}
-        names = {"paper": "landmark graphs (MAP)", "profile": "angular profiles"}
+        names = METHOD_NAMES
         for m, summary in methods.items():
             errors = [r["methods"][m]["error"] for r in recs if r["methods"][m]["error"] is not None]
             _cdf(ax, errors, len(recs), color=colours.get(m, "tab:purple"), lw=2,
@@ -67,12 +87,7 @@ def plot_errors(results: dict[str, Any], path: Path) -> Path:
         ax.set_ylim(0, 1.02)
         ax.set_xlabel(f"error ({unit})")
         ax.set_ylabel(f"fraction of {results.get('queries', 'queries')}")
-        median = "n/a" if s["median_error"] is None else f"{s['median_error']:.1f} {unit}"
-        radii = list(s["recall_at"])
-        middle = radii[len(radii) // 2]
-        ax.set_title(f"Localization error of {s['n']} {results.get('queries', 'queries')}\n"
-                     f"{', '.join(results['classes'])}: median {median}, "
-                     f"recall@{middle} {unit} {s['recall_at'][middle]:.2f}")
+        ax.set_title(errors_title(results))
         ax.legend(loc="lower right", fontsize=8)
         return figures.save_png(fig, path)
 
@@ -129,7 +144,7 @@ def plot_confidence(results: dict[str, Any], path: Path) -> Path | None:
             ax.hist(neg, bins=bins, alpha=0.6, color="tab:red", label="another aerial image")
             ax.set_xlabel("kappa of the best match" if m == "profile" else "MAP likelihood (eq. 3.3)")
             ax.set_ylabel(results.get("queries", "queries"))
-            ax.set_title(f"{m}: ROC AUC {summary['roc_auc']:.3f}")
+            ax.set_title(f"{m}: ROC AUC {ratio(summary['roc_auc'])}")
             ax.legend(fontsize=8)
         fig.suptitle("Does the confidence tell a match from a non-match?")
         return figures.save_png(fig, path)

@@ -28,6 +28,7 @@ from matplotlib.patches import Rectangle
 
 from localization.landmarks import Landmarks
 from localization.match import Localization
+from osmseg import units
 from osmseg.errors import ConfigError
 from osmseg.output.plotting import figure as _figure, save_png as _save
 
@@ -126,14 +127,14 @@ def localization_png(path: Path | str, result: Localization, aerial: Landmarks, 
 def _summary(result: Localization, truth: tuple[float, float] | None, resolution: float | None) -> str:
     if result.unanswered:
         return f"unanswered: {result.reason}"
-    text = (f"profile method, heading {result.heading_deg:.1f}°, confidence {result.confidence:.2f}, "
+    text = (f"profile method, heading {units.degrees(result.heading_deg)}, confidence {units.ratio(result.confidence)}, "
             f"{len(result.candidates)} positions" if result.method == "profile" and result.confidence is not None
             else f"window {result.window} px, {len(result.candidates)} candidates")
     if result.ties > 1:
         text += f", {result.ties} tied at the top"
     px, metres = result.error(truth, resolution)
     if px is not None:
-        text += f"; error {px:.1f} px" + (f" ({metres:.1f} m)" if metres is not None else "")
+        text += f"; error {units.pixels(px)}" + (f" ({units.metres(metres)})" if metres is not None else "")
     return text
 
 

@@ -36,11 +36,13 @@ from osmseg.output.atomic import atomic_write_text
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["METHODS", "AerialGraph", "LocalizeConfig", "LocalizeFiles", "LocalizeReport", "aerial_graph",
+__all__ = ["DEFAULT_METHOD", "METHODS", "AerialGraph", "LocalizeConfig", "LocalizeFiles", "LocalizeReport", "aerial_graph",
            "localize_files", "profile_index", "profile_query", "run", "run_profile"]
 
 #: ``paper``: landmark-graph matching (Verde et al. 2020); ``profile``: angular profiles on a dense grid.
 METHODS = ("paper", "profile")
+#: the method ``osmseg localize`` runs unless told otherwise; summaries lead with it when it ran
+DEFAULT_METHOD = "profile"
 
 
 @dataclass(frozen=True)
@@ -62,7 +64,7 @@ class LocalizeConfig:
     hierarchical: bool = False
     windows: tuple[int, ...] = HIERARCHY
     features: FeatureEdges | None = None
-    method: str = "profile"         # or "paper" (Verde et al. 2020); the profile method needs the resolution
+    method: str = DEFAULT_METHOD    # or "paper" (Verde et al. 2020); the profile method needs the resolution
     conventions: str = "osmseg"     # the paper method's: osmseg, or the authors' MATLAB demo (localization.graph)
     profile: ProfileConfig = field(default_factory=ProfileConfig)  # the profile method's settings
     fov_deg: float = 360.0          # the query's horizontal field of view (profile method)

@@ -78,7 +78,7 @@ def test_a_log_file_gets_no_progress_frames_a_terminal_does(tmp_path: Path, trai
         "train": ["train", str(TINYSEG), "--out", str(tmp_path / "run"), "--config",
                   str(TEST_DATA / "train" / "tiny.yaml"), "--epochs", "1"],
         "eval": ["eval", str(trained / "best.pt"), str(TINYSEG), "--out", str(tmp_path / "eval")],
-        "localize-bench": ["localize-bench", str(tmp_path / "ds"), "-n", "2", "--out", str(tmp_path / "bench")],
+        "localize-bench": ["localize-bench", str(tmp_path / "ds"), "--viewpoints", "2", "--out", str(tmp_path / "bench")],
     }
     for name, args in commands.items():
         code, err = osmseg_process(args)

@@ -172,7 +172,7 @@ def test_cli_bad_pairs_give_one_line(tmp_path: Path, case: str, words: str) -> N
         (root / "truth.csv").write_text("name,x,y\np1,3000,-5\n")
     elif case == "render option":
         write_pairs(root)
-        args = ["-n", "5", "--confusion", "0.1"]
+        args = ["--viewpoints", "5", "--confusion", "0.1"]
     else:
         write_pairs(root)
         (root / "aerial" / "p1.txt").write_text("450 10 Building\n")

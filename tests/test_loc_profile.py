@@ -183,7 +183,7 @@ def test_bench_compares_methods_side_by_side(tmp_path: Path) -> None:
     for seed in (3, 11):
         Image.fromarray(town(400, seed=seed)).save(tmp_path / f"town{seed}.png")
     res = CliRunner().invoke(localize_bench_command, [
-        str(tmp_path / "town3.png"), "--resolution", str(RES), "--out", str(tmp_path / "bench"), "-n", "4",
+        str(tmp_path / "town3.png"), "--resolution", str(RES), "--out", str(tmp_path / "bench"), "--viewpoints", "4",
         "--method", "paper,profile", "--heading", "unknown", "--height-spread", "0.5", "--no-plots"])
     assert res.exit_code == 0, res.output
     results = json.loads((tmp_path / "bench" / "results.json").read_text())
@@ -202,7 +202,7 @@ def test_bench_compares_methods_side_by_side(tmp_path: Path) -> None:
     # candidate to report then), with plots, and again into the same folder
     for _ in range(2):
         res = CliRunner().invoke(localize_bench_command, [str(tmp_path / "town3.png"), "--resolution", str(RES),
-                                                          "--out", str(tmp_path / "default"), "-n", "3"])
+                                                          "--out", str(tmp_path / "default"), "--viewpoints", "3"])
         assert res.exit_code == 0, res.output
         results = json.loads((tmp_path / "default" / "results.json").read_text())
         assert results["settings"]["methods"] == ["profile", "paper"]

@@ -287,7 +287,7 @@ def test_cli_on_a_mask_file_and_on_a_dataset_folder(tmp_path: Path) -> None:
     mask_file = tmp_path / "town.png"
     Image.fromarray(town()).save(mask_file)
     runner = CliRunner()
-    args = ["-n", "3", "--seed", "2", "--margin", "10", "--confusion", "0.2", "--offset", "2", "--method", "paper"]
+    args = ["--viewpoints", "3", "--seed", "2", "--margin", "10", "--confusion", "0.2", "--offset", "2", "--method", "paper"]
     res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--out", str(tmp_path / "a"),
                                                  *args], obj={"verbosity": 0})
     assert res.exit_code == 0, res.output
@@ -320,7 +320,7 @@ def test_cli_bad_input_is_one_line(tmp_path: Path) -> None:
     assert res.exit_code == 2 and "--resolution" in res.stderr and "Traceback" not in res.output
     res = runner.invoke(localize_bench_command, [str(tmp_path), "--out", str(tmp_path / "o")], obj={"verbosity": 0})
     assert res.exit_code == 1 and "manifest.json" in res.stderr
-    res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "-n", "100000",
+    res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--viewpoints", "100000",
                                                  "--out", str(tmp_path / "o")], obj={"verbosity": 0})
     assert res.exit_code == 2 and "standable pixels" in res.stderr
     res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--class-height", "tall",

@@ -25,8 +25,11 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+import click
 import pytest
 from click.testing import CliRunner, Result
 
@@ -176,3 +179,121 @@ def test_without_a_bing_key_the_error_prints_a_complete_command_that_works(
     # the suggested command passes every check and goes on to fetch (here: offline, empty cache)
     ran = CliRunner().invoke(cli, [*suggested[1:], "--offline", "--cache-dir", str(tmp_path / "cache")])
     assert ran.exit_code == 1 and "--offline" in ran.output, ran.output
+
+
+# ------------------------------------------------------------------------------ every example, as printed
+
+DOCS = [README, *sorted((REPO_ROOT / "docs").glob("*.md"))]
+
+
+def example_commands(path: Path) -> list[list[str]]:
+    """The arguments (after ``osmseg``) of every osmseg command in ``path``'s code blocks: the
+    lines of ``sh`` blocks, and ``$ osmseg`` lines of the others (continuations joined, comments
+    cut; ``torchrun ... -m osmseg`` counts). Lines with a ``...`` placeholder are left out."""
+    text = path.read_text(encoding="utf-8")
+    commands = []
+    for lang, block in re.findall(r"```(\w*)\n(.*?)```", text, flags=re.S):
+        for line in re.sub(r"\\\n\s*", " ", block).splitlines():
+            line = line.strip()
+            if lang != "sh":
+                if not line.startswith("$ "):
+                    continue
+                line = line[2:]
+            words = shlex.split(line, comments=True)
+            if "-m" in words and words[0] == "torchrun":
+                words = words[words.index("-m") + 1:]
+            if words[:1] == ["osmseg"] and "..." not in line:
+                commands.append(words[1:])
+    return commands
+
+
+@dataclass
+class Parsed:
+    command: str
+    values: dict[str, Any]   # parameter name -> the raw value as typed
+    inputs: list[str]        # paths the command reads
+    outputs: list[str]       # folders it writes
+
+
+def parse_example(args: list[str]) -> Parsed:
+    """``osmseg ARGS`` parsed by the command's own option table, as click would run it: unknown
+    options, wrong types, missing required values and deprecated spellings raise. Paths are not
+    opened (they are checked against the examples' data instead)."""
+    group = click.Context(cli, info_name="osmseg", **cli.context_settings)
+    _, rest, _ = cli.make_parser(group).parse_args(list(args))
+    assert rest, f"no command in: osmseg {shlex.join(args)}"
+    name, rest = rest[0], rest[1:]
+    cmd = cli.get_command(group, name)
+    assert cmd is not None, f"no command {name!r}"
+    ctx = click.Context(cmd, parent=group, info_name=name)
+    values, extra, _ = cmd.make_parser(ctx).parse_args(rest)
+    assert not extra, f"unexpected arguments {extra}"
+    values = {k: v for k, v in values.items() if repr(v) != "Sentinel.UNSET"}  # click 8.2+: not given
+    parsed = Parsed(name, values, [], [])
+    for param in cmd.params:
+        if param.name not in values:
+            assert not param.required, f"osmseg {name}: {param.opts} is required"
+            continue
+        assert not getattr(param, "hidden", False), f"osmseg {name}: a deprecated spelling {param.opts}"
+        value = values[param.name]
+        if isinstance(param.type, click.Path):
+            items = value if isinstance(value, (list, tuple)) else [value]
+            paths = [str(x) for v in items for x in (v if isinstance(v, (list, tuple)) else [v])]
+            (parsed.inputs if param.type.exists else parsed.outputs).extend(paths)
+        else:
+            param.type_cast_value(ctx, value)  # raises click.BadParameter, as the command would
+    for option in ("imagery", "osm"):  # sources spelled as text: geotiff:PATH, geojson:PATH:tags, xyz:file://...
+        spec = str(values.get(option, ""))
+        kind, _, rest_ = spec.partition(":")
+        if kind in ("geotiff", "geojson"):
+            parsed.inputs.append(rest_.split(":")[0])
+        elif kind == "xyz" and rest_.startswith("file://"):
+            parsed.inputs.append(rest_[len("file://"):])
+        elif spec.endswith((".pbf", ".osm", ".tif")):
+            parsed.inputs.append(spec)
+    return parsed
+
+
+def example_data() -> list[str]:
+    """The paths README.md's "Example data" table accounts for (first column)."""
+    text = README.read_text(encoding="utf-8")
+    if "## Example data" not in text:
+        return []
+    section = text.split("## Example data", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in section.splitlines() if line.startswith("| `")]
+    return [path for row in rows for path in re.findall(r"`([^`]+)`", row.split("|")[1])]
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: p.name)
+def test_every_example_parses_as_printed(doc: Path) -> None:
+    commands = example_commands(doc)
+    if doc == README:
+        assert len(commands) >= 10  # the extractor finds the examples
+    for args in commands:
+        try:
+            parse_example(args)
+        except (click.ClickException, AssertionError) as exc:
+            message = exc.format_message() if isinstance(exc, click.ClickException) else str(exc)
+            pytest.fail(f"{doc.name}: osmseg {shlex.join(args)}: {message}")
+
+
+def test_every_path_a_readme_example_reads_comes_from_somewhere() -> None:
+    listed = example_data()
+    assert listed, "README.md has no Example data table"
+    produced: list[str] = []
+    used: set[str] = set()
+    unexplained = []
+    for args in example_commands(README):
+        parsed = parse_example(args)
+        for path in parsed.inputs:
+            p = path.rstrip("/")
+            if any(p == o or p.startswith(o + "/") for o in produced) or (REPO_ROOT / p).exists():
+                continue
+            hits = [entry for entry in listed if p == entry.rstrip("/") or p.startswith(entry.rstrip("/") + "/")
+                    or (entry.endswith("/") and p.startswith(entry))]
+            used.update(hits)
+            if not hits:
+                unexplained.append(f"{path} (osmseg {shlex.join(args)})")
+        produced += [o.rstrip("/") for o in parsed.outputs]
+    assert unexplained == [], "README examples read paths that no example makes and Example data does not explain"
+    assert set(listed) == used, f"Example data lists paths no example reads: {sorted(set(listed) - used)}"

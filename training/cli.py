@@ -19,42 +19,67 @@ from pathlib import Path
 
 import click
 
-from osmseg.cli.common import progress_bars, report_errors, require_torch
+from osmseg.cli.common import (output_options, progress_bars, renamed_option, report_errors, require_torch,
+                               typed_options)
 from osmseg.errors import ConfigError
+from osmseg.units import ratio
+
+
+def _default(name: str) -> object:
+    """The training setting ``name``'s default, which ``osmseg train --help`` shows (read from
+    :class:`training.config.TrainConfig`, which imports no torch). Only the options typed on the
+    command line override a --config file, so a default here never hides the file's value.
+
+    >>> _default("epochs"), _default("loader_workers")
+    (100, 2)
+    """
+    from training.config import FIELDS
+
+    return FIELDS[name].default
 
 
 @click.command("train")
+@output_options
 @click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Run folder: checkpoints, log.csv, curves.png, splits.json (rerun to resume).")
 @click.option("--config", "config_file",
-              help="YAML or TOML file of settings, or a shipped one by name (cpu.yaml, gpu.yaml); options override it.")
-@click.option("--model", help="airsegnet6 | airsegnet13 (default airsegnet13; the class table decides the outputs).")
-@click.option("--classes", help="Class table TOML when the dataset has no manifest.json (e.g. classes6.toml).")
-@click.option("--width", type=float, help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU.")
-@click.option("--init", help="Encoder start: random (default, as the dissertation) | imagenet (downloads) | PATH.pth")
-@click.option("--epochs", type=int)
-@click.option("--batch-size", type=int)
-@click.option("--lr", type=float, help="Initial learning rate (default 0.1, poly decay).")
-@click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=None,
-              help="Train 'unlabeled' as a class instead of ignoring it (default: ignored).")
-@click.option("--split-by", type=click.Choice(["groups", "image"]),
-              help="groups (default): samples that overlap on the ground stay in one split; image: each image alone.")
-@click.option("--seed", type=int)
-@click.option("--workers", type=int, help="DataLoader worker processes.")
-@click.option("--device", help="auto | cpu | cuda | cuda:N")
-@click.option("--max-steps-per-epoch", type=int, help="Cap batches per epoch (smoke tests).")
+              help="YAML or TOML file of settings, or a shipped one by name (cpu.yaml, gpu.yaml); the options "
+                   "below override it, and the defaults shown apply where neither sets a value.")
+@click.option("--model", default=_default("model"),
+              help="airsegnet6 | airsegnet13 | a name of your own (the class table decides the outputs).")
+@click.option("--classes", show_default="the dataset's manifest.json, else the model's",
+              help="Class table TOML when the dataset has no manifest.json (e.g. classes6.toml).")
+@click.option("--width", type=float, default=_default("width"),
+              help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU.")
+@click.option("--init", default=_default("init"),
+              help="Encoder start: random (as the dissertation) | imagenet (downloads) | PATH.pth")
+@click.option("--epochs", type=int, default=_default("epochs"))
+@click.option("--batch-size", type=int, default=_default("batch_size"))
+@click.option("--lr", type=float, default=_default("lr"), help="Initial learning rate (poly decay).")
+@click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=not _default("ignore_unlabeled"),
+              help="Train 'unlabeled' as a class instead of ignoring it.")
+@click.option("--split-by", type=click.Choice(["groups", "image"]), default=_default("split_by"),
+              help="groups: samples that overlap on the ground stay in one split; image: each image alone.")
+@click.option("--seed", type=int, default=_default("seed"))
+@click.option("--loader-workers", type=click.IntRange(min=0), default=_default("loader_workers"),
+              help="DataLoader worker processes per training process (0: load in the training process).")
+@click.option("--device", default=_default("device"), help="auto | cpu | cuda | cuda:N")
+@click.option("--max-steps-per-epoch", type=int, show_default="no cap", help="Cap batches per epoch (smoke tests).")
+@renamed_option("--workers", "loader_workers", type=click.IntRange(min=0),
+                note=" (DataLoader processes; build's --workers counts build processes)")
 @click.pass_context
 @report_errors
 def train_command(ctx: click.Context, dataset: Path, out_dir: Path, config_file: str | None,
-                  keep_unlabeled: bool | None, **options: object) -> None:
+                  keep_unlabeled: bool, **options: object) -> None:
     """Train a SegNet on DATASET (a folder made by `osmseg build`, or images/ + labels/)."""
     require_torch()
     from training.config import find_config_file, make_config
     from training.train import run
 
-    overrides = dict(options)
-    overrides["ignore_unlabeled"] = None if keep_unlabeled is None else not keep_unlabeled
+    typed = typed_options(ctx)  # defaults shown in --help must not override the --config file
+    overrides = {k: v for k, v in options.items() if k in typed}
+    overrides["ignore_unlabeled"] = not keep_unlabeled if "keep_unlabeled" in typed else None
     config = make_config(dataset, out_dir, find_config_file(config_file) if config_file else None, overrides)
     with progress_bars(ctx.obj.get("progress", False)) as progress:
         summary = run(config, progress=progress)
@@ -62,13 +87,14 @@ def train_command(ctx: click.Context, dataset: Path, out_dir: Path, config_file:
         return
     if summary.get("best") is not None and ctx.obj["verbosity"] >= 0:
         b = summary["best"]
-        click.echo(f"best epoch {b['epoch']}: val mIoU {b['val_miou']:.4f}, val pixel accuracy "
-                   f"{b['val_pixel_accuracy']:.4f}; checkpoints in {out_dir}/ (best.pt, last.pt)", err=True)
+        click.echo(f"best epoch {b['epoch']}: val mIoU {ratio(b['val_miou'])}, val pixel accuracy "
+                   f"{ratio(b['val_pixel_accuracy'])}; checkpoints in {out_dir}/ (best.pt, last.pt)", err=True)
     click.echo(json.dumps({"best": str(out_dir / "best.pt"), "last": str(out_dir / "last.pt"),
                            "log": str(out_dir / "log.csv")}))
 
 
 @click.command("predict")
+@output_options
 @click.argument("checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
@@ -79,7 +105,8 @@ def train_command(ctx: click.Context, dataset: Path, out_dir: Path, config_file:
               help="split-join: windows of the training patch size; rescale: letterbox the whole image into one.")
 @click.option("--join", type=click.Choice(["blend", "crop"]), default="blend", show_default=True,
               help="blend overlapping windows smoothly, or keep each window's centre (the dissertation's).")
-@click.option("--overlap", type=click.IntRange(min=0), help="Window overlap in pixels [a quarter of the window].")
+@click.option("--overlap", type=click.IntRange(min=0), show_default="a quarter of the window",
+              help="Window overlap in pixels.")
 @click.option("--block-size", type=click.IntRange(min=256), default=2048, show_default=True,
               help="Large rasters are predicted block by block (same result, bounded memory).")
 @click.option("--tta", is_flag=True, help="Average over flips (and 90-degree turns of square inputs).")
@@ -106,6 +133,7 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
 
 
 @click.command("eval")
+@output_options
 @click.argument("checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.argument("dataset", required=False, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--pair", "pairs", nargs=2, multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),

@@ -25,12 +25,15 @@ weight decay 5e-4 and median-frequency class weights. Learning rate and schedule
 from __future__ import annotations
 
 import json
+import logging
 import tomllib
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
 from osmseg.errors import ConfigError
+
+logger = logging.getLogger(__name__)
 
 #: the AirSegNet presets (training.model.PRESETS gives their class tables)
 PRESET_NAMES = ("airsegnet6", "airsegnet13")
@@ -62,7 +65,7 @@ class TrainConfig:
     val_fraction: float = 0.15
     split_by: str = "groups"  # groups: overlapping samples share a split | image: each image alone
     seed: int = 0
-    workers: int = 2
+    loader_workers: int = 2  # DataLoader worker processes (``osmseg build --workers`` counts build processes)
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     amp: bool = True  # mixed precision; used only on CUDA
     channels_last: bool = True  # memory format; used only on CUDA
@@ -101,6 +104,9 @@ class TrainConfig:
 
 
 FIELDS = {f.name: f for f in fields(TrainConfig)}
+
+#: settings renamed since 0.3.0 (old name -> new): still read from config files, with a warning
+RENAMED = {"workers": "loader_workers"}
 
 
 #: the settings files shipped with osmseg (``--config cpu.yaml`` finds them from any folder)
@@ -144,6 +150,13 @@ def read_config_file(path: Path) -> dict[str, Any]:
         raise ConfigError(f"--config {path}: not valid ({type(exc).__name__}: {str(exc).splitlines()[0]})") from None
     if not isinstance(data, dict):
         raise ConfigError(f"--config {path}: expected a mapping of settings")
+    for old, new in RENAMED.items():
+        if old in data:
+            if new in data:
+                raise ConfigError(f"--config {path}: {old} is the old name of {new}: keep {new} only")
+            logger.warning("--config %s: '%s' is now '%s' (DataLoader processes); rename it, the old name will "
+                           "stop working in a later version", path, old, new)
+            data[new] = data.pop(old)
     unknown = sorted(set(data) - set(FIELDS))
     if unknown:
         raise ConfigError(f"--config {path}: unknown settings {unknown}; known: {', '.join(sorted(FIELDS))}")

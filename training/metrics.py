@@ -42,6 +42,7 @@ from torch import Tensor
 
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.datafiles import load_toml
+from osmseg.units import number
 
 __all__ = [
     "ConfusionMatrix",
@@ -224,7 +225,8 @@ def metrics_from_matrix(matrix: np.ndarray | Sequence[Sequence[int]], class_name
 
 
 def _fmt(value: float | None, width: int) -> str:
-    return f"{value:{width}.4f}" if value is not None else f"{'-':>{width}}"
+    """A ratio at the CLI's one precision (:mod:`osmseg.units`), right-aligned in ``width``."""
+    return f"{number(value, 'ratio'):>{width}}"
 
 
 def format_table(metrics: Mapping[str, Any]) -> str:
@@ -235,13 +237,13 @@ def format_table(metrics: Mapping[str, Any]) -> str:
     >>> print(format_table(metrics_from_matrix([[3, 1], [0, 0]], ["bg", "fg"])))
     class     IoU  precision   recall       F1  support
     ---------------------------------------------------
-    bg     0.7500     1.0000   0.7500   0.8571        4
-    fg          -     0.0000        -        -        0
+    bg      0.750      1.000    0.750    0.857        4
+    fg          -      0.000        -        -        0
     ---------------------------------------------------
-    pixel accuracy  0.7500  (4 pixels)
-    mean accuracy   0.7500
-    mIoU            0.7500  (over 1 of 2 classes present in the ground truth)
-    FWIoU           0.7500
+    pixel accuracy   0.750  (4 pixels)
+    mean accuracy    0.750
+    mIoU             0.750  (over 1 of 2 classes present in the ground truth)
+    FWIoU            0.750
     """
     per_class = metrics["per_class"]
     name_w = max([len("class"), *(len(n) for n in per_class)])

@@ -57,7 +57,7 @@ from training.splits import make_splits, read_splits, sample_groups, write_split
 logger = logging.getLogger(__name__)
 
 #: Settings that may change between an interrupted run and its resumption.
-RESUMABLE_CHANGES = {"workers", "device", "tensorboard", "out_dir", "dataset"}
+RESUMABLE_CHANGES = {"loader_workers", "device", "tensorboard", "out_dir", "dataset"}
 LOG_FIELDS = ("epoch", "lr", "train_loss", "val_loss", "val_miou", "val_pixel_accuracy", "seconds")
 
 
@@ -86,8 +86,8 @@ def seeded_loader(dataset: PatchDataset, config: TrainConfig, d: Dist, shuffle: 
                                      seed=config.seed, drop_last=False)
     else:
         sampler = list(range(d.rank, len(dataset), d.world_size))
-    return DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, num_workers=config.workers,
-                      pin_memory=d.device.type == "cuda", persistent_workers=config.workers > 0)
+    return DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, num_workers=config.loader_workers,
+                      pin_memory=d.device.type == "cuda", persistent_workers=config.loader_workers > 0)
 
 
 class RunFiles:

@@ -20,7 +20,7 @@ from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.rejection import FilterConfig
 from osmseg.output import command_line
-from osmseg.cli.common import command_line_of, progress_bars, report_errors
+from osmseg.cli.common import command_line_of, output_options, progress_bars, report_errors
 from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT, missing_bing_key
 from osmseg.places import Area, find_preset, parse_bbox
 from osmseg.redact import redact
@@ -108,20 +108,22 @@ def no_sample_error(summary: BuildSummary, config: BuildConfig) -> DatasetError:
 
 
 @click.command("build")
+@output_options
 @click.option("--city", help="A preset area (data_manifests/cities.toml), e.g. Berlin, 'São Paulo'; any case/accents.")
 @click.option("--lat", type=float, help="Centre latitude (with --lon) for an area anywhere.")
 @click.option("--lon", type=float, help="Centre longitude (with --lat).")
-@click.option("--radius-km", type=click.FloatRange(min=0, min_open=True), help="Sampling radius around the centre [preset's, or 2 km].")
+@click.option("--radius-km", type=click.FloatRange(min=0, min_open=True), show_default="the preset's, or 2 km",
+              help="Sampling radius around the centre.")
 @click.option("--bbox", help="Sample uniformly inside W,S,E,N (degrees) instead of a disc.")
 @click.option("--samples", "-n", type=int, default=30, show_default=True, help="Accepted samples wanted.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed for every random choice (recorded).")
 @click.option("--zoom", type=click.IntRange(1, 23), default=DEFAULT_ZOOM, show_default=True,
               help="Tile zoom. 18 = ~0.6 m/px at the equator, ~0.37 m/px at 52°N (see docs).")
 @click.option("--imagery", help="A provider name (Esri.WorldImagery, GeoportailFrance.orthos, USGS.USImagery, ...; "
-              "docs/imagery.md) | xyz:TEMPLATE | geotiff:PATH | bing (needs BING_MAPS_KEY) [bing].")
+              "docs/imagery.md) | xyz:TEMPLATE | geotiff:PATH | bing (needs BING_MAPS_KEY).", show_default="bing")
 @click.option("--tile-size", type=click.Choice(["256", "512", "1024"]), default=None,
               help="Px of the tile server's tiles, when the provider does not say (a 512-px or @2x server); "
-                   "every tile is checked against it [256; 512 for an @2x template].")
+                   "every tile is checked against it.", show_default="256; 512 for an @2x template")
 @click.option("--osm", default="api", show_default=True, help="api | overpass | PATH.osm(.pbf) | geojson:PATH (see docs/osm.md).")
 @click.option("--classes", default="classes13.toml", show_default=True, help="Class table: classes13.toml or classes6.toml or a path.")
 @click.option("--image-format", type=click.Choice(["png", "jpg", "cog"]), default="png", show_default=True,
@@ -139,13 +141,13 @@ def no_sample_error(summary: BuildSummary, config: BuildConfig) -> DatasetError:
 @click.option("--no-overlap", is_flag=True,
               help="Samples never share a pixel: each attempt takes its own block of the area's tile grid (seeded).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="Output folder (rerun to resume).")
-@click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="HTTP/OSM cache [~/.cache/osmseg].")
+@click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              show_default="$OSMSEG_CACHE_DIR, else $XDG_CACHE_HOME/osmseg, else ~/.cache/osmseg", help="HTTP/OSM cache.")
 @click.option("--timeout", "http_timeout", type=click.FloatRange(min=0.1), default=30.0, show_default=True,
               help="Seconds to wait for a server to connect or send more bytes before retrying.")
 @click.option("--offline", is_flag=True, help="Use only the cache; fail on anything not cached.")
-@click.option("--workers", type=click.IntRange(min=0), default=0,
-              help="Processes building samples at once; the dataset's bytes are the same for any number "
-                   "[0: every core this process may use].")
+@click.option("--workers", type=click.IntRange(min=0), default=0, show_default="0: every core this process may use",
+              help="Processes building samples at once; the dataset's bytes are the same for any number.")
 @click.option("--shard", help="K/N: build only this process's share of the samples (array jobs).")
 @click.option("--zip", "make_zip", is_flag=True, help="Also write OUT.zip.")
 @click.option("--record", type=click.Path(dir_okay=False, path_type=Path), help="Record all HTTP traffic to a cassette (keys removed).")
@@ -208,7 +210,7 @@ def build_config(*, city: str | None, lat: float | None, lon: float | None, radi
 #: ``osmseg build`` options that never change what is built, left out of the recorded command:
 #: every shard and every resumed run, and the same dataset built in another folder, record one line.
 NOT_CONTENT = frozenset({"out_dir", "cache_dir", "http_timeout", "offline", "workers", "shard", "make_zip", "record",
-                         "replay"})
+                         "replay", "verbose", "quiet", "progress"})
 
 
 def content_options(config: BuildConfig) -> dict[str, Any]:

@@ -208,3 +208,118 @@ def parse_size(value: str | None, option: str) -> tuple[int, int] | None:
     if not m or int(m.group(1)) < 1 or int(m.group(2)) < 1:
         raise ConfigError(f"{option} must be WIDTHxHEIGHT in pixels, e.g. 750x750; got {value!r}")
     return int(m.group(1)), int(m.group(2))
+
+
+# --------------------------------------------------------------------------- options every command shares
+
+#: where a subcommand's own -v/-q/--progress wait (in ``ctx.meta``) until the command runs
+_OUTPUT_META = "osmseg.output_options"
+
+
+def set_verbosity(verbosity: int) -> None:
+    """Change the verbosity of the handler :func:`configure_logging` installed (a ``-v`` given
+    after the subcommand). Leaves any other logging set-up alone, as that function does."""
+    root = logging.getLogger()
+    ours = [h for h in root.handlers if isinstance(h, _TqdmStderrHandler)]
+    if not ours:
+        return
+    for handler in ours:
+        for f in handler.filters:
+            if isinstance(f, _StderrFilter):
+                f.verbosity = verbosity
+    root.setLevel({0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG if verbosity > 1 else logging.ERROR))
+
+
+def _remember(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
+    ctx.meta.setdefault(_OUTPUT_META, {})[param.name] = value
+    return value
+
+
+def apply_output_options(ctx: click.Context, verbose: int = 0, quiet: int = 0, progress: bool | None = None) -> dict[str, Any]:
+    """Merge a subcommand's -v/-q/--progress into what the group's set (``ctx.obj``) and
+    return it: counts add up (``osmseg -v build -v`` is -vv), a subcommand's ``--progress`` or
+    ``--no-progress`` wins. A command run without the group gets the same defaults."""
+    obj = ctx.find_root().obj
+    if not isinstance(obj, dict):
+        obj = {}
+        ctx.find_root().obj = obj
+    before = obj.get("verbosity", 0)
+    verbosity = before + verbose - quiet
+    asked = progress if progress is not None else obj.get("progress_asked")
+    obj.update(verbosity=verbosity, progress_asked=asked, progress=show_progress(asked, verbosity))
+    if verbosity != before:
+        set_verbosity(verbosity)
+    ctx.obj = obj
+    return obj
+
+
+def output_options(func: F) -> F:
+    """``-v/--verbose``, ``-q/--quiet`` and ``--progress/--no-progress`` on a subcommand, so
+    they may follow it (``osmseg train DATA --out run -v``) as well as precede it. Shared by
+    every command of the group, the plugins of training and localization included (as
+    rasterio's ``rio`` shares its option decorators). The values reach the command through
+    ``ctx.obj`` (``verbosity``, ``progress``), never as parameters."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        ctx = click.get_current_context()
+        given = ctx.meta.get(_OUTPUT_META, {})
+        apply_output_options(ctx, given.get("verbose") or 0, given.get("quiet") or 0, given.get("progress"))
+        return func(*args, **kwargs)
+
+    options = [
+        click.Option(["-v", "--verbose"], count=True, expose_value=False, callback=_remember, show_default=False,
+                     help="More log output on stderr (-vv for debug); also before the command."),
+        click.Option(["-q", "--quiet"], count=True, expose_value=False, callback=_remember, show_default=False,
+                     help="Less output on stderr: only errors, no progress bar; also before the command."),
+        click.Option(["--progress/--no-progress"], default=None, expose_value=False, callback=_remember,
+                     show_default="only when stderr is a terminal",
+                     help="Draw progress bars on stderr; also before the command."),
+    ]
+    # click lists a command's parameters in reverse order of __click_params__: these come last in --help
+    wrapper.__click_params__ = options[::-1] + list(getattr(func, "__click_params__", []))  # type: ignore[attr-defined]
+    return wrapper  # type: ignore[return-value]
+
+
+def renamed_option(old: str, new: str, *, type: Any = None, note: str = "") -> Callable[[F], F]:
+    """Keep ``old`` (an option's former spelling, e.g. ``--workers``) working for a while as a
+    hidden alias of the parameter ``new``: it says once, on stderr, what to type instead, and
+    its value goes to ``new`` (unless ``new`` was given too: a usage error)."""
+    name = "renamed_" + old.lstrip("-").replace("-", "_")
+
+    def warn(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
+        if value is not None:
+            ctx.meta.setdefault("osmseg.renamed", {})[new] = (old, value)
+        return value
+
+    def decorate(func: F) -> F:
+        @functools.wraps(func)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            ctx = click.get_current_context()
+            renamed = ctx.meta.get("osmseg.renamed", {})
+            if new in renamed:
+                spelled, value = renamed[new]
+                flag = next(max(p.opts, key=len) for p in ctx.command.params if p.name == new)
+                if ctx.get_parameter_source(new) == click.core.ParameterSource.COMMANDLINE:
+                    raise click.UsageError(f"{spelled} is the old name of {flag}: give {flag} only")
+                if (ctx.find_root().obj or {}).get("verbosity", 0) >= 0:  # -q: errors only
+                    click.echo(f"Warning: {spelled} is now {flag}{note}; {spelled} will stop working in a later "
+                               "version", err=True)
+                kwargs[new] = value
+                ctx.params[new] = value
+            return func(*args, **kwargs)
+
+        option = click.Option([old, name], type=type, default=None, hidden=True, expose_value=False, callback=warn)
+        wrapper.__click_params__ = [option] + list(getattr(func, "__click_params__", []))  # type: ignore[attr-defined]
+        return wrapper  # type: ignore[return-value]
+
+    return decorate
+
+
+def typed_options(ctx: click.Context) -> set[str]:
+    """The parameter names the user gave a value on the command line (or its environment
+    variable), directly or through a :func:`renamed_option`'s old spelling; the others hold
+    their defaults."""
+    typed = (click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)
+    given = {name for name in ctx.params if ctx.get_parameter_source(name) in typed}
+    return given | set(ctx.meta.get("osmseg.renamed", {}))

@@ -6,8 +6,10 @@ and ``demo`` (:mod:`localization.demo`) register themselves through the ``osmseg
 entry points of pyproject.toml and are loaded by click-plugins, so the core never imports the
 packages above it. A plugin that fails to load shows up as a command that says why.
 
-Only the CLI configures logging. Data (paths, JSON) goes to stdout; logs, progress and
-summaries go to stderr. Exit status: 0 success, 1 failure, 2 usage error.
+Every command also takes ``-v``, ``-q`` and ``--progress`` after its name
+(:func:`osmseg.cli.common.output_options`), and shows its defaults in ``--help`` (the group's
+``show_default``, inherited by every command). Only the CLI configures logging. Data (paths,
+JSON) goes to stdout; logs, progress and summaries go to stderr. Exit status: 0 success, 1 failure, 2 usage error.
 """
 
 from __future__ import annotations
@@ -27,18 +29,20 @@ PLUGIN_GROUP = "osmseg.commands"
 
 
 @with_plugins(sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name))
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "show_default": True})
 @click.version_option(__version__, "--version", prog_name="osmseg")
-@click.option("-v", "--verbose", count=True, help="More log output on stderr (-vv for debug).")
-@click.option("-q", "--quiet", count=True, help="Less output on stderr: only errors, no progress bar.")
-@click.option("--progress/--no-progress", default=None,
-              help="Draw progress bars on stderr [only when stderr is a terminal, so logs stay clean].")
+@click.option("-v", "--verbose", count=True, show_default=False,
+              help="More log output on stderr (-vv for debug); also after the command.")
+@click.option("-q", "--quiet", count=True, show_default=False,
+              help="Less output on stderr: only errors, no progress bar; also after the command.")
+@click.option("--progress/--no-progress", default=None, show_default="only when stderr is a terminal",
+              help="Draw progress bars on stderr (a log file gets no bar frames); also after the command.")
 @click.pass_context
 def cli(ctx: click.Context, verbose: int, quiet: int, progress: bool | None) -> None:
     """osmseg: aerial segmentation datasets from OpenStreetMap, and what to do with them."""
     verbosity = verbose - quiet
     configure_logging(verbosity)
-    ctx.obj = {"verbosity": verbosity, "progress": show_progress(progress, verbosity)}
+    ctx.obj = {"verbosity": verbosity, "progress_asked": progress, "progress": show_progress(progress, verbosity)}
 
 
 cli.add_command(build_command)

@@ -7,12 +7,13 @@ from pathlib import Path
 
 import click
 
-from osmseg.cli.common import report_errors
+from osmseg.cli.common import output_options, report_errors
 from osmseg.output import read_manifest, verify
 from osmseg.quality import dataset_alignment
 
 
 @click.command("verify")
+@output_options
 @click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--alignment", "align_class", metavar="CLASS",
               help="Also estimate, per sample, the pixel offset between CLASS outlines and image edges.")
