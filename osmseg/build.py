@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import logging
 import os
+import re
+import shutil
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -24,12 +26,14 @@ from osmseg.grid import LngLatBBox, ground_resolution, pad_bbox
 from osmseg.net.http import HttpClient
 from osmseg.finalize import ENTRIES_PREFIX, finalize
 from osmseg.output.atomic import sweep_temp_files as sweep_temp
+from osmseg.output.manifest import SAMPLE_DIRS
+from osmseg.output.stac import ITEMS_DIR, STAC_DIR
 from osmseg.output.writer import IMAGE_FORMATS
 from osmseg.progress import Progress, report
 from osmseg.records import SlotOutcome
 from osmseg.sampling import check_room
 from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions, warn_upsampling
-from osmseg.state import STATE_DIR, BuildState
+from osmseg.state import STATE_DIR, STATE_SUBDIRS, BuildState
 from osmseg.processes import start_fork_server, sweep_owned
 from osmseg.workers import FirstSamples, SlotRunner
 
@@ -225,16 +229,27 @@ def check_config(config: BuildConfig) -> None:
         raise ConfigError(f"--out {config.out_dir} is a file; give a folder (new, or a build to resume)")
 
 
+#: The folders of a dataset that only osmseg writes into (beside its sample folders).
+OWN_FOLDERS = (STAC_DIR, f"{STAC_DIR}/{ITEMS_DIR}", STATE_DIR, *(f"{STATE_DIR}/{d}" for d in STATE_SUBDIRS))
+
+
 def sweep_work_area(out_dir: Path) -> None:
     """Remove what killed processes left in the output folder: temporary files (``.NAME.*.tmp``)
-    in every folder of the dataset and its build state, and the build state's temporary folders
-    (``entries-*`` of an interrupted finalize). Never read, only litter; those of live writers,
-    such as a shard started at the same time, stay."""
-    for folder, dirs, _ in os.walk(out_dir):
-        sweep_temp(Path(folder))
-        if Path(folder).name == STATE_DIR:
-            sweep_owned(Path(folder), ENTRIES_PREFIX)
-            dirs[:] = [d for d in dirs if d not in ("osm",)]  # (cut OSM files: written atomically, and many)
+    in the folders osmseg writes (its sample folders, the STAC catalog, the build state, and the
+    output folder itself, where only names osmseg gave are touched: it may be the user's), and
+    the build state's temporary folders (``entries-*`` of an interrupted finalize). Never read,
+    only litter; those of live writers, such as a shard started at the same time, stay. Called
+    while this build holds the folder, so an ``entries-*`` folder of the older unnamed form
+    (osmseg < 0.4) has no live writer either."""
+    sweep_temp(out_dir, named_only=True)
+    for folder in (*SAMPLE_DIRS, *OWN_FOLDERS):
+        if (out_dir / folder).is_dir():
+            sweep_temp(out_dir / folder)
+    state = out_dir / STATE_DIR
+    sweep_owned(state, ENTRIES_PREFIX)
+    for old in state.glob(f"{ENTRIES_PREFIX}*"):
+        if old.is_dir() and re.fullmatch(rf"{ENTRIES_PREFIX}[A-Za-z0-9_]{{8}}", old.name):
+            shutil.rmtree(old, ignore_errors=True)
 
 
 def _count(summary: BuildSummary, outcome: SlotOutcome) -> None:

@@ -102,3 +102,9 @@ class OSMLimitError(OSMDataError):
 
 class DatasetError(OsmsegError, IOError):
     """An output or input dataset folder is inconsistent."""
+
+
+class DatasetBusy(OsmsegError):
+    """A dataset folder that a build holds now (its files are still being written). Not a
+    :class:`DatasetError`: readers that fall back on a dataset they cannot use must not fall back
+    on one that is only busy, but say so."""

@@ -140,6 +140,7 @@ class FolderLock:
                 raise
             if locked:
                 self._fd = fd
+                _HELD_HERE.add(self.root.resolve())
             else:
                 os.close(fd)
         if command:
@@ -187,34 +188,58 @@ class FolderLock:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
+            _HELD_HERE.discard(self.root.resolve())
 
     @classmethod
     def busy(cls, root: Path) -> FolderLock | None:
-        """The lock of the build-state folder ``root`` when some process holds it now, else None.
+        """The lock of the build-state folder ``root`` when another process holds it now, else None.
 
-        Reads only (files opened read-only; a folder never built into, or read-only, is not
-        busy), and under the guard, so a build deciding at the same moment is not misled by
-        this look."""
-        if fcntl is None:
+        Changes nothing (a folder never built into is not busy), and looks under the guard, so a
+        build deciding at the same moment is not misled by the look. The files are opened for
+        writing where that is allowed: NFS and SMB emulate ``flock`` with byte-range locks, and an
+        exclusive one needs a file open for writing. A folder this process holds itself (a build
+        that reads what it wrote) is not busy."""
+        if fcntl is None or Path(root).resolve() in _HELD_HERE:
             return None
-        try:
-            guard = os.open(Path(root) / "lock.guard", os.O_RDONLY)
-        except OSError:
+        guard = _open_existing(Path(root) / "lock.guard")
+        if guard is None:
             return None
         try:
             fcntl.flock(guard, fcntl.LOCK_EX)
-            fd = os.open(Path(root) / "lock", os.O_RDONLY)
+            fd = _open_existing(Path(root) / "lock")
+            if fd is None:
+                return None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 return cls(root)
             finally:
                 os.close(fd)
-        except OSError:
+        except OSError as exc:
+            if exc.errno not in NO_LOCKS:
+                logger.warning("cannot tell whether a build holds %s (%s): reading it anyway", Path(root).parent, exc)
             return None
         finally:
             os.close(guard)
         return None
+
+
+def _open_existing(path: Path) -> int | None:
+    """``path`` opened for reading and writing, else for reading (a read-only dataset); None when
+    it does not exist or cannot be opened."""
+    for flags in (os.O_RDWR, os.O_RDONLY):
+        try:
+            return os.open(path, flags)
+        except (PermissionError, OSError) as exc:
+            if isinstance(exc, FileNotFoundError):
+                return None
+            if exc.errno not in (errno.EACCES, errno.EROFS, errno.EPERM):
+                return None
+    return None
+
+
+#: The build-state folders this process holds (resolved): :meth:`FolderLock.busy` says they are not busy.
+_HELD_HERE: set[Path] = set()
 
 
 _warned_no_locks: set[Path] = set()

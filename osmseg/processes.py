@@ -40,6 +40,11 @@ import time
 from pathlib import Path
 from types import FrameType
 
+try:
+    import fcntl
+except ImportError:  # Windows: no private folder (nothing can tell a live run's from a dead one's)
+    fcntl = None  # type: ignore[assignment]
+
 __all__ = ["FOREIGN_SECONDS", "INTERRUPTED", "PRELOAD", "TERMINATED", "Terminated", "available_cores", "owner", "owner_gone", "start_fork_server",
            "sweep_owned", "terminate_by_exception", "use_private_temp_dir", "worker_context"]
 
@@ -50,8 +55,11 @@ FOREIGN_SECONDS = 3600.0
 #: What a command stopped by Ctrl-C says (exit 130), and one stopped by SIGTERM (exit 143).
 INTERRUPTED = "interrupted: rerun the same command to resume; finished work is kept"
 TERMINATED = "terminated (SIGTERM): rerun the same command to resume; finished work is kept"
-#: How this run's own temporary folder in ``$TMPDIR`` is named: ``osmseg-HOST-PID-RANDOM``.
+#: How this run's own temporary folder in ``$TMPDIR`` is named: ``osmseg-run-RANDOM``.
 PRIVATE_TEMP_PREFIX = "osmseg-run-"
+#: The file in it whose shared lock says its run is alive, and the descriptors this process holds.
+_ALIVE = "lock"
+_HELD: list[int] = []
 #: The socket the fork server listens on, inside the temporary folder (multiprocessing's names),
 #: and the longest name a Unix socket may have (Linux: 108 bytes with the final NUL).
 _FORK_SERVER_SOCKET = "/pymp-abcdefgh/listener-abcdefgh"
@@ -139,13 +147,18 @@ def owner() -> str:
 
 
 def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs: exists, and (Linux) is not a zombie, which has ended and only
+    waits for its parent to note it (a killed worker whose fork server has not reaped it yet)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:  # someone else's process
         return True
-    return True
+    try:
+        return "\nState:\tZ" not in Path(f"/proc/{pid}/status").read_text()
+    except OSError:  # not Linux, or it ended this instant
+        return Path("/proc").is_dir() is False
 
 
 def owner_gone(name_owner: str, path: Path) -> bool:
@@ -208,21 +221,59 @@ def use_private_temp_dir() -> Path | None:
     own, and GDAL's go inside, and it is removed when this process exits. A ``kill -9`` leaves
     it, and the next run of any osmseg command removes it. For the command line only: a library
     never changes its caller's environment. None (nothing changed) where ``$TMPDIR`` cannot
-    take it."""
+    take it, or is so long a path that the fork server's socket inside would not fit.
+
+    Whether a folder's run is still there is asked of the kernel, not guessed from a pid: the run
+    holds a shared ``flock`` on ``lock`` inside for its whole life (dropped however it ends), and a
+    folder is swept only when an exclusive lock on it is free. So runs in other containers or
+    machines that share ``$TMPDIR``, however long they last, keep their folder; and the name is
+    short (``osmseg-run-XXXXXXXX``), leaving room for the socket's path.
+    """
     base = Path(tempfile.gettempdir())
-    prefix = f"{PRIVATE_TEMP_PREFIX}{owner()}-"
+    if fcntl is None or len(str(base / PRIVATE_TEMP_PREFIX)) + 8 + len(_FORK_SERVER_SOCKET) > _SOCKET_PATH_MAX:
+        return None
     try:
-        sweep_owned(base, PRIVATE_TEMP_PREFIX)
-        if len(str(base / prefix)) + 8 + len(_FORK_SERVER_SOCKET) > _SOCKET_PATH_MAX:
-            return None  # the fork server's socket in it would have too long a name: keep $TMPDIR as it is
-        private = Path(tempfile.mkdtemp(prefix=prefix, dir=base))
+        _sweep_private_temp_dirs(base)
+        private = Path(tempfile.mkdtemp(prefix=PRIVATE_TEMP_PREFIX, dir=base))
+        fd = os.open(private / _ALIVE, os.O_RDWR | os.O_CREAT, 0o600)
+        fcntl.flock(fd, fcntl.LOCK_SH)  # held until this process ends: its folder is not to be swept
     except OSError:
         return None
+    _HELD.append(fd)
     os.environ["TMPDIR"] = str(private)
     tempfile.tempdir = str(private)
     # at exit after multiprocessing's own clean-up of its folder inside (priority -100), not before it
     multiprocessing.util.Finalize(None, shutil.rmtree, args=(str(private), True), exitpriority=-200)
     return private
+
+
+def _sweep_private_temp_dirs(base: Path) -> int:
+    """Remove the private temporary folders (:func:`use_private_temp_dir`) of runs that have ended
+    (their lock is free); a folder without its lock yet is left until it is an hour old."""
+    assert fcntl is not None
+    removed = 0
+    for folder in base.glob(f"{PRIVATE_TEMP_PREFIX}*"):
+        try:
+            fd = os.open(folder / _ALIVE, os.O_RDWR)
+        except FileNotFoundError:  # being made this instant, or not ours: only when long unchanged
+            try:
+                if folder.is_dir() and time.time() - folder.stat().st_mtime > FOREIGN_SECONDS:
+                    shutil.rmtree(folder, ignore_errors=True)
+                    removed += 1
+            except OSError:
+                pass
+            continue
+        except OSError:  # someone else's (permissions): theirs to sweep
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            continue  # its run is alive
+        finally:
+            os.close(fd)
+        shutil.rmtree(folder, ignore_errors=True)
+        removed += 1
+    return removed
 
 
 class Terminated(BaseException):
@@ -232,7 +283,7 @@ class Terminated(BaseException):
 
 
 def _on_sigterm(signum: int, frame: FrameType | None) -> None:
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: a second kill must not cut the clean-up short
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # once: a second kill ends the process at once, as asked
     raise Terminated()
 
 

@@ -24,6 +24,9 @@ from osmseg.folderlock import STATE_DIR, FolderLock
 from osmseg.output.atomic import atomic_write_text
 from osmseg.records import Attempt, SlotOutcome
 
+#: The build state's folders of records and pictures (besides ``osm/`` and temporary ones).
+STATE_SUBDIRS = ("attempts", "slots", "failures", "thumbnails", "holders")
+
 
 
 def atomic_write_json(path: Path, obj: Any) -> None:

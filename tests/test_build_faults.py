@@ -526,6 +526,39 @@ def test_a_tile_that_stays_the_wrong_size_fails_its_sample_and_says_why(
                           "1 of 2 samples could not be fetched")
 
 
+def test_a_server_of_512_px_tiles_is_a_usage_error_until_declared(services: Services, tmp_path: Path) -> None:
+    """Tiles of twice the size everywhere: the declaration is wrong, which no retry mends; declared,
+    the build goes through."""
+    for path, good in list(services.good.items()):
+        if path != MAP:
+            buf = io.BytesIO()
+            Image.open(io.BytesIO(good.data)).resize((512, 512), Image.Resampling.LANCZOS).save(buf, "PNG")
+            big = Reply(200, buf.getvalue(), {"Content-Type": "image/png"})
+            services.fault(path, lambda n, big=big: big)
+    refused = run_cli(*build_args(services.server, tmp_path / "ds", tmp_path / "cache"))
+    assert refused.exit_code == 2, refused.output
+    assert "is 512x512 px where this provider's tiles are 256x256 px" in refused.stderr
+    assert "declare it with --tile-size 512" in refused.stderr and "Traceback" not in refused.output
+    declared = run_cli(*build_args(services.server, tmp_path / "ds", tmp_path / "cache", "--tile-size", "512"))
+    assert declared.exit_code == 0, declared.output
+    manifest = json.loads((tmp_path / "ds" / "manifest.json").read_text())
+    assert manifest["summary"]["accepted"] == 2 and "--tile-size 512" in manifest["command"]
+
+
+def test_an_empty_answer_of_another_size_is_a_tile_without_imagery(
+        services: Services, clean: Clean, tmp_path: Path) -> None:
+    """A 1x1 transparent PNG is some servers' "no tile here": that sample is rejected for missing
+    imagery and the slot draws another centre; nothing fails."""
+    tile = clean.tile_only_in_second()
+    buf = io.BytesIO()
+    Image.new("RGBA", (1, 1), (0, 0, 0, 0)).save(buf, "PNG")
+    services.fault(tile, lambda n: Reply(200, buf.getvalue(), {"Content-Type": "image/png"}))
+    result = run_cli(*build_args(services.server, tmp_path / "ds", tmp_path / "cache"))
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((tmp_path / "ds" / "manifest.json").read_text())
+    assert any(r["reason"] == "missing_imagery" for r in manifest["rejected"]), manifest["rejected"]
+
+
 def test_a_tile_of_one_colour_rejects_its_sample_as_placeholder_imagery(
         services: Services, clean: Clean, tmp_path: Path) -> None:
     """The "no imagery here" tile of most servers is a valid image of one colour: each is counted, and
@@ -545,6 +578,30 @@ def test_a_tile_of_one_colour_rejects_its_sample_as_placeholder_imagery(
     for sample in manifest["samples"]:
         assert sample["imagery"]["uniform_tiles"] == []
         assert uniform_tiles(out / next(f for f in sample["files"] if f.startswith("images/"))) == []
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_stopped_build_does_not_wait_out_a_servers_retry_after(
+        services: Services, clean: Clean, tmp_path: Path, workers: str) -> None:
+    """A server that asks for a 60 s pause: SIGTERM (and Ctrl-C) end the build in seconds, not after
+    the pause; a second SIGTERM is never ignored."""
+    tile = clean.tiles(0)[0]
+    services.fault(tile, lambda n: Reply(503, "busy\n", {"Retry-After": "60"}))
+    args = build_args(services.server, tmp_path / "ds", tmp_path / "cache", "--workers", workers)
+    proc = subprocess.Popen([sys.executable, "-m", "osmseg", "-q", *args], env={**os.environ, "TILE_KEY": SECRET},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None and services.seen[tile] == 0:
+        time.sleep(0.01)
+    time.sleep(0.5)  # inside the 60 s pause
+    assert proc.poll() is None, f"build exited early: {proc.communicate()[1].decode()[-500:]}"
+    stopped = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=60)
+    took = time.monotonic() - stopped
+    assert proc.returncode == 143, stderr.decode()
+    assert stderr.decode() == "terminated (SIGTERM): rerun the same command to resume; finished work is kept\n"
+    assert took < 20, f"the build waited {took:.1f} s for the server's pause before it ended"
 
 
 # -- a flaky network: every kind of fault at once ------------------------------------------------

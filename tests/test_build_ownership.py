@@ -30,17 +30,25 @@ from pathlib import Path
 
 import pytest
 
+from osmseg.errors import DatasetBusy, DatasetError
 from osmseg.processes import INTERRUPTED, TERMINATED, owner
+from training.splits import sample_groups
 
 from test_build_workers import build_args, descendants, one_worker, run_cli, tree_bytes, wait_gone  # noqa: F401
 
-#: Starts ``osmseg ARGS`` once its imports are done, at the wall-clock instant given first: two of
-#: them started with the same instant begin within a millisecond of each other.
+#: Starts ``osmseg ARGS`` at a common instant: once its imports are done it says so (a file
+#: ``READY_DIR/ready-PID``), then waits for ``READY_DIR/go`` to name the instant, and busy-waits
+#: for it: two of them begin within a millisecond of each other, however loaded the machine.
 STARTER = """
-import sys, time
+import os, sys, time
+from pathlib import Path
 import osmseg.cli.main, osmseg.build  # everything imported before the common start
-start = float(sys.argv[1])
+folder = Path(sys.argv[1])
 sys.argv = ["osmseg", *sys.argv[2:]]
+(folder / f"ready-{os.getpid()}").touch()
+while not (folder / "go").exists():
+    time.sleep(0.001)
+start = float((folder / "go").read_text())
 while time.time() < start:
     pass
 from osmseg.cli.launch import main
@@ -48,11 +56,21 @@ main()
 """
 
 
-def popen(*args: str, tmpdir: Path | None = None, start_at: float | None = None) -> subprocess.Popen[bytes]:
+def start_together(procs: list[subprocess.Popen[bytes]], folder: Path) -> None:
+    """Let processes started with ``start_at=folder`` go at one instant, once all are ready."""
+    deadline = time.monotonic() + 300
+    while len(list(folder.glob("ready-*"))) < len(procs):
+        assert time.monotonic() < deadline and all(p.poll() is None for p in procs), "a starter did not get ready"
+        time.sleep(0.01)
+    (folder / "go.tmp").write_text(repr(time.time() + 0.2))
+    (folder / "go.tmp").rename(folder / "go")
+
+
+def popen(*args: str, tmpdir: Path | None = None, start_at: Path | None = None) -> subprocess.Popen[bytes]:
     env = dict(os.environ)
     if tmpdir is not None:
         env["TMPDIR"] = str(tmpdir)
-    command = ([sys.executable, "-c", STARTER, repr(start_at)] if start_at is not None
+    command = ([sys.executable, "-c", STARTER, str(start_at)] if start_at is not None
                else [sys.executable, "-m", "osmseg"])
     return subprocess.Popen([*command, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
@@ -96,10 +114,11 @@ def references(imagery_tif: Path, tmp_path_factory: pytest.TempPathFactory) -> d
 @pytest.mark.parametrize("attempt", [*range(3), *(pytest.param(i, marks=pytest.mark.slow) for i in range(3, 12))])
 def test_two_builds_with_other_options_started_in_the_same_millisecond_one_owns_the_folder(
         tmp_path: Path, imagery_tif: Path, references: dict[str, dict[str, bytes]], attempt: int) -> None:
-    out = tmp_path / "ds"
-    start = time.time() + 3.0  # both have imported everything by then
+    out, barrier = tmp_path / "ds", tmp_path / "barrier"
+    barrier.mkdir()
     procs = {seed: popen("-q", *build_args(out, imagery_tif, "--workers", "2", "--seed", seed, samples=4),
-                         start_at=start) for seed in ("3", "4")}
+                         start_at=barrier) for seed in ("3", "4")}
+    start_together(list(procs.values()), barrier)
     ended = {seed: proc.communicate(timeout=300) for seed, proc in procs.items()}
     codes = {seed: proc.returncode for seed, proc in procs.items()}
     assert sorted(codes.values()) == [0, 1], {s: (codes[s], ended[s][1].decode()[-600:]) for s in procs}
@@ -119,14 +138,25 @@ def test_while_a_build_holds_its_folder_other_commands_refuse_at_once(tmp_path: 
     out = tmp_path / "ds"
     holder = popen("-q", *build_args(out, imagery_tif, "--workers", "1", samples=40))
     try:
-        wait_for(lambda: slots_done(out) >= 4, holder)
+        wait_for(lambda: slots_done(out) >= 1, holder)
+        holder.send_signal(signal.SIGSTOP)  # frozen, holding the folder: however slow the others start
         other = subprocess.run([sys.executable, "-m", "osmseg", "-q",
                                 *build_args(out, imagery_tif, "--workers", "1", "--seed", "5", samples=40)],
                                capture_output=True, text=True, timeout=120)
         reader = subprocess.run([sys.executable, "-m", "osmseg", "verify", str(out)], capture_output=True, text=True,
                                 timeout=120)
+        # a reader that falls back when a manifest is unusable (training's spatial groups) must not fall
+        # back on a busy one: splits drawn without the groups would leak between train and test
+        (out / "manifest.json").write_text("{}")  # (as a finished earlier build would have left)
+        busy_reads = []
+        try:
+            sample_groups(out, ["a"])
+            busy_reads.append("sample_groups read a busy folder")
+        except DatasetBusy:
+            pass
         assert holder.poll() is None, "the holder ended before the others were refused: they did not refuse at once"
     finally:
+        holder.send_signal(signal.SIGCONT)
         holder.send_signal(signal.SIGINT)
         holder.communicate(timeout=60)
     assert other.returncode == 1 and other.stderr.count("\n") == 1, other.stderr
@@ -135,13 +165,32 @@ def test_while_a_build_holds_its_folder_other_commands_refuse_at_once(tmp_path: 
     assert reader.returncode == 1 and reader.stderr.count("\n") == 1, reader.stderr
     assert reader.stderr.startswith(f"Error: {out} is being built now (pid {holder.pid} on "), reader.stderr
     assert reader.stdout == ""
+    assert not busy_reads, busy_reads
+
+
+def test_a_build_reads_the_folder_it_holds_itself(tmp_path: Path) -> None:
+    """Only other processes' builds make a folder busy: the process holding it may read it."""
+    from osmseg.output.manifest import read_manifest
+    from osmseg.state import BuildState
+
+    (tmp_path / "manifest.json").write_text("{}")
+    state = BuildState(tmp_path)
+    state.claim({"seed": 1}, "osmseg build --seed 1")
+    try:
+        with pytest.raises(DatasetError, match="manifest.json"):  # read (and found invalid), not refused as busy
+            read_manifest(tmp_path)
+    finally:
+        state.release()
 
 
 @pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "kill -9"])
 def test_a_killed_build_with_workers_leaves_nothing_behind_once_rerun(
         tmp_path: Path, imagery_tif: Path, one_worker: dict[str, bytes], stop: signal.Signals) -> None:
     out = tmp_path / "ds"
-    tmpdir = Path(tempfile.mkdtemp(prefix="t", dir="/tmp"))  # short: the fork server's socket is named in it
+    # as long a $TMPDIR as a private folder with the fork server's socket inside still fits (40 characters,
+    # a Slurm job's scratch folder): the run's folder is then made, and swept after a kill -9
+    tmpdir = Path(tempfile.mkdtemp(prefix="osmseg-test-job-scratch-", dir="/tmp"))
+    assert len(str(tmpdir)) >= 37
     proc = popen(*build_args(out, imagery_tif, "--workers", "2"), tmpdir=tmpdir)
     wait_for(lambda: slots_done(out) >= 1, proc)
     workers = descendants(proc.pid)
@@ -183,12 +232,22 @@ def test_a_kill_while_the_dataset_files_are_written_leaves_no_temporary_name_aft
     for folder in ("stac/items", "stac", ".", "geo", ".osmseg-build/slots", ".osmseg-build"):
         (out / folder).mkdir(parents=True, exist_ok=True)
         (out / folder / f".x.json.{gone}.abc123.tmp").write_text("half")
-    (out / ".osmseg-build" / f"entries-{gone}-abc123").mkdir()
-    (out / ".osmseg-build" / f"entries-{gone}-abc123" / "samples.jsonl").write_text("{")
+    for entries in (f"entries-{gone}-abc123", "entries-k3j9x_2q"):  # (the second: osmseg < 0.4 named no owner)
+        (out / ".osmseg-build" / entries).mkdir()
+        (out / ".osmseg-build" / entries / "samples.jsonl").write_text("{")
+    # the output folder may be the user's: files osmseg did not name are theirs, wherever they are
+    users = [out / ".notes.tmp", out / "mine" / ".draft.v2.tmp", out / "mine" / ".x.json.abc.def.tmp"]
+    for path in users:
+        path.parent.mkdir(exist_ok=True)
+        path.write_text("the user's")
 
     result = run_cli(*build_args(out, imagery_tif, "--workers", "1"))
     assert result.exit_code == 0, result.output
-    assert temporary_names(out) == []
+    assert [p for p in temporary_names(out) if not p.startswith(("mine", ".notes"))] == []
+    assert all(path.read_text() == "the user's" for path in users)
+    for path in users:
+        path.unlink()
+    (out / "mine").rmdir()
     assert tree_bytes(out) == one_worker
 
 
@@ -205,18 +264,52 @@ def test_an_output_folder_deleted_while_its_build_runs_is_said_to_be_deleted(tmp
                     "command again to build it anew"), line
 
 
-@pytest.mark.parametrize("delay", [0.3, 0.8, 1.0, 1.2, 2.0])
+@pytest.mark.parametrize("delay", [0.0, 0.3, 0.8, 1.2, 2.0])
 def test_ctrl_c_or_sigterm_at_any_moment_of_the_start_says_one_line(tmp_path: Path, imagery_tif: Path,
                                                                      delay: float) -> None:
-    """From the executable's first imports to the building of samples: always the line and the status."""
+    """From the executable's first act to the building of samples (``delay`` seconds after it handles
+    SIGTERM: the imports, the fork server, the workers' start): always the line and the status."""
     for stop, status, line in ((signal.SIGINT, 130, INTERRUPTED), (signal.SIGTERM, 143, TERMINATED)):
         out = tmp_path / f"ds-{stop.name}"
         proc = subprocess.Popen([sys.executable, "-m", "osmseg",
                                  *build_args(out, imagery_tif, "--workers", "2", samples=200)],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
                                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        caught = 1 << (signal.SIGTERM - 1)  # from the moment the executable handles SIGTERM (its first act)
+        deadline = time.monotonic() + 60
+        while proc.poll() is None and time.monotonic() < deadline:
+            info = Path(f"/proc/{proc.pid}/status").read_text() if Path(f"/proc/{proc.pid}").exists() else ""
+            if int(next((line.split()[1] for line in info.splitlines() if line.startswith("SigCgt:")), "0"), 16) & caught:
+                break
+            time.sleep(0.001)
         time.sleep(delay)
         assert proc.poll() is None, "the build ended before it could be stopped"
         os.killpg(proc.pid, stop) if stop == signal.SIGINT else proc.send_signal(stop)  # as a terminal / kill does
         _, stderr = proc.communicate(timeout=60)
         assert (proc.returncode, stderr.decode()) == (status, line + "\n"), (delay, stop.name)
+
+
+def test_a_run_sweeps_the_temporary_folders_of_ended_runs_only(tmp_path: Path) -> None:
+    """A run's folder in $TMPDIR is its while it holds its lock, however old and whoever's (another
+    container sharing /tmp); once the run has ended, any osmseg command removes it."""
+    tmpdir = Path(tempfile.mkdtemp(prefix="t", dir="/tmp"))
+    live, ended = tmpdir / "osmseg-run-livelive", tmpdir / "osmseg-run-endedabc"
+    for folder in (live, ended):
+        folder.mkdir()
+        (folder / "lock").touch()
+        (folder / "pymp-x").mkdir()
+    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, os, sys, time; "
+                               f"fd = os.open({str(live / 'lock')!r}, os.O_RDWR); fcntl.flock(fd, fcntl.LOCK_SH); "
+                               "print('held', flush=True); time.sleep(60)"], stdout=subprocess.PIPE)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == b"held\n"
+        for folder in (live, ended):
+            os.utime(folder, (time.time() - 86400, time.time() - 86400))  # a day old
+        run = subprocess.run([sys.executable, "-m", "osmseg", "--version"], env=dict(os.environ, TMPDIR=str(tmpdir)),
+                             capture_output=True, text=True, timeout=60)
+        assert run.returncode == 0, run.stderr
+        assert sorted(p.name for p in tmpdir.iterdir()) == [live.name]
+    finally:
+        holder.kill()
+        holder.wait()
+    shutil.rmtree(tmpdir)

@@ -467,6 +467,31 @@ def test_replay_miss_is_one_line_offline_error(tmp_path: Path) -> None:
     assert SECRET not in message
 
 
+@pytest.mark.parametrize("mode", ["live", "record"])
+@pytest.mark.parametrize("location", ["http://[::1/t.png", "http://127.0.0.1:99999/t.png", "http://127.0.0.1:abc/t.png"])
+def test_a_redirect_to_a_url_that_cannot_be_parsed_is_a_failure_of_that_request(
+        tmp_path: Path, location: str, mode: str) -> None:
+    """requests raises a bare ValueError (or InvalidURL) for such a Location: one RetriesExhausted
+    naming the URL asked, never a traceback, with or without --record."""
+    cassette = {"cassette": tmp_path / "c.yaml", "cassette_mode": "record"} if mode == "record" else {}
+    with ScriptedServer() as server:
+        server.script("/t.png", Reply(302, headers={"Location": location}))
+        with client(backoff=0, retries=1, **cassette) as http, pytest.raises(RetriesExhausted) as err:
+            http.get(server.url("/t.png"))
+    assert "redirected to an unusable URL" in one_line(err.value) and "/t.png" in one_line(err.value)
+
+
+def test_a_redirect_to_a_host_that_cannot_be_reached_names_that_host_and_fails_only_the_request() -> None:
+    """The host asked first answered (with the redirect): not 'no connection to' it, which would stop
+    a whole build as if the network were down."""
+    with ScriptedServer() as server:
+        server.script("/t.png", Reply(302, headers={"Location": "http://localhost:1/t.png"}))
+        with client(backoff=0, retries=1) as http, pytest.raises(RetriesExhausted) as err:
+            http.get(server.url("/t.png"))
+    message = one_line(err.value)
+    assert "redirected to localhost: connection failed" in message and "no connection to" not in message, message
+
+
 def test_record_follows_a_redirect_to_the_same_path_on_another_port(tmp_path: Path) -> None:
     """Recordings match without the port (a cassette replays against another test server); a
     recording must still not answer a redirect's target with the redirect itself, forever."""

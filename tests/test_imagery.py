@@ -367,7 +367,7 @@ def test_xyz_file_tiles_land_at_their_offsets(grid):
     template = f"xyz:file://{DATA}/tiles/{{z}}/{{x}}/{{y}}.png"
     provider = make_provider(template, None)
     # tile 4 of the folder is a 512 px tile among 256 px ones: never stretched silently
-    with pytest.raises(ImageryError, match=r"18/\d+/\d+ .* is 512x512 px where this provider's tiles are 256x256 px: "
+    with pytest.raises(ConfigError, match=r"18/\d+/\d+ .* is 512x512 px where this provider's tiles are 256x256 px: "
                                            r"if the provider's tiles are 512 px, declare it with --tile-size 512"):
         provider.fetch(grid)  # default thread pool
     retina = make_provider(template, None, tile_size=512)

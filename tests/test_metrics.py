@@ -18,7 +18,6 @@ from training.metrics import (
     ConfusionMatrix,
     format_table,
     load_class_mapping,
-    metrics_from_matrix,
 )
 
 NAMES = ["unlabeled", "building", "road", "tree", "water"]

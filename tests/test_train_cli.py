@@ -435,3 +435,21 @@ def test_resuming_a_run_with_other_settings_is_refused_and_keeps_it(trained: tup
     assert result.exit_code == 2
     assert "other settings (lr, seed)" in result.output and "use a new --out" in result.output
     assert tree_bytes(run) == before  # nothing lost, nothing added
+
+
+def test_sigterm_to_the_process_group_ends_training_with_one_line(tmp_path: Path) -> None:
+    """What ``timeout``, Slurm and ``kill -- -PGID`` do: the loader workers get the SIGTERM too, and
+    must not die under the training process with torch's traceback about them."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "osmseg", "train", TINYSEG, "--out", out, "--config",
+                             CONFIGS / "tiny.yaml", "--epochs", "200", "--loader-workers", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=subprocess_env(), start_new_session=True)
+    deadline = time.monotonic() + 300
+    while proc.poll() is None and time.monotonic() < deadline and not (out / "log.csv").exists():
+        time.sleep(0.05)
+    time.sleep(0.5)
+    assert proc.poll() is None, proc.communicate()[1].decode()[-800:]
+    os.killpg(proc.pid, signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=120)
+    assert (proc.returncode, stderr.decode()) == (
+        143, "terminated (SIGTERM): rerun the same command to resume; finished work is kept\n")

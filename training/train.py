@@ -13,6 +13,7 @@ on (seed, epoch, index), so a resumed CPU run ends with the same weights as one 
 
 from __future__ import annotations
 
+
 import csv
 import dataclasses
 import hashlib
@@ -20,6 +21,7 @@ import io
 import functools
 import logging
 import math
+import signal
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -87,7 +89,17 @@ def seeded_loader(dataset: PatchDataset, config: TrainConfig, d: Dist, shuffle: 
     else:
         sampler = list(range(d.rank, len(dataset), d.world_size))
     return DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, num_workers=config.loader_workers,
-                      pin_memory=d.device.type == "cuda", persistent_workers=config.loader_workers > 0)
+                      pin_memory=d.device.type == "cuda", persistent_workers=config.loader_workers > 0,
+                      worker_init_fn=_loader_worker_start if config.loader_workers > 0 else None)
+
+
+def _loader_worker_start(worker_id: int) -> None:
+    """A loader worker leaves stopping to the training process: a SIGTERM sent to the whole process
+    group (``timeout``, Slurm, ``kill -- -PGID``) would otherwise kill it mid-batch, and torch
+    would then report the dead worker with a traceback while the training process unwinds and
+    says it was terminated. The training process stops its workers itself; a worker still ends
+    when the training process is gone (torch watches its parent)."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 class RunFiles:

@@ -13,8 +13,11 @@ Every tile is checked before it is used (and, over HTTP, before it is cached):
 
 * **its size**: a tile that is not the provider's declared tile size (256 px, or 512 for
   "@2x"/512-px providers, which are resampled to the 256-px grid) is an
-  :class:`~osmseg.errors.ImageryError`: a 128-px thumbnail or a tile of another pyramid
-  answered in its place would otherwise be stretched into a sample that looks fine;
+  :class:`~osmseg.errors.ImageryError` (fetched again): a 128-px thumbnail or a tile of another
+  pyramid answered in its place would otherwise be stretched into a sample that looks fine. A
+  512-px tile where 256 were declared is a :class:`~osmseg.errors.ConfigError` at once (the
+  declaration is wrong: ``--tile-size``), and an empty answer of any size (a 1x1 transparent or
+  8x8 white "no tile" image) is what it says, as at the declared size;
 * **whether it holds imagery at all**: a tile of one colour (:func:`is_uniform`: the "no
   imagery here" fill of most servers, a blank white or black tile) is a placeholder, counted
   per sample (``uniform_tiles`` in the manifest) and rejected as ``placeholder_imagery`` as
@@ -36,8 +39,9 @@ import mercantile
 import numpy as np
 from PIL import Image
 
-from osmseg.errors import ImageryError
+from osmseg.errors import ConfigError, ImageryError
 from osmseg.grid import TILE_SIZE, SampleGrid
+from osmseg.net.failures import stop_requests
 
 logger = logging.getLogger(__name__)
 
@@ -89,8 +93,9 @@ def decode_tile(data: bytes, what: str, tile_size: int = TILE_SIZE) -> TilePixel
 
     Transparent pixels (alpha below :data:`ALPHA_VALID`, or a palette's transparent index)
     are invalid.  The tile must be ``tile_size`` px square, the provider's declared size
-    (512-px tiles are then resampled to the 256-px grid); a tile of one colour is
-    :data:`UNIFORM_TILE`.  ``what`` names the tile in error messages (``"tile 18/1/2 from ..."``).
+    (512-px tiles are then resampled to the 256-px grid), unless it is empty (wholly transparent,
+    or of one colour); a tile of one colour is :data:`UNIFORM_TILE`.  ``what`` names the tile in
+    error messages (``"tile 18/1/2 from ..."``).
 
     >>> buf = io.BytesIO(); Image.new("RGBA", (256, 256), (10, 20, 30, 0)).save(buf, "PNG")
     >>> px = decode_tile(buf.getvalue(), "tile 1/0/0")
@@ -99,10 +104,18 @@ def decode_tile(data: bytes, what: str, tile_size: int = TILE_SIZE) -> TilePixel
     >>> buf = io.BytesIO(); Image.new("RGB", (256, 256), (255, 255, 255)).save(buf, "PNG")
     >>> decode_tile(buf.getvalue(), "tile 1/0/0").uniform
     True
-    >>> buf = io.BytesIO(); Image.new("RGB", (128, 128)).save(buf, "PNG")
+    >>> noise = lambda n: Image.frombytes("RGB", (n, n), bytes(i * 7 % 256 for i in range(3 * n * n)))
+    >>> buf = io.BytesIO(); noise(128).save(buf, "PNG")
     >>> decode_tile(buf.getvalue(), "tile 1/0/0")
     Traceback (most recent call last):
     osmseg.errors.ImageryError: tile 1/0/0 is 128x128 px where this provider's tiles are 256x256 px: a broken or substituted tile
+    >>> buf = io.BytesIO(); noise(512).save(buf, "PNG")
+    >>> decode_tile(buf.getvalue(), "tile 1/0/0")
+    Traceback (most recent call last):
+    osmseg.errors.ConfigError: tile 1/0/0 is 512x512 px where this provider's tiles are 256x256 px: if the provider's tiles are 512 px, declare it with --tile-size 512
+    >>> buf = io.BytesIO(); Image.new("RGBA", (1, 1)).save(buf, "PNG")  # an empty answer of another size
+    >>> bool(decode_tile(buf.getvalue(), "tile 1/0/0").valid.any())
+    False
     >>> decode_tile(b"<html>Service unavailable</html>", "tile 1/0/0")
     Traceback (most recent call last):
     osmseg.errors.ImageryError: tile 1/0/0 is not a readable image (32 bytes starting b'<html>Serv'): check the URL template / tile file
@@ -124,29 +137,45 @@ def decode_tile(data: bytes, what: str, tile_size: int = TILE_SIZE) -> TilePixel
             f"{what} is not a readable image ({len(data)} bytes starting {data[:10]!r}): "
             "check the URL template / tile file"
         ) from None
-    if image.size != (tile_size, tile_size):
-        width, height = image.size
-        declare = (f": if the provider's tiles are {width} px, declare it with --tile-size {width}"
-                   if width == height and width in TILE_SIZES else ": a broken or substituted tile")
-        raise ImageryError(f"{what} is {width}x{height} px where this provider's tiles are "
-                           f"{tile_size}x{tile_size} px{declare}")
     if image.mode in ("RGBA", "LA", "PA", "La", "RGBa") or "transparency" in image.info:
         rgba = image.convert("RGBA")
     else:
         rgba = image.convert("RGB")
+    if rgba.size != (tile_size, tile_size):
+        return _other_size(rgba, what, tile_size)
     if rgba.size != (TILE_SIZE, TILE_SIZE):
         rgba = rgba.resize((TILE_SIZE, TILE_SIZE), Image.Resampling.LANCZOS)
-    pixels = np.asarray(rgba, dtype=np.uint8)
-    if pixels.shape[2] == 4:
-        valid = pixels[:, :, 3] >= ALPHA_VALID
-        rgb = np.where(valid[:, :, None], pixels[:, :, :3], 0).astype(np.uint8)
-    else:
-        valid = np.ones((TILE_SIZE, TILE_SIZE), dtype=bool)
-        rgb = pixels
+    rgb, valid = _split(np.asarray(rgba, dtype=np.uint8))
     if is_uniform(rgb, valid):
         logger.debug("%s is of one colour: a placeholder, not imagery", what)
         return UNIFORM_TILE
     return TilePixels(rgb=rgb, valid=valid)
+
+
+def _split(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """RGB pixels (black where invalid) and the validity mask of decoded RGB or RGBA pixels."""
+    if pixels.shape[2] == 4:
+        valid = pixels[:, :, 3] >= ALPHA_VALID
+        return np.where(valid[:, :, None], pixels[:, :, :3], 0).astype(np.uint8), valid
+    return pixels, np.ones(pixels.shape[:2], dtype=bool)
+
+
+def _other_size(rgba: Image.Image, what: str, tile_size: int) -> TilePixels:
+    """A tile that is not the declared size: an empty answer (wholly transparent, or of one colour:
+    the 1x1 or 8x8 "no tile" images some servers send) is what it says; a tile of another size
+    osmseg knows (512 px where 256 were declared) means the declaration is wrong, which no retry
+    mends (:class:`ConfigError`); any other size is a broken or substituted tile, fetched again."""
+    rgb, valid = _split(np.asarray(rgba, dtype=np.uint8))
+    if not valid.any():
+        return TilePixels(rgb=np.zeros((TILE_SIZE, TILE_SIZE, 3), np.uint8), valid=np.zeros((TILE_SIZE, TILE_SIZE), bool))
+    if is_uniform(rgb, valid):
+        return UNIFORM_TILE
+    width, height = rgba.size
+    if width == height and width in TILE_SIZES:
+        raise ConfigError(f"{what} is {width}x{height} px where this provider's tiles are {tile_size}x{tile_size} px: "
+                          f"if the provider's tiles are {width} px, declare it with --tile-size {width}")
+    raise ImageryError(f"{what} is {width}x{height} px where this provider's tiles are {tile_size}x{tile_size} px: "
+                       "a broken or substituted tile")
 
 
 def is_uniform(rgb: np.ndarray, valid: np.ndarray) -> bool:
@@ -177,7 +206,9 @@ def fetch_tiles(
 
     On the first error (or Ctrl-C) the tiles not yet started are cancelled and the error is
     re-raised once the running ones have finished, so no thread keeps working behind the
-    caller's back.  The HTTP client's per-host limits still apply on top of ``workers``.
+    caller's back. When the process is stopping (Ctrl-C, SIGTERM), the running ones stop
+    waiting between retries too (:func:`osmseg.net.failures.stop_requests`): a ``Retry-After``
+    of minutes does not hold the command up.  The HTTP client's per-host limits still apply on top of ``workers``.
     """
     if workers <= 1 or len(tiles) <= 1:
         return [fetch_one(tile) for tile in tiles]
@@ -187,7 +218,9 @@ def fetch_tiles(
         futures = [pool.submit(fetch_one, tile) for tile in tiles]
         try:
             return [future.result() for future in futures]
-        except BaseException:
+        except BaseException as exc:
+            if not isinstance(exc, Exception):  # Ctrl-C, SIGTERM: the process is stopping, so are its
+                stop_requests()                # requests' waits (the pool waits for its threads)
             for future in futures:
                 future.cancel()
             raise

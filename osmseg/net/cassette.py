@@ -120,8 +120,11 @@ def match_key(method: str, url: str, body: bytes | str | None,
     """
     parts = urlsplit(url)
     query = tuple(sorted((k, v) for k, v in parse_qsl(parts.query, keep_blank_values=True) if k.lower() not in _SECRETS))
-    return (method.upper(), parts.scheme, parts.hostname or "", parts.path, query, clean_body(body),
-            (parts.port or {"http": 80, "https": 443}.get(parts.scheme)) if port else None)
+    try:
+        number = (parts.port or {"http": 80, "https": 443}.get(parts.scheme)) if port else None
+    except ValueError:  # a port that is not a number, or out of range (a server's broken redirect)
+        raise requests.exceptions.InvalidURL(f"invalid port in {redact(url)}") from None
+    return (method.upper(), parts.scheme, parts.hostname or "", parts.path, query, clean_body(body), number)
 
 
 def recorded_response(adapter: HTTPAdapter, request: requests.PreparedRequest, recorded: dict[str, Any]) -> requests.Response:

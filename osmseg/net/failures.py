@@ -18,8 +18,19 @@ import requests
 from urllib3.exceptions import InvalidHeader
 from urllib3.util import Retry
 
-__all__ = ["BAD_URL_EXCEPTIONS", "NO_CONNECTION", "RETRY_EXCEPTIONS", "HostGate", "describe_failure",
-           "retry_after", "status_hint"]
+__all__ = ["BAD_URL_EXCEPTIONS", "NO_CONNECTION", "RETRY_EXCEPTIONS", "STOPPING", "HostGate", "describe_failure",
+           "retry_after", "status_hint", "stop_requests"]
+
+#: Set once this process is stopping (Ctrl-C, SIGTERM): every wait between attempts and every
+#: ``Retry-After`` pause ends at once, so threads fetching tiles do not keep a stopping command
+#: alive for minutes (a pause may be 300 s).
+STOPPING = threading.Event()
+
+
+def stop_requests() -> None:
+    """End every wait of this process's HTTP clients now, and let no request start again: for a
+    process that is stopping (the build's unwinding of a Ctrl-C or SIGTERM)."""
+    STOPPING.set()
 
 # Exceptions worth another attempt.  SSL errors are ConnectionErrors too but do not heal.
 RETRY_EXCEPTIONS = (
@@ -52,13 +63,13 @@ class HostGate:
             self._not_before = max(self._not_before, time.monotonic() + seconds)
 
     def wait(self) -> None:
-        """Sleep until the host's pause (if any) is over."""
-        while True:
+        """Sleep until the host's pause (if any) is over (or the process is stopping)."""
+        while not STOPPING.is_set():
             with self._lock:
                 delay = self._not_before - time.monotonic()
             if delay <= 0:
                 return
-            time.sleep(delay)
+            STOPPING.wait(delay)
 
 
 def retry_after(response: requests.Response) -> float | None:

@@ -16,7 +16,7 @@ folder every process of the build is given:
 Local folders only: ``flock`` is exact on a local file system; give each machine of a cluster
 its own folder (the builder uses a temporary one per build). POSIX only (``fcntl``); where it
 is missing, :func:`shared_gates_supported` is False and callers keep per-process gates.
-Imports: the standard library only.
+Imports: the standard library and :mod:`osmseg.net.failures` (its stop event).
 """
 
 from __future__ import annotations
@@ -28,6 +28,8 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+from osmseg.net.failures import STOPPING
 
 try:
     import fcntl
@@ -120,9 +122,9 @@ class SharedHostGate:
             return 0.0
 
     def wait(self) -> None:
-        """Sleep until the host's pause (if any) is over."""
-        while True:
+        """Sleep until the host's pause (if any) is over (or the process is stopping)."""
+        while not STOPPING.is_set():
             delay = self._not_before() - time.time()
             if delay <= 0:
                 return
-            time.sleep(min(delay, 1.0))  # a longer pause set meanwhile is seen within a second
+            STOPPING.wait(min(delay, 1.0))  # a longer pause set meanwhile is seen within a second

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable, Collection, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -64,6 +63,7 @@ from osmseg.errors import (
 from osmseg.net.failures import (
     BAD_URL_EXCEPTIONS,
     NO_CONNECTION,
+    STOPPING,
     HostGate,
     describe_failure,
     retry_after,
@@ -351,6 +351,8 @@ class HttpClient:
         problem, last_status = "", None
         for attempt in range(attempts):
             gate.wait()
+            if STOPPING.is_set():
+                raise RetriesExhausted(f"{method} {shown}: stopped (the command is ending)")
             wait = min(cfg.backoff * 2**attempt, cfg.max_retry_after)
             outcome = self._send(method, full_url, shown, gate, data=data, headers=headers)
             if isinstance(outcome, str):
@@ -400,7 +402,8 @@ class HttpClient:
                            "%s %s: %s; retry %d/%d in %.1f s%s",
                            *(method, shown, problem, attempt + 1, cfg.retries, wait,
                              " (further retries of this host: -v)" if first else ""))
-                time.sleep(wait)
+                if STOPPING.wait(wait):  # the process is stopping: no more attempts
+                    raise RetriesExhausted(f"{method} {shown}: stopped (the command is ending)")
         if last_status is not None:
             raise ServiceUnavailable(
                 f"{method} {shown} failed with HTTP {last_status} after {attempts} attempts: "
@@ -442,8 +445,26 @@ class HttpClient:
             # everything else requests can raise (a redirect loop or a redirect to an unusable URL, a broken
             # header, a TLS failure as well as dropped connections) is this request's failure, never the
             # build's: another attempt, then RetriesExhausted for the caller (a build fails that sample's
-            # attempt and goes on; a host that never answered stops the build at once, below)
-            return describe_failure(exc, timeout)
+            # attempt and goes on; a host that never answered stops the build at once, in _request)
+            return self._redirected_from(url, getattr(exc, "request", None)) + describe_failure(exc, timeout)
+        except ValueError as exc:
+            if isinstance(exc, OsmsegError):
+                raise
+            # the URL asked was checked before it was sent (_full_url): requests' ValueError for a
+            # Location it cannot even parse ("Invalid IPv6 URL", a port that is not a number)
+            self._answered.add(urlsplit(url).hostname or "")
+            return "redirected to an unusable URL"
+
+    def _redirected_from(self, url: str, hop: Any) -> str:
+        """When the request that failed was a redirect's (to another host), the host asked first
+        did answer (with the redirect): it counts as answered, and the phrase names the other host."""
+        hop_url = getattr(hop, "url", None)
+        hop_host = urlsplit(hop_url).hostname if isinstance(hop_url, str) else None
+        host = urlsplit(url).hostname or ""
+        if not hop_host or hop_host == host:
+            return ""
+        self._answered.add(host)
+        return f"redirected to {hop_host}: "
 
     def _accept(
         self, method: str, shown: str, response: requests.Response, ok_statuses: Collection[int]

@@ -13,6 +13,7 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
+import re
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -65,19 +66,22 @@ def temp_path_for(path: Path) -> Path:
     return Path(tmp)
 
 
-def sweep_temp_files(folder: Path) -> int:
+def sweep_temp_files(folder: Path, named_only: bool = False) -> int:
     """Remove the ``.NAME.*.tmp`` files in ``folder`` that no live writer will finish; how many.
 
     A file of this machine goes when its writing process is gone (a build killed mid-write); one
-    named by another machine only once unchanged for :data:`FOREIGN_TEMP_SECONDS`, and one of the
-    older unnamed kind always (:func:`osmseg.processes.owner_gone`). Files being written by a live
-    process (a worker of this build, another shard started at the same time on the same folder)
-    are left alone.
+    named by another machine only once unchanged for :data:`FOREIGN_TEMP_SECONDS`
+    (:func:`osmseg.processes.owner_gone`). Files being written by a live process (a worker of
+    this build, another shard started at the same time on the same folder) are left alone. A
+    name without an owner (osmseg's older form) goes too, unless ``named_only``: a folder that is
+    not osmseg's alone (the output folder itself, which may be the user's) keeps every file that
+    osmseg did not name.
     """
     removed = 0
     for tmp in Path(folder).glob(".*.tmp"):
         parts = tmp.name[1:-len(".tmp")].rsplit(".", 2)
-        if owner_gone(parts[1] if len(parts) == 3 else "", tmp):
+        named = len(parts) == 3 and re.fullmatch(r"[A-Za-z0-9_]+-\d+", parts[1]) is not None
+        if (named or not named_only) and owner_gone(parts[1] if named else "", tmp):
             tmp.unlink(missing_ok=True)
             removed += 1
     return removed

@@ -22,7 +22,7 @@ from typing import Any
 
 import mercantile
 
-from osmseg.errors import DatasetError
+from osmseg.errors import DatasetBusy, DatasetError
 from osmseg.folderlock import STATE_DIR, FolderLock
 from osmseg.rejection import REASONS, Rejection
 from osmseg.grid import SampleGrid
@@ -247,8 +247,8 @@ def read_manifest(path: Path) -> dict[str, Any]:
     file = manifest_path(path)
     busy = FolderLock.busy(file.parent / STATE_DIR)
     if busy is not None:
-        raise DatasetError(f"{file.parent} is being built now ({busy.describe_holders()}): use it when the build has "
-                           "ended")
+        raise DatasetBusy(f"{file.parent} is being built now ({busy.describe_holders()}): use it when the build has "
+                          "ended")
     try:
         manifest = json.loads(file.read_text(encoding="utf-8"))
     except FileNotFoundError:
