@@ -114,15 +114,11 @@ class FolderLock:
         assert fcntl is not None
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                return True
-            except OSError as exc:
-                if exc.errno in NO_LOCKS:
-                    return False
-                raise
-            return False
+            return _taken(fd)
+        except OSError as exc:
+            if exc.errno in NO_LOCKS:
+                return False
+            raise
         finally:
             os.close(fd)
 
@@ -210,9 +206,8 @@ class FolderLock:
             if fd is None:
                 return None
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                return cls(root)
+                if _taken(fd):
+                    return cls(root)
             finally:
                 os.close(fd)
         except OSError as exc:
@@ -224,16 +219,25 @@ class FolderLock:
         return None
 
 
+def _taken(fd: int) -> bool:
+    """Whether another open file holds a lock on the file of ``fd`` (tried with an exclusive lock
+    that is not waited for; the caller's closing of ``fd`` drops it when it was had)."""
+    assert fcntl is not None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    return False
+
+
 def _open_existing(path: Path) -> int | None:
     """``path`` opened for reading and writing, else for reading (a read-only dataset); None when
     it does not exist or cannot be opened."""
     for flags in (os.O_RDWR, os.O_RDONLY):
         try:
             return os.open(path, flags)
-        except (PermissionError, OSError) as exc:
-            if isinstance(exc, FileNotFoundError):
-                return None
-            if exc.errno not in (errno.EACCES, errno.EROFS, errno.EPERM):
+        except OSError as exc:
+            if exc.errno not in (errno.EACCES, errno.EROFS, errno.EPERM):  # missing, or unusable
                 return None
     return None
 
