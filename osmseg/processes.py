@@ -36,7 +36,10 @@ import signal
 import socket
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
 
@@ -45,7 +48,7 @@ try:
 except ImportError:  # Windows: no private folder (nothing can tell a live run's from a dead one's)
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["FOREIGN_SECONDS", "INTERRUPTED", "PRELOAD", "TERMINATED", "Terminated", "available_cores", "owner", "owner_gone", "start_fork_server",
+__all__ = ["FOREIGN_SECONDS", "INTERRUPTED", "PRELOAD", "TERMINATED", "Terminated", "available_cores", "deferred_termination", "owner", "owner_gone", "start_fork_server",
            "sweep_owned", "terminate_by_exception", "use_private_temp_dir", "worker_context"]
 
 #: A temporary thing left by a process on another machine (a shard of a cluster build on a shared
@@ -282,9 +285,40 @@ class Terminated(BaseException):
     for a Ctrl-C, so temporary files are removed and workers stopped, and says so."""
 
 
+#: main thread's depth of :func:`deferred_termination` blocks, and whether a SIGTERM waits for their end
+_deferral = {"depth": 0, "pending": False}
+
+
 def _on_sigterm(signum: int, frame: FrameType | None) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # once: a second kill ends the process at once, as asked
+    if _deferral["depth"]:
+        _deferral["pending"] = True
+        return
     raise Terminated()
+
+
+@contextmanager
+def deferred_termination() -> Iterator[None]:
+    """Hold a ``SIGTERM`` (as :func:`terminate_by_exception` turns it) until the block ends.
+
+    For the few steps that must not be cut in two by :class:`Terminated`: creating a temporary
+    file and remembering its name, so the unwinding removes it. Elsewhere than the main thread
+    the block changes nothing (the handler only ever runs there).
+
+    >>> with deferred_termination():
+    ...     pass
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _deferral["depth"] += 1
+    try:
+        yield
+    finally:
+        _deferral["depth"] -= 1
+    if not _deferral["depth"] and _deferral["pending"]:
+        _deferral["pending"] = False
+        raise Terminated()
 
 
 def terminate_by_exception() -> None:

@@ -449,3 +449,28 @@ def test_sweeping_temp_files_spares_live_writers_and_removes_what_killed_ones_le
     os.utime(other_old, (old, old))
     assert sweep_temp_files(tmp_path) == 3
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, other_new.name])
+
+
+def test_a_sigterm_just_after_a_temporary_file_is_created_still_removes_it(tmp_path: Path, monkeypatch) -> None:
+    """The window CI once hit: ``kill`` between mkstemp and the writer knowing the name left a .tmp."""
+    import signal
+
+    from osmseg.output import atomic
+    from osmseg.processes import Terminated, terminate_by_exception
+
+    create = atomic.temp_path_for
+
+    def killed_on_creation(path: Path) -> Path:
+        tmp = create(path)
+        os.kill(os.getpid(), signal.SIGTERM)  # its handler runs before this function returns
+        return tmp
+
+    monkeypatch.setattr(atomic, "temp_path_for", killed_on_creation)
+    before = signal.getsignal(signal.SIGTERM)
+    terminate_by_exception()
+    try:
+        with pytest.raises(Terminated), atomic.atomic_path(tmp_path / "DATASHEET.md") as tmp:
+            tmp.write_text("never reached")
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -36,7 +36,7 @@ from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError
 from osmseg.grid import ground_pixel_size, resolution_mismatch
-from osmseg.output.atomic import temp_path_for
+from osmseg.output.atomic import atomic_path
 from osmseg.output.geotiff import cog_file, write_class_metadata
 from osmseg.output.style import qml_style, style_path
 from osmseg.progress import Progress
@@ -59,18 +59,6 @@ if TYPE_CHECKING:
     from training.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
-
-
-@contextmanager
-def _atomic(dst: Path) -> Iterator[Path]:
-    """A hidden temporary path beside ``dst`` that replaces it (mode 0644) only on success."""
-    tmp = temp_path_for(dst)
-    try:
-        yield tmp
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, dst)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 @contextmanager
@@ -254,7 +242,7 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
     lut = spec.palette()
     if out_kind == "png":
         classes = predict_image(model, spec, src, options, resolution_m, progress)
-        with _atomic(dst) as tmp:
+        with atomic_path(dst) as tmp:
             Image.fromarray(classes).save(tmp, format="PNG")
     else:
         with _open_source(src) as (source, georef):
@@ -263,7 +251,7 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
                 profile = {"driver": "GTiff", "height": work.height, "width": work.width, "count": 1,
                            "dtype": "uint8", "compress": "deflate", "tiled": True, "blockxsize": 256,
                            "blockysize": 256, **work_georef}
-                with _atomic(dst) as tmp, _staging(tmp) as stage:
+                with atomic_path(dst) as tmp, _staging(tmp) as stage:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore", NotGeoreferencedWarning)
                         with rasterio.open(stage, "w", **profile) as out:
@@ -273,7 +261,7 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
                             _regrid(stage, dict(profile, height=source.height, width=source.width, **georef),
                                     spec, block_size)
                         cog_file(stage, tmp, classes=True)
-        with _atomic(Path(style_path(str(dst)))) as tmp:  # QGIS's legend then names the classes
+        with atomic_path(Path(style_path(str(dst)))) as tmp:  # QGIS's legend then names the classes
             tmp.write_bytes(qml_style(spec.table))
     if colour is not None:
         _write_colour(dst, colour, lut, block_size)
@@ -354,12 +342,12 @@ def _write_colour(mask: Path, colour: Path, lut: np.ndarray, block_size: int | N
         else:
             with rasterio.open(mask) as ds:
                 ids = ds.read(1)
-        with _atomic(colour) as tmp:
+        with atomic_path(colour) as tmp:
             Image.fromarray(lut[ids]).save(tmp, format="PNG")
         return
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(mask) as ds, _atomic(colour) as tmp, _staging(tmp) as stage:
+        with rasterio.open(mask) as ds, atomic_path(colour) as tmp, _staging(tmp) as stage:
             profile = {"driver": "GTiff", "height": ds.height, "width": ds.width, "count": 3, "dtype": "uint8",
                        "crs": ds.crs, "transform": ds.transform, "tiled": True, "blockxsize": 256,
                        "blockysize": 256, "photometric": "RGB", "compress": "deflate"}

@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from osmseg.processes import FOREIGN_SECONDS, owner, owner_gone
+from osmseg.processes import FOREIGN_SECONDS, deferred_termination, owner, owner_gone
 
 
 def sha256_bytes(data: bytes) -> str:
@@ -104,13 +104,16 @@ def atomic_path(path: Path) -> Iterator[Path]:
     ('done', ['a.txt'])
     """
     path = Path(path)
-    tmp = temp_path_for(path)
+    tmp: Path | None = None
     try:
+        with deferred_termination():  # a SIGTERM between creating the file and naming it here would leave it
+            tmp = temp_path_for(path)
         yield tmp
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
         raise
 
 
