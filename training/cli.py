@@ -55,8 +55,19 @@ def _default(name: str) -> object:
 @click.option("--init", default=_default("init"),
               help="Encoder start: random (as the dissertation) | imagenet (downloads) | PATH.pth")
 @click.option("--epochs", type=int, default=_default("epochs"))
-@click.option("--batch-size", type=int, default=_default("batch_size"))
-@click.option("--lr", type=float, default=_default("lr"), help="Initial learning rate (poly decay).")
+@click.option("--recipe", type=click.Choice(["osmseg", "paper"]), default=_default("recipe"),
+              help="How the network learns: osmseg (AdamW, warm-up + cosine, random crops, no class weights; for "
+                   "small data and CPUs) | paper (the dissertation's SegNet recipe: SGD lr 0.1 poly, median-frequency "
+                   "weights, fixed 360x480 patches). docs/training.md compares them.")
+@click.option("--batch-size", type=int, show_default="the recipe's (osmseg 16, paper 4)")
+@click.option("--lr", type=float, show_default="the recipe's (osmseg 0.01, paper 0.1)",
+              help="Peak learning rate (after the warm-up; the schedule decays it).")
+@click.option("--class-weights", type=click.Choice(["none", "median-frequency", "sqrt-median-frequency"]),
+              show_default="the recipe's (osmseg none, paper median-frequency)")
+@click.option("--crop", type=click.IntRange(min=32), show_default="the recipe's (128)",
+              help="Side of the random training crops (recipe osmseg).")
+@click.option("--steps-per-epoch", type=click.IntRange(min=1), show_default="cover the training pixels once, >= 50",
+              help="Batches of random crops per epoch (recipe osmseg).")
 @click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=not _default("ignore_unlabeled"),
               help="Train 'unlabeled' as a class instead of ignoring it.")
 @click.option("--split-by", type=click.Choice(["groups", "image"]), default=_default("split_by"),

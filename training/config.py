@@ -1,22 +1,23 @@
 """Training configuration: one dataclass, read from YAML/TOML, overridden from the command line.
 
-Defaults follow the SegNet recipe (Badrinarayanan et al. 2017): SGD with momentum 0.9,
-weight decay 5e-4 and median-frequency class weights. Learning rate and schedule are ours:
+*How* the network learns is a named :class:`~training.recipe.Recipe` (``recipe``: ``osmseg``,
+the default, or ``paper``, the dissertation's SegNet recipe); every setting of it (``lr``,
+``batch_size``, ``class_weights`` ...) may be overridden one by one, and a setting left at None
+is the recipe's. The rest (data, model, width, epochs, device) is the run's own.
+:attr:`TrainConfig.settings` is the resolved recipe, which the trainer uses and every
+checkpoint records.
 
-* ``lr = 0.1`` — SegNet's own rate — with a polynomial ("poly", power 0.9) decay to zero over
-  the run, as torchvision's segmentation references use. Measured on the real Kampala dataset
-  (16 samples, width 0.125, CPU, ``--keep-unlabeled``): at 0.01 the loss sat at ln 2 (a constant
-  predictor) for 19 epochs and at 0.05 for the first epochs, while 0.1 started learning by epoch
-  7 (val mIoU 0.27 -> 0.52 by epoch 9); on tests/data/tinyseg 0.01 leaves the loss at ~1.5 after
-  6 epochs. From random initialisation (the dissertation trains "a completely new network") the
-  large early steps are what get the network out of the constant solution; the poly tail then
-  gives the small steps that sharpen boundaries.
-* ``batch_size = 4`` patches of 360x480 (SegNet trained CamVid at batch 12 on a 12 GB GPU; 4
-  fits a common 8 GB card at width 1.0 with AMP).
+The ``paper`` recipe's learning rate, measured before osmseg 0.5 (real Kampala dataset, 16
+samples, width 0.125, CPU, ``--keep-unlabeled``): at 0.01 SGD sat at ln 2 (a constant
+predictor) for 19 epochs, at 0.1 it started learning by epoch 7; the ``osmseg`` recipe's
+choices are measured in ``docs/training.md``.
 
 >>> c = TrainConfig(dataset=Path("d"), out_dir=Path("o"))
->>> c.lr, c.momentum, c.weight_decay, c.schedule
-(0.1, 0.9, 0.0005, 'poly')
+>>> c.recipe, c.settings.optimizer, c.settings.lr, c.settings.schedule
+('osmseg', 'adamw', 0.01, 'cosine')
+>>> p = TrainConfig(dataset=Path("d"), out_dir=Path("o"), recipe="paper", lr=0.05)
+>>> p.settings.optimizer, p.settings.lr, p.settings.batch_size, p.to_dict()["lr"]
+('sgd', 0.05, 4, 0.05)
 >>> merged = with_overrides(c, {"epochs": 3, "width": None})
 >>> merged.epochs, merged.width
 (3, 1.0)
@@ -32,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from osmseg.errors import ConfigError
+from training.recipe import RECIPE_FIELDS, Recipe, recipe_named
 
 logger = logging.getLogger(__name__)
 
@@ -50,16 +52,22 @@ class TrainConfig:
     width: float = 1.0  # channel multiplier; 1.0 is the paper's network
     init: str = "random"  # random | imagenet | PATH to a vgg16_bn .pth
     ignore_unlabeled: bool = True  # unlabeled (0) ignored in loss and metrics
-    patch_height: int = 360
+    patch_height: int = 360  # the grid patches of sampling "grid", and the window predict and eval use
     patch_width: int = 480
     epochs: int = 100
-    batch_size: int = 4
-    lr: float = 0.1
-    momentum: float = 0.9
-    weight_decay: float = 5e-4
-    schedule: str = "poly"  # poly | constant
-    poly_power: float = 0.9
-    class_weights: str = "median-frequency"  # median-frequency | none
+    recipe: str = "osmseg"  # osmseg | paper: see training/recipe.py; the settings below override it one by one
+    optimizer: str | None = None  # adamw | sgd
+    batch_size: int | None = None
+    lr: float | None = None
+    momentum: float | None = None  # SGD only
+    weight_decay: float | None = None
+    schedule: str | None = None  # cosine | poly | constant
+    warmup: float | None = None  # fraction of the steps with a linear warm-up
+    poly_power: float | None = None
+    class_weights: str | None = None  # none | median-frequency | sqrt-median-frequency
+    sampling: str | None = None  # random (crops anywhere) | grid (the fixed patches)
+    crop: int | None = None  # side of a random crop
+    steps_per_epoch: int | None = None  # random sampling: batches per epoch (None: cover the pixels once, >= 50)
     augment: bool = True
     test_fraction: float = 1 / 3
     val_fraction: float = 0.15
@@ -79,13 +87,11 @@ class TrainConfig:
         elif preset.startswith("airsegnet"):
             raise ConfigError(f"--model {self.model}: not a preset; use {' or '.join(PRESET_NAMES)} (or a name of "
                               "your own, not starting with airsegnet, to train on the dataset's class table)")
+        object.__setattr__(self, "recipe", self.recipe.strip().lower())
+        self.settings  # noqa: B018 - the recipe and its overrides are checked here, not at the first step
         checks = [
             (self.epochs >= 1, "epochs must be >= 1"),
-            (self.batch_size >= 1, "batch_size must be >= 1"),
-            (self.lr > 0, "lr must be > 0"),
             (0 < self.width <= 4, "width must be in (0, 4]"),
-            (self.schedule in ("poly", "constant"), "schedule must be poly or constant"),
-            (self.class_weights in ("median-frequency", "none"), "class_weights must be median-frequency or none"),
             (0 < self.test_fraction < 1 and 0 <= self.val_fraction < 1, "test/val fractions must be in (0, 1)"),
             (self.patch_height >= 32 and self.patch_width >= 32, "patches must be at least 32x32"),
             (self.split_by in ("groups", "image"), "split_by must be groups or image"),
@@ -98,9 +104,16 @@ class TrainConfig:
     def patch_size(self) -> tuple[int, int]:
         return (self.patch_height, self.patch_width)
 
+    @property
+    def settings(self) -> Recipe:
+        """The recipe this run learns by: ``recipe`` with the settings given here."""
+        return recipe_named(self.recipe, **{k: getattr(self, k) for k in RECIPE_FIELDS})
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able form (paths as strings) for checkpoints and logs."""
-        return {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(self).items()}
+        """JSON-able form (paths as strings) for checkpoints and logs; the recipe's settings resolved."""
+        resolved = self.settings.to_dict()
+        return {k: (str(v) if isinstance(v, Path) else resolved[k] if k in RECIPE_FIELDS else v)
+                for k, v in asdict(self).items()}
 
 
 FIELDS = {f.name: f for f in fields(TrainConfig)}

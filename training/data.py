@@ -46,7 +46,7 @@ from osmseg.grid import ground_pixel_size
 from osmseg.images import image_size, is_tiff, read_label, read_rgb
 from osmseg.output.manifest import manifest_path, read_manifest
 from osmseg.errors import DatasetError
-from training.augment import OVERHEAD, AugmentConfig, draw, item_rng, jitter, orient
+from training.augment import OVERHEAD, AugmentConfig, Draw, draw, item_rng, jitter, orient
 
 logger = logging.getLogger(__name__)
 
@@ -398,7 +398,11 @@ class PatchDataset(Dataset):
         if self.augment is not None:
             d = draw(self.augment, item_rng(self.seed, self.epoch, index), square=image.shape[0] == image.shape[1])
             image, label = orient(image, d), orient(label, d)
-        window = (slice(top, top + height), slice(left, left + width))
+        return self.tensors(image, label, (slice(top, top + height), slice(left, left + width)), d)
+
+    def tensors(self, image: np.ndarray, label: np.ndarray, window: tuple[slice, slice],
+                d: Draw | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The training pair of ``window`` of an (oriented) image: jittered by ``d``, normalised."""
         x = torch.from_numpy(image[window].copy()).permute(2, 0, 1).to(torch.float32).div_(255.0)
         if d is not None:
             x = jitter(x, d)

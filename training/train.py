@@ -52,6 +52,8 @@ from training.data import (
 )
 from training.distributed import Dist, barrier, cleanup, setup
 from training.engine import StepOptions, evaluate, train_one_epoch
+from training.recipe import RECIPES, Recipe, lr_factor, steps_per_epoch
+from training.sampling import RandomCrops, crop_sampler
 from training.model import PRESETS, build_model, load_encoder_weights, model_spec
 from training.spec import ModelSpec
 from training.splits import make_splits, read_splits, sample_groups, write_splits
@@ -70,25 +72,45 @@ def dataset_fingerprint(root: Path) -> str | None:
 
 
 def poly_lambda(total_steps: int, power: float):  # noqa: ANN201 - a closure for LambdaLR
-    """Learning-rate factor ``(1 - step / total) ** power``, never below 0."""
-    return lambda step: max(0.0, 1.0 - step / max(1, total_steps)) ** power
+    """Learning-rate factor ``(1 - step / total) ** power``, never below 0 (no warm-up)."""
+    return lambda step: lr_factor(step, total_steps, 0, "poly", power)
+
+
+def make_optimizer(model: nn.Module, recipe: Recipe) -> torch.optim.Optimizer:
+    """The recipe's optimiser over ``model``'s parameters."""
+    if recipe.optimizer == "adamw":
+        return torch.optim.AdamW(model.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
+    return torch.optim.SGD(model.parameters(), lr=recipe.lr, momentum=recipe.momentum, weight_decay=recipe.weight_decay)
+
+
+def make_scheduler(optimizer: torch.optim.Optimizer, recipe: Recipe,
+                   total_steps: int) -> torch.optim.lr_scheduler.LambdaLR:
+    """Per-step rate: the recipe's warm-up (a fraction of ``total_steps``), then its schedule."""
+    warmup = round(recipe.warmup * total_steps)
+    return torch.optim.lr_scheduler.LambdaLR(
+        optimizer, functools.partial(lr_factor, total=total_steps, warmup=warmup, schedule=recipe.schedule,
+                                     power=recipe.poly_power))
 
 
 def seeded_loader(dataset: PatchDataset, config: TrainConfig, d: Dist, shuffle: bool) -> DataLoader:
     """A loader whose order depends only on (seed, epoch) and the number of processes.
 
-    The training loader shuffles with a DistributedSampler (which pads the last round with
-    repeated items so that every process takes the same number of steps). The validation
-    loader (``shuffle=False``) gives each process every ``world_size``-th item and pads
-    nothing, so the metrics summed over processes count every pixel exactly once.
+    Random crops (:class:`~training.sampling.RandomCrops`) are taken in order, each process
+    its own block: the draws are random already, and neighbours share an image. A grid of
+    patches is shuffled with a DistributedSampler (which pads the last round with repeated
+    items so that every process takes the same number of steps). The validation loader
+    (``shuffle=False``) gives each process every ``world_size``-th item and pads nothing, so
+    the metrics summed over processes count every pixel exactly once.
     """
     sampler: Any
-    if shuffle:
+    if isinstance(dataset, RandomCrops):
+        sampler = crop_sampler(len(dataset) // d.world_size, d.rank, d.world_size)
+    elif shuffle:
         sampler = DistributedSampler(dataset, num_replicas=d.world_size, rank=d.rank, shuffle=True,
                                      seed=config.seed, drop_last=False)
     else:
         sampler = list(range(d.rank, len(dataset), d.world_size))
-    return DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, num_workers=config.loader_workers,
+    return DataLoader(dataset, batch_size=config.settings.batch_size, sampler=sampler, num_workers=config.loader_workers,
                       pin_memory=d.device.type == "cuda", persistent_workers=config.loader_workers > 0,
                       worker_init_fn=_loader_worker_start if config.loader_workers > 0 else None)
 
@@ -190,13 +212,17 @@ def check_resumable(saved: dict[str, Any], config: TrainConfig) -> None:
     """Refuse to resume a run made with other settings (other than RESUMABLE_CHANGES)."""
     now = config.to_dict()
     then = saved.get("config", {})
-    # a setting added after the run began was, for that run, its default
+    # a setting added after the run began was, for that run, its default; runs from before
+    # recipes (osmseg < 0.5) learnt by the paper's
     defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig) if f.default is not dataclasses.MISSING}
+    if "recipe" not in then:
+        defaults.update(recipe="paper", **RECIPES["paper"].to_dict())
     changed = sorted(k for k in now if k not in RESUMABLE_CHANGES and then.get(k, defaults.get(k)) != now[k])
     if saved.get("dataset_sha256") != dataset_fingerprint(config.dataset):
         changed.append("the dataset's manifest.json")
     if changed:
-        raise ConfigError(f"{config.out_dir} holds a run with other settings ({', '.join(changed)}); "
+        hint = f" (it learnt by --recipe {then.get('recipe', 'paper')})" if "recipe" in changed else ""
+        raise ConfigError(f"{config.out_dir} holds a run with other settings ({', '.join(changed)}){hint}; "
                           "use a new --out, or the same settings to resume it")
 
 
@@ -262,14 +288,23 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
     val_files = files_by_name(files, splits["val"])
     patches = functools.partial(PatchDataset, mean=spec.mean, std=spec.std, ignore_index=spec.ignore_index,
                                 seed=config.seed, num_classes=dataset_table.num_classes, label_lut=label_lut)
-    train_set = patches(train_files, config.patch_size, augment=config.augment)
+    recipe = config.settings
+    index = {f.name: i for i, f in enumerate(files)}
+    train_pixels = int(histograms[[index[f.name] for f in train_files]].sum())
+    train_set: PatchDataset
+    if recipe.sampling == "random":
+        per_process = steps_per_epoch(recipe, train_pixels, d.world_size) * recipe.batch_size
+        train_set = RandomCrops(train_files, recipe.crop, per_process * d.world_size, mean=spec.mean, std=spec.std,
+                                ignore_index=spec.ignore_index, seed=config.seed, augment=config.augment,
+                                num_classes=dataset_table.num_classes, label_lut=label_lut)
+    else:
+        train_set = patches(train_files, config.patch_size, augment=config.augment)
     val_set = patches(val_files, config.patch_size, augment=False)
     if len(train_set) == 0:
         raise DatasetError(f"{config.dataset}: no training patches of {config.patch_size}; are the images smaller?")
 
     weights = None
-    if config.class_weights == "median-frequency":
-        index = {f.name: i for i, f in enumerate(files)}
+    if recipe.class_weights != "none":
         hist = histograms[[index[f.name] for f in train_files]]
         if label_lut is not None:  # dataset ids -> model ids before counting
             mapped = np.zeros((hist.shape[0], spec.num_classes), dtype=hist.dtype)
@@ -277,6 +312,8 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
                 mapped[:, label_lut[raw]] += hist[:, raw]
             hist = mapped
         weights = weights_from_histograms(hist, spec.ignore_index)
+        if recipe.class_weights == "sqrt-median-frequency":  # the same order, a square root of the spread
+            weights = weights.sqrt()
     model = build_model(spec)
     if config.init != "random":
         load_encoder_weights(model, config.init)
@@ -292,13 +329,11 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
         net = DistributedDataParallel(model, device_ids=[d.device.index] if d.device.type == "cuda" else None)
     criterion = nn.CrossEntropyLoss(weight=None if weights is None else weights.to(d.device),
                                     ignore_index=-100 if spec.ignore_index is None else spec.ignore_index)
-    optimizer = torch.optim.SGD(model.parameters(), lr=config.lr, momentum=config.momentum,
-                                weight_decay=config.weight_decay)
+    optimizer = make_optimizer(model, recipe)
     train_loader = seeded_loader(train_set, config, d, shuffle=True)
     val_loader = seeded_loader(val_set, config, d, shuffle=False)
     steps = len(train_loader) if config.max_steps_per_epoch is None else min(len(train_loader), config.max_steps_per_epoch)
-    factor = poly_lambda(config.epochs * steps, config.poly_power) if config.schedule == "poly" else (lambda _: 1.0)
-    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+    scheduler = make_scheduler(optimizer, recipe, config.epochs * steps)
     scaler = torch.amp.GradScaler(d.device.type, enabled=opts.amp)
 
     files_out = RunFiles(config.out_dir, d, config.tensorboard)
@@ -325,7 +360,8 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
     for epoch in range(start, config.epochs):
         began = time.monotonic()
         train_set.set_epoch(epoch)
-        train_loader.sampler.set_epoch(epoch)  # type: ignore[attr-defined]
+        if isinstance(train_loader.sampler, DistributedSampler):
+            train_loader.sampler.set_epoch(epoch)
         lr = optimizer.param_groups[0]["lr"]
         train_loss = train_one_epoch(net, criterion, optimizer, scheduler, scaler, train_loader, opts, epoch + 1,
                                      progress=shown)
