@@ -58,7 +58,8 @@ def _default(name: str) -> object:
 @click.option("--batch-size", type=int, default=_default("batch_size"))
 @click.option("--lr", type=float, default=_default("lr"), help="Initial learning rate (poly decay).")
 @click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=not _default("ignore_unlabeled"),
-              help="Train 'unlabeled' as a class instead of ignoring it.")
+              help="Train 'unlabeled' as a class instead of ignoring it (labels of one other class only always "
+                   "do: it is their background).")
 @click.option("--split-by", type=click.Choice(["groups", "image"]), default=_default("split_by"),
               help="groups: samples that overlap on the ground stay in one split; image: each image alone.")
 @click.option("--seed", type=int, default=_default("seed"))
