@@ -53,7 +53,9 @@ def _default(name: str) -> object:
 @click.option("--width", type=float, default=_default("width"),
               help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU.")
 @click.option("--init", default=_default("init"),
-              help="Encoder start: random (as the dissertation) | imagenet (downloads) | PATH.pth")
+              help="First weights: random (as the dissertation) | imagenet (downloads) or a vgg16_bn PATH.pth "
+                   "(the encoder, width 1.0) | an osmseg run's best.pt/last.pt (fine-tuning at its width: the whole "
+                   "network, or all but the classifier when the classes differ).")
 @click.option("--epochs", type=int, default=_default("epochs"))
 @click.option("--batch-size", type=int, default=_default("batch_size"))
 @click.option("--lr", type=float, default=_default("lr"), help="Initial learning rate (poly decay).")

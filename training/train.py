@@ -39,7 +39,7 @@ from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.progress import Progress, report
-from training.checkpoint import load_checkpoint, save_checkpoint
+from training.checkpoint import load_checkpoint, read_init, save_checkpoint
 from training.config import TrainConfig
 from training.data import (
     PatchDataset,
@@ -53,7 +53,7 @@ from training.data import (
 )
 from training.distributed import Dist, barrier, cleanup, setup
 from training.engine import StepOptions, evaluate, train_one_epoch
-from training.model import PRESETS, build_model, load_encoder_weights, model_spec, unlabeled_as_background
+from training.model import PRESETS, build_model, model_spec, unlabeled_as_background
 from training.spec import ModelSpec
 from training.splits import choose_splits, class_pixels, read_splits, sample_groups, split_warning, write_splits
 
@@ -286,6 +286,7 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
     saved = load_checkpoint(last_path, map_location=d.device) if last_path.exists() else None
     if saved is not None:
         check_resumable(saved, config)  # before anything is written into someone else's run
+    init = read_init(config.init, spec) if saved is None else None  # a bad --init: refused before any output
     if d.is_main:  # only now: bad input above leaves no output folder behind
         config.out_dir.mkdir(parents=True, exist_ok=True)
         for litter in config.out_dir.glob(".*.tmp"):  # a checkpoint save cut short by a kill
@@ -313,8 +314,8 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
             hist = mapped
         weights = weights_from_histograms(hist, spec.ignore_index)
     model = build_model(spec)
-    if config.init != "random":
-        load_encoder_weights(model, config.init)
+    if init is not None:
+        init.apply(model)
     opts = StepOptions(device=d.device, amp=config.amp and d.device.type == "cuda",
                        channels_last=config.channels_last and d.device.type == "cuda",
                        max_steps=config.max_steps_per_epoch)
@@ -355,6 +356,7 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
         "spec": asdict(spec), "config": config.to_dict(), "splits": splits,
         "class_weights": None if weights is None else weights.cpu(),
         "dataset_sha256": dataset_fingerprint(config.dataset),
+        "init": saved.get("init") if saved is not None else (init.record if init is not None else None),
     }
     report(shown, "train", start, config.epochs, "epoch")
     for epoch in range(start, config.epochs):
