@@ -259,7 +259,7 @@ def read_init(source: str, spec: ModelSpec) -> InitWeights | None:
             raise ConfigError(f"--init {source}: VGG16-BN encoder weights need width 1.0, got width {spec.width:g}; "
                               "train from random init (--init random), use --width 1.0, or give a checkpoint of an "
                               "osmseg run of this width")
-        record = {"source": source, "reused": "the encoder (vgg16_bn)"}
+        record: dict[str, Any] = {"source": source, "reused": "the encoder (vgg16_bn)"}
         if source != "imagenet":
             record.update(path=str(path.resolve()), sha256=file_sha256(path))
         return InitWeights(source, record)
