@@ -9,17 +9,22 @@ table with colours, input size, normalisation) as a plain dict under ``"spec"``,
 (optimizer, scheduler, scaler, epoch, RNG states as tensors, config, dataset hash, class
 weights, history).  Writes are atomic: a temporary file in the same folder, then
 ``os.replace``, so an interrupted save never leaves a half-written checkpoint behind.
+
+A checkpoint also starts a new run (``osmseg train --init best.pt``, :func:`read_init`): the
+way a user adapts a model to their area, with their own class table if they like.
 """
 
 from __future__ import annotations
 
+import hashlib
+import logging
 import os
 import pickle
 import uuid
 import zipfile
 from collections import OrderedDict
 from collections.abc import Mapping
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path, PurePath
 from typing import Any
 
@@ -30,9 +35,10 @@ from torch import Tensor
 from osmseg.errors import ConfigError
 from training.distributed import pick_device
 from training.errors import CheckpointError
-from training.model import SegNet, build_model
+from training.model import SegNet, build_model, load_encoder_weights
 from training.spec import ModelSpec
 
+logger = logging.getLogger(__name__)
 
 FORMAT = "osmseg-checkpoint"
 VERSION = 1
@@ -172,3 +178,100 @@ def model_from_checkpoint(path: Path, device: str | torch.device = "cpu") -> tup
                               f"width {spec.width}): {first}; the checkpoint is inconsistent")
     model.load_state_dict(weights)
     return model.to(pick_device(device) if isinstance(device, str) else device).eval(), spec
+
+
+# ------------------------------------------------------------------------------ --init
+def looks_like_checkpoint(path: Path) -> bool:
+    """Whether ``path`` is a ``torch.save`` zip whose pickle carries osmseg's format marker.
+
+    Cheap (it reads the small pickle, never the tensors), so ``--init FILE`` tells a previous
+    run's ``best.pt`` from a ``vgg16_bn`` ``.pth`` without loading either twice. A damaged
+    checkpoint is then reported by :func:`load_checkpoint`.
+    """
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return any(FORMAT.encode() in archive.read(name) for name in archive.namelist()
+                       if name.endswith("/data.pkl"))
+    except (OSError, zipfile.BadZipFile, RuntimeError, ValueError):
+        return False
+
+
+def file_sha256(path: Path) -> str:
+    """The sha256 of ``path``'s bytes (hex)."""
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+@dataclass(frozen=True)
+class InitWeights:
+    """A run's first weights (``--init``), read and checked before the run writes anything.
+
+    ``weights`` (an osmseg checkpoint's, by parameter name) are copied onto the new network by
+    :meth:`apply`, all of them or all but the classifier's (``keep_classifier`` False); without
+    them ``source`` is ``imagenet`` or a vgg16_bn file for
+    :func:`training.model.load_encoder_weights`. ``record`` is what the run's checkpoints store
+    under ``"init"``.
+    """
+
+    source: str
+    record: dict[str, Any]
+    weights: Mapping[str, Tensor] | None = None
+    keep_classifier: bool = True
+
+    def apply(self, model: SegNet) -> None:
+        """Initialise ``model`` (freshly built from the run's spec) from these weights."""
+        if self.weights is None:
+            load_encoder_weights(model, self.source)
+            return
+        expected = model.state_dict()
+        wanted = {k: v for k, v in self.weights.items() if self.keep_classifier or not k.startswith("classifier.")}
+        missing = [k for k in expected if k not in wanted and (self.keep_classifier or not k.startswith("classifier."))]
+        wrong = [k for k, v in wanted.items() if k not in expected or v.shape != expected[k].shape]
+        if missing or wrong:
+            key = (wrong or missing)[0]
+            raise CheckpointError(f"--init {self.source}: its weights do not fit this run's network ({key} "
+                                  f"{'missing' if not wrong else 'differs'}); the checkpoint is inconsistent")
+        model.load_state_dict(wanted, strict=self.keep_classifier)
+        logger.info("initialised from %s: %s", self.source, self.record["reused"])
+
+
+def read_init(source: str, spec: ModelSpec) -> InitWeights | None:
+    """What ``--init`` names, checked against the run's ``spec``: None for ``random``.
+
+    ``imagenet`` or a ``vgg16_bn`` file initialise the encoder (width 1.0 only). A checkpoint of
+    a previous osmseg run (``best.pt``/``last.pt``) fine-tunes it: with the same class table,
+    the whole network is reused; with another one, the encoder and decoder are, and the
+    classifier (one output per class) starts afresh. Its width must be the run's (else a
+    one-line ConfigError saying which to use). The record holds the checkpoint's path, sha256,
+    class table, width and what was reused.
+    """
+    if source == "random":
+        return None
+    path = Path(source).expanduser()
+    if source != "imagenet" and not path.is_file():
+        raise ConfigError(f"--init {source}: no such file; give random, imagenet, a checkpoint of an osmseg run "
+                          "(best.pt, last.pt) or a vgg16_bn .pth")
+    if source == "imagenet" or not looks_like_checkpoint(path):
+        if spec.width != 1.0:
+            raise ConfigError(f"--init {source}: VGG16-BN encoder weights need width 1.0, got width {spec.width:g}; "
+                              "train from random init (--init random), use --width 1.0, or give a checkpoint of an "
+                              "osmseg run of this width")
+        record: dict[str, Any] = {"source": source, "reused": "the encoder (vgg16_bn)"}
+        if source != "imagenet":
+            record.update(path=str(path.resolve()), sha256=file_sha256(path))
+        return InitWeights(source, record)
+    state = load_checkpoint(path)
+    then = ModelSpec.from_dict(state["spec"])
+    if (then.arch, float(then.width)) != (spec.arch, float(spec.width)):
+        raise ConfigError(f"--init {source} is a width-{then.width:g} {then.arch}, this run's is width "
+                          f"{spec.width:g}; train with --width {then.width:g} to fine-tune it")
+    same = then.class_names == spec.class_names
+    reused = ("the whole network (same classes)" if same else
+              f"the encoder and decoder; the classifier starts afresh ({then.num_classes} classes of "
+              f"{then.table.name!r} before, {spec.num_classes} of {spec.table.name!r} now)")
+    record = {"source": source, "path": str(path.resolve()), "sha256": file_sha256(path),
+              "classes": then.table.name, "width": float(then.width), "reused": reused}
+    return InitWeights(source, record, weights=_strip_wrappers(state["model"]), keep_classifier=same)

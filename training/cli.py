@@ -53,7 +53,9 @@ def _default(name: str) -> object:
 @click.option("--width", type=float, default=_default("width"),
               help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU.")
 @click.option("--init", default=_default("init"),
-              help="Encoder start: random (as the dissertation) | imagenet (downloads) | PATH.pth")
+              help="First weights: random (as the dissertation) | imagenet (downloads) or a vgg16_bn PATH.pth "
+                   "(the encoder, width 1.0) | an osmseg run's best.pt/last.pt (fine-tuning at its width: the whole "
+                   "network, or all but the classifier when the classes differ).")
 @click.option("--epochs", type=int, default=_default("epochs"))
 @click.option("--recipe", type=click.Choice(["osmseg", "paper"]), default=_default("recipe"),
               help="How the network learns: osmseg (AdamW, warm-up + cosine, random crops, no class weights; for "
@@ -69,7 +71,8 @@ def _default(name: str) -> object:
 @click.option("--steps-per-epoch", type=click.IntRange(min=1), show_default="cover the training pixels once, >= 50",
               help="Batches of random crops per epoch (recipe osmseg).")
 @click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=not _default("ignore_unlabeled"),
-              help="Train 'unlabeled' as a class instead of ignoring it.")
+              help="Train 'unlabeled' as a class instead of ignoring it (labels of one other class only always "
+                   "do: it is their background).")
 @click.option("--split-by", type=click.Choice(["groups", "image"]), default=_default("split_by"),
               help="groups: samples that overlap on the ground stay in one split; image: each image alone.")
 @click.option("--seed", type=int, default=_default("seed"))

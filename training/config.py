@@ -50,7 +50,7 @@ class TrainConfig:
     model: str = "airsegnet13"  # airsegnet6 | airsegnet13 | any name with --classes
     classes: str | None = None  # class table TOML; default: the dataset's manifest, else the model's
     width: float = 1.0  # channel multiplier; 1.0 is the paper's network
-    init: str = "random"  # random | imagenet | PATH to a vgg16_bn .pth
+    init: str = "random"  # random | imagenet | PATH to a vgg16_bn .pth | an osmseg checkpoint (fine-tuning)
     ignore_unlabeled: bool = True  # unlabeled (0) ignored in loss and metrics
     patch_height: int = 360  # the grid patches of sampling "grid", and the window predict and eval use
     patch_width: int = 480

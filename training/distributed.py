@@ -69,6 +69,11 @@ def cleanup() -> None:
         dist.destroy_process_group()
 
 
+def is_distributed() -> bool:
+    """Whether this process is one of several (a ``torchrun`` process group is joined)."""
+    return dist.is_available() and dist.is_initialized()
+
+
 def all_reduce_sum(tensor: torch.Tensor) -> torch.Tensor:
     """Sum ``tensor`` over all processes in place (no-op for a single process)."""
     if dist.is_available() and dist.is_initialized():

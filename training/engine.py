@@ -8,6 +8,7 @@ passes the device, whether to use AMP, and a model that may be wrapped in
 from __future__ import annotations
 
 import itertools
+import logging
 from collections.abc import Callable, Iterable, Sized
 from dataclasses import dataclass
 
@@ -16,8 +17,10 @@ from torch import nn
 
 from osmseg.progress import Progress, track
 
-from training.distributed import all_reduce_sum
+from training.distributed import all_reduce_sum, is_distributed
 from training.metrics import ConfusionMatrix
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -46,6 +49,15 @@ def _batches(loader: Iterable, opts: StepOptions, task: str, progress: Progress 
     yield from track(batches, progress, task, total, unit="batch")
 
 
+def labelled_pixels(masks: torch.Tensor, ignore_index: int | None) -> int:
+    """Pixels of ``masks`` the loss counts (all but ``ignore_index``'s).
+
+    >>> labelled_pixels(torch.tensor([[0, 0], [3, 0]]), 0), labelled_pixels(torch.zeros(2, 2), None)
+    (1, 4)
+    """
+    return int(masks.numel() if ignore_index is None else torch.count_nonzero(masks != ignore_index))
+
+
 def train_one_epoch(
     model: nn.Module,
     criterion: nn.Module,
@@ -57,28 +69,55 @@ def train_one_epoch(
     epoch: int,
     on_step: Callable[[int, float], None] | None = None,
     progress: Progress | None = None,
-) -> float:
-    """Train for one epoch; returns the mean training loss over all processes.
+) -> float | None:
+    """Train for one epoch; returns the mean training loss over all processes (None when no
+    batch had a labelled pixel).
 
     The scheduler steps once per batch (poly decay is defined per iteration). ``on_step(step,
-    loss)`` after each batch; ``progress`` gets a step per batch (task ``epoch N train``).
+    loss)`` after each batch that trained; ``progress`` gets a step per batch (task ``epoch N
+    train``).
+
+    A batch whose pixels are all ``criterion.ignore_index`` (a crop inside an OSM gap) has no
+    loss: cross-entropy's mean over zero pixels is 0/0 = NaN. Its gradient is zero, yet an
+    optimizer step would still move the weights (SGD's momentum and weight decay, AdamW's
+    moment estimates and decoupled decay), and the NaN would make the epoch's mean loss NaN. So
+    such a batch contributes nothing: no forward pass (BatchNorm statistics stay too), no
+    optimizer step, no loss; only the scheduler steps, because the schedule counts batches (a
+    resumed run meets the same batches and skips the same ones). Under DDP a batch is skipped
+    when every process's is unlabelled (one summed count, so all take the same steps); a
+    process whose own batch is unlabelled while others' are not joins the gradient average with
+    a zero loss.
     """
     model.train()
+    ignore = getattr(criterion, "ignore_index", None)  # nn.CrossEntropyLoss's; -100 matches no id
     total = torch.zeros(2, dtype=torch.float64, device=opts.device)  # loss sum, batches
+    skipped = 0
     for step, (images, masks) in enumerate(_batches(loader, opts, f"epoch {epoch} train", progress)):
+        here = labelled_pixels(masks, ignore)  # counted on the loader's (CPU) tensor: no device sync
+        everywhere = here
+        if is_distributed():  # every process must take (or skip) the same steps
+            everywhere = int(all_reduce_sum(torch.tensor([here], dtype=torch.int64, device=opts.device)).item())
+        if not everywhere:
+            skipped += 1
+            scheduler.step()
+            continue
         images, masks = opts.to_device(images, masks)
         with opts.autocast():
-            loss = criterion(model(images), masks)
+            logits = model(images)
+            loss = criterion(logits, masks) if here else logits.sum() * 0.0
         optimizer.zero_grad(set_to_none=True)
         scaler.scale(loss).backward()
         scaler.step(optimizer)
         scaler.update()
         scheduler.step()
-        total += torch.tensor([loss.item(), 1.0], dtype=torch.float64, device=opts.device)
-        if on_step is not None:
-            on_step(step, loss.item())
+        if here:
+            total += torch.tensor([loss.item(), 1.0], dtype=torch.float64, device=opts.device)
+            if on_step is not None:
+                on_step(step, loss.item())
+    if skipped:
+        logger.info("epoch %d: %d batch(es) had no labelled pixel and were skipped", epoch, skipped)
     all_reduce_sum(total)
-    return float(total[0] / total[1]) if total[1] else float("nan")
+    return float(total[0] / total[1]) if total[1] else None
 
 
 @torch.inference_mode()
@@ -91,9 +130,10 @@ def evaluate(
     ignore_index: int | None,
     progress: Progress | None = None,
     task: str = "validate",
-) -> tuple[float, ConfusionMatrix]:
+) -> tuple[float | None, ConfusionMatrix]:
     """Mean loss and the confusion matrix over ``loader``, summed over all processes
-    (``progress``: a step per batch, as ``task``)."""
+    (``progress``: a step per batch, as ``task``). The loss is None when no batch had a
+    labelled pixel (it is undefined, never NaN)."""
     model.eval()
     matrix = ConfusionMatrix(num_classes, ignore_index=ignore_index)
     total = torch.zeros(2, dtype=torch.float64, device=opts.device)
@@ -109,4 +149,4 @@ def evaluate(
         matrix.update(masks.flatten(), logits.argmax(1).flatten())
     all_reduce_sum(total)
     matrix.reduce_from_all_processes()
-    return (float(total[0] / total[1]) if total[1] else float("nan")), matrix
+    return (float(total[0] / total[1]) if total[1] else None), matrix

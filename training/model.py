@@ -30,16 +30,18 @@ torch.Size([1, 7, 64, 96])
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
 from osmseg.classes import ClassTable, load_class_table
-from osmseg.errors import ConfigError
+from osmseg.errors import ConfigError, DatasetError
 from training.spec import IMAGENET_MEAN, IMAGENET_STD, ModelSpec
 from training.config import PRESET_NAMES
 
@@ -204,6 +206,44 @@ def model_spec(name: str, width: float = 1.0, ignore_unlabeled: bool = True,
                      ignore_index=table.unlabeled.id if ignore_unlabeled else None, input_size=(int(input_size[0]), int(input_size[1])),
                      mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std),  # type: ignore[arg-type]
                      resolution_m=None if resolution_m is None else float(resolution_m))
+
+
+def unlabeled_as_background(spec: ModelSpec, pixels: np.ndarray, where: str = "the labels"
+                            ) -> tuple[ModelSpec, str | None]:
+    """``spec`` trained as a binary model when its labels hold one class besides the ignored one.
+
+    ``pixels`` are the training labels' pixels per class id (the model's ids). With unlabeled
+    ignored and a single other class (building footprints, or ``airsegnet6`` on a build with
+    only buildings) there is nothing to tell apart: every scored pixel is that class, the loss
+    is minimised by predicting it everywhere and validation, blind to unlabeled, scores that
+    1.0. So the unlabeled class becomes the background class: trained, predicted and scored
+    (``ignore_index`` None, recorded in the checkpoint, so ``predict`` and ``eval`` do the
+    same). Returns the spec to train and, when it changed, the one-line warning to log.
+    DatasetError when no pixel is labelled at all.
+
+    >>> spec = model_spec("airsegnet6", 0.0625)
+    >>> binary, note = unlabeled_as_background(spec, np.array([90, 10, 0, 0, 0, 0, 0]))
+    >>> binary.ignore_index, note.split(":")[0]
+    (None, "the labels hold one class besides 'unlabeled'")
+    >>> unlabeled_as_background(spec, np.array([90, 10, 5, 0, 0, 0, 0]))[0] is spec
+    True
+    """
+    if spec.ignore_index is None:
+        return spec, None
+    names = spec.class_names
+    ignored = names[spec.ignore_index]
+    labelled = [i for i in np.flatnonzero(np.asarray(pixels)) if i != spec.ignore_index]
+    if not labelled:
+        raise DatasetError(f"{where} hold no pixel of any class but {ignored!r}, which training ignores: nothing to "
+                           "learn; check the labels and the class table (--classes)")
+    if len(labelled) > 1:
+        return spec, None
+    only = names[int(labelled[0])]
+    return dataclasses.replace(spec, ignore_index=None), (
+        f"{where} hold one class besides {ignored!r}: {only!r}. With {ignored!r} ignored there would be nothing to "
+        f"tell apart (validation would score any model 1.0), so {ignored!r} is trained, predicted and scored as "
+        f"the background of a binary model; pass --keep-unlabeled to choose this yourself (no warning), or label "
+        "more classes")
 
 
 def _vgg_features(state: Mapping[str, Any], source: str) -> dict[str, Tensor]:

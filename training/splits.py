@@ -2,8 +2,11 @@
 
 :func:`make_splits` draws the splits from a seed, keeping the groups of overlapping samples
 that :func:`sample_groups` finds (from a dataset's manifest, or its georeferenced images)
-together, so that no pixel of a test image was seen in training; :func:`write_splits` and
-:func:`read_splits` keep them in a run's ``splits.json``. Imports: osmseg core only.
+together, so that no pixel of a test image was seen in training; :func:`choose_splits` draws
+a few seeded candidates and keeps the one whose validation class mix is closest to training's
+(:func:`check_split` says how close, and :func:`split_warning` when it is not close enough);
+:func:`write_splits` and :func:`read_splits` keep them in a run's ``splits.json``. Imports:
+osmseg core only.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 import json
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -98,6 +102,186 @@ def make_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3,
     return {k: sorted(v) for k, v in out.items()}
 
 
+#: Candidate draws :func:`choose_splits` compares (draw 0 is :func:`make_splits` with the seed itself).
+CANDIDATES = 16
+#: A class holding at least this share of training's scored pixels should be in validation.
+MEANINGFUL_SHARE = 0.02
+#: Total-variation distance between validation's and training's class mix reported as "far".
+FAR_DISTANCE = 0.25
+
+
+def class_pixels(histograms: np.ndarray, names: Sequence[str], num_classes: int,
+                 label_lut: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Pixels per model class of each sample: name -> ``(num_classes,)`` int64.
+
+    ``histograms`` are the per-sample counts of the dataset's label ids (one row per name, as
+    :func:`training.data.validate` returns them); ``label_lut`` maps those ids to the model's
+    (AirSegNet6 on a 13-class dataset) before counting.
+
+    >>> class_pixels(np.array([[5, 1, 2]]), ["a"], 2, label_lut=np.array([0, 1, 1]))
+    {'a': array([5, 3])}
+    """
+    hist = np.asarray(histograms, dtype=np.int64).reshape(len(names), -1)
+    if label_lut is not None:
+        mapped = np.zeros((hist.shape[0], num_classes), dtype=np.int64)
+        np.add.at(mapped.T, np.asarray(label_lut)[:hist.shape[1]], hist.T)
+        hist = mapped
+    return {name: hist[i, :num_classes].copy() for i, name in enumerate(names)}
+
+
+def class_shares(pixels: Mapping[str, np.ndarray], names: Iterable[str], ignore_index: int | None) -> np.ndarray:
+    """Each class's share of the scored pixels of samples ``names`` (``ignore_index``'s pixels
+    count nowhere); all zeros when they have none.
+
+    >>> px = {"a": np.array([6, 1, 3]), "b": np.array([0, 0, 4])}
+    >>> class_shares(px, ["a", "b"], ignore_index=0).tolist()
+    [0.0, 0.125, 0.875]
+    """
+    total = np.zeros(len(next(iter(pixels.values()))) if pixels else 0, dtype=np.float64)
+    for name in names:
+        total += pixels[name]
+    if ignore_index is not None and total.size:
+        total[ignore_index] = 0
+    return total / total.sum() if total.sum() else total
+
+
+def total_variation(p: np.ndarray, q: np.ndarray) -> float:
+    """Half the L1 distance of two class mixes: the share of pixels that would have to change
+    class for one mix to become the other (0 = the same mix, 1 = no class in common).
+
+    >>> total_variation(np.array([0.5, 0.5, 0.0]), np.array([0.2, 0.4, 0.4]))
+    0.4
+    """
+    return round(float(np.abs(np.asarray(p) - np.asarray(q)).sum() / 2), 12)
+
+
+@dataclass(frozen=True)
+class SplitCheck:
+    """How well a split's validation images represent the training classes.
+
+    ``shares``: split -> class -> share of its scored pixels. ``distance``: total variation
+    between validation's mix and training's. ``missing``: classes holding at least
+    :data:`MEANINGFUL_SHARE` of training's pixels that validation lacks (they cannot be scored,
+    so the choice of ``best.pt`` ignores them). ``over``: the class whose validation share
+    exceeds its training share the most, with both shares (None when none does).
+    """
+
+    shares: dict[str, dict[str, float]]
+    distance: float
+    missing: tuple[str, ...]
+    over: tuple[str, float, float] | None
+
+    @property
+    def representative(self) -> bool:
+        return not self.missing and self.distance < FAR_DISTANCE
+
+    def key(self) -> tuple[int, float]:
+        """Order of preference: fewer missing classes, then a closer mix."""
+        return len(self.missing), self.distance
+
+
+def check_split(splits: Mapping[str, Sequence[str]], pixels: Mapping[str, np.ndarray], class_names: Sequence[str],
+                ignore_index: int | None) -> SplitCheck:
+    """Compare validation's class mix with training's (:class:`SplitCheck`).
+
+    Why total variation: the mIoU that picks ``best.pt`` averages over the classes validation
+    holds, each weighted by its pixels there; a validation set is fair when its class mix is
+    training's. Total variation is the largest difference in share that any set of classes can
+    have between the two mixes, in pixels' own units, bounded by 1 and defined when a class is
+    absent from either side (unlike a KL divergence). :data:`FAR_DISTANCE` = 0.25 flags a
+    quarter of validation's pixels in the "wrong" classes, e.g. a class 30 % of validation but
+    under 5 % of training; a few images always differ by some tenths of that. A class that
+    holds :data:`MEANINGFUL_SHARE` (2 %) of training but no validation pixel is flagged apart,
+    as its absence moves the distance little but removes it from validation's mIoU.
+    """
+    shares = {split: class_shares(pixels, names, ignore_index) for split, names in splits.items()}
+    train, val = shares.get("train"), shares.get("val")
+    scored = [i for i in range(len(class_names)) if i != ignore_index]
+    named = {split: {class_names[i]: round(float(v[i]), 6) for i in scored} for split, v in shares.items()}
+    if train is None or val is None or not train.sum() or not val.sum():
+        missing = tuple(class_names[i] for i in scored if train is not None and train[i] >= MEANINGFUL_SHARE)
+        return SplitCheck(named, 1.0 if train is not None and train.sum() else 0.0, missing, None)
+    missing = tuple(class_names[i] for i in scored if train[i] >= MEANINGFUL_SHARE and val[i] == 0)
+    excess = val - train
+    top = int(np.argmax(excess))
+    over = (class_names[top], float(val[top]), float(train[top])) if excess[top] > 0 else None
+    return SplitCheck(named, total_variation(val, train), missing, over)
+
+
+def draw_seed(seed: int, draw: int) -> int:
+    """The seed of candidate ``draw`` (0: ``seed`` itself; others from numpy's SeedSequence).
+
+    >>> draw_seed(7, 0), draw_seed(7, 1) == draw_seed(7, 1), draw_seed(7, 1) != draw_seed(8, 1)
+    (7, True, True)
+    """
+    return seed if draw == 0 else int(np.random.SeedSequence([seed, draw]).generate_state(1)[0])
+
+
+def choose_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3, val_fraction: float = 0.15,
+                  groups: Mapping[str, int] | None = None, pixels: Mapping[str, np.ndarray] | None = None,
+                  class_names: Sequence[str] = (), ignore_index: int | None = None,
+                  candidates: int = CANDIDATES) -> tuple[dict[str, list[str]], dict[str, Any]]:
+    """The splits of :func:`make_splits` for ``seed``, or a better one when its validation
+    cannot represent training; and a record of the choice.
+
+    The seed's own draw (draw 0) is kept when its validation represents training
+    (:attr:`SplitCheck.representative`), so a seed gives the split it always gave. Otherwise
+    ``candidates`` draws (draw ``k`` seeded by :func:`draw_seed`, so the same seed always makes
+    the same choice; groups stay intact in each) are compared by :meth:`SplitCheck.key`: fewest
+    meaningful training classes missing from validation, then the smallest total-variation
+    distance between the class mixes; ties keep the earlier draw. Draws leaving training or
+    validation empty are passed over (all of them: draw 0 is returned, for the caller to
+    refuse). Without ``pixels`` this is draw 0. The second value records the choice for
+    ``splits.json``: ``candidates`` (draws compared; 1 when the first was kept), ``draw``,
+    ``draw_seed``, ``val_train_distance``, ``first_draw_distance``, ``missing_in_val``,
+    ``class_shares``.
+    """
+    first = make_splits(names, seed, test_fraction, val_fraction, groups=groups)
+    if not pixels:
+        return first, {}
+    best: tuple[tuple[int, float], int, dict[str, list[str]], SplitCheck] | None = None
+    first_check = check_split(first, pixels, class_names, ignore_index)
+    if first["train"] and first["val"] and first_check.representative:
+        candidates = 1  # nothing to improve on
+    for k in range(max(1, candidates)):
+        splits = first if k == 0 else make_splits(names, draw_seed(seed, k), test_fraction, val_fraction, groups)
+        if not splits["train"] or not splits["val"]:
+            continue
+        check = first_check if k == 0 else check_split(splits, pixels, class_names, ignore_index)
+        if best is None or check.key() < best[0]:
+            best = (check.key(), k, splits, check)
+    if best is None:
+        return first, {}
+    _, k, splits, check = best
+    info = {"candidates": max(1, candidates), "draw": k, "draw_seed": draw_seed(seed, k),
+            "val_train_distance": check.distance, "first_draw_distance": first_check.distance,
+            "missing_in_val": list(check.missing), "class_shares": check.shares,
+            "rule": "the seed's own draw when its validation represents training, else of the seeded draws the "
+                    "one whose validation class mix is closest to training's (fewest training classes missing, "
+                    "then total variation)"}
+    return splits, info
+
+
+def split_warning(splits: Mapping[str, Sequence[str]], info: Mapping[str, Any], ignore_index: int | None,
+                  class_names: Sequence[str], pixels: Mapping[str, np.ndarray]) -> str | None:
+    """One line saying why validation cannot represent the training classes, None when it can."""
+    check = check_split(splits, pixels, class_names, ignore_index)
+    if check.representative:
+        return None
+    parts = []
+    if check.missing:
+        shares = check.shares["train"]
+        parts.append("it lacks " + ", ".join(f"{c!r} ({shares[c]:.0%} of training)" for c in check.missing))
+    if check.distance >= FAR_DISTANCE:
+        detail = (f"; {check.over[0]!r} is {check.over[1]:.0%} of validation, {check.over[2]:.0%} of training"
+                  if check.over else "")
+        parts.append(f"its class mix is {check.distance:.2f} from training's (total variation{detail})")
+    tried = info.get("candidates", 1)
+    return (f"validation ({len(splits['val'])} image{'s' if len(splits['val']) != 1 else ''}) does not represent "
+            f"the training classes: {'; '.join(parts)} — the closest of {tried} seeded draw{'s' if tried != 1 else ''}; "
+            "best.pt is chosen on it: add samples, or raise val_fraction in a --config file")
+
+
 def sample_groups(root: Path, names: Iterable[str], images: Mapping[str, Path] | None = None) -> dict[str, int]:
     """Which of a dataset's samples overlap on the ground: name -> group id (every name listed).
 
@@ -137,11 +321,15 @@ def sample_groups(root: Path, names: Iterable[str], images: Mapping[str, Path] |
 
 
 def write_splits(path: Path, splits: dict[str, list[str]], seed: int, split_by: str = "image",
-                 groups: Mapping[str, int] | None = None) -> Path:
+                 groups: Mapping[str, int] | None = None, selection: Mapping[str, Any] | None = None) -> Path:
     """Write the splits to ``path`` as JSON (atomically), with the seed and the rule that drew
-    them and, for a split by overlap groups, the groups of more than one sample."""
+    them, for a split by overlap groups the groups of more than one sample, and the
+    ``selection`` of :func:`choose_splits` (which draw, and each split's class shares)."""
     doc: dict[str, Any] = {"format": "osmseg-splits", "format_version": 1, "seed": seed, "split_by": split_by,
                            "counts": {k: len(v) for k, v in splits.items()}, "splits": splits}
+    if selection:
+        doc["selection"] = {k: v for k, v in selection.items() if k != "class_shares"}
+        doc["class_shares"] = selection.get("class_shares", {})
     if groups:
         together: dict[int, list[str]] = {}
         for name, group in groups.items():

@@ -23,6 +23,7 @@ import logging
 import math
 import signal
 import time
+from collections.abc import Iterable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,7 @@ from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.progress import Progress, report
-from training.checkpoint import load_checkpoint, save_checkpoint
+from training.checkpoint import load_checkpoint, read_init, save_checkpoint
 from training.config import TrainConfig
 from training.data import (
     PatchDataset,
@@ -54,9 +55,9 @@ from training.distributed import Dist, barrier, cleanup, setup
 from training.engine import StepOptions, evaluate, train_one_epoch
 from training.recipe import RECIPES, Recipe, lr_factor, steps_per_epoch
 from training.sampling import RandomCrops, crop_sampler
-from training.model import PRESETS, build_model, load_encoder_weights, model_spec
+from training.model import PRESETS, build_model, model_spec, unlabeled_as_background
 from training.spec import ModelSpec
-from training.splits import make_splits, read_splits, sample_groups, write_splits
+from training.splits import choose_splits, class_pixels, read_splits, sample_groups, split_warning, write_splits
 
 logger = logging.getLogger(__name__)
 
@@ -69,6 +70,11 @@ def dataset_fingerprint(root: Path) -> str | None:
     """sha256 of the dataset's manifest.json (recorded in checkpoints), None without one."""
     manifest = root / "manifest.json"
     return hashlib.sha256(manifest.read_bytes()).hexdigest() if manifest.is_file() else None
+
+
+def rounded(loss: float | None, digits: int = 6) -> float | None:
+    """A loss for log.csv and the log: None (an empty cell) when no batch had a labelled pixel."""
+    return None if loss is None else round(loss, digits)
 
 
 def poly_lambda(total_steps: int, power: float):  # noqa: ANN201 - a closure for LambdaLR
@@ -208,6 +214,19 @@ def model_classes(model: str, dataset_table: ClassTable) -> tuple[ClassTable, np
                       f"{dataset_table.name!r}; use --classes, or a model name of your own to train on its table")
 
 
+def binary_if_one_class(spec: ModelSpec, pixels: dict[str, np.ndarray], names: Iterable[str], d: Dist,
+                        where: str) -> ModelSpec:
+    """``spec`` with unlabeled as background when the labels of samples ``names`` hold one class
+    besides it (:func:`training.model.unlabeled_as_background`); rank 0 logs the warning."""
+    total = np.zeros(spec.num_classes, dtype=np.int64)
+    for name in names:
+        total += pixels[name]
+    spec, note = unlabeled_as_background(spec, total, where)
+    if note and d.is_main:
+        logger.warning("%s", note)
+    return spec
+
+
 def check_resumable(saved: dict[str, Any], config: TrainConfig) -> None:
     """Refuse to resume a run made with other settings (other than RESUMABLE_CHANGES)."""
     now = config.to_dict()
@@ -226,15 +245,24 @@ def check_resumable(saved: dict[str, Any], config: TrainConfig) -> None:
                           "use a new --out, or the same settings to resume it")
 
 
-def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist) -> dict[str, list[str]]:
-    """The run's image splits: read back on resume, else drawn from the seed and written down."""
+def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist,
+                   pixels: dict[str, np.ndarray] | None = None, spec: ModelSpec | None = None) -> dict[str, list[str]]:
+    """The run's image splits: read back on resume, else drawn from the seed and written down.
+
+    With ``pixels`` (per sample, by the classes of ``spec``) the draw whose validation class
+    mix is closest to training's is kept, the class shares are recorded in ``splits.json``,
+    and a validation that still cannot represent the training classes is reported
+    (:func:`training.splits.choose_splits`)."""
     path = config.out_dir / "splits.json"
     if path.exists():
         return read_splits(path)
     names = sorted(f.name for f in files)
     images = {f.name: f.image for f in files}
     groups = sample_groups(config.dataset, names, images) if config.split_by == "groups" else None
-    splits = make_splits(names, config.seed, config.test_fraction, config.val_fraction, groups=groups)
+    splits, selection = choose_splits(names, config.seed, config.test_fraction, config.val_fraction, groups=groups,
+                                      pixels=pixels if spec is not None else None,
+                                      class_names=spec.class_names if spec is not None else (),
+                                      ignore_index=spec.ignore_index if spec is not None else None)
     if not splits["train"] or not splits["val"]:
         areas = len(set(groups.values())) if groups else len(names)
         if groups and areas < len(names):
@@ -248,7 +276,11 @@ def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist) -> di
     if groups is None and d.is_main:
         logger.warning("splitting by image (--split-by image): overlapping samples may share pixels across splits")
     if d.is_main:
-        write_splits(path, splits, config.seed, config.split_by, groups)
+        if selection and pixels is not None and spec is not None:
+            warning = split_warning(splits, selection, spec.ignore_index, spec.class_names, pixels)
+            if warning:
+                logger.warning("%s", warning)
+        write_splits(path, splits, config.seed, config.split_by, groups, selection)
     return splits
 
 
@@ -274,16 +306,20 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
                                  class_table=model_table, input_size=config.patch_size,
                                  resolution_m=dataset_resolution(config.dataset, files))
     histograms = validate(files, dataset_table.num_classes)  # raw ids of every label, checked up front
+    pixels = class_pixels(histograms, [f.name for f in files], spec.num_classes, label_lut)  # by model id
+    spec = binary_if_one_class(spec, pixels, list(pixels), d, "the labels")
     last_path = config.out_dir / "last.pt"
     saved = load_checkpoint(last_path, map_location=d.device) if last_path.exists() else None
     if saved is not None:
         check_resumable(saved, config)  # before anything is written into someone else's run
+    init = read_init(config.init, spec) if saved is None else None  # a bad --init: refused before any output
     if d.is_main:  # only now: bad input above leaves no output folder behind
         config.out_dir.mkdir(parents=True, exist_ok=True)
         for litter in config.out_dir.glob(".*.tmp"):  # a checkpoint save cut short by a kill
             litter.unlink(missing_ok=True)
     barrier()
-    splits = given_splits or prepare_splits(config, list(files), d)
+    splits = given_splits or prepare_splits(config, list(files), d, pixels, spec)
+    spec = binary_if_one_class(spec, pixels, splits["train"], d, "the training split's labels")
     train_files = files_by_name(files, splits["train"])
     val_files = files_by_name(files, splits["val"])
     patches = functools.partial(PatchDataset, mean=spec.mean, std=spec.std, ignore_index=spec.ignore_index,
@@ -315,8 +351,8 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
         if recipe.class_weights == "sqrt-median-frequency":  # the same order, a square root of the spread
             weights = weights.sqrt()
     model = build_model(spec)
-    if config.init != "random":
-        load_encoder_weights(model, config.init)
+    if init is not None:
+        init.apply(model)
     opts = StepOptions(device=d.device, amp=config.amp and d.device.type == "cuda",
                        channels_last=config.channels_last and d.device.type == "cuda",
                        max_steps=config.max_steps_per_epoch)
@@ -355,6 +391,7 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
         "spec": asdict(spec), "config": config.to_dict(), "splits": splits,
         "class_weights": None if weights is None else weights.cpu(),
         "dataset_sha256": dataset_fingerprint(config.dataset),
+        "init": saved.get("init") if saved is not None else (init.record if init is not None else None),
     }
     report(shown, "train", start, config.epochs, "epoch")
     for epoch in range(start, config.epochs):
@@ -373,7 +410,7 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
         val_loss, matrix = evaluate(model, criterion, val_loader, opts, spec.num_classes, spec.ignore_index,
                                     progress=shown, task=f"epoch {epoch + 1} validate")
         metrics = matrix.compute(spec.class_names)  # by id, never by list position
-        row = {"epoch": epoch + 1, "lr": lr, "train_loss": round(train_loss, 6), "val_loss": round(val_loss, 6),
+        row = {"epoch": epoch + 1, "lr": lr, "train_loss": rounded(train_loss), "val_loss": rounded(val_loss),
                "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
                "seconds": round(time.monotonic() - began, 2)}
         history.append(row)
@@ -389,8 +426,8 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
             # last.pt is the commit point of an epoch, written after best.pt and log.csv: a run
             # killed in between redoes the epoch on resume and rewrites all three.
             save_checkpoint(files_out.last, state)
-            logger.info("epoch %d/%d: train loss %.4f, val loss %.4f, val mIoU %s", epoch + 1, config.epochs,
-                        train_loss, val_loss, metrics["miou"])
+            logger.info("epoch %d/%d: train loss %s, val loss %s, val mIoU %s", epoch + 1, config.epochs,
+                        rounded(train_loss, 4), rounded(val_loss, 4), metrics["miou"])
         barrier()
     files_out.close()
     best_row = max((h for h in history if h.get("val_miou") is not None), key=lambda h: h["val_miou"], default=None)
