@@ -1,22 +1,24 @@
-"""Training throughput of SegNet in images/s (360x480 patches per second), loop vs bare steps.
+"""Training throughput of SegNet in images/s (training crops or patches per second), loop vs bare steps.
 
 Run: ``.venv/bin/python benchmarks/bench_train.py [--dataset DIR] [--steps 4] [--full-steps 2]``
 (prints, asserts nothing; builds the offline ``osmseg demo`` dataset in a temporary folder
 unless ``--dataset`` names one). Every figure is measured in this run, beside a bare baseline:
 
 * loop: :func:`training.engine.train_one_epoch` through the trainer's own parts
-  (:func:`training.train.seeded_loader` over an augmented :class:`PatchDataset`, weighted
-  cross-entropy, SGD + poly schedule, GradScaler), timed over ``steps`` batches after one
-  warm-up batch (which also pays for starting the loader workers);
-* bare: the same network and optimiser, forward + loss + backward + SGD step on random
+  (:func:`training.train.seeded_loader` over the recipe's augmented training set — random
+  crops for the ``osmseg`` recipe, the grid of 360x480 patches for ``paper`` — its loss (class
+  weights where the recipe has them), optimiser and schedule, GradScaler), timed over ``steps``
+  batches after one warm-up batch (which also pays for starting the loader workers);
+* bare: the same network and optimiser, forward + loss + backward + optimiser step on random
   tensors of the same shape already in memory (no data loading, no loss weights, no
   metrics, no scheduler), run right after the loop so it is just as warm;
 * ratio = bare images/s / loop images/s: what the data loader and the loop cost on top of
   the network's own arithmetic (1.00 = nothing).
 
-Configurations: the CPU config (width 0.125, batch 4, ``training/configs/cpu.yaml``) and the
-paper's network (width 1.0, batch 2 and only ``--full-steps`` steps on a CPU); with CUDA,
-also width 1.0 at batch 4 with AMP + channels_last (``training/configs/gpu.yaml``).
+Configurations: the CPU config (width 0.125, default recipe: 16 crops of 128x128 a batch,
+``training/configs/cpu.yaml``), the same width by ``--recipe paper`` (4 patches of 360x480),
+and the paper's network (width 1.0, batch 2 and only ``--full-steps`` steps on a CPU); with
+CUDA, also width 1.0 at batch 4 with AMP + channels_last (``training/configs/gpu.yaml``).
 Peak RSS is the main process's high-water mark during each configuration (reset between
 them where Linux allows) and the largest loader worker's.
 """
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import json
 import logging
 import math
 import os
@@ -32,6 +35,7 @@ import resource
 import sys
 import tempfile
 import time
+from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,7 +51,8 @@ from training.data import PatchDataset, dataset_class_table, discover, validate,
 from training.distributed import Dist  # noqa: E402
 from training.engine import StepOptions, train_one_epoch  # noqa: E402
 from training.model import build_model, model_spec  # noqa: E402
-from training.train import model_classes, poly_lambda, seeded_loader  # noqa: E402
+from training.sampling import RandomCrops  # noqa: E402
+from training.train import make_optimizer, make_scheduler, model_classes, seeded_loader  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -59,6 +64,7 @@ class Case:
     batch: int
     steps: int  # timed steps (after one warm-up step)
     device: torch.device
+    recipe: str = "osmseg"
     amp: bool = False
     channels_last: bool = False
 
@@ -123,14 +129,15 @@ def sync(device: torch.device) -> None:
 
 
 # ------------------------------------------------------------------------------ measure
-def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> None:
-    """Loop and bare throughput of one configuration, printed on two lines."""
+def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> dict[str, float]:
+    """Loop and bare throughput of one configuration, printed on two lines (and returned)."""
     reset_peak_rss()
     if case.device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(case.device)
     config = TrainConfig(dataset=dataset, out_dir=dataset, width=case.width,  # out_dir: nothing is written
-                         batch_size=case.batch, loader_workers=workers, seed=seed, amp=case.amp,
+                         recipe=case.recipe, batch_size=case.batch, loader_workers=workers, seed=seed, amp=case.amp,
                          channels_last=case.channels_last, max_steps_per_epoch=case.steps + 1)
+    recipe = config.settings
     dataset_table = dataset_class_table(dataset)
     table, lut = model_classes(config.model, dataset_table)
     spec = model_spec(config.model, case.width, class_table=table, input_size=config.patch_size)
@@ -138,28 +145,34 @@ def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> None:
     hist = validate(files, dataset_table.num_classes)
     if lut is not None:  # dataset ids -> model ids before counting, as the trainer does
         hist = np.stack([np.bincount(lut[:len(row)], weights=row, minlength=spec.num_classes) for row in hist])
-    weights = weights_from_histograms(hist, spec.ignore_index)
-    common = dict(mean=spec.mean, std=spec.std, augment=config.augment, ignore_index=spec.ignore_index,
-                  seed=seed, num_classes=dataset_table.num_classes, label_lut=lut)
+    weights = weights_from_histograms(hist, spec.ignore_index) if recipe.class_weights != "none" else None
+    common: dict[str, Any] = dict(mean=spec.mean, std=spec.std, augment=config.augment, ignore_index=spec.ignore_index,
+                                  seed=seed, num_classes=dataset_table.num_classes, label_lut=lut)
     needed = (case.steps + 1) * case.batch
-    reps = math.ceil(needed / len(PatchDataset(files, config.patch_size, **common)))
-    train_set = PatchDataset(files * reps, config.patch_size, **common)  # images repeated if too few batches
+    train_set: PatchDataset
+    if recipe.sampling == "random":
+        shape = (recipe.crop, recipe.crop)
+        train_set = RandomCrops(files, recipe.crop, needed, **common)
+    else:
+        shape = config.patch_size
+        reps = math.ceil(needed / len(PatchDataset(files, config.patch_size, **common)))
+        train_set = PatchDataset(files * reps, config.patch_size, **common)  # images repeated if too few batches
 
     torch.manual_seed(seed)
     model = build_model(spec).to(case.device, memory_format=torch.channels_last if case.channels_last
                                  else torch.contiguous_format)
     params = sum(p.numel() for p in model.parameters())
-    criterion = nn.CrossEntropyLoss(weight=weights.to(case.device),
+    criterion = nn.CrossEntropyLoss(weight=None if weights is None else weights.to(case.device),
                                     ignore_index=-100 if spec.ignore_index is None else spec.ignore_index)
-    optimizer = torch.optim.SGD(model.parameters(), lr=config.lr, momentum=config.momentum,
-                                weight_decay=config.weight_decay)
-    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, poly_lambda(config.epochs * (case.steps + 1), 0.9))
+    optimizer = make_optimizer(model, recipe)
+    scheduler = make_scheduler(optimizer, recipe, config.epochs * (case.steps + 1))
     scaler = torch.amp.GradScaler(case.device.type, enabled=case.amp)
     opts = StepOptions(device=case.device, amp=case.amp, channels_last=case.channels_last,
                        max_steps=case.steps + 1)
     loader = seeded_loader(train_set, config, Dist(0, 1, 0, case.device), shuffle=True)
     train_set.set_epoch(0)
-    loader.sampler.set_epoch(0)  # type: ignore[attr-defined]
+    if hasattr(loader.sampler, "set_epoch"):
+        loader.sampler.set_epoch(0)
 
     ends: list[float] = []  # wall clock at the end of each step (loss.item() has synchronised)
     train_one_epoch(model, criterion, optimizer, scheduler, scaler, loader, opts, epoch=1,
@@ -170,8 +183,8 @@ def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> None:
 
     # Bare: same model and optimiser (warm from the loop), tensors already on the device.
     memory_format = torch.channels_last if case.channels_last else torch.contiguous_format
-    x = torch.randn(case.batch, 3, *config.patch_size, device=case.device).contiguous(memory_format=memory_format)
-    y = torch.randint(0, spec.num_classes, (case.batch, *config.patch_size), device=case.device)
+    x = torch.randn(case.batch, 3, *shape, device=case.device).contiguous(memory_format=memory_format)
+    y = torch.randint(0, spec.num_classes, (case.batch, *shape), device=case.device)
     sync(case.device)
     bare_ends = [time.perf_counter()]
     for _ in range(case.steps):
@@ -189,9 +202,12 @@ def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> None:
     memory = f"peak RSS {peak_rss_mb():6.0f} MB, largest loader worker {worker_peak_rss_mb():5.0f} MB"
     if case.device.type == "cuda":
         memory += f", CUDA max allocated {torch.cuda.max_memory_allocated(case.device) / 2**20:6.0f} MB"
-    print(f"{case.label:<34} ({params / 1e6:5.2f} M params) batch {case.batch}, {case.steps} timed steps; {memory}")
-    print(f"    loop {loop_ips:7.2f} img/s ({spread(ends)})   bare fwd+bwd+SGD {bare_ips:7.2f} img/s "
+    print(f"{case.label:<34} ({params / 1e6:5.2f} M params) batch {case.batch} of {shape[0]}x{shape[1]}, "
+          f"{case.steps} timed steps; {memory}")
+    print(f"    loop {loop_ips:7.2f} img/s ({spread(ends)})   bare fwd+bwd+{recipe.optimizer} {bare_ips:7.2f} img/s "
           f"({spread(bare_ends)})   ratio {bare_ips / loop_ips:5.2f}", flush=True)
+    return {"loop_images_per_s": loop_ips, "bare_images_per_s": bare_ips, "ratio": bare_ips / loop_ips,
+            "batch": case.batch, "shape": list(shape), "peak_rss_mb": peak_rss_mb()}
 
 
 def spread(ends: list[float]) -> str:
@@ -209,13 +225,15 @@ def main() -> None:
     parser.add_argument("--loader-workers", type=int, default=2, help="DataLoader workers (cpu.yaml: 2)")
     parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     parser.add_argument("--skip-full", action="store_true", help="leave out width 1.0 on the CPU")
+    parser.add_argument("--json", type=Path, help="also write every figure to this JSON file")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)  # the demo build's per-feature warnings are not the point here
     torch.set_num_threads(args.threads)
     cpu = torch.device("cpu")
-    cases = [Case("CPU config: width 0.125, CPU", 0.125, 4, args.steps, cpu)]
+    cases = [Case("CPU config: width 0.125, CPU", 0.125, 16, args.steps, cpu),
+             Case("width 0.125, CPU, --recipe paper", 0.125, 4, args.steps, cpu, recipe="paper")]
     if not args.skip_full:
-        cases.append(Case("paper's network: width 1.0, CPU", 1.0, 2, args.full_steps, cpu))
+        cases.append(Case("paper's network: width 1.0, CPU", 1.0, 2, args.full_steps, cpu, recipe="paper"))
 
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
@@ -225,17 +243,19 @@ def main() -> None:
               f"{time.perf_counter() - start:.1f} s; torch {torch.__version__}, {torch.get_num_threads()} threads, "
               f"{args.loader_workers} loader workers, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}; "
               f"RSS after imports and data {rss_mb():.0f} MB")
-        for case in cases:
-            measure(case, dataset, args.loader_workers)
+        figures = {case.label: measure(case, dataset, args.loader_workers) for case in cases}
         if torch.cuda.is_available():
             gpu = torch.device("cuda")
-            measure(Case(f"width 1.0, {torch.cuda.get_device_name(gpu)}, AMP+channels_last", 1.0, 4,
-                         args.cuda_steps, gpu, amp=True, channels_last=True), dataset, args.loader_workers)
+            cuda = Case(f"width 1.0, {torch.cuda.get_device_name(gpu)}, AMP+channels_last", 1.0, 4,
+                        args.cuda_steps, gpu, amp=True, channels_last=True, recipe="paper")
+            figures[cuda.label] = measure(cuda, dataset, args.loader_workers)
         else:
             print("CUDA: skipped (no CUDA device here); on a GPU this also measures width 1.0, batch 4, "
                   "AMP + channels_last")
         print(f"load average at the end {os.getloadavg()[0]:.1f} (other processes on these CPUs slow both "
               "columns alike, but add noise to the ratio)")
+        if args.json:
+            args.json.write_text(json.dumps(figures, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -264,3 +264,21 @@ def visible(ws: Workspace) -> dict[str, Figure]:
 
 
 import figure_sets_external  # noqa: E402,F401  (registers the pairs, benchmark and shared-data sets)
+
+
+@figure_set("recipes", "cheap", needs="torch")
+def recipes(ws: Workspace) -> dict[str, Figure]:
+    """the settings of the shipped training recipes (training.recipe.RECIPES)"""
+    from training.recipe import MIN_STEPS_PER_EPOCH, RECIPES
+
+    def shown(name: str, value: Any) -> str:
+        if name == "steps_per_epoch" and value is None:
+            return f"cover the training pixels once, at least {MIN_STEPS_PER_EPOCH}"
+        return "-" if value is None else str(value)
+
+    osmseg, paper = RECIPES["osmseg"].to_dict(), RECIPES["paper"].to_dict()
+    rows = [[f"`{k}`", shown(k, osmseg[k]), shown(k, paper[k])] for k in osmseg if k != "name"]
+    rows = [r for r in rows if not (r[0] in ("`crop`", "`steps_per_epoch`") and r[2] == r[1])] + \
+        [[f"`{k}`", shown(k, osmseg[k]), "(grid: 360x480 patches)"] for k in ("crop", "steps_per_epoch")
+         if osmseg[k] == paper[k]]
+    return {"recipes.table": F(table(["setting", "osmseg (default)", "paper"], rows))}

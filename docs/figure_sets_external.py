@@ -287,3 +287,60 @@ def osm(ws: Workspace) -> dict[str, Figure]:
     bare = LocalFileSource(oakland, ws.root / "oakland-reach0", reach=0).fetch(box)
     lost = int((rasterize(read_features(list(bare.paths), grid, table_), grid, table_) != whole).sum())
     return {"osm.longest": F(f"{metres(longest)} between two nodes of a {kind} way"), "osm.lost": F(count(lost))}
+
+
+# --------------------------------------------------------------------------- training (minutes of CPU)
+
+#: the recipe ablation the training docs quote: every variant for as many optimiser steps
+ABLATION_STEPS = "400"
+#: the default recipe's long run on the demo dataset (the "5 minutes of CPU" target)
+LONG_STEPS = "1500"
+
+
+def ablation_row(v: dict[str, Any]) -> list[str]:
+    return [f"`{v['name']}`", v["what"], count(v["steps"]), count(v["pixels_per_step"]), seconds(v["train_s"]),
+            ratio(v["test_pixel_accuracy"]), ratio(v["test_miou"]), ratio(v["test_pixel_accuracy_bn_batch"])]
+
+
+@figure_set("training", "expensive", needs="torch")
+def training(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_recipe.py on the demo dataset (every recipe variant, then the default for longer), osmseg demo's training, bench_train.py"""
+    dataset = ws.demo_dataset()
+    picture = REPO_ROOT / "docs" / "img" / "recipe-ablation.png"
+    picture.parent.mkdir(exist_ok=True)
+    a = benchmark(ws, "bench_recipe.py", "--dataset", dataset, "--steps", ABLATION_STEPS, "--out", "ablation",
+                  "--png", str(picture))
+    long = benchmark(ws, "bench_recipe.py", "--dataset", dataset, "--steps", LONG_STEPS, "--out", "ablation-long",
+                     "--only", "osmseg")["variants"][0]
+    v = {r["name"]: r for r in a["variants"]}
+    w = a["weights"]
+    _, printed = ws.run("demo", "--out", "demo-train", "--no-localize")
+    demo = json.loads((ws.root / "demo-train" / "eval" / "metrics.json").read_text(encoding="utf-8"))
+    with (ws.root / "demo-train" / "run" / "log.csv").open(encoding="utf-8") as f:
+        demo_seconds = sum(float(line.split(",")[-1]) for line in f.readlines()[1:])
+    loop = benchmark(ws, "bench_train.py", "--skip-full", "--steps", "8")
+    cpu = loop["CPU config: width 0.125, CPU"]
+    timing = r"\d[\d.,]* s\b|\| \d[\d.,]* \|(?= 0\.)"
+    return {
+        "training.weights": F(f"{number(w['smallest'], 'ratio')} ({w['smallest_class']}) to "
+                              f"{number(w['largest'], 'ratio')} ({w['largest_class']}), "
+                              f"{factor(w['largest'] / w['smallest'])} apart"),
+        "training.ablation.table": F(table(["variant", "what changes", "steps", "px/step", "training",
+                                            "test accuracy", "test mIoU", "accuracy, BN batch statistics"],
+                                           [ablation_row(r) for r in a["variants"]]), timing),
+        "training.steps": F(count(int(ABLATION_STEPS))),
+        "training.osmseg": F(f"{ratio(v['osmseg']['test_pixel_accuracy'])} pixel accuracy, mIoU "
+                             f"{ratio(v['osmseg']['test_miou'])}"),
+        "training.paper": F(f"{ratio(v['paper']['test_pixel_accuracy'])} pixel accuracy, mIoU "
+                            f"{ratio(v['paper']['test_miou'])}"),
+        "training.long": F(f"{ratio(long['test_pixel_accuracy'])} pixel accuracy and mIoU {ratio(long['test_miou'])} "
+                           f"after {count(long['steps'])} steps ({seconds(long['train_s'])} of training)",
+                           r"\d[\d.,]* s\b"),
+        "training.demo": F(f"{ratio(demo['pixel_accuracy'])} pixel accuracy, mIoU {ratio(demo['miou'])}, after "
+                           f"{seconds(demo_seconds)} of training", r"\d[\d.,]* s\b"),
+        "training.demo.transcript": F(transcript((("demo", "--out", "demo-train", "--no-localize"), printed)),
+                                      r"\d[\d.,]* s\b|time \S+"),
+        "training.loop": F(f"{factor(cpu['ratio'])} (loop {number(cpu['loop_images_per_s'], 'rate')} crops/s, bare "
+                           f"forward + backward + step {number(cpu['bare_images_per_s'], 'rate')})",
+                           r"[\d.]+"),
+    }

@@ -8,4 +8,4 @@ never configures logging and never draws: only the command line (``osmseg.cli``)
 Imports: the standard library and third-party packages only.
 """
 
-__version__ = "0.4.0"
+__version__ = "0.5.0"

@@ -171,9 +171,14 @@ def test_help_shows_every_default(name: str) -> None:
 
 def test_train_help_shows_the_training_defaults() -> None:
     from training.config import FIELDS
+    from training.recipe import RECIPES
 
     text = " ".join(CliRunner().invoke(cli, ["train", "--help"], terminal_width=400).output.split())
-    for option, field in [("--epochs", "epochs"), ("--batch-size", "batch_size"), ("--lr", "lr"),
+    for option, field in [("--batch-size", "batch_size"), ("--lr", "lr"), ("--class-weights", "class_weights")]:
+        shown = re.search(re.escape(option) + r" .*?\[default: \(the recipe's \(([^)]+)\)\)\]", text)
+        assert shown and shown.group(1) == ", ".join(f"{r.name} {getattr(r, field)}" for r in RECIPES.values()), \
+            (option, shown and shown.group(0))
+    for option, field in [("--epochs", "epochs"), ("--recipe", "recipe"),
                           ("--width", "width"), ("--model", "model"), ("--loader-workers", "loader_workers"),
                           ("--seed", "seed"), ("--device", "device"), ("--split-by", "split_by")]:
         shown = re.search(re.escape(option) + r" .*?\[default: ([^;\]]+)", text)

@@ -38,6 +38,17 @@ def _default(name: str) -> object:
     return FIELDS[name].default
 
 
+def _recipes_default(name: str) -> str:
+    """What ``--help`` shows as the default of a recipe setting: each shipped recipe's value.
+
+    >>> _recipes_default("lr")
+    "the recipe's (osmseg 0.01, paper 0.1)"
+    """
+    from training.recipe import RECIPES
+
+    return "the recipe's (" + ", ".join(f"{r.name} {getattr(r, name)}" for r in RECIPES.values()) + ")"
+
+
 @click.command("train")
 @output_options
 @click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
@@ -61,12 +72,12 @@ def _default(name: str) -> object:
               help="How the network learns: osmseg (AdamW, warm-up + cosine, random crops, no class weights; for "
                    "small data and CPUs) | paper (the dissertation's SegNet recipe: SGD lr 0.1 poly, median-frequency "
                    "weights, fixed 360x480 patches). docs/training.md compares them.")
-@click.option("--batch-size", type=int, show_default="the recipe's (osmseg 16, paper 4)")
-@click.option("--lr", type=float, show_default="the recipe's (osmseg 0.01, paper 0.1)",
+@click.option("--batch-size", type=int, show_default=_recipes_default("batch_size"))
+@click.option("--lr", type=float, show_default=_recipes_default("lr"),
               help="Peak learning rate (after the warm-up; the schedule decays it).")
 @click.option("--class-weights", type=click.Choice(["none", "median-frequency", "sqrt-median-frequency"]),
-              show_default="the recipe's (osmseg none, paper median-frequency)")
-@click.option("--crop", type=click.IntRange(min=32), show_default="the recipe's (128)",
+              show_default=_recipes_default("class_weights"))
+@click.option("--crop", type=click.IntRange(min=32), show_default=_recipes_default("crop"),
               help="Side of the random training crops (recipe osmseg).")
 @click.option("--steps-per-epoch", type=click.IntRange(min=1), show_default="cover the training pixels once, >= 50",
               help="Batches of random crops per epoch (recipe osmseg).")

@@ -170,14 +170,17 @@ class SplitCheck:
     distance: float
     missing: tuple[str, ...]
     over: tuple[str, float, float] | None
+    test_distance: float = 0.0  # the same distance for the test images (0 without any)
 
     @property
     def representative(self) -> bool:
         return not self.missing and self.distance < FAR_DISTANCE
 
     def key(self) -> tuple[int, float]:
-        """Order of preference: fewer missing classes, then a closer mix."""
-        return len(self.missing), self.distance
+        """Order of preference: fewer missing classes, then a closer mix of the farther of the
+        two held-out sets (validation picks ``best.pt``, test reports the result: a test set
+        unlike training measures the gap between the two, not the model)."""
+        return len(self.missing), max(self.distance, self.test_distance)
 
 
 def check_split(splits: Mapping[str, Sequence[str]], pixels: Mapping[str, np.ndarray], class_names: Sequence[str],
@@ -205,7 +208,9 @@ def check_split(splits: Mapping[str, Sequence[str]], pixels: Mapping[str, np.nda
     excess = val - train
     top = int(np.argmax(excess))
     over = (class_names[top], float(val[top]), float(train[top])) if excess[top] > 0 else None
-    return SplitCheck(named, total_variation(val, train), missing, over)
+    test = shares.get("test")
+    test_distance = total_variation(test, train) if test is not None and test.sum() else 0.0
+    return SplitCheck(named, total_variation(val, train), missing, over, test_distance)
 
 
 def draw_seed(seed: int, draw: int) -> int:
@@ -229,7 +234,8 @@ def choose_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3,
     ``candidates`` draws (draw ``k`` seeded by :func:`draw_seed`, so the same seed always makes
     the same choice; groups stay intact in each) are compared by :meth:`SplitCheck.key`: fewest
     meaningful training classes missing from validation, then the smallest total-variation
-    distance between the class mixes; ties keep the earlier draw. Draws leaving training or
+    distance between the class mixes of training and the farther of validation and test; ties
+    keep the earlier draw. Draws leaving training or
     validation empty are passed over (all of them: draw 0 is returned, for the caller to
     refuse). Without ``pixels`` this is draw 0. The second value records the choice for
     ``splits.json``: ``candidates`` (draws compared; 1 when the first was kept), ``draw``,
@@ -254,11 +260,12 @@ def choose_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3,
         return first, {}
     _, k, splits, check = best
     info = {"candidates": max(1, candidates), "draw": k, "draw_seed": draw_seed(seed, k),
-            "val_train_distance": check.distance, "first_draw_distance": first_check.distance,
+            "val_train_distance": check.distance, "test_train_distance": check.test_distance,
+            "first_draw_distance": first_check.distance,
             "missing_in_val": list(check.missing), "class_shares": check.shares,
             "rule": "the seed's own draw when its validation represents training, else of the seeded draws the "
-                    "one whose validation class mix is closest to training's (fewest training classes missing, "
-                    "then total variation)"}
+                    "one whose held-out class mixes are closest to training's (fewest training classes missing "
+                    "from validation, then the larger total variation of validation's and test's)"}
     return splits, info
 
 

@@ -432,4 +432,4 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
     files_out.close()
     best_row = max((h for h in history if h.get("val_miou") is not None), key=lambda h: h["val_miou"], default=None)
     return {"out_dir": str(config.out_dir), "epochs": len(history), "best": best_row,
-            "last": history[-1] if history else None, "rank": d.rank}
+            "last": history[-1] if history else None, "history": history, "rank": d.rank}

@@ -1,0 +1,168 @@
+"""Training recipes: what a run learns by, how it is recorded, how random crops are drawn.
+
+The default (``osmseg``) and the dissertation's (``paper``) recipes through the real command
+line on ``tests/data/tinyseg``; resuming a run made before recipes existed (its checkpoint has
+the paper's settings and no ``recipe``); random crops drawn from (seed, epoch, index) only.
+"""
+
+from __future__ import annotations
+
+import csv
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner, Result
+
+torch = pytest.importorskip("torch")
+
+from osmseg.cli.main import cli  # noqa: E402
+from osmseg.errors import ConfigError, DatasetError  # noqa: E402
+from training.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
+from training.config import TrainConfig  # noqa: E402
+from training.data import discover  # noqa: E402
+from training.recipe import RECIPE_FIELDS  # noqa: E402
+from training.sampling import CROPS_PER_IMAGE, RandomCrops  # noqa: E402
+
+from conftest import TEST_DATA  # noqa: E402
+
+TINYSEG = TEST_DATA / "tinyseg"
+TINY = TEST_DATA / "train" / "tiny.yaml"
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def osmseg(*args: object) -> Result:
+    return CliRunner().invoke(cli, ["-q", *(str(a) for a in args)])
+
+
+def optimizer_kind(state: dict) -> str:
+    """What optimiser wrote this state dict: AdamW keeps two moments, SGD a momentum buffer."""
+    keys = {k for s in state["state"].values() for k in s}
+    return "adamw" if "exp_avg_sq" in keys else "sgd" if "momentum_buffer" in keys else "?"
+
+
+def test_each_recipe_trains_by_its_own_settings_and_records_them(tmp_path: Path) -> None:
+    for recipe, optimizer, batches in (("osmseg", "adamw", 7), ("paper", "sgd", None)):
+        run = tmp_path / recipe
+        result = osmseg("train", TINYSEG, "--out", run, "--config", TINY, "--epochs", 1, "--recipe", recipe)
+        assert result.exit_code == 0, result.output
+        last = load_checkpoint(run / "last.pt")
+        assert last["config"]["recipe"] == recipe
+        assert all(last["config"][k] is not None for k in RECIPE_FIELDS if k != "steps_per_epoch")
+        assert optimizer_kind(last["optimizer"]) == optimizer
+        steps = last["scheduler"]["last_epoch"]
+        if batches is not None:  # tiny.yaml: 7 steps of random crops
+            assert steps == batches
+        else:  # the paper's grid: 4 patches of each training image, 4 a batch
+            train = last["splits"]["train"]
+            assert steps == -(-4 * len(train) // 4)
+        weights = last["class_weights"]
+        assert (weights is None) == (recipe == "osmseg")  # median-frequency weights are the paper's
+
+
+def test_a_setting_on_the_command_line_overrides_the_recipe_and_nothing_else(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    result = osmseg("train", TINYSEG, "--out", run, "--config", TINY, "--epochs", 1, "--recipe", "paper",
+                    "--lr", "0.02", "--class-weights", "sqrt-median-frequency")
+    assert result.exit_code == 0, result.output
+    config = load_checkpoint(run / "last.pt")["config"]
+    assert (config["optimizer"], config["lr"], config["class_weights"], config["sampling"]) == \
+        ("sgd", 0.02, "sqrt-median-frequency", "grid")
+    weights = load_checkpoint(run / "last.pt")["class_weights"]
+    mf = TrainConfig(dataset=TINYSEG, out_dir=run, recipe="paper")  # the same split, median-frequency
+    assert mf.settings.class_weights == "median-frequency" and weights is not None
+    present = weights[weights > 0]
+    assert float(present.max() / present.min()) < 20  # square roots: the spread of the weights shrinks
+
+
+def test_bad_recipe_settings_are_usage_errors(tmp_path: Path) -> None:
+    result = osmseg("train", TINYSEG, "--out", tmp_path / "run", "--recipe", "fast")
+    assert result.exit_code == 2 and "fast" in result.output
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(TINY.read_text() + "optimizer: adam\n")
+    result = osmseg("train", TINYSEG, "--out", tmp_path / "run", "--config", bad)
+    assert result.exit_code == 2 and "optimizer must be one of adamw, sgd" in result.output
+    assert not (tmp_path / "run").exists()
+    with pytest.raises(ConfigError, match="warmup"):
+        TrainConfig(dataset=TINYSEG, out_dir=tmp_path, warmup=1.5)
+
+
+def test_a_run_from_before_recipes_resumes_by_the_paper_recipe_only(tmp_path: Path) -> None:
+    """An osmseg 0.4 checkpoint has the paper's settings and no recipe: resuming it by the new
+    default would change how it learns mid-run, so that is refused and the message names the way."""
+    old = tmp_path / "old.yaml"  # tiny.yaml as 0.4 had it: no random-crop settings
+    old.write_text("".join(line for line in TINY.open() if not line.startswith(("crop:", "steps_per_epoch:"))))
+    run = tmp_path / "run"
+    result = osmseg("train", TINYSEG, "--out", run, "--config", old, "--epochs", 1, "--recipe", "paper")
+    assert result.exit_code == 0, result.output
+    for name in ("last.pt", "best.pt"):  # what 0.4 wrote: no recipe, none of its new settings
+        state = load_checkpoint(run / name)
+        for key in ("recipe", "optimizer", "warmup", "sampling", "crop", "steps_per_epoch"):
+            del state["config"][key]
+        save_checkpoint(run / name, state)
+    before = (run / "last.pt").read_bytes()
+    refused = osmseg("train", TINYSEG, "--out", run, "--config", old, "--epochs", 1)
+    assert refused.exit_code == 2 and "--recipe paper" in refused.output, refused.output
+    assert (run / "last.pt").read_bytes() == before
+    resumed = osmseg("train", TINYSEG, "--out", run, "--config", old, "--epochs", 1, "--recipe", "paper")
+    assert resumed.exit_code == 0, resumed.output  # the same run: nothing left to do
+    with (run / "log.csv").open(newline="") as f:
+        assert [int(r["epoch"]) for r in csv.DictReader(f)] == [1]
+
+
+def test_random_crops_depend_on_seed_epoch_and_index_only(tmp_path: Path) -> None:
+    files = discover(TINYSEG)[:4]
+    a = RandomCrops(files, 64, 16, seed=3, augment=True, cache_images=0)
+    b = RandomCrops(list(reversed(files))[::-1], 64, 16, seed=3, augment=True, cache_images=8)
+    for index in (0, 5, 15):  # another cache, another process, another order of asking: the same pair
+        xa, ya = a[index]
+        xb, yb = b[index]
+        assert torch.equal(xa, xb) and torch.equal(ya, yb) and xa.shape == (3, 64, 64) and ya.shape == (64, 64)
+    first = [a[i][1] for i in range(16)]
+    a.set_epoch(1)
+    assert not all(torch.equal(x, a[i][1]) for i, x in enumerate(first))  # a new epoch, new crops
+    with pytest.raises(IndexError):
+        a[16]
+
+
+def test_a_random_crop_is_a_window_of_its_image_and_label(tmp_path: Path) -> None:
+    """Without augmentation a crop is a window of one training image, and its label the same
+    window of that image's label: every pixel where the annotator put it."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    from osmseg.images import read_label, read_rgb
+
+    files = discover(TINYSEG)
+    crops = RandomCrops(files, 48, 4 * CROPS_PER_IMAGE, seed=0, augment=False, mean=(0, 0, 0), std=(1, 1, 1))
+    pairs = [(read_rgb(f.image), read_label(f.label)) for f in files]
+    chosen = set()
+    for index in range(len(crops)):
+        x, y = crops[index]
+        image = (x.permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+        found = []
+        for i, (rgb, lab) in enumerate(pairs):
+            corners = (sliding_window_view(rgb, (4, 4, 3))[..., 0, :, :, :] == image[:4, :4]).all(axis=(-3, -2, -1))
+            for t, left in zip(*np.nonzero(corners)):
+                if t + 48 <= rgb.shape[0] and left + 48 <= rgb.shape[1] and \
+                        np.array_equal(rgb[t:t + 48, left:left + 48], image):
+                    found.append(i)
+                    assert np.array_equal(lab[t:t + 48, left:left + 48], y.numpy()), (index, i, t, left)
+        assert found, f"crop {index} is not a window of any training image"
+        chosen.add(found[0])
+    assert len(chosen) > 1  # crops come from several images
+
+
+def test_crops_larger_than_an_image_are_refused_in_one_line(tmp_path: Path) -> None:
+    with pytest.raises(DatasetError, match="smaller than the 256-px random crop; use a smaller --crop"):
+        RandomCrops(discover(TINYSEG), 256, 8)
+    data = Path(shutil.copytree(TINYSEG, tmp_path / "data", ignore=shutil.ignore_patterns("data.py")))
+    result = osmseg("train", data, "--out", tmp_path / "run", "--config", TINY, "--crop", 256)
+    assert result.exit_code == 1 and "use a smaller --crop" in result.output
