@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+import warnings
 from collections.abc import Callable, Iterable, Sized
 from dataclasses import dataclass
 
@@ -99,7 +100,9 @@ def train_one_epoch(
             everywhere = int(all_reduce_sum(torch.tensor([here], dtype=torch.int64, device=opts.device)).item())
         if not everywhere:
             skipped += 1
-            scheduler.step()
+            with warnings.catch_warnings():  # a skipped first batch is no misuse of the scheduler
+                warnings.filterwarnings("ignore", message=r"Detected call of `lr_scheduler\.step\(\)` before")
+                scheduler.step()
             continue
         images, masks = opts.to_device(images, masks)
         with opts.autocast():
