@@ -16,6 +16,8 @@ checkpoint (not ``best.pt``: a choice among epochs on one validation image would
 the test split. Columns:
 
 * ``test acc`` / ``test mIoU`` — pixel accuracy and mean IoU over the test image's classes;
+* ``train acc`` — pixel accuracy of the same model on its own training images (unaugmented,
+  whole): far below 1 on these rendered images, the recipe underfits;
 * ``acc, BN batch`` — the same last model scored with BatchNorm in training mode (each test
   window normalised by its own statistics instead of the running ones): when it is far above
   ``test acc`` the running statistics are what fails, not the weights;
@@ -23,8 +25,8 @@ the test split. Columns:
 * ``px/step`` — training pixels per optimiser step.
 
 Also prints the median-frequency class weights of the training split (the paper's weights),
-and writes ``OUT/ablation.json`` and ``OUT/ablation_curves.png`` (validation pixel accuracy
-against optimiser steps, one line per variant).
+and writes ``OUT/ablation.json`` and ``OUT/ablation_curves.png`` (training loss and validation
+pixel accuracy against training pixels, one line per variant).
 """
 
 from __future__ import annotations
@@ -68,7 +70,7 @@ VARIANTS = (
     Variant("weights-mf", "+ median-frequency class weights", {"class_weights": "median-frequency"}),
     Variant("weights-sqrt", "+ square root of them", {"class_weights": "sqrt-median-frequency"}),
     Variant("sgd", "SGD lr 0.1 (momentum 0.9) for AdamW", {"optimizer": "sgd", "lr": 0.1, "weight_decay": 5e-4}),
-    Variant("no-warmup", "no warm-up", {"warmup": 0.0}),
+    Variant("warmup", "+ a linear warm-up over the first 5 % of the steps", {"warmup": 0.05}),
     Variant("poly", "poly decay for cosine", {"schedule": "poly"}),
     Variant("grid", "the fixed 360x480 grid for random crops, 4 a batch", {"sampling": "grid", "batch_size": 4}),
     Variant("crop256", "256-px crops, 4 a batch (same pixels a step)", {"crop": 256, "batch_size": 4}),
@@ -154,16 +156,18 @@ def train_variant(variant: Variant, dataset: Path, out: Path, default_steps: int
     run(config)
     seconds = time.monotonic() - began
     metrics = run_eval(run_dir / "last.pt", dataset, run_dir / "eval", EvalOptions(split="test", device="cpu"))
+    fitted = run_eval(run_dir / "last.pt", dataset, run_dir / "eval-train", EvalOptions(split="train", device="cpu"))
     with (run_dir / "log.csv").open(newline="") as f:
         rows = list(csv.DictReader(f))
     per_epoch = steps_per_epoch_of(run_dir)
     recipe = config.settings
     return {"name": variant.name, "what": variant.what, "steps": per_epoch * config.epochs, "train_s": round(seconds, 1),
             "test_pixel_accuracy": metrics["pixel_accuracy"], "test_miou": metrics["miou"],
+            "train_pixel_accuracy": fitted["pixel_accuracy"],
             "test_pixel_accuracy_bn_batch": batch_stat_accuracy(run_dir / "last.pt", dataset),
             "pixels_per_step": pixels_per_step(config),
-            "curve": [(int(r["epoch"]) * per_epoch * pixels_per_step(config) / 1e6, float(r["val_pixel_accuracy"] or "nan"))
-                      for r in rows],
+            "curve": [(int(r["epoch"]) * per_epoch * pixels_per_step(config) / 1e6, float(r["val_pixel_accuracy"] or "nan"),
+                       float(r["train_loss"] or "nan")) for r in rows],
             "recipe": recipe.to_dict()}
 
 
@@ -189,22 +193,27 @@ def class_weight_spread(dataset: Path, out: Path) -> dict[str, Any]:
 
 
 def curves_png(results: list[dict[str, Any]], path: Path) -> None:
-    """Validation pixel accuracy against training pixels, one line per variant."""
+    """Training loss and validation pixel accuracy against training pixels, one line per variant."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=100)
+    fig, (loss_ax, acc_ax) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=100)
     for r in results:
-        steps, acc = zip(*r["curve"], strict=True)
-        ax.plot(steps, acc, label=f"{r['name']}: {r['what']}", linewidth=2.2 if r["name"] in ("osmseg", "paper") else 1)
-    ax.set_xlabel("training pixels (millions)")
-    ax.set_ylabel("validation pixel accuracy")
-    ax.set_ylim(0, 1)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
-    ax.set_title("Recipe ablation (width 0.125, CPU, demo dataset)")
+        pixels, acc, loss = zip(*r["curve"], strict=True)
+        style = {"label": f"{r['name']}: {r['what']}", "linewidth": 2.2 if r["name"] in ("osmseg", "paper") else 1}
+        loss_ax.plot(pixels, loss, **style)
+        acc_ax.plot(pixels, acc, **style)
+    loss_ax.set_yscale("log")
+    loss_ax.set_ylabel("training loss (weighted where the variant weights classes)")
+    acc_ax.set_ylabel("validation pixel accuracy")
+    acc_ax.set_ylim(0, 1)
+    for ax in (loss_ax, acc_ax):
+        ax.set_xlabel("training pixels (millions)")
+        ax.grid(alpha=0.3)
+    acc_ax.legend(fontsize=7, loc="upper left")
+    fig.suptitle("Recipe ablation (width 0.125, CPU, demo dataset)")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -239,7 +248,7 @@ def main() -> None:
             r = train_variant(variant, dataset, out, args.steps, args.seed)
             results.append(r)
             print(f"{r['name']:<13} steps {r['steps']:>5}  train {r['train_s']:>6.1f} s  test acc {r['test_pixel_accuracy']:.3f}"
-                  f"  mIoU {r['test_miou']:.3f}  acc, BN batch {r['test_pixel_accuracy_bn_batch']:.3f}"
+                  f"  mIoU {r['test_miou']:.3f}  train acc {r['train_pixel_accuracy']:.3f}  acc, BN batch {r['test_pixel_accuracy_bn_batch']:.3f}"
                   f"  px/step {r['pixels_per_step']:>7}  {r['what']}", flush=True)
         report = {"steps": args.steps, "weights": spread, "variants": results}
         (out / "ablation.json").write_text(json.dumps(report, indent=1) + "\n")

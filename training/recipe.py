@@ -96,7 +96,7 @@ MIN_STEPS_PER_EPOCH = 50
 
 RECIPES: dict[str, Recipe] = {
     "osmseg": Recipe(name="osmseg", optimizer="adamw", lr=0.01, weight_decay=1e-4, momentum=0.9, schedule="cosine",
-                     warmup=0.05, poly_power=0.9, class_weights="none", sampling="random", crop=128,
+                     warmup=0.0, poly_power=0.9, class_weights="none", sampling="random", crop=128,
                      steps_per_epoch=None, batch_size=16),
     "paper": Recipe(name="paper", optimizer="sgd", lr=0.1, weight_decay=5e-4, momentum=0.9, schedule="poly",
                     warmup=0.0, poly_power=0.9, class_weights="median-frequency", sampling="grid", crop=128,
