@@ -31,12 +31,12 @@ from typing import Any
 import mercantile
 import numpy as np
 import rasterio
+import shapely
 from PIL import Image
 from pyproj import Transformer
 from rasterio.features import rasterize
 from rasterio.transform import from_bounds
 from shapely.geometry import shape as geojson_shape
-from shapely.ops import transform as reproject_shape
 
 ZOOM = 21
 BLOCK_X = tuple(range(1238448, 1238460))  # 12 columns, west to east
@@ -113,11 +113,15 @@ def read_mosaic(tiles_dir: Path, mosaic: Mosaic) -> np.ndarray:
 
 
 def footprints_3857(geojson: Path) -> list[Any]:
-    """The building polygons of a WGS84 GeoJSON, reprojected to Web Mercator metres."""
+    """The building polygons of a WGS84 GeoJSON, reprojected to Web Mercator metres (and made
+    valid: one Kampala footprint crosses itself)."""
     to_3857 = Transformer.from_crs("EPSG:4326", "EPSG:3857", always_xy=True)
     features = json.loads(geojson.read_text(encoding="utf-8"))["features"]
     polygons = [geojson_shape(f["geometry"]) for f in features if f.get("geometry")]
-    return [reproject_shape(to_3857.transform, p) for p in polygons]
+    def to_metres(xy: np.ndarray) -> np.ndarray:
+        return np.column_stack(to_3857.transform(xy[:, 0], xy[:, 1]))
+
+    return [shapely.make_valid(shapely.transform(p, to_metres)) for p in polygons]
 
 
 def mosaic_labels(mosaic: Mosaic, polygons: list[Any], alpha: np.ndarray) -> np.ndarray:
