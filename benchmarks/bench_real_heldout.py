@@ -84,8 +84,8 @@ def osmseg(args: list[str], log: Path) -> str:
     with log.open("a", encoding="utf-8") as err:
         err.write(f"$ python -m osmseg {shlex.join(args)}\n")
         err.flush()
-        done = subprocess.run([sys.executable, "-m", "osmseg", *args], stdout=subprocess.PIPE, stderr=err,
-                              text=True, env=env, cwd=ROOT)
+        done = subprocess.run([sys.executable, "-m", "osmseg", *args], check=False, stdout=subprocess.PIPE,
+                              stderr=err, text=True, env=env, cwd=ROOT)
     if done.returncode != 0:
         tail = log.read_text(encoding="utf-8").splitlines()[-15:]
         sys.exit(f"osmseg {args[0]} failed (exit {done.returncode}); end of {log}:\n" + "\n".join(tail))
@@ -130,9 +130,26 @@ def variant_args(variant: str, a: argparse.Namespace, grid_patches: int) -> list
             "--epochs", str(epochs), "--steps-per-epoch", str(a.steps_per_epoch), *extra]
 
 
+def score_checkpoint(checkpoint: Path, dataset: Path, austin: Path, out: Path, log: Path) -> dict[str, Any]:
+    """``osmseg predict`` of the Kampala test mosaics and of Austin (``--resolution model``),
+    the written masks read back and scored."""
+    tests = sorted((dataset / "test").glob("*.tif"))
+    osmseg(["predict", str(checkpoint), *map(str, tests), "--out", str(out / "kampala")], log)
+    osmseg(["predict", str(checkpoint), str(austin / "image.tif"), "--resolution", "model",
+            "--out", str(out / "austin")], log)
+    kampala: Pairs = []
+    for t in tests:
+        truth = read_band(dataset / "testannot" / t.name)
+        kampala.append((read_band(out / "kampala" / t.name) == BUILDING, truth == BUILDING, truth != UNLABELED))
+    austin_truth = read_band(austin / "buildings.tif") == 255
+    austin_pred = read_band(out / "austin" / "image.tif") == BUILDING
+    return {"kampala": pooled(kampala), "austin": pooled([(austin_pred, austin_truth, np.ones_like(austin_truth))]),
+            "_masks": {"kampala": kampala[0][0], "austin": austin_pred}}
+
+
 def train_and_score(variant: str, dataset: Path, run: Path, a: argparse.Namespace, grid_patches: int,
-                    austin: Path) -> dict[str, Any]:
-    """Train one variant with the CLI and score its best.pt on Kampala test and on Austin."""
+                    austin: Path) -> list[dict[str, Any]]:
+    """Train one variant with the CLI; score its best.pt (best validation mIoU) and last.pt."""
     if run.exists():
         sys.exit(f"{run} exists: give a new --out (a rerun would resume that run, not time a new one)")
     log = run.parent / f"{run.name}.log"
@@ -142,21 +159,15 @@ def train_and_score(variant: str, dataset: Path, run: Path, a: argparse.Namespac
     seconds = time.monotonic() - began
     with (run / "log.csv").open(encoding="utf-8") as f:
         history = list(csv.DictReader(f))
-    best = max(history, key=lambda r: float(r["val_miou"] or "-inf"))
-    tests = sorted((dataset / "test").glob("*.tif"))
-    osmseg(["predict", str(run / "best.pt"), *map(str, tests), "--out", str(run / "pred-kampala")], log)
-    osmseg(["predict", str(run / "best.pt"), str(austin / "image.tif"), "--resolution", "model",
-            "--out", str(run / "pred-austin")], log)
-    kampala: Pairs = []
-    for t in tests:
-        truth = read_band(dataset / "testannot" / t.name)
-        kampala.append((read_band(run / "pred-kampala" / t.name) == BUILDING, truth == BUILDING, truth != UNLABELED))
-    austin_truth = read_band(austin / "buildings.tif") == 255
-    austin_pred = read_band(run / "pred-austin" / "image.tif") == BUILDING
-    return {"variant": variant or "default", "train_args": args, "train_seconds": round(seconds, 1),
-            "epochs_run": len(history), "best_epoch": int(best["epoch"]), "best_val_miou": float(best["val_miou"]),
-            "kampala": pooled(kampala), "austin": pooled([(austin_pred, austin_truth, np.ones_like(austin_truth))]),
-            "_masks": {"kampala": kampala[0][0], "austin": austin_pred}}
+    best = max(history, key=lambda r: float(r["val_miou"] or "-inf"))  # the epoch best.pt holds
+    common = {"variant": variant or "default", "train_args": args, "train_seconds": round(seconds, 1),
+              "epochs_run": len(history), "val_miou_by_epoch": [float(r["val_miou"] or "nan") for r in history]}
+    rows = [dict(common, checkpoint=f"best.pt (epoch {best['epoch']})",
+                 **score_checkpoint(run / "best.pt", dataset, austin, run / "pred-best", log))]
+    if int(best["epoch"]) != len(history):
+        rows.append(dict(common, checkpoint=f"last.pt (epoch {len(history)})",
+                         **score_checkpoint(run / "last.pt", dataset, austin, run / "pred-last", log)))
+    return rows
 
 
 def baselines(dataset: Path, austin: Path, a: argparse.Namespace, resolution: float) -> list[dict[str, Any]]:
@@ -191,14 +202,14 @@ def table(rows: list[dict[str, Any]]) -> str:
     lines = ["| dataset | method | building IoU | pixel accuracy | train s |", "|---|---|---|---|---|"]
     for where, title in (("kampala", "Kampala test (east 5 columns)"), ("austin", "Inria Austin")):
         for r in rows:
-            method = r["variant"] if r["variant"].startswith("baseline") else f"network: {r['variant']}"
+            method = r["variant"] if "checkpoint" not in r else f"network: {r['variant']}, {r['checkpoint']}"
             lines.append(f"| {title} | {method} | {r[where]['building_iou']:.3f} | {r[where]['pixel_accuracy']:.3f} "
                          f"| {r['train_seconds']:.0f} |")
     return "\n".join(lines)
 
 
-def picture(path: Path, dataset: Path, austin: Path, network: dict[str, Any], baseline: dict[str, Any]) -> None:
-    """image | labels | network | baseline, for the first Kampala test mosaic and for Austin."""
+def picture(path: Path, dataset: Path, austin: Path, networks: list[dict[str, Any]], baseline: dict[str, Any]) -> None:
+    """image | labels | network (each checkpoint) | baseline, for the first Kampala test mosaic and Austin."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -210,18 +221,20 @@ def picture(path: Path, dataset: Path, austin: Path, network: dict[str, Any], ba
     rows = [("Kampala test", read_rgb(first), lab == BUILDING, lab == UNLABELED, "kampala"),
             ("Austin", read_rgb(austin / "image.tif"), read_band(austin / "buildings.tif") == 255, None, "austin")]
     colours = np.array([[90, 90, 90], [255, 220, 0], [0, 0, 0]], np.uint8)  # background, building, unlabeled
-    fig, axes = plt.subplots(2, 4, figsize=(16, 9.4))
+    columns = 3 + len(networks)
+    fig, axes = plt.subplots(2, columns, figsize=(4 * columns, 9.4))
     fig.subplots_adjust(left=0.01, right=0.99, top=0.9, bottom=0.07, wspace=0.04, hspace=0.25)
-    for row, (title, rgb, truth, void, key) in zip(axes, rows):
+    for row, (title, rgb, truth, void, key) in zip(axes, rows, strict=True):
         panels = [(rgb, f"{title}: image")]
-        for name, mask, r in (("labels", truth, None), ("network", network["_masks"][key], network),
-                              ("baseline", baseline["_masks"][key], baseline)):
+        shown: list[tuple[str, np.ndarray, dict[str, Any] | None]] = [(f"{title}: labels", truth, None)]
+        shown += [(f"network {n['variant']}\n{n['checkpoint']}", n["_masks"][key], n) for n in networks]
+        shown += [(baseline["variant"], baseline["_masks"][key], baseline)]
+        for name, mask, r in shown:
             ids = mask.astype(np.uint8)
             if void is not None:
                 ids[void] = 2
-            score = f"\n{r['variant']}: IoU {r[key]['building_iou']:.3f}" if r else ""
-            panels.append((colours[ids], f"{title}: {name}{score}"))
-        for ax, (img, text) in zip(row, panels):
+            panels.append((colours[ids], f"{name}: IoU {r[key]['building_iou']:.3f}" if r else name))
+        for ax, (img, text) in zip(row, panels, strict=True):
             ax.imshow(img, interpolation="nearest")
             ax.set_title(text, fontsize=10)
             ax.axis("off")
@@ -270,13 +283,16 @@ def main() -> None:
         for i, variant in enumerate(variants):
             slug = "-".join(shlex.split(variant)).strip("-").replace("--", "") or "default"
             print(f"training {variant or 'default'} ...", file=sys.stderr)
-            rows.append(train_and_score(variant, dataset, out / "runs" / f"{i}-{slug}", a, grid, austin))
-            print(f"  {rows[-1]['train_seconds']:.0f} s, Kampala IoU {rows[-1]['kampala']['building_iou']:.3f}, "
-                  f"Austin IoU {rows[-1]['austin']['building_iou']:.3f}", file=sys.stderr)
+            for r in train_and_score(variant, dataset, out / "runs" / f"{i}-{slug}", a, grid, austin):
+                rows.append(r)
+                print(f"  trained in {r['train_seconds']:.0f} s; {r['checkpoint']}: Kampala IoU "
+                      f"{r['kampala']['building_iou']:.3f}, Austin IoU {r['austin']['building_iou']:.3f}",
+                      file=sys.stderr)
         rows += baselines(dataset, austin, a, resolution)
         print(table(rows))
         if a.png:
-            picture(a.png, dataset, austin, rows[0], next(r for r in rows if r["variant"] == "baseline balanced"))
+            picture(a.png, dataset, austin, [r for r in rows if r["variant"] == rows[0]["variant"]],
+                    next(r for r in rows if r["variant"] == "baseline balanced"))
         if a.json:
             settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
             report = {"settings": dict(settings, train_args=variants), "seeds": {
