@@ -11,7 +11,7 @@ $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	# torch/torchvision pinned to the releases this project is tested with (CPU or CUDA alike)
-	$(BIN)/pip install --quiet -e '.[test,train]' torch==2.14.1 torchvision==0.29.1
+	$(BIN)/pip install --quiet -e '.[test,train,bench]' torch==2.14.1 torchvision==0.29.1
 	touch $@
 
 demo: $(VENV)/.installed
