@@ -4,7 +4,8 @@ against the alternative, every run trained for real by osmseg's trainer.
 Run: ``.venv/bin/python benchmarks/bench_recipe.py [--dataset DIR] [--steps 400] [--out DIR]
 [--only NAME ...]`` (prints a table, asserts nothing). Without ``--dataset`` it builds the
 offline ``osmseg demo`` dataset (4 rendered 1280x1280 samples of central Helsinki: 2 train,
-1 validation, 1 test) into a temporary folder.
+1 validation, 1 test) into a temporary folder. Rerun with the same ``--out`` after a stop: the
+variants that finished are read back, the one cut short resumes where its trainer stopped.
 
 For each variant: :func:`training.train.run` with the ``osmseg`` recipe changed in one setting
 (or the ``paper`` recipe), width 0.125 on the CPU, for the same number of training pixels:
@@ -21,7 +22,8 @@ the test split. Columns:
 * ``acc, BN batch`` — the same last model scored with BatchNorm in training mode (each test
   window normalised by its own statistics instead of the running ones): when it is far above
   ``test acc`` the running statistics are what fails, not the weights;
-* ``train s`` — wall time of the training run (validation every epoch included);
+* ``train s`` — the training run's epochs, as its ``log.csv`` times them (validation every epoch
+  included);
 * ``px/step`` — training pixels per optimiser step.
 
 Also prints the median-frequency class weights of the training split (the paper's weights),
@@ -38,7 +40,6 @@ import logging
 import os
 import sys
 import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -152,13 +153,17 @@ def train_variant(variant: Variant, dataset: Path, out: Path, default_steps: int
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "splits.json").write_bytes((out / "splits.json").read_bytes())  # every variant: the same split
     config = make_config(dataset, run_dir, None, settings)
-    began = time.monotonic()
-    run(config)
-    seconds = time.monotonic() - began
-    metrics = run_eval(run_dir / "last.pt", dataset, run_dir / "eval", EvalOptions(split="test", device="cpu"))
-    fitted = run_eval(run_dir / "last.pt", dataset, run_dir / "eval-train", EvalOptions(split="train", device="cpu"))
+    trained_before = (run_dir / "last.pt").stat().st_mtime_ns if (run_dir / "last.pt").exists() else None
+    run(config)  # a run already finished in --out is only reopened (the trainer resumes)
+    evals = {"test": run_dir / "eval", "train": run_dir / "eval-train"}
+    for split, folder in evals.items():
+        stale = trained_before != (run_dir / "last.pt").stat().st_mtime_ns
+        if stale or not (folder / "metrics.json").exists():
+            run_eval(run_dir / "last.pt", dataset, folder, EvalOptions(split=split, device="cpu"))
+    metrics, fitted = (json.loads((evals[s] / "metrics.json").read_text()) for s in ("test", "train"))
     with (run_dir / "log.csv").open(newline="") as f:
         rows = list(csv.DictReader(f))
+    seconds = sum(float(r["seconds"]) for r in rows)  # the epochs' own times: a resumed run's add up too
     per_epoch = steps_per_epoch_of(run_dir)
     recipe = config.settings
     return {"name": variant.name, "what": variant.what, "steps": per_epoch * config.epochs, "train_s": round(seconds, 1),
