@@ -72,7 +72,6 @@ VARIANTS = (
     Variant("weights-sqrt", "+ square root of them", {"class_weights": "sqrt-median-frequency"}),
     Variant("sgd", "SGD lr 0.1 (momentum 0.9) for AdamW", {"optimizer": "sgd", "lr": 0.1, "weight_decay": 5e-4}),
     Variant("warmup", "+ a linear warm-up over the first 5 % of the steps", {"warmup": 0.05}),
-    Variant("poly", "poly decay for cosine", {"schedule": "poly"}),
     Variant("grid", "the fixed 360x480 grid for random crops, 4 a batch", {"sampling": "grid", "batch_size": 4}),
     Variant("crop256", "256-px crops, 4 a batch (same pixels a step)", {"crop": 256, "batch_size": 4}),
     Variant("no-augment", "no flips, turns or colour jitter", {"augment": False}),

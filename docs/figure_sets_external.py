@@ -293,8 +293,6 @@ def osm(ws: Workspace) -> dict[str, Figure]:
 
 #: the recipe ablation the training docs quote: every variant for as many optimiser steps
 ABLATION_STEPS = "400"
-#: the default recipe's long run on the demo dataset (the "5 minutes of CPU" target)
-LONG_STEPS = "1500"
 
 
 def ablation_row(v: dict[str, Any]) -> list[str]:
@@ -305,14 +303,12 @@ def ablation_row(v: dict[str, Any]) -> list[str]:
 
 @figure_set("training", "expensive", needs="torch")
 def training(ws: Workspace) -> dict[str, Figure]:
-    """benchmarks/bench_recipe.py on the demo dataset (every recipe variant, then the default for longer), osmseg demo's training, bench_train.py"""
+    """benchmarks/bench_recipe.py on the demo dataset (every recipe variant), osmseg demo's training, bench_train.py"""
     dataset = ws.demo_dataset()
     picture = REPO_ROOT / "docs" / "img" / "recipe-ablation.png"
     picture.parent.mkdir(exist_ok=True)
     a = benchmark(ws, "bench_recipe.py", "--dataset", dataset, "--steps", ABLATION_STEPS, "--out", "ablation",
                   "--png", str(picture))
-    long = benchmark(ws, "bench_recipe.py", "--dataset", dataset, "--steps", LONG_STEPS, "--out", "ablation-long",
-                     "--only", "osmseg")["variants"][0]
     v = {r["name"]: r for r in a["variants"]}
     w = a["weights"]
     _, printed = ws.run("demo", "--out", "demo-train", "--no-localize")
@@ -333,9 +329,6 @@ def training(ws: Workspace) -> dict[str, Figure]:
         "training.steps": F(count(int(ABLATION_STEPS))),
         **{f"training.{name}": F(f"{ratio(r['test_pixel_accuracy'])} test pixel accuracy, mIoU {ratio(r['test_miou'])}")
            for name, r in v.items()},
-        "training.long": F(f"{ratio(long['test_pixel_accuracy'])} pixel accuracy and mIoU {ratio(long['test_miou'])} "
-                           f"after {count(long['steps'])} steps ({seconds(long['train_s'])} of training)",
-                           r"\d[\d.,]* s\b"),
         "training.demo": F(f"{ratio(demo['pixel_accuracy'])} pixel accuracy, mIoU {ratio(demo['miou'])}, after "
                            f"{seconds(demo_seconds)} of training", r"\d[\d.,]* s\b"),
         "training.demo.transcript": F(transcript((("demo", "--out", "demo-train", "--no-localize"), printed)),
@@ -360,7 +353,7 @@ def heldout(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_real_heldout.py: buildings on Kampala z21 samples apart from training, and on Inria Austin, network beside a per-pixel baseline"""
     picture = REPO_ROOT / "docs" / "img" / "heldout.png"
     picture.parent.mkdir(exist_ok=True)
-    report = benchmark(ws, "bench_real_heldout.py", "--png", str(picture))
+    report = benchmark(ws, "bench_real_heldout.py", "--out", "heldout", "--png", str(picture))
     rows = [heldout_row(r) for r in report["results"]]
     return {"heldout.table": F(table(["trained by", "Kampala building IoU", "Kampala pixel accuracy",
                                       "Austin building IoU", "Austin pixel accuracy", "training"], rows),
