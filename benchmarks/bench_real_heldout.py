@@ -16,12 +16,13 @@ What it does:
    on each mosaic's transform, transparent drone pixels unlabeled (ignored).
 2. Trains each variant through the real command line, ``python -m osmseg train DATASET --out
    RUN --model buildings --width 0.125 --device cpu --seed S --epochs E --steps-per-epoch N``
-   followed by the variant's own ``--train-args`` (default: the default recipe, and
-   ``--recipe paper``). A variant on the paper's fixed 360x480 grid (``--recipe paper``, which
-   ignores ``--steps-per-epoch``) gets, unless its arguments say ``--epochs``, as many epochs
-   as see the same number of training pixels as E x N steps of the default recipe (16 crops of
-   128x128 a step). Wall time of each training is measured.
-3. Scores ``RUN/best.pt`` (best validation mIoU) with ``osmseg predict`` on the Kampala test
+   (E=20, N=30 by default), then the variant's own ``--train-args`` (default: the default
+   recipe, and ``--recipe paper``). A variant on the paper's fixed 360x480 grid (``--recipe
+   paper``, which ignores ``--steps-per-epoch``) gets, unless its arguments say ``--epochs``,
+   as many epochs as see the same number of training pixels as E x N steps of the default
+   recipe (16 crops of 128x128 a step). Wall time of each training is measured.
+3. Scores ``RUN/best.pt`` (best validation mIoU, on one strip: it can be an early epoch) and,
+   when it is another epoch, ``RUN/last.pt`` with ``osmseg predict`` on the Kampala test
    mosaics and on ``inria-austin/image.tif`` with ``--resolution model`` (resampled to the
    training data's 0.0744 m, mask back on Austin's 0.3 m grid), reading the written masks
    with rasterio: building IoU and pixel accuracy (building vs the rest) over labelled
@@ -31,16 +32,18 @@ What it does:
    the Kampala training resolution (so it sees roofs at the size it learnt them), its mask
    brought back to Austin's grid with nearest neighbour.
 
-Run from the project root (needs the ``train`` and ``bench`` extras; ~20 minutes for the two
-default variants on a shared 2-core CPU)::
+Run from the project root (needs the ``train`` and ``bench`` extras; the budget is set for 5-6
+minutes a default training on a quiet 2-core CPU, about 20 minutes in all, three to four times
+that when another job shares the CPUs)::
 
     .venv/bin/python benchmarks/bench_real_heldout.py [--out DIR] [--json results.json]
         [--png results.png] [--train-args "--crop 256 --batch-size 4" ...] [--seed 0]
 
 Prints a markdown table; ``--json`` writes every figure, the settings and the seeds;
-``--png`` shows image | labels | network | baseline for Kampala and Austin. Without
-``--out`` everything goes into a temporary folder that is removed at the end. Exits with
-code 1 and one line when ``../shared/data`` (``--shared-data``) is absent.
+``--png`` shows image | labels | network (best.pt, last.pt) of the first variant | balanced
+baseline, for Kampala and Austin. Without ``--out`` everything goes into a temporary folder
+that is removed at the end. Exits with code 1 and one line when ``../shared/data``
+(``--shared-data``) is absent. Figures measured on the shared machine: benchmarks/README.md.
 """
 
 from __future__ import annotations
@@ -252,8 +255,8 @@ def main() -> None:
     p.add_argument("--out", type=Path, help="keep the dataset, runs and masks here (default: a temporary folder)")
     p.add_argument("--train-args", action="append", metavar="ARGS",
                    help=f"one training variant's extra options (repeatable; default: {list(DEFAULT_VARIANTS)})")
-    p.add_argument("--epochs", type=int, default=8)
-    p.add_argument("--steps-per-epoch", type=int, default=25)
+    p.add_argument("--epochs", type=int, default=20)
+    p.add_argument("--steps-per-epoch", type=int, default=30)
     p.add_argument("--width", type=float, default=0.125)
     p.add_argument("--baseline-samples", type=int, default=200_000, help="training pixels the baseline fits on")
     p.add_argument("--seed", type=int, default=0, help="validation strip, training, baseline subsample")
