@@ -42,7 +42,6 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
-from typing import Any
 
 try:
     import fcntl
@@ -50,7 +49,7 @@ except ImportError:  # Windows: no private folder (nothing can tell a live run's
     fcntl = None  # type: ignore[assignment]
 
 __all__ = ["FOREIGN_SECONDS", "INTERRUPTED", "PRELOAD", "TERMINATED", "Terminated", "available_cores", "deferred_termination", "owner", "owner_gone", "start_fork_server",
-           "stop_unless_deferred", "sweep_owned", "terminate_by_exception", "use_private_temp_dir", "worker_context"]
+           "sweep_owned", "terminate_by_exception", "use_private_temp_dir", "worker_context"]
 
 #: A temporary thing left by a process on another machine (a shard of a cluster build on a shared
 #: folder) is swept only this long after its last change: no write of osmseg takes that long, and
@@ -286,31 +285,25 @@ class Terminated(BaseException):
     for a Ctrl-C, so temporary files are removed and workers stopped, and says so."""
 
 
-#: main thread's depth of :func:`deferred_termination` blocks, and the stop a signal left waiting for their end
-_deferral: dict[str, Any] = {"depth": 0, "pending": None}
-
-
-def stop_unless_deferred(stop: BaseException) -> None:
-    """Raise ``stop`` (from a signal handler) now, or at the end of the open
-    :func:`deferred_termination` block when one is open in this process's main thread."""
-    if _deferral["depth"]:
-        _deferral["pending"] = _deferral["pending"] or stop
-        return
-    raise stop
+#: main thread's depth of :func:`deferred_termination` blocks, and whether a SIGTERM waits for their end
+_deferral = {"depth": 0, "pending": False}
 
 
 def _on_sigterm(signum: int, frame: FrameType | None) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # once: a second kill ends the process at once, as asked
-    stop_unless_deferred(Terminated())
+    if _deferral["depth"]:
+        _deferral["pending"] = True
+        return
+    raise Terminated()
 
 
 @contextmanager
 def deferred_termination() -> Iterator[None]:
-    """Hold a ``SIGTERM`` (as :func:`terminate_by_exception` or a build worker turns it) until the block ends.
+    """Hold a ``SIGTERM`` (as :func:`terminate_by_exception` turns it) until the block ends.
 
-    For the few steps that must not be cut in two by the exception: creating a temporary file
-    and remembering its name, so the unwinding removes it. Elsewhere than the main thread the
-    block changes nothing (signal handlers only ever run there).
+    For the few steps that must not be cut in two by :class:`Terminated`: creating a temporary
+    file and remembering its name, so the unwinding removes it. Elsewhere than the main thread
+    the block changes nothing (the handler only ever runs there).
 
     >>> with deferred_termination():
     ...     pass
@@ -323,9 +316,9 @@ def deferred_termination() -> Iterator[None]:
         yield
     finally:
         _deferral["depth"] -= 1
-    if not _deferral["depth"] and _deferral["pending"] is not None:
-        stop, _deferral["pending"] = _deferral["pending"], None
-        raise stop
+    if not _deferral["depth"] and _deferral["pending"]:
+        _deferral["pending"] = False
+        raise Terminated()
 
 
 def terminate_by_exception() -> None:
