@@ -38,18 +38,19 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 try:
     import fcntl
 except ImportError:  # Windows: no private folder (nothing can tell a live run's from a dead one's)
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["FOREIGN_SECONDS", "INTERRUPTED", "PRELOAD", "TERMINATED", "Terminated", "available_cores", "deferred_termination", "owner", "owner_gone", "start_fork_server",
-           "sweep_owned", "terminate_by_exception", "use_private_temp_dir", "worker_context"]
+__all__ = ["FOREIGN_SECONDS", "INTERRUPTED", "PRELOAD", "TERMINATED", "Terminated", "available_cores", "deferred_termination", "owner", "owner_gone", "signals_held", "start_fork_server",
+           "stop_unless_deferred", "sweep_owned", "terminate_by_exception", "use_private_temp_dir", "worker_context"]
 
 #: A temporary thing left by a process on another machine (a shard of a cluster build on a shared
 #: folder) is swept only this long after its last change: no write of osmseg takes that long, and
@@ -285,25 +286,37 @@ class Terminated(BaseException):
     for a Ctrl-C, so temporary files are removed and workers stopped, and says so."""
 
 
-#: main thread's depth of :func:`deferred_termination` blocks, and whether a SIGTERM waits for their end
-_deferral = {"depth": 0, "pending": False}
+#: main thread's depth of :func:`deferred_termination` blocks, and the stop a signal left waiting for their end
+_deferral: dict[str, Any] = {"depth": 0, "pending": None}
+
+
+def stop_unless_deferred(stop: Callable[[], BaseException]) -> None:
+    """Raise ``stop()`` (from a signal handler) now, or at the end of the open
+    :func:`deferred_termination` block when one is open in this process's main thread.
+
+    ``stop`` makes the exception rather than being it: an exception held in a local variable of
+    a frame its own traceback passes through is a reference cycle, which keeps every frame it
+    unwinds (and what they hold: a training loop's DataLoader workers) alive until the garbage
+    collector runs, which may be after the exit handlers that wait for those workers.
+    """
+    if _deferral["depth"]:
+        _deferral["pending"] = _deferral["pending"] or stop
+        return
+    raise stop()
 
 
 def _on_sigterm(signum: int, frame: FrameType | None) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # once: a second kill ends the process at once, as asked
-    if _deferral["depth"]:
-        _deferral["pending"] = True
-        return
-    raise Terminated()
+    stop_unless_deferred(Terminated)
 
 
 @contextmanager
 def deferred_termination() -> Iterator[None]:
-    """Hold a ``SIGTERM`` (as :func:`terminate_by_exception` turns it) until the block ends.
+    """Hold a ``SIGTERM`` (as :func:`terminate_by_exception` or a build worker turns it) until the block ends.
 
-    For the few steps that must not be cut in two by :class:`Terminated`: creating a temporary
-    file and remembering its name, so the unwinding removes it. Elsewhere than the main thread
-    the block changes nothing (the handler only ever runs there).
+    For the few steps that must not be cut in two by the exception: creating a temporary file
+    and remembering its name, so the unwinding removes it. Elsewhere than the main thread the
+    block changes nothing (signal handlers only ever run there).
 
     >>> with deferred_termination():
     ...     pass
@@ -316,9 +329,35 @@ def deferred_termination() -> Iterator[None]:
         yield
     finally:
         _deferral["depth"] -= 1
-    if not _deferral["depth"] and _deferral["pending"]:
-        _deferral["pending"] = False
-        raise Terminated()
+    if not _deferral["depth"] and _deferral["pending"] is not None:
+        stop, _deferral["pending"] = _deferral["pending"], None
+        raise stop()
+
+
+@contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold Ctrl-C and ``SIGTERM`` back (blocked for this thread) until the block ends, where
+    they arrive as they would have.
+
+    For the command line's imports: a Ctrl-C that lands inside a compiled module's initialisation
+    (measured: pyproj's Cython ``_sync``, 0.66 s after start) unwinds as usual, the command says it
+    was interrupted and exits 130, and then CPython, having seen a ``KeyboardInterrupt`` escape
+    that module's code, kills the process with SIGINT on its way out (status -2 to a parent that
+    waits for it); elsewhere such an interrupt surfaced as an unrelated ``TypeError`` from a
+    half-imported module. A module is imported whole, or not at all, in well under a second. No
+    change where signals cannot be blocked, or off the main thread (handlers only run there).
+
+    >>> with signals_held():
+    ...     pass
+    """
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def terminate_by_exception() -> None:

@@ -61,7 +61,7 @@ from osmseg.errors import DatasetError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
 from osmseg.output.overview import OVERVIEW_SAMPLES
-from osmseg.processes import worker_context
+from osmseg.processes import stop_unless_deferred, worker_context
 from osmseg.records import SlotOutcome
 from osmseg.slots import Pipeline, http_config, open_pipeline, run_slot
 from osmseg.state import BuildState
@@ -182,7 +182,11 @@ class _Stop(SystemExit):
 
 
 def _on_terminate(signum: int, frame: object) -> None:
-    raise _Stop(1)
+    stop_unless_deferred(_stop)  # not between creating a temporary file and knowing its name
+
+
+def _stop() -> _Stop:
+    return _Stop(1)
 
 
 def _end_now(signum: int, frame: object) -> None:

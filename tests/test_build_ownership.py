@@ -25,6 +25,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -313,3 +314,23 @@ def test_a_run_sweeps_the_temporary_folders_of_ended_runs_only(tmp_path: Path) -
         holder.kill()
         holder.wait()
     shutil.rmtree(tmpdir)
+
+
+def test_a_ctrl_c_or_sigterm_while_signals_are_held_arrives_as_the_block_ends() -> None:
+    """What the command line's imports run under (the exit status of a Ctrl-C in a compiled
+    module's start, above): the signal is neither lost nor delivered inside the block."""
+    from osmseg.processes import Terminated, signals_held, terminate_by_exception
+
+    before = signal.getsignal(signal.SIGTERM)
+    terminate_by_exception()
+    try:
+        for stop, raised in ((signal.SIGINT, KeyboardInterrupt), (signal.SIGTERM, Terminated)):
+            inside = []
+            with pytest.raises(raised):
+                with signals_held():
+                    signal.pthread_kill(threading.main_thread().ident, stop)  # the only thread while the command line imports
+                    time.sleep(0.05)  # a pending signal would have run its handler by now
+                    inside.append(stop)
+            assert inside == [stop]
+    finally:
+        signal.signal(signal.SIGTERM, before)

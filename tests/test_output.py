@@ -451,10 +451,14 @@ def test_sweeping_temp_files_spares_live_writers_and_removes_what_killed_ones_le
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, other_new.name])
 
 
-def test_a_sigterm_just_after_a_temporary_file_is_created_still_removes_it(tmp_path: Path, monkeypatch) -> None:
-    """The window CI once hit: ``kill`` between mkstemp and the writer knowing the name left a .tmp."""
+@pytest.mark.parametrize("process", ["command", "build worker"])
+def test_a_sigterm_just_after_a_temporary_file_is_created_still_removes_it(
+        tmp_path: Path, monkeypatch, process: str) -> None:
+    """The window CI hit twice: ``kill`` between mkstemp and the writer knowing the name left a .tmp
+    (in the command's process, then in a build worker's, whose SIGTERM handler is its own)."""
     import signal
 
+    from osmseg import workers
     from osmseg.output import atomic
     from osmseg.processes import Terminated, terminate_by_exception
 
@@ -467,9 +471,13 @@ def test_a_sigterm_just_after_a_temporary_file_is_created_still_removes_it(tmp_p
 
     monkeypatch.setattr(atomic, "temp_path_for", killed_on_creation)
     before = signal.getsignal(signal.SIGTERM)
-    terminate_by_exception()
+    if process == "command":
+        terminate_by_exception()
+    else:
+        signal.signal(signal.SIGTERM, workers._on_terminate)
     try:
-        with pytest.raises(Terminated), atomic.atomic_path(tmp_path / "DATASHEET.md") as tmp:
+        with pytest.raises(Terminated if process == "command" else workers._Stop), \
+                atomic.atomic_path(tmp_path / "DATASHEET.md") as tmp:
             tmp.write_text("never reached")
     finally:
         signal.signal(signal.SIGTERM, before)

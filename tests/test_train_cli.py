@@ -475,3 +475,34 @@ def test_sigterm_to_the_process_group_ends_training_with_one_line(tmp_path: Path
     _, stderr = proc.communicate(timeout=120)
     assert (proc.returncode, stderr.decode()) == (
         143, "terminated (SIGTERM): rerun the same command to resume; finished work is kept\n")
+
+
+#: Training whose progress callback stops it with an exception held in a reference cycle (its own
+#: traceback passes through the frame that holds it), with the garbage collector off.
+CYCLIC_STOP = """
+import gc, sys
+from pathlib import Path
+from training.config import make_config
+from training.train import run
+gc.disable()
+config = make_config(Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3]), {"loader_workers": 2, "epochs": 3})
+
+def progress(step):
+    if step.task.endswith("validate"):
+        stop = RuntimeError("stopped")  # a local that its traceback's frame holds: a cycle
+        raise stop
+
+try:
+    run(config, progress)
+except RuntimeError:
+    print("stopped", flush=True)
+"""
+
+
+def test_training_stopped_by_an_exception_in_a_reference_cycle_still_exits(tmp_path: Path) -> None:
+    """The loader workers ignore SIGTERM, so the exit handler that waits for child processes
+    waits forever unless training ends them itself; a traceback caught in a cycle keeps the
+    loader's iterator (whose end would end them) alive past that handler."""
+    proc = subprocess.run([sys.executable, "-c", CYCLIC_STOP, TINYSEG, tmp_path / "run", CONFIGS / "tiny.yaml"],
+                          capture_output=True, env=subprocess_env(), timeout=120)
+    assert (proc.returncode, proc.stdout.decode()) == (0, "stopped\n"), proc.stderr.decode()[-800:]

@@ -25,6 +25,7 @@ from osmseg.processes import (
     Terminated,
     available_cores,
     quiet_resource_tracker,
+    signals_held,
     start_fork_server,
     terminate_by_exception,
     use_private_temp_dir,
@@ -82,7 +83,8 @@ def main() -> None:
                 start_fork_server()
             except OSError:  # no room for its socket, no file descriptors left: the build tries again, and says why
                 pass
-        from osmseg.cli.main import cli  # after the server has started: the reason for this module
+        with signals_held():  # not inside a compiled module's start (see signals_held)
+            from osmseg.cli.main import cli  # after the server has started: the reason for this module
     except KeyboardInterrupt:  # Ctrl-C before the command runs: the line and exit status of one, no traceback
         _end(INTERRUPTED, 130)
     except Terminated:
