@@ -71,6 +71,8 @@ VARIANTS = (
     Variant("weights-mf", "+ median-frequency class weights", {"class_weights": "median-frequency"}),
     Variant("weights-sqrt", "+ square root of them", {"class_weights": "sqrt-median-frequency"}),
     Variant("sgd", "SGD lr 0.1 (momentum 0.9) for AdamW", {"optimizer": "sgd", "lr": 0.1, "weight_decay": 5e-4}),
+    Variant("lr-0.003", "AdamW lr 0.003 (not 0.01)", {"lr": 0.003}),
+    Variant("lr-0.001", "AdamW lr 0.001 (not 0.01)", {"lr": 0.001}),
     Variant("warmup", "+ a linear warm-up over the first 5 % of the steps", {"warmup": 0.05}),
     Variant("grid", "the fixed 360x480 grid for random crops, 4 a batch", {"sampling": "grid", "batch_size": 4}),
     Variant("crop256", "256-px crops, 4 a batch (same pixels a step)", {"crop": 256, "batch_size": 4}),

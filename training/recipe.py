@@ -5,8 +5,8 @@ schedule, class weights, how patches are drawn, batch size); :class:`~training.c
 names one (``--recipe``) and may override any of its settings. Two are shipped:
 
 ``osmseg`` (the default)
-    AdamW (lr 0.01, weight decay 1e-4), linear warm-up over the first 5 % of the steps, then a
-    cosine decay to zero; no class weights; random 128x128 crops (drawn anywhere in the
+    AdamW (lr 0.01, weight decay 1e-4), no warm-up (one is available: ``warmup``), a cosine
+    decay to zero; no class weights; random 128x128 crops (drawn anywhere in the
     training images, after one of the square's eight symmetries), 16 per batch, at least 50
     steps per epoch. It is built for what most users have: a few hundred samples or fewer,
     often a CPU. Each choice is measured against the alternatives in ``docs/training.md``
