@@ -24,6 +24,7 @@ import math
 import signal
 import time
 from collections.abc import Iterable
+from contextlib import ExitStack
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -308,12 +309,13 @@ def run(config: TrainConfig, progress: Progress | None = None) -> dict[str, Any]
     """
     d = setup(config.device)
     try:
-        return _run(config, d, progress)
+        with ExitStack() as teardown:
+            return _run(config, d, teardown, progress)
     finally:
         cleanup()
 
 
-def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict[str, Any]:
+def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress | None = None) -> dict[str, Any]:
     torch.manual_seed(config.seed)  # the same initial weights in every process
     dataset_table = training_class_table(config.dataset, config.classes, config.model)
     model_table, label_lut = model_classes(config.model, dataset_table)
@@ -384,71 +386,69 @@ def _run(config: TrainConfig, d: Dist, progress: Progress | None = None) -> dict
     optimizer = make_optimizer(model, recipe)
     train_loader = seeded_loader(train_set, config, d, shuffle=True)
     val_loader = seeded_loader(val_set, config, d, shuffle=False)
-    try:
-        steps = len(train_loader) if config.max_steps_per_epoch is None else min(len(train_loader), config.max_steps_per_epoch)
-        scheduler = make_scheduler(optimizer, recipe, config.epochs * steps)
-        scaler = torch.amp.GradScaler(d.device.type, enabled=opts.amp)
+    teardown.callback(stop_loader_workers, train_loader, val_loader)  # however the run ends: see there
+    steps = len(train_loader) if config.max_steps_per_epoch is None else min(len(train_loader), config.max_steps_per_epoch)
+    scheduler = make_scheduler(optimizer, recipe, config.epochs * steps)
+    scaler = torch.amp.GradScaler(d.device.type, enabled=opts.amp)
 
-        files_out = RunFiles(config.out_dir, d, config.tensorboard)
-        history: list[dict[str, Any]] = []
-        best = -math.inf
-        start = 0
-        if saved is not None:
-            model.load_state_dict(saved["model"])
-            optimizer.load_state_dict(saved["optimizer"])
-            scheduler.load_state_dict(saved["scheduler"])
-            scaler.load_state_dict(saved["scaler"])
-            history = list(saved["history"])
-            best = max((h["val_miou"] for h in history if h.get("val_miou") is not None), default=-math.inf)
-            start = int(saved["epoch"])
-            if d.is_main:
-                logger.info("resuming %s after epoch %d", config.out_dir, start)
+    files_out = RunFiles(config.out_dir, d, config.tensorboard)
+    history: list[dict[str, Any]] = []
+    best = -math.inf
+    start = 0
+    if saved is not None:
+        model.load_state_dict(saved["model"])
+        optimizer.load_state_dict(saved["optimizer"])
+        scheduler.load_state_dict(saved["scheduler"])
+        scaler.load_state_dict(saved["scaler"])
+        history = list(saved["history"])
+        best = max((h["val_miou"] for h in history if h.get("val_miou") is not None), default=-math.inf)
+        start = int(saved["epoch"])
+        if d.is_main:
+            logger.info("resuming %s after epoch %d", config.out_dir, start)
 
-        base_state = {
-            "spec": asdict(spec), "config": config.to_dict(), "splits": splits,
-            "class_weights": None if weights is None else weights.cpu(),
-            "dataset_sha256": dataset_fingerprint(config.dataset),
-            "init": saved.get("init") if saved is not None else (init.record if init is not None else None),
-        }
-        report(shown, "train", start, config.epochs, "epoch")
-        for epoch in range(start, config.epochs):
-            began = time.monotonic()
-            train_set.set_epoch(epoch)
-            if isinstance(train_loader.sampler, DistributedSampler):
-                train_loader.sampler.set_epoch(epoch)
-            lr = optimizer.param_groups[0]["lr"]
-            train_loss = train_one_epoch(net, criterion, optimizer, scheduler, scaler, train_loader, opts, epoch + 1,
-                                         progress=shown)
-            if d.distributed:  # every process validates with rank 0's BN statistics (those saved below)
-                for buffer in model.buffers():
-                    dist.broadcast(buffer, src=0)
-            # The plain module, not the DDP wrapper: its first forward after training would sync
-            # buffers (a collective), but processes may hold different numbers of val batches.
-            val_loss, matrix = evaluate(model, criterion, val_loader, opts, spec.num_classes, spec.ignore_index,
-                                        progress=shown, task=f"epoch {epoch + 1} validate")
-            metrics = matrix.compute(spec.class_names)  # by id, never by list position
-            row = {"epoch": epoch + 1, "lr": lr, "train_loss": rounded(train_loss), "val_loss": rounded(val_loss),
-                   "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
-                   "seconds": round(time.monotonic() - began, 2)}
-            history.append(row)
-            report(shown, "train", epoch + 1, config.epochs, "epoch")
-            if d.is_main:
-                state = dict(base_state, model=model.state_dict(), optimizer=optimizer.state_dict(),
-                             scheduler=scheduler.state_dict(), scaler=scaler.state_dict(), epoch=epoch + 1,
-                             history=history, val_metrics=metrics)
-                if metrics["miou"] is not None and metrics["miou"] > best:
-                    best = metrics["miou"]
-                    save_checkpoint(files_out.best, state)
-                files_out.write_log(history)
-                # last.pt is the commit point of an epoch, written after best.pt and log.csv: a run
-                # killed in between redoes the epoch on resume and rewrites all three.
-                save_checkpoint(files_out.last, state)
-                logger.info("epoch %d/%d: train loss %s, val loss %s, val mIoU %s", epoch + 1, config.epochs,
-                            rounded(train_loss, 4), rounded(val_loss, 4), metrics["miou"])
-            barrier()
-        files_out.close()
-        best_row = max((h for h in history if h.get("val_miou") is not None), key=lambda h: h["val_miou"], default=None)
-        return {"out_dir": str(config.out_dir), "epochs": len(history), "best": best_row,
-                "last": history[-1] if history else None, "history": history, "rank": d.rank}
-    finally:  # not left to garbage collection: see stop_loader_workers
-        stop_loader_workers(train_loader, val_loader)
+    base_state = {
+        "spec": asdict(spec), "config": config.to_dict(), "splits": splits,
+        "class_weights": None if weights is None else weights.cpu(),
+        "dataset_sha256": dataset_fingerprint(config.dataset),
+        "init": saved.get("init") if saved is not None else (init.record if init is not None else None),
+    }
+    report(shown, "train", start, config.epochs, "epoch")
+    for epoch in range(start, config.epochs):
+        began = time.monotonic()
+        train_set.set_epoch(epoch)
+        if isinstance(train_loader.sampler, DistributedSampler):
+            train_loader.sampler.set_epoch(epoch)
+        lr = optimizer.param_groups[0]["lr"]
+        train_loss = train_one_epoch(net, criterion, optimizer, scheduler, scaler, train_loader, opts, epoch + 1,
+                                     progress=shown)
+        if d.distributed:  # every process validates with rank 0's BN statistics (those saved below)
+            for buffer in model.buffers():
+                dist.broadcast(buffer, src=0)
+        # The plain module, not the DDP wrapper: its first forward after training would sync
+        # buffers (a collective), but processes may hold different numbers of val batches.
+        val_loss, matrix = evaluate(model, criterion, val_loader, opts, spec.num_classes, spec.ignore_index,
+                                    progress=shown, task=f"epoch {epoch + 1} validate")
+        metrics = matrix.compute(spec.class_names)  # by id, never by list position
+        row = {"epoch": epoch + 1, "lr": lr, "train_loss": rounded(train_loss), "val_loss": rounded(val_loss),
+               "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
+               "seconds": round(time.monotonic() - began, 2)}
+        history.append(row)
+        report(shown, "train", epoch + 1, config.epochs, "epoch")
+        if d.is_main:
+            state = dict(base_state, model=model.state_dict(), optimizer=optimizer.state_dict(),
+                         scheduler=scheduler.state_dict(), scaler=scaler.state_dict(), epoch=epoch + 1,
+                         history=history, val_metrics=metrics)
+            if metrics["miou"] is not None and metrics["miou"] > best:
+                best = metrics["miou"]
+                save_checkpoint(files_out.best, state)
+            files_out.write_log(history)
+            # last.pt is the commit point of an epoch, written after best.pt and log.csv: a run
+            # killed in between redoes the epoch on resume and rewrites all three.
+            save_checkpoint(files_out.last, state)
+            logger.info("epoch %d/%d: train loss %s, val loss %s, val mIoU %s", epoch + 1, config.epochs,
+                        rounded(train_loss, 4), rounded(val_loss, 4), metrics["miou"])
+        barrier()
+    files_out.close()
+    best_row = max((h for h in history if h.get("val_miou") is not None), key=lambda h: h["val_miou"], default=None)
+    return {"out_dir": str(config.out_dir), "epochs": len(history), "best": best_row,
+            "last": history[-1] if history else None, "history": history, "rank": d.rank}
