@@ -17,7 +17,8 @@ What it does:
 2. Trains each variant through the real command line, ``python -m osmseg train DATASET --out
    RUN --model buildings --width 0.125 --device cpu --seed S --epochs E --steps-per-epoch N``
    (E=20, N=30 by default), then the variant's own ``--train-args`` (default: the default
-   recipe, and ``--recipe paper``). A variant on the paper's fixed 360x480 grid (``--recipe
+   recipe and network; the default recipe on SegNet as published, ``--arch segnet``; and the
+   dissertation's recipe and network, ``--recipe paper --arch segnet``). A variant on the paper's fixed 360x480 grid (``--recipe
    paper``, which ignores ``--steps-per-epoch``) gets, unless its arguments say ``--epochs``,
    as many epochs as see the same number of training pixels as E x N steps of the default
    recipe (16 crops of 128x128 a step). Wall time of each training is measured.
@@ -75,7 +76,7 @@ from pixel_baseline import Fitted, back_to_grid, building_scores, fit_baseline, 
 from training.data import PATCH_SIZE, dataset_resolution, discover_camvid, patch_boxes  # noqa: E402
 from training.recipe import recipe_named  # noqa: E402
 
-DEFAULT_VARIANTS = ("", "--recipe paper")
+DEFAULT_VARIANTS = ("", "--arch segnet", "--recipe paper --arch segnet")
 NEEDED = ("kampala-oam/tiles", "kampala-oam/osm-buildings.geojson", "inria-austin/image.tif",
           "inria-austin/buildings.tif")
 Pairs = list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # (prediction, truth, valid) per image

@@ -66,8 +66,10 @@ class Variant:
 
 
 VARIANTS = (
-    Variant("osmseg", "the default recipe"),
-    Variant("paper", "the dissertation's recipe", {"recipe": "paper"}),
+    Variant("osmseg", "the default recipe and network"),
+    Variant("paper", "the dissertation's recipe and network", {"recipe": "paper", "arch": "segnet"}),
+    Variant("segnet", "the published SegNet (no skips) for segnet-skip", {"arch": "segnet"}),
+    Variant("balanced", "+ half the crops centred on a uniformly drawn class", {"balanced_crops": 0.5}),
     Variant("weights-mf", "+ median-frequency class weights", {"class_weights": "median-frequency"}),
     Variant("weights-sqrt", "+ square root of them", {"class_weights": "sqrt-median-frequency"}),
     Variant("sgd", "SGD lr 0.1 (momentum 0.9) for AdamW", {"optimizer": "sgd", "lr": 0.1, "weight_decay": 5e-4}),

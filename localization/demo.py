@@ -21,8 +21,9 @@ from osmseg.demo import DEMO_CASSETTE, demo_config
 from osmseg.progress import Progress
 from osmseg.units import ratio
 
-#: The demo's training run: SegNet at 1/8 of its width, by the default recipe (epochs of 50 steps of
-#: 16 random crops), long enough to learn the rendered imagery (docs/training.md: ``demo`` figures).
+#: The demo's training run: the default network (SegNet with skips) at 1/8 of its width, by the
+#: default recipe (epochs of 50 steps of 16 random crops), long enough to learn the rendered
+#: imagery (docs/training.md: ``demo`` figures).
 DEMO_TRAINING = {"model": "airsegnet13", "width": 0.125, "epochs": 8, "loader_workers": 0, "seed": 0}
 
 

@@ -124,6 +124,24 @@ def test_decoder_unpools_to_the_encoder_argmax_positions() -> None:
     assert (unpooled > 0).sum() > 0 and (unpooled == 0).sum() >= 3 * unpooled.numel() // 4
 
 
+def test_skips_add_the_encoder_features_to_the_unpooled_decoder_input() -> None:
+    """segnet-skip: each decoder stage's input is SegNet's unpooled tensor plus the features its
+    encoder stage pooled; the weights are SegNet's, so one state dict serves both."""
+    plain, skip = SegNet(num_classes=4, width=TINY).eval(), SegNet(num_classes=4, width=TINY, skips=True).eval()
+    skip.load_state_dict(plain.state_dict())  # the same keys and shapes
+    seen: dict[str, torch.Tensor] = {}
+    skip.encoder.features[5].register_forward_hook(lambda m, i, o: seen.__setitem__("stage1", o.clone()))
+    skip.unpool.register_forward_hook(lambda m, i, o: seen.__setitem__("unpooled", o.clone()))  # its last call
+    skip.decoder[4].register_forward_pre_hook(lambda m, i: seen.__setitem__("input", i[0].clone()))
+    x = torch.randn(1, 3, 64, 96)
+    with torch.no_grad():
+        differ = not torch.equal(plain(x), skip(x))
+    # the shallowest decoder stage's input: unpooled features plus stage 1's (64x96, before its pooling)
+    assert seen["input"].shape == seen["stage1"].shape == (1, 4, 64, 96)
+    torch.testing.assert_close(seen["input"], seen["unpooled"] + seen["stage1"])
+    assert differ and seen["stage1"].abs().sum() > 0
+
+
 def test_unpool_puts_values_where_the_maxima_were() -> None:
     """One pool/unpool pair of the model on a crafted tensor with known argmax positions."""
     net = SegNet(num_classes=2, width=TINY)

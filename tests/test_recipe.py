@@ -21,6 +21,7 @@ from osmseg.cli.main import cli  # noqa: E402
 from osmseg.errors import ConfigError, DatasetError  # noqa: E402
 from training.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
 from training.config import TrainConfig  # noqa: E402
+from osmseg.images import read_label  # noqa: E402
 from training.data import discover  # noqa: E402
 from training.recipe import RECIPE_FIELDS  # noqa: E402
 from training.sampling import CROPS_PER_IMAGE, RandomCrops  # noqa: E402
@@ -166,3 +167,71 @@ def test_crops_larger_than_an_image_are_refused_in_one_line(tmp_path: Path) -> N
     data = Path(shutil.copytree(TINYSEG, tmp_path / "data", ignore=shutil.ignore_patterns("data.py")))
     result = osmseg("train", data, "--out", tmp_path / "run", "--config", TINY, "--crop", 256)
     assert result.exit_code == 1 and "use a smaller --crop" in result.output
+
+
+def rare_class_dataset(root: Path) -> Path:
+    """Two 256x256 samples of class 1, one holding a 6x6 block of class 2 (0.03 % of the
+    pixels), its image red there and grey elsewhere."""
+    from PIL import Image
+
+    for name, rare in (("a", True), ("b", False)):
+        label = np.ones((256, 256), np.uint8)
+        if rare:
+            label[150:156, 90:96] = 2
+        rgb = np.where((label == 2)[..., None], np.array([255, 0, 0], np.uint8), np.array([128, 128, 128], np.uint8))
+        for folder, array in (("images", rgb), ("labels", label)):
+            (root / folder).mkdir(parents=True, exist_ok=True)
+            Image.fromarray(array).save(root / folder / f"{name}.png")
+    return root
+
+
+def test_balanced_crops_centre_a_share_of_the_crops_on_a_rare_class(tmp_path: Path) -> None:
+    """A class of 36 pixels in 131072 is in about one plain crop of sixteen; with every group
+    of crops balanced, half are centred on it (two classes, drawn uniformly), and its label
+    pixels still lie under its red image pixels after the crop is turned and mirrored."""
+    files = discover(rare_class_dataset(tmp_path))
+    counts = np.stack([np.bincount(read_label(f.label).ravel(), minlength=3)
+                       for f in files])
+
+    def holding_rare(balance: float) -> float:
+        crops = RandomCrops(files, 64, 256, seed=1, augment=True, mean=(0, 0, 0), std=(1, 1, 1),
+                            balance=balance, class_pixels=counts)
+        held = 0
+        for index in range(len(crops)):
+            x, y = crops[index]
+            red = x[0] - x[1] > 0.3  # red after any colour jitter; grey has R == G
+            assert torch.equal(red, y == 2), index  # the label turned with its image
+            held += bool((y == 2).any())
+        return held / len(crops)
+
+    plain, balanced = holding_rare(0.0), holding_rare(1.0)
+    assert plain < 0.2 and balanced > 0.35, (plain, balanced)
+    assert holding_rare(1.0) == balanced  # seeded: the same crops again
+
+
+def test_the_network_is_chosen_recorded_and_rebuilt_from_the_checkpoint(tmp_path: Path) -> None:
+    """--arch segnet (the dissertation's network) and the default segnet-skip: the checkpoint's
+    spec says which, predict rebuilds that one, and a run resumes only as the network it is
+    (a run from before --arch existed is a segnet, and the refusal says so)."""
+    from training.checkpoint import model_from_checkpoint
+
+    runs = {}
+    for arch in ("segnet", "segnet-skip"):
+        run = tmp_path / arch
+        extra = ("--arch", arch) if arch == "segnet" else ()
+        result = osmseg("train", TINYSEG, "--out", run, "--config", TINY, "--epochs", 1, *extra)
+        assert result.exit_code == 0, result.output
+        state = load_checkpoint(run / "best.pt")
+        assert state["spec"]["arch"] == arch and state["config"]["arch"] == arch
+        model, _ = model_from_checkpoint(run / "best.pt")
+        assert model.skips == (arch == "segnet-skip")
+        runs[arch] = run
+    refused = osmseg("train", TINYSEG, "--out", runs["segnet"], "--config", TINY, "--epochs", 1)
+    assert refused.exit_code == 2 and "--arch segnet" in refused.output, refused.output
+    for name in ("last.pt", "best.pt"):  # as a run from before --arch wrote it
+        state = load_checkpoint(runs["segnet"] / name)
+        del state["config"]["arch"]
+        save_checkpoint(runs["segnet"] / name, state)
+    again = osmseg("train", TINYSEG, "--out", runs["segnet"], "--config", TINY, "--epochs", 1, "--arch", "segnet")
+    assert again.exit_code == 0, again.output
+    assert "holds a run with other settings" not in again.output  # resumed: nothing left to do

@@ -63,13 +63,16 @@ def _recipes_default(name: str) -> str:
               help="Class table TOML when the dataset has no manifest.json (e.g. classes6.toml).")
 @click.option("--width", type=float, default=_default("width"),
               help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU.")
+@click.option("--arch", type=click.Choice(["segnet-skip", "segnet"]), default=_default("arch"),
+              help="segnet-skip: SegNet whose decoder also adds each encoder stage's features (no extra weights; "
+                   "learns fine detail at small widths) | segnet: as published, the dissertation's network.")
 @click.option("--init", default=_default("init"),
               help="First weights: random (as the dissertation) | imagenet (downloads) or a vgg16_bn PATH.pth "
                    "(the encoder, width 1.0) | an osmseg run's best.pt/last.pt (fine-tuning at its width: the whole "
                    "network, or all but the classifier when the classes differ).")
 @click.option("--epochs", type=int, default=_default("epochs"))
 @click.option("--recipe", type=click.Choice(["osmseg", "paper"]), default=_default("recipe"),
-              help="How the network learns: osmseg (AdamW, warm-up + cosine, random crops, no class weights; for "
+              help="How the network learns: osmseg (AdamW, cosine, random crops balanced over the classes, no class weights; for "
                    "small data and CPUs) | paper (the dissertation's SegNet recipe: SGD lr 0.1 poly, median-frequency "
                    "weights, fixed 360x480 patches). docs/training.md compares them.")
 @click.option("--batch-size", type=int, show_default=_recipes_default("batch_size"))
@@ -81,6 +84,9 @@ def _recipes_default(name: str) -> str:
               help="Side of the random training crops (recipe osmseg).")
 @click.option("--steps-per-epoch", type=click.IntRange(min=1), show_default="cover the training pixels once, >= 50",
               help="Batches of random crops per epoch (recipe osmseg).")
+@click.option("--balanced-crops", type=click.FloatRange(0, 1), show_default=_recipes_default("balanced_crops"),
+              help="Share of the random crops centred on a pixel of one class, drawn uniformly from the classes the "
+                   "training labels hold: rare classes are seen as often as common ones (recipe osmseg).")
 @click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=not _default("ignore_unlabeled"),
               help="Train 'unlabeled' as a class instead of ignoring it (labels of one other class only always "
                    "do: it is their background).")

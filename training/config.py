@@ -34,6 +34,7 @@ from typing import Any
 
 from osmseg.errors import ConfigError
 from training.recipe import RECIPE_FIELDS, Recipe, recipe_named
+from training.spec import ARCHS
 
 logger = logging.getLogger(__name__)
 
@@ -50,6 +51,7 @@ class TrainConfig:
     model: str = "airsegnet13"  # airsegnet6 | airsegnet13 | any name with --classes
     classes: str | None = None  # class table TOML; default: the dataset's manifest, else the model's
     width: float = 1.0  # channel multiplier; 1.0 is the paper's network
+    arch: str = "segnet-skip"  # segnet-skip | segnet (the paper's: no skips); training.spec.ARCHS
     init: str = "random"  # random | imagenet | PATH to a vgg16_bn .pth | an osmseg checkpoint (fine-tuning)
     ignore_unlabeled: bool = True  # unlabeled (0) ignored in loss and metrics
     patch_height: int = 360  # the grid patches of sampling "grid", and the window predict and eval use
@@ -68,6 +70,7 @@ class TrainConfig:
     sampling: str | None = None  # random (crops anywhere) | grid (the fixed patches)
     crop: int | None = None  # side of a random crop
     steps_per_epoch: int | None = None  # random sampling: batches per epoch (None: cover the pixels once, >= 50)
+    balanced_crops: float | None = None  # random sampling: share of crops centred on a uniformly drawn class
     augment: bool = True
     test_fraction: float = 1 / 3
     val_fraction: float = 0.15
@@ -95,6 +98,7 @@ class TrainConfig:
             (0 < self.test_fraction < 1 and 0 <= self.val_fraction < 1, "test/val fractions must be in (0, 1)"),
             (self.patch_height >= 32 and self.patch_width >= 32, "patches must be at least 32x32"),
             (self.split_by in ("groups", "image"), "split_by must be groups or image"),
+            (self.arch in ARCHS, f"arch must be one of {', '.join(ARCHS)}"),
         ]
         for ok, message in checks:
             if not ok:

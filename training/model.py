@@ -10,6 +10,13 @@ the mirrored convolutions.  As in the authors' Caffe model, the last decoder sta
 softmax is the per-pixel classifier.  At width 1.0 the network has about 29.4 M parameters,
 the paper's 29.5 M.
 
+``segnet-skip`` (:data:`~training.spec.ARCHS`) is the same network whose decoder also adds, to
+each unpooled input, the features the encoder stage had before pooling them (LinkNet's
+additive skips, Chaurasia and Culurciello 2017): no weights are added, so checkpoints and
+encoder weights load alike, but the decoder no longer has to rebuild every pixel's detail from
+the 1/32 bottleneck and the pooling indices, which at small widths it cannot
+(``docs/training.md`` measures both).
+
 The encoder's modules are laid out exactly like torchvision's ``vgg16_bn().features``
 (``encoder.features.0`` .. ``encoder.features.43``), so ImageNet weights load onto it by
 name (:func:`load_encoder_weights`).  ``width`` scales every channel count to
@@ -42,7 +49,7 @@ from torch import Tensor, nn
 
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from training.spec import IMAGENET_MEAN, IMAGENET_STD, ModelSpec
+from training.spec import ARCHS, IMAGENET_MEAN, IMAGENET_STD, ModelSpec
 from training.config import PRESET_NAMES
 
 logger = logging.getLogger(__name__)
@@ -89,29 +96,40 @@ class SegNetEncoder(nn.Module):
         self.features = nn.Sequential(*layers)
         self.out_channels = cin
 
-    def forward(self, x: Tensor) -> tuple[Tensor, list[tuple[Tensor, torch.Size]]]:
-        """``(bottleneck, [(indices, size before pooling) for stages 1..5])``."""
+    def forward(self, x: Tensor, keep: bool = False) -> tuple[Tensor, list[tuple[Tensor, torch.Size]], list[Tensor]]:
+        """``(bottleneck, [(indices, size before pooling) for stages 1..5], features)``: with
+        ``keep`` the features each stage pooled (for skips), else no features."""
         pools: list[tuple[Tensor, torch.Size]] = []
+        features: list[Tensor] = []
         for layer in self.features:
             if isinstance(layer, nn.MaxPool2d):
                 size = x.shape
+                if keep:
+                    features.append(x)
                 x, indices = layer(x)
                 pools.append((indices, size))
             else:
                 x = layer(x)
-        return x, pools
+        return x, pools, features
 
 
 class SegNet(nn.Module):
     """SegNet: VGG16-BN encoder (13 conv), pooling indices -> mirrored decoder, 3x3 classifier.
+
+    ``skips``: each decoder stage's unpooled input has the features its encoder stage pooled
+    added to it (LinkNet's additive skips; no parameters added, so the weights are SegNet's).
+    Without them the decoder sees the encoder only through the bottleneck (1/32 of the input's
+    side) and the pooling indices: at small widths fine detail (paths, single trees, the exact
+    edge of a roof) is lost there (``docs/training.md`` measures it).
 
     ``forward`` maps ``(N, in_channels, H, W)`` floats (normalised) to ``(N, num_classes, H, W)``
     logits, for any ``H, W >= 32`` (odd sizes too: unpooling restores each stage's size).
     ``decoder[0]`` pairs with the deepest encoder stage; ``classifier`` is the last layer.
     """
 
-    def __init__(self, num_classes: int, width: float = 1.0, in_channels: int = 3) -> None:
+    def __init__(self, num_classes: int, width: float = 1.0, in_channels: int = 3, skips: bool = False) -> None:
         super().__init__()
+        self.skips = bool(skips)
         if num_classes < 1 or width <= 0 or in_channels < 1:
             raise ConfigError(f"SegNet needs num_classes >= 1, width > 0 and in_channels >= 1, "
                               f"got {num_classes}, {width}, {in_channels}")
@@ -153,23 +171,28 @@ class SegNet(nn.Module):
                               f"got {x.shape[-2]}x{x.shape[-1]}; pad or enlarge the image")
         memory_format = (torch.channels_last if x.is_contiguous(memory_format=torch.channels_last)
                          and not x.is_contiguous() else torch.contiguous_format)
-        x, pools = self.encoder(x)
-        return self.decode(x, pools, memory_format)
+        x, pools, features = self.encoder(x, keep=self.skips)
+        return self.decode(x, pools, memory_format, features)
 
     def decode(self, x: Tensor, pools: list[tuple[Tensor, torch.Size]],
-               memory_format: torch.memory_format = torch.contiguous_format) -> Tensor:
-        """Decoder: unpool with each encoder stage's indices (deepest first), convolve, classify."""
-        for stage, (indices, size) in zip(self.decoder, reversed(pools)):
+               memory_format: torch.memory_format = torch.contiguous_format,
+               features: list[Tensor] | None = None) -> Tensor:
+        """Decoder: unpool with each encoder stage's indices (deepest first), add that stage's
+        ``features`` when given (skips), convolve, classify."""
+        skips = list(reversed(features)) if features else [None] * len(pools)
+        for stage, (indices, size), skip in zip(self.decoder, reversed(pools), skips, strict=True):
             x = self.unpool(x, indices, output_size=size[-2:]).contiguous(memory_format=memory_format)
+            if skip is not None:
+                x = x + skip
             x = stage(x)
         return self.classifier(x)
 
 
 def build_model(spec: ModelSpec) -> SegNet:
     """A freshly initialised network for ``spec`` (weights come from a checkpoint or training)."""
-    if spec.arch != "segnet":
-        raise ConfigError(f"unknown architecture {spec.arch!r}; only 'segnet' is implemented")
-    return SegNet(num_classes=spec.num_classes, width=spec.width)
+    if spec.arch not in ARCHS:
+        raise ConfigError(f"unknown architecture {spec.arch!r}; use one of {', '.join(ARCHS)}")
+    return SegNet(num_classes=spec.num_classes, width=spec.width, skips=spec.arch == "segnet-skip")
 
 
 def model_spec(name: str, width: float = 1.0, ignore_unlabeled: bool = True,
@@ -177,7 +200,7 @@ def model_spec(name: str, width: float = 1.0, ignore_unlabeled: bool = True,
                input_size: tuple[int, int] = (360, 480),
                mean: tuple[float, float, float] = IMAGENET_MEAN,
                std: tuple[float, float, float] = IMAGENET_STD,
-               resolution_m: float | None = None) -> ModelSpec:
+               resolution_m: float | None = None, arch: str = "segnet") -> ModelSpec:
     """The spec of a SegNet named ``name`` whose outputs are ``class_table``'s ids (0..max id).
 
     ``class_table`` (a ClassTable, its ``to_dict()``, or a TOML name/path) defaults to the
@@ -201,7 +224,7 @@ def model_spec(name: str, width: float = 1.0, ignore_unlabeled: bool = True,
         table = ClassTable.from_dict(class_table, f"model {name!r} class table")
     else:
         table = load_class_table(str(class_table))
-    return ModelSpec(arch="segnet", name=name, num_classes=table.num_classes, width=float(width),
+    return ModelSpec(arch=arch, name=name, num_classes=table.num_classes, width=float(width),
                      class_table=table.to_dict(),
                      ignore_index=table.unlabeled.id if ignore_unlabeled else None, input_size=(int(input_size[0]), int(input_size[1])),
                      mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std),  # type: ignore[arg-type]

@@ -53,7 +53,10 @@ class Recipe:
     """How a run learns. ``warmup``: fraction of all steps with a linear warm-up of the rate.
     ``crop`` and ``steps_per_epoch`` apply to ``sampling="random"`` (``steps_per_epoch`` None:
     enough batches to cover the training pixels once, and at least :data:`MIN_STEPS_PER_EPOCH`);
-    ``sampling="grid"`` cuts each image into the run's fixed patches (``--patch-*``)."""
+    ``sampling="grid"`` cuts each image into the run's fixed patches (``--patch-*``).
+    ``balanced_crops``: the share of random crops centred on a pixel of one class, the class
+    drawn uniformly from those the training labels hold (rare-class sampling), so a class of a
+    few thousand pixels is seen as often as the rest without weighting its loss."""
 
     name: str
     optimizer: str
@@ -68,6 +71,7 @@ class Recipe:
     crop: int
     steps_per_epoch: int | None
     batch_size: int
+    balanced_crops: float = 0.0
 
     def __post_init__(self) -> None:
         checks = [
@@ -81,6 +85,8 @@ class Recipe:
             (self.crop >= 32, "crop must be at least 32 pixels"),
             (self.steps_per_epoch is None or self.steps_per_epoch >= 1, "steps_per_epoch must be >= 1"),
             (self.batch_size >= 1, "batch_size must be >= 1"),
+            (0 <= self.balanced_crops <= 1, "balanced_crops must be a share of the crops in [0, 1]"),
+            (self.balanced_crops == 0 or self.sampling == "random", "balanced_crops needs sampling random"),
         ]
         for ok, message in checks:
             if not ok:

@@ -22,6 +22,12 @@ IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
 IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
 
 
+#: the networks osmseg builds: SegNet as published (``segnet``: the decoder gets the encoder's
+#: pooling indices only) and SegNet with additive skips (``segnet-skip``: each unpooled decoder
+#: input plus the encoder features of that stage, as LinkNet adds them; the same weights)
+ARCHS = ("segnet-skip", "segnet")
+
+
 @dataclass(frozen=True)
 class ModelSpec:
     """What a model is: enough to rebuild it and to feed it and read its output.
@@ -55,7 +61,7 @@ class ModelSpec:
     def __post_init__(self) -> None:
         ids = [c.get("id") for c in self.class_table.get("classes", ())] if isinstance(self.class_table, Mapping) else None
         checks = [
-            (self.arch == "segnet", f"arch must be 'segnet', got {self.arch!r}"),
+            (self.arch in ARCHS, f"arch must be one of {', '.join(ARCHS)}, got {self.arch!r}"),
             (isinstance(self.num_classes, int) and self.num_classes >= 1, f"num_classes must be >= 1, got {self.num_classes!r}"),
             (isinstance(self.width, (int, float)) and self.width > 0, f"width must be > 0, got {self.width!r}"),
             (ids is not None and all(isinstance(i, int) and 0 <= i < self.num_classes for i in ids),

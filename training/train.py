@@ -64,6 +64,8 @@ logger = logging.getLogger(__name__)
 
 #: Settings that may change between an interrupted run and its resumption.
 RESUMABLE_CHANGES = {"loader_workers", "device", "tensorboard", "out_dir", "dataset"}
+#: settings added since runs began to record their recipe: what the runs made before them used
+SETTINGS_ADDED = {"balanced_crops": 0.0, "arch": "segnet"}
 LOG_FIELDS = ("epoch", "lr", "train_loss", "val_loss", "val_miou", "val_pixel_accuracy", "seconds")
 
 
@@ -253,11 +255,13 @@ def check_resumable(saved: dict[str, Any], config: TrainConfig) -> None:
     defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig) if f.default is not dataclasses.MISSING}
     if "recipe" not in then:
         defaults.update(recipe="paper", **RECIPES["paper"].to_dict())
+    defaults.update((k, v) for k, v in SETTINGS_ADDED.items() if k not in then)
     changed = sorted(k for k in now if k not in RESUMABLE_CHANGES and then.get(k, defaults.get(k)) != now[k])
     if saved.get("dataset_sha256") != dataset_fingerprint(config.dataset):
         changed.append("the dataset's manifest.json")
     if changed:
-        hint = f" (it learnt by --recipe {then.get('recipe', 'paper')})" if "recipe" in changed else ""
+        named = [f"--{k} {then.get(k, defaults.get(k))}" for k in ("recipe", "arch") if k in changed]
+        hint = f" (it learnt by {' '.join(named)})" if named else ""
         raise ConfigError(f"{config.out_dir} holds a run with other settings ({', '.join(changed)}){hint}; "
                           "use a new --out, or the same settings to resume it")
 
@@ -322,7 +326,7 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
     files, given_splits = discover_dataset(config.dataset)
     spec: ModelSpec = model_spec(config.model, config.width, ignore_unlabeled=config.ignore_unlabeled,
                                  class_table=model_table, input_size=config.patch_size,
-                                 resolution_m=dataset_resolution(config.dataset, files))
+                                 resolution_m=dataset_resolution(config.dataset, files), arch=config.arch)
     histograms = validate(files, dataset_table.num_classes)  # raw ids of every label, checked up front
     pixels = class_pixels(histograms, [f.name for f in files], spec.num_classes, label_lut)  # by model id
     spec = binary_if_one_class(spec, pixels, list(pixels), d, "the labels")
@@ -345,12 +349,14 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
     recipe = config.settings
     index = {f.name: i for i, f in enumerate(files)}
     train_pixels = int(histograms[[index[f.name] for f in train_files]].sum())
+    train_class_pixels = np.stack([pixels[f.name] for f in train_files])  # (files, model classes)
     train_set: PatchDataset
     if recipe.sampling == "random":
         per_process = steps_per_epoch(recipe, train_pixels, d.world_size) * recipe.batch_size
         train_set = RandomCrops(train_files, recipe.crop, per_process * d.world_size, mean=spec.mean, std=spec.std,
                                 ignore_index=spec.ignore_index, seed=config.seed, augment=config.augment,
-                                num_classes=dataset_table.num_classes, label_lut=label_lut)
+                                num_classes=dataset_table.num_classes, label_lut=label_lut,
+                                balance=recipe.balanced_crops, class_pixels=train_class_pixels)
     else:
         train_set = patches(train_files, config.patch_size, augment=config.augment)
     val_set = patches(val_files, config.patch_size, augment=False)
@@ -359,13 +365,7 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
 
     weights = None
     if recipe.class_weights != "none":
-        hist = histograms[[index[f.name] for f in train_files]]
-        if label_lut is not None:  # dataset ids -> model ids before counting
-            mapped = np.zeros((hist.shape[0], spec.num_classes), dtype=hist.dtype)
-            for raw in range(hist.shape[1]):
-                mapped[:, label_lut[raw]] += hist[:, raw]
-            hist = mapped
-        weights = weights_from_histograms(hist, spec.ignore_index)
+        weights = weights_from_histograms(train_class_pixels, spec.ignore_index)  # by model id
         if recipe.class_weights == "sqrt-median-frequency":  # the same order, a square root of the spread
             weights = weights.sqrt()
     model = build_model(spec)
