@@ -17,7 +17,9 @@ What it does:
 2. Trains each variant through the real command line, ``python -m osmseg train DATASET --out
    RUN --model buildings --width 0.125 --device cpu --seed S --epochs E --steps-per-epoch N``
    (E=20, N=30 by default), then the variant's own ``--train-args`` (default: the default
-   recipe and network; the default recipe on SegNet as published, ``--arch segnet``; and the
+   recipe and network; the same with median-frequency class weights, which on a two-class
+   problem only balance building against background; the default recipe on SegNet as
+   published, ``--arch segnet``; and the
    dissertation's recipe and network, ``--recipe paper --arch segnet``). A variant on the paper's fixed 360x480 grid (``--recipe
    paper``, which ignores ``--steps-per-epoch``) gets, unless its arguments say ``--epochs``,
    as many epochs as see the same number of training pixels as E x N steps of the default
@@ -76,7 +78,7 @@ from pixel_baseline import Fitted, back_to_grid, building_scores, fit_baseline, 
 from training.data import PATCH_SIZE, dataset_resolution, discover_camvid, patch_boxes  # noqa: E402
 from training.recipe import recipe_named  # noqa: E402
 
-DEFAULT_VARIANTS = ("", "--arch segnet", "--recipe paper --arch segnet")
+DEFAULT_VARIANTS = ("", "--class-weights median-frequency", "--arch segnet", "--recipe paper --arch segnet")
 NEEDED = ("kampala-oam/tiles", "kampala-oam/osm-buildings.geojson", "inria-austin/image.tif",
           "inria-austin/buildings.tif")
 Pairs = list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # (prediction, truth, valid) per image
@@ -269,7 +271,7 @@ def main() -> None:
         print(f"skipped: {a.shared_data / missing[0]} is absent (real data in ../shared/data)", file=sys.stderr)
         sys.exit(1)
     variants = a.train_args or list(DEFAULT_VARIANTS)
-    out = a.out or Path(tempfile.mkdtemp(prefix="bench-real-heldout-"))
+    out = (a.out or Path(tempfile.mkdtemp(prefix="bench-real-heldout-"))).resolve()  # the trainer runs elsewhere
     try:
         dataset = out / "kampala-z21"
         built = build_kampala(a.shared_data, dataset, a.seed)

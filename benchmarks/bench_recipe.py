@@ -207,10 +207,12 @@ def curves_png(results: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (loss_ax, acc_ax) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=100)
-    for r in results:
+    fig, (loss_ax, acc_ax) = plt.subplots(1, 2, figsize=(11, 6), dpi=100)
+    colours = plt.get_cmap("tab20").colors  # a colour each for up to 20 variants
+    for i, r in enumerate(results):
         pixels, acc, loss = zip(*r["curve"], strict=True)
-        style = {"label": f"{r['name']}: {r['what']}", "linewidth": 2.2 if r["name"] in ("osmseg", "paper") else 1}
+        style = {"label": f"{r['name']}: {r['what']}", "linewidth": 2.2 if r["name"] in ("osmseg", "paper") else 1,
+                 "color": colours[(2 * i) % 20 + (2 * i) // 20 % 2]}
         loss_ax.plot(pixels, loss, **style)
         acc_ax.plot(pixels, acc, **style)
     loss_ax.set_yscale("log")
@@ -220,9 +222,9 @@ def curves_png(results: list[dict[str, Any]], path: Path) -> None:
     for ax in (loss_ax, acc_ax):
         ax.set_xlabel("training pixels (millions)")
         ax.grid(alpha=0.3)
-    acc_ax.legend(fontsize=7, loc="upper left")
     fig.suptitle("Recipe ablation (width 0.125, CPU, demo dataset)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.17, 1, 1))
+    fig.legend(*loss_ax.get_legend_handles_labels(), loc="lower center", ncol=3, fontsize=7, frameon=False)
     fig.savefig(path)
     plt.close(fig)
 

@@ -17,8 +17,9 @@ from typing import Any
 from figures import DEMO_BUILD, Figure, Workspace, figure_set, transcript
 from osmseg.units import count, degrees, factor, metres, number, ratio, seconds
 
-#: the s/view column of localize-bench's method table (the last number of a row): never the same twice
-TIMING_COLUMN = r"(?m)(?<= )\d[\d.]*$"
+#: the s/view column of localize-bench's method table (the last number of a row, with the spaces that pad it
+#: to its width): never the same twice
+TIMING_COLUMN = r"(?m) +\d[\d.]*$"
 
 
 def F(text: Any, volatile: str | None = None) -> Figure:

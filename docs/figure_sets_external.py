@@ -344,7 +344,8 @@ def training(ws: Workspace) -> dict[str, Figure]:
 
 def heldout_row(r: dict[str, Any]) -> list[str]:
     trained = seconds(r["train_seconds"]) if r.get("train_seconds") is not None else "–"
-    return [f"`{r['variant']}`", ratio(r["kampala"]["building_iou"]), ratio(r["kampala"]["pixel_accuracy"]),
+    which = f", {r['checkpoint']}" if r.get("checkpoint") else ""
+    return [f"`{r['variant']}`{which}", ratio(r["kampala"]["building_iou"]), ratio(r["kampala"]["pixel_accuracy"]),
             ratio(r["austin"]["building_iou"]), ratio(r["austin"]["pixel_accuracy"]), trained]
 
 
