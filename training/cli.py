@@ -72,7 +72,7 @@ def _recipes_default(name: str) -> str:
                    "network, or all but the classifier when the classes differ).")
 @click.option("--epochs", type=int, default=_default("epochs"))
 @click.option("--recipe", type=click.Choice(["osmseg", "paper"]), default=_default("recipe"),
-              help="How the network learns: osmseg (AdamW, cosine, random crops balanced over the classes, no class weights; for "
+              help="How the network learns: osmseg (AdamW, cosine, random crops, no class weights; for "
                    "small data and CPUs) | paper (the dissertation's SegNet recipe: SGD lr 0.1 poly, median-frequency "
                    "weights, fixed 360x480 patches). docs/training.md compares them.")
 @click.option("--batch-size", type=int, show_default=_recipes_default("batch_size"))
