@@ -11,17 +11,19 @@ What it does:
 1. Builds a CamVid-layout dataset from the complete z21 block of Kampala tiles
    (``kampala.py``): the **west 7 columns** are train (three 7x2-tile strips) and validation
    (one strip, drawn with ``--seed``), the **east 5 columns** the test split (two 5x4-tile
-   mosaics). No tile is in two splits, and the test area is a separate part of the town.
+   mosaics); a second 4x4-tile block 450 m south-west is a fourth training mosaic. No tile is
+   in two splits, and the test area is a separate part of the town.
    GeoTIFFs in EPSG:3857 (~0.0744 m ground pixels); labels are the OSM footprints rasterised
    on each mosaic's transform, transparent drone pixels unlabeled (ignored).
 2. Trains each variant through the real command line, ``python -m osmseg train DATASET --out
    RUN --model buildings --width 0.125 --device cpu --seed S --epochs E --steps-per-epoch N``
    (E=20, N=30 by default), then the variant's own ``--train-args`` (default: the default
    recipe and network; the same with median-frequency class weights, which on a two-class
-   problem only balance building against background; the default recipe on SegNet as
-   published, ``--arch segnet``; and the
-   dissertation's recipe and network, ``--recipe paper --arch segnet``). A variant on the paper's fixed 360x480 grid (``--recipe
-   paper``, which ignores ``--steps-per-epoch``) gets, unless its arguments say ``--epochs``,
+   problem only balance building against background; the default with twice the channels,
+   ``--width 0.25``, still well inside a 15-minute CPU budget; the default recipe on SegNet
+   as published, ``--arch segnet``; and the dissertation's recipe and network, ``--recipe
+   paper --arch segnet``). A variant on the paper's fixed 360x480 grid (``--recipe paper``,
+   which ignores ``--steps-per-epoch``) gets, unless its arguments say ``--epochs``,
    as many epochs as see the same number of training pixels as E x N steps of the default
    recipe (16 crops of 128x128 a step). Wall time of each training is measured.
 3. Scores ``RUN/best.pt`` (best validation mIoU, on one strip: it can be an early epoch) and,
@@ -35,9 +37,10 @@ What it does:
    the Kampala training resolution (so it sees roofs at the size it learnt them), its mask
    brought back to Austin's grid with nearest neighbour.
 
-Run from the project root (needs the ``train`` and ``bench`` extras; the budget is set for 5-6
-minutes a default training on a quiet 2-core CPU, about 20 minutes in all, three to four times
-that when another job shares the CPUs)::
+Run from the project root (needs the ``train`` and ``bench`` extras; a default training takes
+2-3 minutes on a quiet 2-core CPU, the ``--width 0.25`` one about twice that, everything with
+the predictions about half an hour, three to four times that when another job shares the
+CPUs)::
 
     .venv/bin/python benchmarks/bench_real_heldout.py [--out DIR] [--json results.json]
         [--png results.png] [--train-args "--crop 256 --batch-size 4" ...] [--seed 0]
@@ -78,7 +81,8 @@ from pixel_baseline import Fitted, back_to_grid, building_scores, fit_baseline, 
 from training.data import PATCH_SIZE, dataset_resolution, discover_camvid, patch_boxes  # noqa: E402
 from training.recipe import recipe_named  # noqa: E402
 
-DEFAULT_VARIANTS = ("", "--class-weights median-frequency", "--arch segnet", "--recipe paper --arch segnet")
+DEFAULT_VARIANTS = ("", "--class-weights median-frequency", "--width 0.25", "--arch segnet",
+                    "--recipe paper --arch segnet")
 NEEDED = ("kampala-oam/tiles", "kampala-oam/osm-buildings.geojson", "inria-austin/image.tif",
           "inria-austin/buildings.tif")
 Pairs = list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # (prediction, truth, valid) per image

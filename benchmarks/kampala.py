@@ -13,6 +13,12 @@ The complete z21 block (x 1238448-1238459, y 1046528-1046535: 12 columns x 8 row
 * the **east 5 columns** are two mosaics of 5x4 tiles (1280x1024 px): the test split. They
   are spatially separate from everything the network or the baseline learns from.
 
+A second, smaller complete z21 block, 4x4 tiles (x 1238424-1238427, y 1046544-1046547, about
+450 m south-west of the first), is a fourth training mosaic (1024x1024 px): a dense quarter
+of corrugated-metal roofs, the kind of roof the west strips hold few of and the test columns
+many. It is further from the test split than the west strips are. The 16 z19/z20 tiles of the
+folder repeat ground of these two blocks at a coarser zoom and are not used.
+
 Each mosaic is a GeoTIFF in Web Mercator (EPSG:3857, bounds from ``mercantile.xy_bounds``),
 so the trainer records the ground resolution and ``osmseg predict --resolution model`` can
 bring other imagery to it. Labels are the footprints reprojected to EPSG:3857 (pyproj,
@@ -42,6 +48,8 @@ ZOOM = 21
 BLOCK_X = tuple(range(1238448, 1238460))  # 12 columns, west to east
 BLOCK_Y = tuple(range(1046528, 1046536))  # 8 rows, north to south
 WEST_COLUMNS = 7  # train + val; the other 5 columns are the test split
+SOUTH_WEST_X = tuple(range(1238424, 1238428))  # a second complete block: training only
+SOUTH_WEST_Y = tuple(range(1046544, 1046548))
 TILE = 256
 UNLABELED, BACKGROUND, BUILDING = 0, 1, 2
 CLASSES_TOML = """\
@@ -98,6 +106,7 @@ def layout(seed: int) -> list[Mosaic]:
     strips = [BLOCK_Y[i:i + 2] for i in range(0, len(BLOCK_Y), 2)]
     val = int(np.random.default_rng(seed).integers(len(strips)))
     mosaics = [Mosaic("val" if i == val else "train", west, ys) for i, ys in enumerate(strips)]
+    mosaics.append(Mosaic("train", SOUTH_WEST_X, SOUTH_WEST_Y))
     mosaics += [Mosaic("test", east, BLOCK_Y[i:i + 4]) for i in (0, 4)]
     return mosaics
 

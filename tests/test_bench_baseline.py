@@ -113,14 +113,14 @@ def test_kampala_splits_are_disjoint_west_and_east(kampala_dataset: tuple[Path, 
 
     root, _ = kampala_dataset
     splits = discover_camvid(root)  # as the trainer reads the folder
-    assert {s: len(f) for s, f in splits.items()} == {"train": 3, "val": 1, "test": 2}
+    assert {s: len(f) for s, f in splits.items()} == {"train": 4, "val": 1, "test": 2}
     tiles = {s: [tiles_of(f.image) for f in files] for s, files in splits.items()}
     every = [t for per_split in tiles.values() for per_image in per_split for t in per_image]
-    assert len(every) == len(set(every)) == 12 * 8  # the whole block, no tile twice
+    assert len(every) == len(set(every)) == 12 * 8 + 4 * 4  # both blocks, no tile twice
     west = {t for s in ("train", "val") for per_image in tiles[s] for t in per_image}
     east = {t for per_image in tiles["test"] for t in per_image}
     assert max(x for x, _ in west) < min(x for x, _ in east)
-    assert len(west) == 7 * 8 and len(east) == 5 * 8
+    assert len(west) == 7 * 8 + 4 * 4 and len(east) == 5 * 8
 
 
 def test_kampala_pixels_are_about_75_mm_on_the_ground(kampala_dataset: tuple[Path, dict]) -> None:
@@ -148,7 +148,7 @@ def test_kampala_labels_match_the_footprints_and_roofs(kampala_dataset: tuple[Pa
         labels = np.asarray(Image.open(root / f"{mosaic['split']}annot" / f"{mosaic['name']}.tif"))  # PIL, not rasterio
         labelled = labels != kampala.UNLABELED
         share = (labels == kampala.BUILDING).sum() / labelled.sum()
-        assert 0.1 < share < 0.5, (mosaic["name"], share)  # a built-up town, not empty, not all roof
+        assert 0.1 < share < 0.65, (mosaic["name"], share)  # a built-up town, not empty, not all roof
         assert labelled.mean() > 0.95
         with rasterio.open(root / mosaic["split"] / f"{mosaic['name']}.tif") as ds:
             rgb, transform = ds.read().transpose(1, 2, 0), ds.transform
@@ -166,4 +166,4 @@ def test_kampala_labels_match_the_footprints_and_roofs(kampala_dataset: tuple[Pa
                 compared += 1
         fit = edge_alignment(rgb, labels == kampala.BUILDING)
         assert max(abs(fit.best[0]), abs(fit.best[1])) <= 3 and fit.at_zero > 1.2 * fit.far, (mosaic["name"], fit)
-    assert compared == 12 * 8
+    assert compared == 12 * 8 + 4 * 4

@@ -235,3 +235,32 @@ def test_the_network_is_chosen_recorded_and_rebuilt_from_the_checkpoint(tmp_path
     again = osmseg("train", TINYSEG, "--out", runs["segnet"], "--config", TINY, "--epochs", 1, "--arch", "segnet")
     assert again.exit_code == 0, again.output
     assert "holds a run with other settings" not in again.output  # resumed: nothing left to do
+
+
+def test_validation_on_tiles_smaller_than_the_patch_runs_on_patches_the_size_of_the_tiles(tmp_path: Path) -> None:
+    """256x256 tiles (XYZ, fAIr, SpaceNet chips) against the 360x480 validation patch: the run
+    validates on 256x256 patches, every labelled pixel of the validation tile counted."""
+    from PIL import Image
+
+    from training.data import fitted_patch
+
+    rng = np.random.default_rng(0)
+    for i in range(4):
+        label = np.ones((256, 256), np.uint8)
+        label[:, 128:] = 2
+        rgb = np.where((label == 2)[..., None], 200, 40).astype(np.uint8) + rng.integers(0, 20, (256, 256, 3), np.uint8)
+        for folder, array in (("images", rgb), ("labels", label)):
+            (tmp_path / "data" / folder).mkdir(parents=True, exist_ok=True)
+            Image.fromarray(array).save(tmp_path / "data" / folder / f"tile{i}.png")
+    (tmp_path / "data" / "classes.toml").write_text(
+        'name = "halves"\nunlabeled = { id = 0, name = "unlabeled", color = [0, 0, 0] }\n'
+        '[[classes]]\nid = 1\nname = "dark"\ncolor = [40, 40, 40]\n'
+        '[[classes]]\nid = 2\nname = "light"\ncolor = [200, 200, 200]\n', encoding="utf-8")
+    assert fitted_patch((360, 480), discover(tmp_path / "data")) == (256, 256)
+    result = osmseg("train", tmp_path / "data", "--out", tmp_path / "run", "--model", "tiny", "--width", 0.125,
+                    "--crop", 64, "--batch-size", 2, "--steps-per-epoch", 2, "--epochs", 1, "--loader-workers", 0,
+                    "--device", "cpu")
+    assert result.exit_code == 0, result.output
+    with (tmp_path / "run" / "log.csv").open(encoding="utf-8") as f:
+        (row,) = list(csv.DictReader(f))
+    assert 0.0 <= float(row["val_pixel_accuracy"]) <= 1.0 and row["val_miou"] != ""

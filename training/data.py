@@ -112,6 +112,24 @@ def patch_boxes(height: int, width: int, size: tuple[int, int] = PATCH_SIZE) -> 
     return [(top0 + r * ph, left0 + c * pw) for r in range(rows) for c in range(cols)]
 
 
+def fitted_patch(size: tuple[int, int], files: Sequence[SampleFiles], least: int = 32) -> tuple[int, int]:
+    """``size`` shrunk, side by side, to the smallest of ``files`` (so every image has at least
+    one patch): validation on 256-px tiles (XYZ, fAIr, SpaceNet chips) runs on 256-px patches
+    rather than refusing the 360x480 grid. A side under ``least`` pixels is a DatasetError.
+
+    >>> fitted_patch((360, 480), [])
+    (360, 480)
+    """
+    ph, pw = size
+    for f in files:
+        height, width = _check_sizes(f)
+        if min(height, width) < least:
+            raise DatasetError(f"{f.image}: image of {width}x{height} is too small to validate on; "
+                               f"every side must be at least {least} pixels")
+        ph, pw = min(ph, height), min(pw, width)
+    return ph, pw
+
+
 # -------------------------------------------------------------------------------- discovery
 def _files_by_stem(folder: Path, suffixes: tuple[str, ...]) -> dict[str, Path]:
     found: dict[str, Path] = {}

@@ -49,6 +49,7 @@ from training.data import (
     dataset_resolution,
     discover_dataset,
     files_by_name,
+    fitted_patch,
     validate,
     weights_from_histograms,
 )
@@ -359,7 +360,7 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
                                 balance=recipe.balanced_crops, class_pixels=train_class_pixels)
     else:
         train_set = patches(train_files, config.patch_size, augment=config.augment)
-    val_set = patches(val_files, config.patch_size, augment=False)
+    val_set = patches(val_files, fitted_patch(config.patch_size, val_files), augment=False)  # 256-px tiles too
     if len(train_set) == 0:
         raise DatasetError(f"{config.dataset}: no training patches of {config.patch_size}; are the images smaller?")
 
