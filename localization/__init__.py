@@ -31,7 +31,10 @@ step:
    paper's figures (candidates and top-k on the aerial image, both graphs overlaid), and the
    two evaluations: rendered panoramas from seeded viewpoints (``osmseg localize-bench`` on a
    dataset or mask) and annotated aerial/ground pairs (``localize-bench`` on a pairs folder),
-   with their error plots (:mod:`localization.evaluate_plots`).
+   with their error plots (:mod:`localization.evaluate_plots`). :mod:`localization.georender`
+   is a second renderer that shares no code with the first or with the methods: ground views
+   ray-cast over 3-D geometry in metres (prisms with their own base and top, see-through tree
+   crowns, a tilted camera), so a benchmark is not drawn only by the model it measures.
 
 5. :mod:`localization.profile`, :mod:`localization.search`, :mod:`localization.compare` --
    **the profile method** (beyond the paper, ``--method profile``): the query's class-wise
