@@ -157,3 +157,77 @@ def test_bad_cameras_and_solids_are_refused() -> None:
     with pytest.raises(ConfigError, match="base < top"):
         Solid(box(0, 0, 1, 1), 5.0, 5.0, BUILDING)
     assert tree_crown(0, 0, 3.0, TREE).polygon.area == pytest.approx(math.pi * 1.5 ** 2, rel=0.02)
+
+
+# ------------------------------------------------------------------ a scene from OSM tags
+LON0, LAT0 = 26.95, 60.53  # Kotka
+
+
+def lonlat(dx: float, dy: float) -> tuple[float, float]:
+    """A point ``dx`` m east and ``dy`` m north of (LON0, LAT0)."""
+    return LON0 + dx / (111_319.49 * math.cos(math.radians(LAT0))), LAT0 + dy / 111_319.49
+
+
+def write_osm(path, objects) -> None:
+    lines = ["<?xml version='1.0' encoding='UTF-8'?>", "<osm version='0.6' generator='test'>"]
+    ways = []
+    node_id = 1
+    for kind, points, tags in objects:
+        ids = []
+        for dx, dy in points:
+            lon, lat = lonlat(dx, dy)
+            node_tags = "".join(f"<tag k='{k}' v='{v}'/>" for k, v in tags.items()) if kind == "node" else ""
+            lines.append(f"<node id='{node_id}' version='1' lat='{lat:.8f}' lon='{lon:.8f}'>{node_tags}</node>")
+            ids.append(node_id)
+            node_id += 1
+        if kind == "way":
+            ways.append((ids + [ids[0]] if tags.get("highway") is None else ids, tags))
+    for way_id, (ids, tags) in enumerate(ways, start=1):
+        nds = "".join(f"<nd ref='{i}'/>" for i in ids)
+        tag_xml = "".join(f"<tag k='{k}' v='{v}'/>" for k, v in tags.items())
+        lines.append(f"<way id='{way_id}' version='1'>{nds}{tag_xml}</way>")
+    lines.append("</osm>")
+    path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def square(cx: float, cy: float, half: float) -> list[tuple[float, float]]:
+    return [(cx - half, cy - half), (cx + half, cy - half), (cx + half, cy + half), (cx - half, cy + half)]
+
+
+def test_a_scene_from_osm_takes_heights_from_the_tags_and_draws_the_rest_from_the_seed(tmp_path) -> None:
+    from localization.georender_osm import scene_from_osm
+    from localization.render import panorama_table
+    from osmseg.classes import load_class_table
+
+    table = load_class_table("classes13.toml")
+    path = tmp_path / "scene.osm"
+    write_osm(path, [
+        ("way", square(0, 40, 10), {"building": "yes", "height": "20"}),          # north, 30-50 m
+        ("way", square(40, 0, 5), {"building": "house", "building:levels": "2"}),  # east: 7 m
+        ("way", square(-40, 0, 5), {"building": "yes"}),                          # west: no height
+        ("node", [(0, -30)], {"natural": "tree", "height": "12"}),                # south
+        ("way", [(-60, -10), (60, -10)], {"highway": "residential"}),
+        ("way", square(0, -80, 15), {"natural": "wood"}),
+    ])
+    scenes = [scene_from_osm([path], LON0, LAT0, table, radius_m=120, seed=s) for s in (0, 0, 1)]
+    solids = scenes[0].scene.solids
+    b, tree = table.by_name["building"].id, table.by_name["tree"].id
+    buildings = sorted((s for s in solids if s.class_id == b), key=lambda s: s.polygon.centroid.x)
+    assert [round(s.top_m, 1) for s in buildings[1:]] == [20.0, 7.0]           # north (x 0), east (x 40)
+    assert 4.0 <= buildings[0].top_m <= 16.0                                    # west: drawn
+    north = buildings[1].polygon
+    assert north.centroid.y == pytest.approx(40, abs=0.5) and north.area == pytest.approx(400, rel=0.02)
+    crowns = [s for s in solids if s.class_id == tree]
+    single = min(crowns, key=lambda s: abs(s.polygon.centroid.y + 30))
+    assert single.top_m == 12.0 and single.base_m == pytest.approx(4.0) and single.opacity < 1
+    assert sum(1 for s in crowns if s.polygon.centroid.y < -60) >= 4               # the wood stands
+    assert scenes[0].scene == scenes[1].scene and scenes[0].scene != scenes[2].scene
+    assert {g.class_id for g in scenes[0].scene.ground} >= {table.by_name["highway"].id}
+    # the view from the centre: the 20 m building's top edge at atan((20 - 1.7) / 30) = 31.4°
+    cam = camera(eye_m=1.7)
+    view = render(scenes[0].scene, cam, panorama_table(table).by_name["sky"].id, table.unlabeled.id)
+    runs = classes_up_a_column(view, column_of(0.0, cam))
+    first_building = next(r for r in runs if r[0] == b)
+    assert abs(first_building[1] - row_of(math.degrees(math.atan(18.3 / 30)), cam)) <= 2
+    south = classes_up_a_column(view, column_of(180.0, cam))
+    assert tree in [c for c, _, _ in south]
