@@ -308,7 +308,7 @@ def _heights(values: tuple[str, ...]) -> dict[str, float]:
 RENDER_ONLY = ("viewpoints", "seed", "table", "mode", "min_size", "stride", "margin", "stand_on", "width", "height",
                "max_range", "class_height", "confusion", "miss_small", "miss_prob", "offset",
                "query_landmarks", "visible_min_px", "save_panoramas", "pictures", "fov_deg",
-               "height_spread", "negatives")
+               "height_spread", "negatives", "renderer", "osm")
 PAIRS_ONLY = ("aerial_size", "ground_size", "conventions")
 
 
@@ -393,6 +393,12 @@ def _given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
 @click.option("--negatives/--no-negatives", default=True, show_default=True,
               help="Also localize each view in another scene: how well each method's confidence separates "
                    "matching from non-matching pairs (ROC AUC).")
+@click.option("--renderer", type=click.Choice(["mask", "geometry"]), default="mask", show_default=True,
+              help="mask: panoramas ray-cast over the aerial mask, one height per class (the model the profile "
+                   "method scores with) | geometry: ray-cast over the OSM geometry of --osm in 3-D, heights from "
+                   "the tags, see-through tree crowns (shares no code with the methods).")
+@click.option("--osm", "osm", multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="With --renderer geometry: the OSM file(s) (.osm, .osm.pbf) the masks were built from.")
 @renamed_option("-n", "viewpoints", type=click.IntRange(min=1), note=" here (-n is build's --samples)")
 @click.pass_context
 @report_errors
@@ -404,7 +410,8 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
                            offset: float, query_landmarks: str, visible_min_px: int, save_panoramas: int,
                            pictures: int, plots: bool, aerial_size: str | None,
                            ground_size: str | None, methods_text: str, heading: str, fov_deg: float,
-                           height_spread: float, negatives: bool, conventions: str) -> None:
+                           height_spread: float, negatives: bool, conventions: str, renderer: str,
+                           osm: tuple[Path, ...]) -> None:
     """Render panoramas at seeded viewpoints of SOURCE and localize them in it.
 
     SOURCE is a dataset folder made by `osmseg build` (its labels/ and manifest.json), or one
@@ -451,7 +458,8 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
                             heights=_heights(class_height), height_spread=height_spread, height_seed=seed),
         noise=NoiseConfig(confusion=confusion, miss_small_px=miss_small, miss_prob=miss_prob, offset_m=offset),
         save_panoramas=save_panoramas, pictures=pictures, query_landmarks=query_landmarks, visible_min_px=visible_min_px,
-        methods=methods, heading=heading, fov_deg=fov_deg, negatives=negatives,
+        methods=methods, heading=heading, fov_deg=fov_deg, negatives=negatives, renderer=renderer,
+        osm=tuple(str(o) for o in osm),
     )
     if query_landmarks != "visible" and _given(ctx, ("visible_min_px",)):
         raise ConfigError("--visible-min-px applies with --query-landmarks visible only: add it or leave it out")

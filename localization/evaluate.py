@@ -46,6 +46,8 @@ import numpy as np
 
 from localization.compare import method_summary, photo_view, run_method
 from localization.evaluate_plots import plot_classes, plot_confidence, plot_errors
+from localization.geobench import geometry_view, geotiff_bounds_3857, scene_for_mask
+from localization.georender_osm import OsmScene
 from localization.graph import cliques_fast
 from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
 from localization.match import DEFAULT_P
@@ -82,6 +84,7 @@ class Scene:
     mask: np.ndarray
     table: ClassTable
     resolution_m: float
+    bounds_3857: tuple[float, float, float, float] | None = None  # where it lies: for --renderer geometry
 
 
 @dataclass(frozen=True)
@@ -114,6 +117,8 @@ class BenchConfig:
     heading: str = "known"              # "known": north-aligned panoramas; "unknown": a seeded random heading per view
     fov_deg: float = 360.0              # < 360: each view is a photo of this field of view, not a panorama
     negatives: bool = True              # also localize each view in another scene (confidence: ROC AUC)
+    renderer: str = "mask"              # "mask": render.py over the aerial mask; "geometry": georender.py over --osm
+    osm: tuple[str, ...] = ()           # the OSM file(s) the geometry renderer draws from
 
     def __post_init__(self) -> None:
         if self.viewpoints < 1:
@@ -137,6 +142,15 @@ class BenchConfig:
         if self.query_landmarks == "visible" and (self.fov_deg < 360 or "profile" in self.methods):
             raise ConfigError("visible query landmarks are for the paper method on whole panoramas: "
                               "drop --query-landmarks visible, or --fov and the profile method")
+        if self.renderer not in ("mask", "geometry"):
+            raise ConfigError(f"renderer must be 'mask' or 'geometry', got {self.renderer!r}")
+        if self.renderer == "geometry" and not self.osm:
+            raise ConfigError("the geometry renderer draws from OpenStreetMap: give the OSM file of the area with --osm")
+        if self.renderer == "mask" and self.osm:
+            raise ConfigError("--osm is for --renderer geometry; the mask renderer draws from the mask alone")
+        if self.renderer == "geometry" and (self.query_landmarks == "visible" or self.render.height_spread > 0):
+            raise ConfigError("the geometry renderer takes heights from the OSM tags and knows no aerial landmarks: "
+                              "drop --height-spread and --query-landmarks visible")
         if self.query_landmarks == "visible" and self.noise.active:
             raise ConfigError("class confusion and missed landmarks apply to mask landmarks: drop them with "
                               "visible query landmarks (the viewpoint offset still applies)")
@@ -149,6 +163,7 @@ class BenchConfig:
     def to_dict(self) -> dict[str, Any]:
         out = dataclasses.asdict(self)
         out["render"]["heights"] = dict(self.render.heights)
+        out["osm"] = [Path(o).name for o in self.osm]  # names, not this machine's paths
         return out
 
 
@@ -179,7 +194,9 @@ def load_mask_scene(path: Path, table: ClassTable | str, resolution_m: float) ->
     if not (resolution_m and resolution_m > 0):
         raise ConfigError("give the mask's ground resolution in metres per pixel (--resolution)")
     tab = load_class_table(table) if isinstance(table, str) else table
-    return Scene(name=Path(path).stem, mask=_read_mask(Path(path)), table=tab, resolution_m=float(resolution_m))
+    bounds = geotiff_bounds_3857(Path(path)) if Path(path).suffix.lower() in (".tif", ".tiff") else None
+    return Scene(name=Path(path).stem, mask=_read_mask(Path(path)), table=tab, resolution_m=float(resolution_m),
+                 bounds_3857=bounds)
 
 
 def load_dataset_scenes(folder: Path) -> list[Scene]:
@@ -190,10 +207,12 @@ def load_dataset_scenes(folder: Path) -> list[Scene]:
                            "or a mask file with --table and --resolution")
     manifest = read_manifest(folder)
     table = ClassTable.from_dict(manifest["classes"], f"{manifest_path(folder)} classes")
-    samples = [(s["name"], float(s["ground_resolution_m"])) for s in manifest["samples"]]
+    samples = [(s["name"], float(s["ground_resolution_m"]), s.get("bounds_3857")) for s in manifest["samples"]]
     if not samples:
         raise DatasetError(f"{folder}: the dataset has no samples")
-    return [Scene(name, _read_mask(folder / "labels" / f"{name}.png"), table, res) for name, res in samples]
+    return [Scene(name, _read_mask(folder / "labels" / f"{name}.png"), table, res,
+                  tuple(float(v) for v in bounds) if bounds else None)  # type: ignore[arg-type]
+            for name, res, bounds in samples]
 
 
 def landmark_classes_for(table: ClassTable, name: str | None) -> LandmarkClasses:
@@ -314,6 +333,16 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     heights = [object_heights(sc.mask, sc.table, dataclasses.replace(config.render, height_seed=config.render.height_seed + i))
                if config.render.height_spread > 0 else None for i, sc in enumerate(scenes)]
     indexes: dict[int, AerialIndex] = {}
+    solids: dict[int, OsmScene] = {}  # --renderer geometry: each scene's 3-D scene, built once
+
+    def solid_scene(si: int) -> OsmScene:
+        if si not in solids:
+            bounds = scenes[si].bounds_3857
+            if bounds is None:
+                raise ConfigError(f"{scenes[si].name}: the geometry renderer needs to know where the mask lies: give a "
+                                  "dataset made by `osmseg build` or a GeoTIFF mask in EPSG:3857")
+            solids[si] = scene_for_mask(config.osm, bounds, scenes[si].table, config.render.max_range_m, config.seed)
+        return solids[si]
 
     def index_of(si: int) -> AerialIndex:
         if si not in indexes:
@@ -350,10 +379,16 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
                    else config.render.heading_deg)
         t0 = time.perf_counter()
         visible = config.query_landmarks == "visible"
-        view: RenderedView = render_view(scene.mask, scene.table, scene.resolution_m, truth, classes,
-                                         config=dataclasses.replace(config.render, heading_deg=heading), noise=noise,
-                                         mode=config.mode, min_size=config.min_size, stride=config.stride,
-                                         sources=visible, heights=heights[si])
+        camera = dataclasses.replace(config.render, heading_deg=heading)
+        view: RenderedView
+        if config.renderer == "geometry":
+            view = geometry_view(solid_scene(si), scene.bounds_3857 or (0, 0, 0, 0), scene.mask.shape,
+                                 scene.resolution_m, scene.table, truth, classes, config=camera, noise=noise,
+                                 mode=config.mode, min_size=config.min_size, stride=config.stride)
+        else:
+            view = render_view(scene.mask, scene.table, scene.resolution_m, truth, classes, config=camera, noise=noise,
+                               mode=config.mode, min_size=config.min_size, stride=config.stride, sources=visible,
+                               heights=heights[si])
         if visible:
             shown, _ = visible_landmarks(view.panorama, aerial[si][1], aerial[si][0], config.visible_min_px)
             view = dataclasses.replace(view, landmarks=shown)
