@@ -46,6 +46,11 @@ step:
    :mod:`localization.scores` turns their answers into errors, recall and baselines.
    (:mod:`localization.windows` and :mod:`localization.cells` hold the window arithmetic and
    the component-landmark sweep of :mod:`localization.graph`.)
+6. :mod:`localization.region` -- **a region from OpenStreetMap alone** (``osmseg localize
+   --osm FILE --bbox W,S,E,N``, command line in :mod:`localization.cli_region`): the region
+   drawn by the builder's rasteriser in overlapping blocks, each searched by the profile
+   method against the region's class frequencies, answers in degrees with the best distinct
+   alternative and the margin between them.
 
 Coordinates are pixels throughout: ``x`` is the column, ``y`` the row. numpy and scipy do
 the work; only :mod:`localization.features` runs a network, with torch (the ``train`` extra).

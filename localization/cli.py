@@ -107,10 +107,15 @@ def _table(result: Any) -> str:
 
 @click.command("localize")
 @output_options
-@click.option("--aerial", "aerial_path", required=True,
-              type=click.Path(exists=True, dir_okay=False, path_type=Path),
+@click.option("--aerial", "aerial_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="Aerial label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy) or RGB image "
-                   "with --aerial-checkpoint.")
+                   "with --aerial-checkpoint. Or no aerial image at all: a region's OSM with --osm and --bbox.")
+@click.option("--osm", "osm", multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Search a whole region instead of an aerial image: its OpenStreetMap file(s) (.osm, .osm.pbf), "
+                   "drawn in --aerial-table's classes, with --bbox.")
+@click.option("--bbox", "bbox_text", metavar="W,S,E,N", help="With --osm: the region to search, in degrees.")
+@click.option("--zoom", type=click.IntRange(14, 21), default=18, show_default=True,
+              help="With --osm: the zoom the region is drawn at (18: about 0.6 m x cos(latitude) a pixel).")
 @click.option("--ground", "ground_path", required=True,
               type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="Ground panorama: label mask, landmark file, or RGB image with --ground-checkpoint.")
@@ -147,7 +152,8 @@ def _table(result: Any) -> str:
 @click.option("--grid-stride", type=click.IntRange(min=1), default=50, show_default=True,
               help="Spacing of --mode grid.")
 @click.option("--reference", is_flag=True, help="Build graphs with the paper's plain sliding window (slow; a check).")
-@click.option("--truth", "truth_text", help="Ground-truth viewpoint X,Y in aerial pixels: reports the error.")
+@click.option("--truth", "truth_text", help="Ground-truth viewpoint X,Y in aerial pixels (with --osm: LON,LAT): "
+              "reports the error.")
 @click.option("--resolution", type=click.FloatRange(min=0, min_open=True),
               show_default="a GeoTIFF's, or the dataset manifest's",
               help="Metres per aerial pixel, for errors in metres.")
@@ -197,13 +203,28 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                      feature_threshold: float | None, feature_metric: str, feature_reduce: str,
                      feature_components: int, feature_checkpoint: Path | None, conventions: str, method: str,
                      heading_text: str,
-                     fov_deg: float, camera_height: float, min_confidence: float | None) -> None:
-    """Find where the GROUND panorama was taken in the AERIAL image (landmark graphs, or angular profiles)."""
+                     fov_deg: float, camera_height: float, min_confidence: float | None, osm: tuple[Path, ...],
+                     bbox_text: str | None, zoom: int) -> None:
+    """Find where the GROUND panorama was taken in the AERIAL image (landmark graphs, or angular profiles),
+    or anywhere in a region's OpenStreetMap (--osm FILE --bbox W,S,E,N)."""
     from localization.features import FeatureEdges
     from localization.pipeline import LocalizeConfig, LocalizeFiles, localize_files
     from localization.search import ProfileConfig
 
     verbosity = (ctx.obj or {}).get("verbosity", 0)
+    if osm or bbox_text is not None or aerial_path is None:  # a region of OSM, no aerial image
+        from localization.cli_region import run_region
+
+        stray = _given(ctx, ("aerial_path", "aerial_size", "aerial_checkpoint", "aerial_image", "resolution",
+                             "window_text", "ground_window", "p", "stride", "hierarchical", "windows_text",
+                             "reference", "feature_threshold", "conventions", "min_confidence", "panorama"))
+        run_region(ctx, ground_path, osm, bbox_text, zoom, method, ground_classes, ground_table, ground_size,
+                   ground_checkpoint, aerial_classes, aerial_table or "classes13.toml", mode, min_size, grid_stride,
+                   _heading(heading_text), fov_deg, camera_height, top_k, truth_text, out_dir, as_json, verbosity,
+                   stray)
+        return
+    if _given(ctx, ("zoom",)):
+        raise ConfigError("--zoom is for a region (--osm FILE --bbox W,S,E,N): add them, or leave it out")
     window, windows, truth = _window(window_text), _windows(windows_text), _point(truth_text)
     if feature_threshold is None and (stray := _given(ctx, ("feature_checkpoint", "feature_metric", "feature_reduce",
                                                             "feature_components"))):

@@ -157,13 +157,13 @@ def profile_query(query: SemanticMap | Landmarks, camera: Camera, config: Profil
 
 
 def run_profile(config: ProfileConfig, aerial: AerialIndex, query: SemanticMap | Landmarks | QueryProfile,
-                camera: Camera | None = None) -> Localization:
+                camera: Camera | None = None, prior: np.ndarray | None = None) -> Localization:
     """Localize ``query`` (its mask or landmarks seen by ``camera``, or a ready profile) with the profile method."""
     if not isinstance(query, QueryProfile):
         if camera is None:
             raise ConfigError("the profile method needs the query camera (image size and field of view)")
         query = profile_query(query, camera, config)
-    result = localize_profile(aerial, query, config)
+    result = localize_profile(aerial, query, config, prior)
     logger.debug("localize (profile): heading %s, confidence %s, %d positions at the finest level",
                  result.heading_deg, result.confidence, len(result.candidates))
     return result

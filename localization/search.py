@@ -294,13 +294,16 @@ def _nms(xy: np.ndarray, order: np.ndarray, radius: float, k: int) -> list[int]:
     return kept
 
 
-def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileConfig) -> Localization:
+def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileConfig,
+                     prior: np.ndarray | None = None) -> Localization:
     """Where ``query`` was taken in the aerial ``index``: the ``profile`` method's answer.
 
     The result is a :class:`~localization.result.Localization` whose candidates are the
     positions of the finest level, ``likelihoods`` and ``posteriors`` their scores, ``top_k``
     distinct places (at least one coarse cell apart), ``heading_deg`` the estimated (or given)
-    heading and ``confidence`` the kappa of the best match.
+    heading and ``confidence`` the kappa of the best match. ``prior``: the class frequencies
+    (:func:`class_prior`) to weigh and to compare with, when they should be another area's than
+    this image's (a region searched in blocks scores every block against the region's).
     """
     settings = {"method": "profile"}
     if tuple(index.classes) != tuple(query.classes):
@@ -313,7 +316,7 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     weighted = config.weighted if config.weighted is not None else index.weighted
     spacing = coarse_m / index.resolution_m
     xy = grid_positions(index.shape, spacing)
-    mean = class_prior(index, query, xy)
+    mean = class_prior(index, query, xy) if prior is None else prior
     weights = -np.log(np.clip(mean, config.min_prior, 1.0)) if weighted else None
     score, shift = score_positions(index, query, xy, config, mean, weights, keep=config.keep)
     h, w = index.shape

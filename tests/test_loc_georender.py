@@ -321,3 +321,83 @@ def test_geometry_views_of_real_osm_are_localized_by_the_profile_method(tmp_path
     assert result.exit_code == 0, result.output
     profile = json.loads((tmp_path / "out" / "results.json").read_text())["methods"]["profile"]
     assert profile["answered"] == 4 and profile["recall_at"]["10"] >= 0.75
+
+
+# ------------------------------------------------------------------ region search: osmseg localize --osm --bbox
+def town(tmp_path):
+    """An OSM town: a grid of streets lined by buildings of drawn lengths, depths, gaps and
+    heights (seeded), so that no two stretches of street look alike."""
+    xs, ys = (-150, -100, 10, 120, 150), (-150, -80, 0, 90, 150)
+    objects = [("way", [(-150, y), (150, y)], {"highway": "residential"}) for y in ys[1:-1]]
+    objects += [("way", [(x, -150), (x, 150)], {"highway": "residential"}) for x in xs[1:-1]]
+    rng = np.random.default_rng(7)
+
+    def row(a: float, b: float, side: float, along_x: bool, inward: float) -> None:
+        t = a + float(rng.uniform(0, 10))
+        while t < b - 8:
+            length, depth = float(rng.uniform(8, 25)), float(rng.uniform(8, 14))
+            length = min(length, b - t)
+            near, far = side + inward * 5, side + inward * (5 + depth)
+            lo, hi = min(near, far), max(near, far)
+            corners = ([(t, lo), (t + length, lo), (t + length, hi), (t, hi)] if along_x
+                       else [(lo, t), (hi, t), (hi, t + length), (lo, t + length)])
+            objects.append(("way", corners, {"building": "yes", "height": f"{rng.uniform(4, 22):.1f}"}))
+            t += length + float(rng.uniform(3, 20))
+
+    for x0, x1 in zip(xs, xs[1:]):
+        for y0, y1 in zip(ys, ys[1:]):
+            row(x0 + 6, x1 - 6, y0, True, +1)
+            row(x0 + 6, x1 - 6, y1, True, -1)
+            row(y0 + 25, y1 - 25, x0, False, +1)
+            row(y0 + 25, y1 - 25, x1, False, -1)
+    # one place unlike the others: a park with a footpath and a row of trees east of the truth
+    objects = [o for o in objects if not (o[2].get("building") and 15 < o[1][0][0] < 100 and -75 < o[1][0][1] < -5)]
+    objects.append(("way", [(16, -74), (104, -74), (104, -6), (16, -6)], {"leisure": "park"}))
+    objects.append(("way", [(16, -40), (104, -40)], {"highway": "footway"}))
+    objects += [("node", [(25 + 9 * i, -30)], {"natural": "tree", "height": "9"}) for i in range(8)]
+    write_osm(tmp_path / "town.osm", objects)
+    return tmp_path / "town.osm"
+
+
+def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_path) -> None:
+    import json
+
+    import shapely
+    from click.testing import CliRunner
+    from PIL import Image
+    from shapely.geometry import shape
+
+    from localization.georender_osm import scene_from_osm
+    from localization.render import panorama_table
+    from osmseg.classes import load_class_table
+    from osmseg.cli.main import cli
+
+    osm = town(tmp_path)
+    table = load_class_table("classes13.toml")
+    scene = scene_from_osm([osm], LON0, LAT0, table, radius_m=200, seed=0)
+    at = (10.0, -25.0)  # on the north-south street x = 10, between two blocks
+    view = render(scene.scene, Camera(*at, eye_m=1.7, width=1232, height=224),
+                  panorama_table(table).by_name["sky"].id, table.unlabeled.id)
+    sky = panorama_table(table).by_name["sky"].id
+    Image.fromarray(np.where(view == sky, table.unlabeled.id, view).astype(np.uint8)).save(tmp_path / "query.png")
+    truth = lonlat(*at)
+    w, s = lonlat(-140, -140)
+    e, n = lonlat(140, 140)
+    args = ["localize", "--ground", str(tmp_path / "query.png"), "--ground-classes", "aerial13", "--ground-table",
+            "classes13.toml", "--osm", str(osm), "--bbox", f"{w},{s},{e},{n}", "--truth", f"{truth[0]},{truth[1]}",
+            "--out", str(tmp_path / "out")]
+    runs = [CliRunner().invoke(cli, args) for _ in range(2)]
+    assert runs[0].exit_code == 0, runs[0].output
+    assert runs[0].stdout == runs[1].stdout  # the same answers every time
+    doc = json.loads((tmp_path / "out" / "region.geojson").read_text())
+    points = [shape(f["geometry"]) for f in doc["features"]]  # GeoJSON a GIS reads: shapely parses it
+    best = doc["features"][0]
+    assert best["properties"]["role"] == "answer" and doc["properties"]["truth"]["error_m"] < 5.0
+    alternative = [f for f in doc["features"] if f["properties"]["role"] == "best distinct alternative"]
+    assert alternative and alternative[0]["properties"]["distance_m"] >= 50.0
+    assert doc["properties"]["margin"] >= 0 and all(shapely.box(w, s, e, n).buffer(1e-3).contains(p) for p in points)
+    # a region search has no aerial image: its options are refused in one line
+    bad = CliRunner().invoke(cli, [*args, "--resolution", "0.3"])
+    assert bad.exit_code == 2 and "--resolution applies to an aerial image" in bad.output
+    no_box = CliRunner().invoke(cli, ["localize", "--ground", str(tmp_path / "query.png"), "--osm", str(osm)])
+    assert no_box.exit_code == 2 and "--bbox" in no_box.output
