@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -186,26 +187,39 @@ def search_region(query: SemanticMap, camera: Camera, osm: Sequence[Path | str],
     coarse = dataclasses.replace(profile, top_k=config.per_block, min_confidence=0.0, levels=0)
     fine = dataclasses.replace(profile, top_k=config.per_block, min_confidence=0.0)
     q = profile_query(query, camera, fine)
-    indexes, priors = {}, []
-    for b, ((grid, _), mask) in enumerate(track(zip(blocks, _block_masks(osm, blocks, table)), progress,
-                                                "blocks", total=len(blocks), unit="block")):
-        indexes[b] = profile_index(semantic_map(mask, table, classes), ground_resolution(grid.lat, grid.zoom), coarse)
-        positions = grid_positions(indexes[b].shape, indexes[b].grid_m / indexes[b].resolution_m)
-        priors.append(class_prior(indexes[b], q, positions))
+    packed: list[bytes] = []  # each block's mask, deflated: memory stays small whatever the region's size
+    priors = []
+    for (grid, _), mask in track(zip(blocks, _block_masks(osm, blocks, table)), progress, "drawing blocks",
+                                 total=len(blocks), unit="block"):
+        packed.append(zlib.compress(np.ascontiguousarray(mask, np.uint8).tobytes(), 1))
+        index = _index(mask, grid, table, classes, coarse)
+        priors.append(class_prior(index, q, grid_positions(index.shape, index.grid_m / index.resolution_m)))
     prior = np.mean(priors, axis=0)  # one yardstick for every block: the region's class frequencies
+
+    def index_of(b: int) -> Any:
+        grid = blocks[b][0]
+        mask = np.frombuffer(zlib.decompress(packed[b]), np.uint8).reshape(grid.height, grid.width)
+        return _index(mask, grid, table, classes, coarse)
+
     found: list[tuple[Answer, int]] = []
-    for b, (grid, core) in enumerate(blocks):
-        found += [(a, b) for a in _in_core(run_profile(coarse, indexes[b], q, prior=prior), grid, core, config.zoom)]
+    for b, (grid, core) in enumerate(track(blocks, progress, "searching blocks", unit="block")):
+        found += [(a, b) for a in _in_core(run_profile(coarse, index_of(b), q, prior=prior), grid, core, config.zoom)]
     found.sort(key=lambda ab: (-ab[0].score, ab[0].lat, ab[0].lon))  # the profile score, as within one block
     refined: list[Answer] = []
     for b in dict.fromkeys(b for _, b in found[:config.top_k]):  # the blocks of the best places, best first
         grid, core = blocks[b]
-        refined += _in_core(run_profile(fine, indexes[b], q, prior=prior), grid, core, config.zoom)
+        refined += _in_core(run_profile(fine, index_of(b), q, prior=prior), grid, core, config.zoom)
     refined.sort(key=lambda a: (-a.score, a.lat, a.lon))
     answers = _spaced(refined, config.top_k, min_m=1.0)
     everything = sorted([*refined, *(a for a, _ in found)], key=lambda a: (-a.score, a.lat, a.lon))
     alternative = next((a for a in everything if answers and distance_m(answers[0], a) >= config.distinct_m), None)
     return RegionResult(tuple(answers), alternative, len(blocks), config)
+
+
+def _index(mask: np.ndarray, grid: SampleGrid, table: ClassTable, classes: LandmarkClasses,
+           config: ProfileConfig) -> Any:
+    """The profile method's aerial side of one block's mask."""
+    return profile_index(semantic_map(mask, table, classes), ground_resolution(grid.lat, grid.zoom), config)
 
 
 def _in_core(loc: Any, grid: SampleGrid, core: frozenset[tuple[int, int]], zoom: int) -> list[Answer]:
