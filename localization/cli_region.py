@@ -102,4 +102,5 @@ def run_region(ctx: click.Context, ground: Path | None, osm: tuple[Path, ...], b
             click.echo(f"error of the answer: {metres(distance_m(result.best, request.truth))}", err=True)
         click.echo(f"{result.blocks} blocks of {config.size}x{config.size} tiles at zoom {zoom} searched", err=True)
         if out_dir is not None:
-            click.echo(f"written: region.geojson in {out_dir}/", err=True)
+            written = [f for f in ("region.geojson", "region.png") if (out_dir / f).is_file()]
+            click.echo(f"written: {', '.join(written)} in {out_dir}/", err=True)

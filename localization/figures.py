@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 import numpy as np
@@ -32,7 +33,10 @@ from osmseg import units
 from osmseg.errors import ConfigError
 from osmseg.output.plotting import figure as _figure, save_png as _save
 
-__all__ = ["CANDIDATE", "TOP_K", "TRUTH", "class_colours", "graph_png", "localization_png"]
+if TYPE_CHECKING:
+    from osmseg.classes import ClassTable
+
+__all__ = ["CANDIDATE", "TOP_K", "TRUTH", "class_colours", "graph_png", "localization_png", "region_png"]
 
 #: Colours of the paper's localization picture.
 CANDIDATE = "#ff9900"
@@ -182,4 +186,46 @@ def graph_png(path: Path | str, lm: Landmarks, adjacency: np.ndarray, *, image: 
         n_edges = int(np.triu(adj.astype(bool), k=1).sum())
         ax.set_title(title or f"{k} landmarks, {n_edges} edges" + (" (panorama)" if lm.panorama else ""))
         fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 6), frameon=False)
+        return _save(fig, path)
+
+
+def region_png(path: Path | str, result: Any, table: ClassTable, truth: tuple[float, float] | None = None,
+               error_m: float | None = None) -> Path:
+    """The searched region (its OSM as drawn, in class colours) with the answers ranked, the
+    best distinct alternative and the truth, in degrees, with a legend. ``result``: a
+    :class:`localization.region.RegionResult` (which imports this module, not the reverse);
+    ``error_m``: the answer's distance from the truth, for the title."""
+    from matplotlib.patches import Patch
+
+    if result.overview is None or result.overview_bounds is None:
+        raise ConfigError("the region result has no overview to draw")
+    w, s, e, n = result.overview_bounds
+    h, wd = result.overview.shape
+    with _figure(*_size(wd, h, extra=1.6)) as fig:
+        ax = fig.add_subplot()
+        ax.imshow(table.colorize(result.overview), extent=(w, e, s, n), interpolation="nearest")
+        ax.set_aspect(1 / np.cos(np.radians((s + n) / 2)))
+        ax.set_xlabel("longitude (°)")
+        ax.set_ylabel("latitude (°)")
+        handles: list[Any] = []
+        for rank, a in reversed(list(enumerate(result.answers, start=1))):
+            ax.plot(a.lon, a.lat, marker="o", ms=9 if rank == 1 else 6, color=TOP_K, mec="black", zorder=4)
+            ax.annotate(str(rank), (a.lon, a.lat), xytext=(4, 4), textcoords="offset points", fontsize=8, zorder=5)
+        handles.append(Line2D([], [], ls="", marker="o", color=TOP_K, mec="black", label="answers, ranked"))
+        if result.alternative is not None:
+            alt = result.alternative
+            ax.plot(alt.lon, alt.lat, marker="D", ms=7, color=CANDIDATE, mec="black", zorder=4)
+            handles.append(Line2D([], [], ls="", marker="D", color=CANDIDATE, mec="black",
+                                  label=f"best distinct alternative (margin {units.ratio(result.margin)})"))
+        title = f"{result.blocks} blocks searched"
+        if truth is not None:
+            ax.plot(*truth, marker="*", ms=13, color=TRUTH, mec="black", zorder=6)
+            handles.append(Line2D([], [], ls="", marker="*", color=TRUTH, mec="black", label="truth"))
+            if error_m is not None:
+                title += f"; answer {units.metres(error_m)} from the truth"
+        present = set(np.unique(result.overview).tolist())
+        handles += [Patch(color=tuple(v / 255 for v in c.color[:3]), label=c.name)  # type: ignore[arg-type]
+                    for c in table.classes if c.id in present]
+        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+        ax.set_title(title, fontsize=10)
         return _save(fig, path)

@@ -26,6 +26,7 @@ Imports: osmseg core, localization.profile, .pipeline, .landmarks, .result.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
 import zlib
 from collections.abc import Iterator, Sequence
@@ -96,6 +97,8 @@ class RegionResult:
     alternative: Answer | None
     blocks: int
     config: RegionConfig
+    overview: np.ndarray | None = None     # the region's drawn classes, every OVERVIEW_STEP-th pixel of the cores
+    overview_bounds: tuple[float, float, float, float] | None = None  # its west, south, east, north in degrees
 
     @property
     def best(self) -> Answer | None:
@@ -189,9 +192,11 @@ def search_region(query: SemanticMap, camera: Camera, osm: Sequence[Path | str],
     q = profile_query(query, camera, fine)
     packed: list[bytes] = []  # each block's mask, deflated: memory stays small whatever the region's size
     priors = []
-    for (grid, _), mask in track(zip(blocks, _block_masks(osm, blocks, table)), progress, "drawing blocks",
-                                 total=len(blocks), unit="block"):
+    overview = _Overview(blocks)
+    for (grid, core), mask in track(zip(blocks, _block_masks(osm, blocks, table)), progress, "drawing blocks",
+                                    total=len(blocks), unit="block"):
         packed.append(zlib.compress(np.ascontiguousarray(mask, np.uint8).tobytes(), 1))
+        overview.paste(grid, mask)
         index = _index(mask, grid, table, classes, coarse)
         priors.append(class_prior(index, q, grid_positions(index.shape, index.grid_m / index.resolution_m)))
     prior = np.mean(priors, axis=0)  # one yardstick for every block: the region's class frequencies
@@ -213,7 +218,39 @@ def search_region(query: SemanticMap, camera: Camera, osm: Sequence[Path | str],
     answers = _spaced(refined, config.top_k, min_m=1.0)
     everything = sorted([*refined, *(a for a, _ in found)], key=lambda a: (-a.score, a.lat, a.lon))
     alternative = next((a for a in everything if answers and distance_m(answers[0], a) >= config.distinct_m), None)
-    return RegionResult(tuple(answers), alternative, len(blocks), config)
+    return RegionResult(tuple(answers), alternative, len(blocks), config, overview.pixels, overview.bounds)
+
+
+#: the overview keeps every OVERVIEW_STEP-th pixel of each block's core (256 px tiles -> 32 px)
+OVERVIEW_STEP = 8
+
+
+class _Overview:
+    """A small mosaic of the blocks' cores (every :data:`OVERVIEW_STEP`-th pixel) for the map picture."""
+
+    def __init__(self, blocks: Sequence[tuple[SampleGrid, frozenset[tuple[int, int]]]]) -> None:
+        cores = [t for _, core in blocks for t in core]
+        self.x0, self.y0 = min(x for x, _ in cores), min(y for _, y in cores)
+        self.x1, self.y1 = max(x for x, _ in cores), max(y for _, y in cores)
+        self.zoom = blocks[0][0].zoom
+        side = 256 // OVERVIEW_STEP
+        self.pixels = np.zeros(((self.y1 - self.y0 + 1) * side, (self.x1 - self.x0 + 1) * side), np.uint8)
+        self.side = side
+        self.cores = {id(grid): core for grid, core in blocks}
+
+    def paste(self, grid: SampleGrid, mask: np.ndarray) -> None:
+        small = mask[OVERVIEW_STEP // 2::OVERVIEW_STEP, OVERVIEW_STEP // 2::OVERVIEW_STEP]
+        first = grid.tiles[0]
+        for x, y in self.cores[id(grid)]:
+            r, c = (y - first.y) * self.side, (x - first.x) * self.side
+            R, C = (y - self.y0) * self.side, (x - self.x0) * self.side
+            self.pixels[R:R + self.side, C:C + self.side] = small[r:r + self.side, c:c + self.side]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        nw = mercantile.bounds(self.x0, self.y0, self.zoom)
+        se = mercantile.bounds(self.x1, self.y1, self.zoom)
+        return nw.west, se.south, se.east, nw.north
 
 
 def _index(mask: np.ndarray, grid: SampleGrid, table: ClassTable, classes: LandmarkClasses,
@@ -303,4 +340,10 @@ def localize_region(request: RegionRequest, config: RegionConfig, profile: Profi
             doc["properties"]["truth"] = {"lon": request.truth[0], "lat": request.truth[1],
                                           "error_m": round(distance_m(result.best, request.truth), 2)}
         atomic_write_text(Path(out_dir) / "region.geojson", json.dumps(doc, indent=2) + "\n")
+        if importlib.util.find_spec("matplotlib") is not None:  # the picture is optional, the answers are not
+            from localization.figures import region_png
+
+            error = (distance_m(result.best, request.truth) if request.truth is not None and result.best is not None
+                     else None)
+            region_png(Path(out_dir) / "region.png", result, load_class_table(request.table), request.truth, error)
     return result

@@ -390,6 +390,8 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     assert runs[0].exit_code == 0, runs[0].output
     assert runs[0].stdout == runs[1].stdout  # the same answers every time
     doc = json.loads((tmp_path / "out" / "region.geojson").read_text())
+    with Image.open(tmp_path / "out" / "region.png") as picture:  # the map: the region, the answers, a legend
+        assert picture.format == "PNG" and min(picture.size) > 200
     points = [shape(f["geometry"]) for f in doc["features"]]  # GeoJSON a GIS reads: shapely parses it
     best = doc["features"][0]
     assert best["properties"]["role"] == "answer" and doc["properties"]["truth"]["error_m"] < 5.0
