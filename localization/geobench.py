@@ -23,29 +23,15 @@ import numpy as np
 from localization.georender import Camera, render
 from localization.georender_osm import OsmScene, scene_from_osm
 from localization.landmarks import LandmarkClasses, landmarks_from_mask
+from localization.region import pixel_lonlat
 from localization.render import (SKY_NAME, NoiseConfig, Panorama, RenderConfig, RenderedView, apply_noise,
                                  offset_viewpoint, panorama_table)
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
 
-__all__ = ["Bounds", "pixel_lonlat", "geotiff_bounds_3857", "scene_for_mask", "geometry_view"]
+__all__ = ["Bounds", "geotiff_bounds_3857", "scene_for_mask", "geometry_view"]
 
 Bounds = tuple[float, float, float, float]  # left, bottom, right, top in EPSG:3857 metres
-
-
-def pixel_lonlat(bounds: Bounds, shape: tuple[int, int], xy: tuple[float, float]) -> tuple[float, float]:
-    """Longitude and latitude of mask pixel ``(x, y)`` (pixel centres at integers).
-
-    >>> b = (*mercantile.xy(0.0, -0.001), *mercantile.xy(0.002, 0.001))
-    >>> [round(v, 6) for v in pixel_lonlat(b, (200, 200), (99.5, 99.5))]
-    [0.001, 0.0]
-    """
-    left, bottom, right, top = bounds
-    height, width = shape
-    x = left + (xy[0] + 0.5) * (right - left) / width
-    y = top - (xy[1] + 0.5) * (top - bottom) / height
-    lon, lat = mercantile.lnglat(x, y)
-    return lon, lat
 
 
 def geotiff_bounds_3857(path: Path) -> Bounds | None:

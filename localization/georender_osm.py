@@ -40,7 +40,7 @@ from shapely.geometry.base import BaseGeometry
 from localization.georender import GroundPatch, Scene, Solid, tree_crown
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
-from osmseg.grid import sample_grid
+from osmseg.grid import ground_resolution, sample_grid
 from osmseg.osm.features import read_features
 
 __all__ = ["BUILDING_FALLBACK_M", "TREE_FALLBACK_M", "WOOD_SPACING_M", "OsmScene", "parse_height",
@@ -163,7 +163,7 @@ def scene_from_osm(paths: Sequence[Path | str], lon: float, lat: float, table: C
     if "building" not in table.by_name:
         raise ConfigError(f"class table {table.name} has no building class; a 3-D scene needs one")
     zoom = 18
-    tile_m = 40075016.686 * math.cos(math.radians(lat)) / 2 ** zoom
+    tile_m = ground_resolution(lat, zoom) * 256
     size = 2 * math.ceil(radius_m / tile_m) + 1
     grid = sample_grid(lon, lat, zoom, size)
     features = read_features(list(paths), grid, table)

@@ -48,7 +48,7 @@ from osmseg.osm.features import read_features
 from osmseg.progress import Progress, track
 from osmseg.rasterize import rasterize
 
-__all__ = ["RegionConfig", "Answer", "RegionResult", "region_blocks", "search_region", "distance_m"]
+__all__ = ["RegionConfig", "Answer", "RegionResult", "region_blocks", "search_region", "distance_m", "pixel_lonlat"]
 
 
 @dataclass(frozen=True)
@@ -267,7 +267,8 @@ def _in_core(loc: Any, grid: SampleGrid, core: frozenset[tuple[int, int]], zoom:
     chance = loc.chance if loc.chance is not None else 0.0
     out = []
     for x, y, score in loc.top_k:
-        lon, lat = _pixel_lonlat(grid, x, y)
+        b = grid.xy_bounds
+        lon, lat = pixel_lonlat((b.left, b.bottom, b.right, b.top), (grid.height, grid.width), (x, y))
         tile = mercantile.tile(lon, lat, zoom)
         if (tile.x, tile.y) in core:
             out.append(Answer(lon, lat, score, (score - chance) / (1 - chance) if chance < 1 else 0.0, loc.heading_deg))
@@ -285,11 +286,20 @@ def _spaced(found: Sequence[Answer], k: int, min_m: float) -> list[Answer]:
     return out
 
 
-def _pixel_lonlat(grid: SampleGrid, x: float, y: float) -> tuple[float, float]:
-    b = grid.xy_bounds
-    mx = b.left + (x + 0.5) * (b.right - b.left) / grid.width
-    my = b.top - (y + 0.5) * (b.top - b.bottom) / grid.height
-    lon, lat = mercantile.lnglat(mx, my)
+def pixel_lonlat(bounds: tuple[float, float, float, float], shape: tuple[int, int],
+                 xy: tuple[float, float]) -> tuple[float, float]:
+    """Longitude and latitude of pixel ``(x, y)`` (centres at integers) of a ``shape`` mask whose
+    Web Mercator ``bounds`` are (left, bottom, right, top).
+
+    >>> b = (*mercantile.xy(0.0, -0.001), *mercantile.xy(0.002, 0.001))
+    >>> [round(v, 6) for v in pixel_lonlat(b, (200, 200), (99.5, 99.5))]
+    [0.001, 0.0]
+    """
+    left, bottom, right, top = bounds
+    height, width = shape
+    x = left + (xy[0] + 0.5) * (right - left) / width
+    y = top - (xy[1] + 0.5) * (top - bottom) / height
+    lon, lat = mercantile.lnglat(x, y)
     return lon, lat
 
 
