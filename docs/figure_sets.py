@@ -178,7 +178,7 @@ SETTINGS = (
     ("the same noise, `--heading unknown`", (*NOISE, "--heading", "unknown")),
     ("90° photos, `--fov 90 --heading unknown`", ("--fov", "90", "--heading", "unknown")),
 )
-#: the profile method's default confidence threshold for an aerial mask (localization.search)
+#: the profile method's default "not in this image" kappa threshold for an aerial mask (localization.search)
 MASK_THRESHOLD = 0.6
 
 
@@ -200,11 +200,11 @@ def settings(ws: Workspace) -> dict[str, Figure]:
               "s/view"]
     within = [v["methods"]["profile"] for r in runs for v in r["viewpoints"]
               if v["methods"]["profile"]["error"] is not None and v["methods"]["profile"]["error"] <= 10]
-    lost = sum(1 for v in within if v["confidence"] < MASK_THRESHOLD)
+    lost = sum(1 for v in within if v["kappa"] < MASK_THRESHOLD)
     rejected = []
     for i, what in ((0, "with the heading known"), (1, "with it unknown"), (4, "with 90° photos")):
-        negatives = [v["methods"]["profile"]["negative_confidence"] for v in runs[i]["viewpoints"]
-                     if v["methods"]["profile"]["negative_confidence"] is not None]
+        negatives = [v["methods"]["profile"]["negative_kappa"] for v in runs[i]["viewpoints"]
+                     if v["methods"]["profile"]["negative_kappa"] is not None]
         rejected.append(f"{of(sum(c < MASK_THRESHOLD for c in negatives), len(negatives))} {what}")
     weights = profile_weights(ws)
     return {
@@ -229,7 +229,7 @@ def profile_weights(ws: Workspace) -> dict[tuple[str, str], float]:
     for weighted in ("on", "off"):
         for heading in ("known", "unknown"):
             config = BenchConfig(viewpoints=40, seed=1, methods=("profile",), subsets=False, negatives=False,
-                                 heading=heading, profile=ProfileConfig(min_confidence=0.0,
+                                 heading=heading, profile=ProfileConfig(min_confidence=-1.0, min_kappa=-1.0,
                                                                         weighted=None if weighted == "on" else False))
             r = run_bench(scenes, config, ws.root / f"weights-{weighted}-{heading}", plots=False)
             out[weighted, heading] = r["methods"]["profile"]["recall_at"]["10"]

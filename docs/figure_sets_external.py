@@ -42,8 +42,8 @@ def pairs(ws: Workspace) -> dict[str, Figure]:
         rows.append([heading, name, pixels(st["mean"]), pixels(st["median"]),
                      *(ratio(st["recall"][k]) for k in (25, 50, 100)), ratio(r["methods"][name]["roc_auc"])])
     rows_k = [v["methods"]["profile"] for v in known["viewpoints"]]
-    kappa = [v["confidence"] for v in rows_k]
-    other = [v["negative_confidence"] for v in rows_k if v["negative_confidence"] is not None]
+    kappa = [v["kappa"] for v in rows_k]
+    other = [v["negative_kappa"] for v in rows_k if v["negative_kappa"] is not None]
     turned = [(v["name"], v["methods"]["profile"]) for v in unknown["viewpoints"]
               if (v["methods"]["profile"]["heading_error_deg"] or 0) > 90]
     first, mean_error = candidate_analysis(ws, paper)
@@ -359,3 +359,85 @@ def heldout(ws: Workspace) -> dict[str, Figure]:
     return {"heldout.table": F(table(["trained by", "Kampala building IoU", "Kampala pixel accuracy",
                                       "Austin building IoU", "Austin pixel accuracy", "training"], rows),
                                r"\d[\d.,]* s\b")}
+
+
+# --------------------------------------------------------------------------- Kotka: both renderers, a region
+
+KOTKA = ("helsinki-osm", "kotka.osm.pbf")
+#: the rows of docs/localization.md's two-renderer table: (label, localize-bench options)
+QUERY_KINDS = (
+    ("panoramas, heading known", ()),
+    ("panoramas, `--heading unknown`", ("--heading", "unknown")),
+    ("90° photos, `--fov 90 --heading unknown`", ("--fov", "90", "--heading", "unknown")),
+    ("60° photos, `--fov 60 --heading unknown`", ("--fov", "60", "--heading", "unknown")),
+    ("noise `--confusion 0.1 --miss-prob 0.2 --offset 2`, `--heading unknown`",
+     ("--confusion", "0.1", "--miss-prob", "0.2", "--offset", "2", "--heading", "unknown")),
+)
+
+
+@figure_set("renderers", "expensive", needs="shared data")
+def renderers(ws: Workspace) -> dict[str, Figure]:
+    """localize-bench on a 1280² Kotka OSM mask, 40 views per kind of query, drawn by the mask renderer and by the geometry renderer"""
+    osm = str(ws.shared.joinpath(*KOTKA))
+    res, _ = ws.run(str(REPO_ROOT / "benchmarks" / "osm_mask.py"), osm, "kotka.tif", "--lon", "26.9475", "--lat",
+                    "60.5337", python=True)
+    rows, pooled = [], {"mask": [], "geometry": []}
+    for i, (label, extra) in enumerate(QUERY_KINDS):
+        for renderer in ("mask", "geometry"):
+            more = ("--renderer", "geometry", "--osm", osm) if renderer == "geometry" else ()
+            _, r = ws.bench("kotka.tif", "--out", f"kotka-{renderer}-{i}/", "--resolution", res.strip(),
+                            "--viewpoints", "40", "--method", "profile", "--no-negatives", *more, *extra)
+            m = r["methods"]["profile"]
+            pooled[renderer] += [v["methods"]["profile"] for v in r["viewpoints"]]
+            rows.append([label if renderer == "mask" else "", renderer, metres(m["median_error"]),
+                         *(ratio(m["recall_at"][k]) for k in ("10", "25")), ratio(m["right_wrong_auc"]),
+                         ratio(m["accepted"]), ratio(m["false_accept"])])
+    from localization.compare import roc_auc
+
+    def auc(rows_: list[dict[str, Any]], key: str) -> str:
+        right = [v[key] for v in rows_ if v["error"] is not None and v["error"] <= 10]
+        wrong = [v[key] for v in rows_ if v["error"] is None or v["error"] > 50]
+        return ratio(roc_auc(right, wrong))
+
+    geo = pooled["geometry"]
+    accepted = [v for v in geo if v["confidence"] >= 0.04]
+    return {
+        "renderers.table": F(table(["views", "renderer", "median", "recall@10 m", "@25 m", "right/wrong AUC",
+                                    "answered at 0.04", "of them wrong"], rows)),
+        "renderers.auc.confidence": F(auc(geo, "confidence")),
+        "renderers.auc.kappa": F(auc(geo, "kappa")),
+        "renderers.pooled": F(f"{of(len(accepted), len(geo))} answered, "
+                              f"{of(sum(v['error'] > 50 for v in accepted), len(accepted))} of them wrong"),
+    }
+
+
+#: the rows of docs/localization.md's region table: (label, bench_region.py options)
+REGION_KINDS = (
+    ("panoramas, camera 2 m and level, heading known", ()),
+    ("camera height 1.5-2.5 m, tilt ±2°, the method assumes 2 m and level", ("--eye", "1.5,2.5", "--tilt", "2")),
+    ("the same, `--camera-height unknown --tilt 2`", ("--eye", "1.5,2.5", "--tilt", "2", "--search-pose")),
+    ("the same, and `--heading unknown`", ("--eye", "1.5,2.5", "--tilt", "2", "--search-pose", "--heading",
+                                           "unknown")),
+)
+
+
+@figure_set("region", "expensive", needs="shared data")
+def region(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_region.py: 30 views of the geometry renderer at Kotka street points, each searched for in the whole Kotka extract"""
+    rows, first = [], None
+    for label, extra in REGION_KINDS:
+        out = ws.root / f"region-{len(rows)}.json"
+        ws.run(str(REPO_ROOT / "benchmarks" / "bench_region.py"), *extra, "--json", str(out), python=True)
+        s = json.loads(out.read_text(encoding="utf-8"))["summary"]
+        first = first or s
+        rows.append([label, metres(s["median_error_m"]), ratio(s["within_10m"]), ratio(s["within_25m"]),
+                     ratio(s["auc_confidence"]), ratio(s["auc_kappa"]), ratio(s["accepted"]),
+                     ratio(s["false_accept"]), seconds(s["median_query_s"]), count(round(s["peak_rss_mb"]))])
+    assert first is not None
+    return {
+        "region.table": F(table(["views", "median", "within 10 m", "25 m", "AUC confidence", "AUC kappa",
+                                 "answered at 0.04", "of them wrong", "s/query", "peak MB"], rows),
+                          r"(?m)\| [\d.,]+ s \| [\d,]+ \|$"),
+        "region.blocks": F(count(first["blocks"])),
+        "region.baseline": F(metres(first["baseline_random_street_median_m"])),
+    }

@@ -41,16 +41,19 @@ step:
    angular profile (which class is seen first at each azimuth and ground distance) against
    the profile the aerial mask or landmarks predict at every position of a dense grid, coarse
    to fine, with the heading known or searched by circular cross-correlation, photos of a
-   limited field of view, and a confidence (kappa of the best match) that says "not in this
-   image"; :mod:`localization.compare` runs the methods side by side in the benchmarks and
+   limited field of view, kappa (the best match against chance: "not in this image") and a
+   confidence (how far the answer stands out from the best place 50 m or more away: "not
+   sure" when a look-alike fits as well); :mod:`localization.compare` runs the methods side by side in the benchmarks and
    :mod:`localization.scores` turns their answers into errors, recall and baselines.
    (:mod:`localization.windows` and :mod:`localization.cells` hold the window arithmetic and
    the component-landmark sweep of :mod:`localization.graph`.)
 6. :mod:`localization.region` -- **a region from OpenStreetMap alone** (``osmseg localize
    --osm FILE --bbox W,S,E,N``, command line in :mod:`localization.cli_region`): the region
-   drawn by the builder's rasteriser in overlapping blocks, each searched by the profile
-   method against the region's class frequencies, answers in degrees with the best distinct
-   alternative and the margin between them.
+   drawn by the builder's rasteriser in overlapping blocks (kept and cached by
+   :mod:`localization.region_cache`), each searched by the profile method against the
+   region's class frequencies, answers in degrees with the best distinct alternative, the
+   margin between them and a confidence; split into ``--shard K/N`` parts and merged by
+   :mod:`localization.region_files`, which also reads the query and writes the GeoJSON.
 
 Coordinates are pixels throughout: ``x`` is the column, ``y`` the row. numpy and scipy do
 the work; only :mod:`localization.features` runs a network, with torch (the ``train`` extra).

@@ -35,6 +35,7 @@ from typing import Any
 import click
 
 from osmseg.cli.common import output_options, parse_size, progress_bars, renamed_option, report_errors, typed_options
+from localization.cli_region import RegionArgs, region_options, run_region
 from localization.inputs import SideOptions
 from osmseg.errors import ConfigError
 from osmseg.units import degrees, metres, number, pixels, quantity, ratio
@@ -110,12 +111,7 @@ def _table(result: Any) -> str:
 @click.option("--aerial", "aerial_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="Aerial label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy) or RGB image "
                    "with --aerial-checkpoint. Or no aerial image at all: a region's OSM with --osm and --bbox.")
-@click.option("--osm", "osm", multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="Search a whole region instead of an aerial image: its OpenStreetMap file(s) (.osm, .osm.pbf), "
-                   "drawn in --aerial-table's classes, with --bbox.")
-@click.option("--bbox", "bbox_text", metavar="W,S,E,N", help="With --osm: the region to search, in degrees.")
-@click.option("--zoom", type=click.IntRange(14, 21), default=18, show_default=True,
-              help="With --osm: the zoom the region is drawn at (18: about 0.6 m x cos(latitude) a pixel).")
+@region_options
 @click.option("--ground", "ground_path", required=True,
               type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="Ground panorama: label mask, landmark file, or RGB image with --ground-checkpoint.")
@@ -187,10 +183,18 @@ def _table(result: Any) -> str:
                    "to search it. CVUSA-style panoramas are north-aligned: 0.")
 @click.option("--fov", "fov_deg", type=click.FloatRange(10, 360), default=360.0, show_default=True,
               help="Profile method: horizontal field of view of the ground image in degrees (a photo: 60-120).")
-@click.option("--camera-height", type=click.FloatRange(min=0, min_open=True), default=2.0, show_default=True,
-              help="Profile method: metres of the ground camera above the ground.")
-@click.option("--min-confidence", type=click.FloatRange(-1, 1), show_default="0.6 for an aerial mask, 0.3 for aerial "
-              "landmark points", help="Profile method: below this confidence the answer is 'not in this image'.")
+@click.option("--camera-height", "camera_height_text", default="2", show_default=True,
+              help="Profile method: metres of the ground camera above the ground, or 'unknown' to try 1.6, 2.0 and "
+                   "2.4 m (a hand-held camera to a car's).")
+@click.option("--tilt", "tilt_deg", type=click.FloatRange(0, 10), default=0.0, show_default="level",
+              help="Profile method: the camera may be tilted up to this many degrees in pitch and roll; the tilt is "
+                   "searched in 1° steps with the position (slower).")
+@click.option("--min-confidence", type=click.FloatRange(-1, 1), show_default="0.04 for an aerial mask, none for aerial "
+              "landmark points", help="Profile method: below this confidence (how far the answer stands out from "
+              "the best place 50 m or more away) the answer is 'not sure'.")
+@click.option("--min-kappa", type=click.FloatRange(-1, 1), show_default="0.6 for an aerial mask, 0.3 for aerial landmark "
+              "points", help="Profile method: below this kappa (the best match against chance) the answer is 'not in "
+              "this image'; lower it for segmented RGB queries.")
 @click.pass_context
 @report_errors
 def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, aerial_classes: str,
@@ -203,8 +207,9 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                      feature_threshold: float | None, feature_metric: str, feature_reduce: str,
                      feature_components: int, feature_checkpoint: Path | None, conventions: str, method: str,
                      heading_text: str,
-                     fov_deg: float, camera_height: float, min_confidence: float | None, osm: tuple[Path, ...],
-                     bbox_text: str | None, zoom: int) -> None:
+                     fov_deg: float, camera_height_text: str, tilt_deg: float, min_confidence: float | None,
+                     min_kappa: float | None,
+                     region: RegionArgs) -> None:
     """Find where the GROUND panorama was taken in the AERIAL image (landmark graphs, or angular profiles),
     or anywhere in a region's OpenStreetMap (--osm FILE --bbox W,S,E,N)."""
     from localization.features import FeatureEdges
@@ -212,19 +217,20 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
     from localization.search import ProfileConfig
 
     verbosity = (ctx.obj or {}).get("verbosity", 0)
-    if osm or bbox_text is not None or aerial_path is None:  # a region of OSM, no aerial image
-        from localization.cli_region import run_region
-
+    camera_height, heights = _camera_height(camera_height_text)
+    if region.given or aerial_path is None:  # a region of OSM, no aerial image
         stray = _given(ctx, ("aerial_path", "aerial_size", "aerial_checkpoint", "aerial_image", "resolution",
                              "window_text", "ground_window", "p", "stride", "hierarchical", "windows_text",
-                             "reference", "feature_threshold", "conventions", "min_confidence", "panorama"))
-        run_region(ctx, ground_path, osm, bbox_text, zoom, method, ground_classes, ground_table, ground_size,
+                             "reference", "feature_threshold", "conventions", "min_confidence", "min_kappa",
+                             "panorama"))
+        run_region(ctx, ground_path, region, method, ground_classes, ground_table, ground_size,
                    ground_checkpoint, aerial_classes, aerial_table or "classes13.toml", mode, min_size, grid_stride,
-                   _heading(heading_text), fov_deg, camera_height, top_k, truth_text, out_dir, as_json, verbosity,
-                   stray)
+                   ProfileConfig(heading_deg=_heading(heading_text), camera_heights=heights, tilt_deg=tilt_deg),
+                   fov_deg, camera_height, top_k, truth_text, out_dir, as_json, verbosity, stray)
         return
-    if _given(ctx, ("zoom",)):
-        raise ConfigError("--zoom is for a region (--osm FILE --bbox W,S,E,N): add them, or leave it out")
+    if stray := _given(ctx, ("zoom", "cache_dir")):
+        raise ConfigError(f"{', '.join(stray)} is for a region (--osm FILE --bbox W,S,E,N): add them, or leave "
+                          "it out")
     window, windows, truth = _window(window_text), _windows(windows_text), _point(truth_text)
     if feature_threshold is None and (stray := _given(ctx, ("feature_checkpoint", "feature_metric", "feature_reduce",
                                                             "feature_components"))):
@@ -232,7 +238,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                           "T, or leave them out")
     features = (None if feature_threshold is None else
                 FeatureEdges(feature_threshold, feature_metric, feature_reduce, feature_components))
-    only = {"profile": ("heading_text", "fov_deg", "camera_height", "min_confidence"),
+    only = {"profile": ("heading_text", "fov_deg", "camera_height_text", "tilt_deg", "min_confidence", "min_kappa"),
             "paper": ("window_text", "ground_window", "p", "stride", "hierarchical", "windows_text", "reference",
                       "feature_threshold", "conventions")}
     for name, options in only.items():
@@ -242,7 +248,8 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                             fast=not reference, hierarchical=hierarchical, windows=windows, features=features,
                             method=method, conventions=conventions, fov_deg=fov_deg, camera_height_m=camera_height,
                             profile=ProfileConfig(heading_deg=_heading(heading_text), top_k=top_k,
-                                                  min_confidence=min_confidence))
+                                                  min_confidence=min_confidence, min_kappa=min_kappa,
+                                                  camera_heights=heights, tilt_deg=tilt_deg))
 
     def side(name: str, classes: str, table: str | None, size: str | None, checkpoint: Path | None,
              is_panorama: bool) -> SideOptions:
@@ -266,9 +273,15 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
         click.echo(_table(result))
     if verbosity >= 0 and not as_json:
         if result.method == "profile" and result.confidence is not None:
-            click.echo(f"profile method: heading {degrees(result.heading_deg)}, confidence {ratio(result.confidence)} "
-                       f"(chance agreement {ratio(result.chance)}), {len(result.candidates)} positions at the finest "
-                       "level", err=True)
+            alt = (f"; best place 50 m or more away scores {ratio(result.margin)} less" if result.margin is not None
+                   else "")
+            pose = ""
+            if result.camera_pose is not None:
+                h, pitch, roll = result.camera_pose
+                pose = f", camera {metres(h)} up, pitch {degrees(pitch)}, roll {degrees(roll)}"
+            click.echo(f"profile method: heading {degrees(result.heading_deg)}{pose}, confidence "
+                       f"{ratio(result.confidence)} (kappa {ratio(result.kappa)} against chance "
+                       f"{ratio(result.chance)}{alt}), {len(result.candidates)} positions at the finest level", err=True)
         elif not result.unanswered:
             ties = f", {result.ties} tied at the top (broken as documented)" if result.ties > 1 else ""
             used = (f"windows {', '.join(str(lv.window) for lv in result.levels)} px (hierarchical)" if hierarchical
@@ -290,6 +303,27 @@ def _misplaced(stray: list[str], owner: str, fix: str) -> ConfigError:
     """
     verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
     return ConfigError(f"{', '.join(stray)} {verb} to {owner}: add {fix}, or leave {them} out")
+
+
+#: the camera heights tried for --camera-height unknown (m): a hand-held camera to a car-mounted one
+UNKNOWN_HEIGHTS = (1.6, 2.0, 2.4)
+
+
+def _camera_height(value: str) -> tuple[float, tuple[float, ...]]:
+    """``--camera-height``: (metres, heights to try: none when known).
+
+    >>> _camera_height("1.7"), _camera_height("unknown")
+    ((1.7, ()), (2.0, (1.6, 2.0, 2.4)))
+    """
+    if value.strip().lower() == "unknown":
+        return 2.0, UNKNOWN_HEIGHTS
+    try:
+        height = float(value)
+    except ValueError:
+        raise ConfigError(f"--camera-height must be metres above the ground or 'unknown', got {value!r}") from None
+    if not (math.isfinite(height) and height > 0):
+        raise ConfigError(f"--camera-height must be a positive number of metres, got {value!r}")
+    return height, ()
 
 
 def _heading(value: str) -> float | None:
@@ -548,5 +582,6 @@ def method_table(methods: dict[str, Any], unit: str) -> str:
                     f"{number(m['mean_error'], unit):>9} "
                     + " ".join(f"{number(m['recall_at'][r], 'ratio'):>6}" for r in radii)
                     + f" {number(m['median_heading_error_deg'], 'deg'):>8} {number(m['roc_auc'], 'ratio'):>6} "
-                    f"{number(m['localize_mean_s'], 's'):>7}")
+                    f"{number(m.get('right_wrong_auc'), 'ratio'):>7} {number(m.get('accepted'), 'ratio'):>8} "
+                    f"{number(m.get('false_accept'), 'ratio'):>6} {number(m['localize_mean_s'], 's'):>7}")
     return "\n".join(rows)

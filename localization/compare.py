@@ -10,7 +10,10 @@
 * :func:`roc_auc` and :func:`method_summary` turn the records into the numbers the bench
   prints: error statistics, heading error, and how well each method's confidence separates
   matching from non-matching pairs (the ``paper`` method's confidence is its MAP likelihood,
-  eq. 3.3; the ``profile`` method's is its kappa, :mod:`localization.search`).
+  eq. 3.3; the ``profile`` method's is how far its answer stands out from the best distinct
+  alternative, :mod:`localization.search`), and how well it ranks right answers (within 10 m)
+  above wrong ones (more than 50 m off: a look-alike place), with the share of answers a
+  threshold accepts and how many of those are wrong.
 
 Imports: numpy, osmseg core, localization (landmarks, pipeline, profile, search, render).
 """
@@ -67,8 +70,13 @@ def photo_view(panorama: Panorama, classes: LandmarkClasses, fov_deg: float, *, 
     return Query(semantic_map(labels, panorama.table, classes), lm, cam, panorama.heading_deg)
 
 
+#: Right answers are within RIGHT_WRONG[0] of the truth, wrong ones more than RIGHT_WRONG[1] (metres).
+RIGHT_WRONG = (10.0, 50.0)
+
+
 def confidence_of(loc: Localization) -> float:
-    """A method's confidence in its answer: kappa (profile), the MAP likelihood (paper), -1 unanswered."""
+    """A method's confidence in its answer: the profile method's (how far the answer stands out), the
+    MAP likelihood (paper), -1 unanswered."""
     if loc.method == "profile":
         return float(loc.confidence) if loc.confidence is not None else -1.0
     if loc.unanswered or not len(loc.order):
@@ -103,7 +111,11 @@ def run_method(method: str, query: Query, truth: tuple[float, float], scale: flo
     out = error_fields(loc, truth, scale)
     out.update({"localize_s": round(seconds, 4), "confidence": round(confidence_of(loc), 6),
                 "negative_confidence": None if negative is None else round(confidence_of(negative), 6),
-                "heading_error_deg": turned})
+                "heading_error_deg": turned,
+                "margin": None if loc.margin is None else round(loc.margin, 6),
+                "kappa": loc.kappa, "chance": loc.chance,
+                "negative_kappa": None if negative is None else negative.kappa,
+                "score": round(loc.top_k[0][2], 6) if loc.top_k else None})
     return out
 
 
@@ -122,8 +134,16 @@ def roc_auc(positive: Sequence[float], negative: Sequence[float]) -> float | Non
 
 
 def method_summary(records: Sequence[dict[str, Any]], method: str,
-                   summarize: Callable[[Sequence[dict[str, Any]]], dict[str, Any]]) -> dict[str, Any]:
-    """Error statistics (``summarize``), heading error, ROC AUC and time of ``method`` over the records."""
+                   summarize: Callable[[Sequence[dict[str, Any]]], dict[str, Any]], *,
+                   right_wrong: tuple[float, float] | None = RIGHT_WRONG, threshold: float | None = None
+                   ) -> dict[str, Any]:
+    """Error statistics (``summarize``), heading error, ROC AUC and time of ``method`` over the records.
+
+    With ``right_wrong`` (``(right, wrong)`` in the run's unit): ``right_wrong_auc``, the chance
+    that a right answer (error <= right) has a higher confidence than a wrong one (error >
+    wrong, or none); with ``threshold``, the share of views answered at that confidence
+    (``accepted``) and the share of those answers that are wrong (``false_accept``).
+    """
     rows = [r["methods"][method] for r in records]
     headings = [r["heading_error_deg"] for r in rows if r["heading_error_deg"] is not None]
     negatives = [r["negative_confidence"] for r in rows if r["negative_confidence"] is not None]
@@ -134,6 +154,16 @@ def method_summary(records: Sequence[dict[str, Any]], method: str,
         "roc_auc": roc_auc(positives, negatives),
         "localize_mean_s": round(float(np.mean([r["localize_s"] for r in rows])), 4) if rows else None,
     })
+    if right_wrong is not None:
+        near, far = right_wrong
+        right = [r["confidence"] for r in rows if r["error"] is not None and r["error"] <= near]
+        wrong = [r["confidence"] for r in rows if r["error"] is None or r["error"] > far]
+        out["right_wrong_auc"] = roc_auc(right, wrong)
+        if threshold is not None:
+            kept = [r for r in rows if r["error"] is not None and r["confidence"] >= threshold]
+            out["threshold"] = threshold
+            out["accepted"] = round(len(kept) / len(rows), 4) if rows else None
+            out["false_accept"] = round(sum(r["error"] > far for r in kept) / len(kept), 4) if kept else None
     return out
 
 

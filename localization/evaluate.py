@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from localization.compare import method_summary, photo_view, run_method
+from localization.profile import MASK_MIN_CONFIDENCE
 from localization.evaluate_plots import plot_classes, plot_confidence, plot_errors
 from localization.geobench import geometry_view, geotiff_bounds_3857, scene_for_mask
 from localization.georender_osm import OsmScene
@@ -113,7 +114,7 @@ class BenchConfig:
     query_landmarks: str = "mask"       # "mask": from the rendered panorama; "visible": the aerial ones it shows
     visible_min_px: int = 20            # "visible": panorama pixels an aerial landmark needs to count as seen
     methods: tuple[str, ...] = ("paper",)   # localized by each, side by side; the first one fills the summary
-    profile: ProfileConfig = field(default_factory=lambda: ProfileConfig(min_confidence=0.0))
+    profile: ProfileConfig = field(default_factory=lambda: ProfileConfig(min_confidence=-1.0, min_kappa=-1.0))
     heading: str = "known"              # "known": north-aligned panoramas; "unknown": a seeded random heading per view
     fov_deg: float = 360.0              # < 360: each view is a photo of this field of view, not a panorama
     negatives: bool = True              # also localize each view in another scene (confidence: ROC AUC)
@@ -466,7 +467,8 @@ def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], AerialG
         "summary": summarize(records),
         "baselines": baselines(records),
         "by_num_classes": by_num_classes(subsets, records),
-        "methods": {m: method_summary(records, m, summarize) for m in config.methods},
+        "methods": {m: method_summary(records, m, summarize, threshold=MASK_MIN_CONFIDENCE if m == "profile" else None)
+                    for m in config.methods},
         "timing": {"total_s": round(total_s, 3), "render_mean_s": _mean([r["render_s"] for r in records]),
                    "localize_mean_s": _mean([r["localize_s"] for r in records])},
         "viewpoints": records,

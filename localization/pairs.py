@@ -37,7 +37,7 @@ from typing import Any
 from localization.evaluate import aerial_graphs, localize_subsets, subsets_of, write_results
 from localization.scores import (RECALL_RADII_M, baselines, by_num_classes, chance_errors, error_fields,
                                  heading_error, summarize)
-from localization.compare import confidence_of, method_summary
+from localization.compare import RIGHT_WRONG, confidence_of, method_summary
 from localization.landmark_files import read_landmarks
 from localization.landmarks import LandmarkClasses, Landmarks, load_landmark_classes
 from localization.pipeline import METHODS, LocalizeConfig, aerial_graph, profile_index, run, run_profile
@@ -82,7 +82,7 @@ class PairsConfig:
     ground_size: tuple[int, int] | None = None
     methods: tuple[str, ...] = ("paper",)   # side by side; the first fills the summary
     heading: str = "known"           # "known": north-aligned (CVUSA); "unknown": the profile method searches it
-    profile: ProfileConfig = ProfileConfig(min_confidence=-1.0)  # always answer: the error is what is measured
+    profile: ProfileConfig = ProfileConfig(min_confidence=-1.0, min_kappa=-1.0)  # always answer: the error is what is measured
     camera_height_m: float = 2.0
     conventions: str = "osmseg"      # the paper method's: osmseg, or the authors' MATLAB demo (truth (W/2, H/2))
 
@@ -259,7 +259,9 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
         "summary": summarize(records, radii),
         "baselines": baselines(records),
         "by_num_classes": by_num_classes(subsets, records, radii),
-        "methods": {m: method_summary(records, m, lambda rows: summarize(rows, radii)) for m in config.methods},
+        "methods": {m: method_summary(records, m, lambda rows: summarize(rows, radii),
+                                      right_wrong=RIGHT_WRONG if config.resolution_m else None)
+                    for m in config.methods},
         "timing": {"total_s": round(total, 3), "localize_mean_s": _mean_time(records)},
         "viewpoints": records,
     }
@@ -279,5 +281,6 @@ def _profile_pair(pair: Pair, other: Pair | None, config: PairsConfig, scale: fl
     # CVUSA panoramas face north: the true heading is 0
     heading = None if config.heading == "known" or loc.heading_deg is None else heading_error(loc.heading_deg, 0.0)
     return {**error_fields(loc, pair.truth, scale), "localize_s": round(seconds, 4), "heading_error_deg": heading,
-            "confidence": loc.confidence,
-            "negative_confidence": None if negative is None else negative.confidence}
+            "confidence": loc.confidence, "kappa": loc.kappa, "margin": loc.margin,
+            "negative_confidence": None if negative is None else negative.confidence,
+            "negative_kappa": None if negative is None else negative.kappa}

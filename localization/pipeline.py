@@ -28,7 +28,8 @@ from localization.inputs import Side, SideOptions, load_side, with_photo
 from localization.landmarks import Landmarks
 from localization.match import DEFAULT_P, Localization, localize, match_cliques, unanswered
 from localization.profile import (AerialLandmarkIndex, AerialMaskIndex, Camera, QueryProfile, SemanticMap,
-                                  check_view_shape, query_from_landmarks, query_from_mask, ray_radii)
+                                  check_view_shape, query_from_landmarks, query_from_mask, query_poses,
+                                  ray_radii)
 from localization.refine import HIERARCHY, localize_hierarchical
 from localization.search import AerialIndex, ProfileConfig, localize_profile
 from osmseg.errors import ConfigError, DatasetError
@@ -151,6 +152,9 @@ def profile_query(query: SemanticMap | Landmarks, camera: Camera, config: Profil
     """The query side of the profile method, in compass azimuths (heading given) or its own frame (unknown)."""
     radii = ray_radii(camera, config.radii, config.min_range_m, config.max_range_m)
     if isinstance(query, SemanticMap):
+        if config.camera_heights or config.tilt_deg > 0:
+            return query_poses(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg,
+                               heights=config.camera_heights or (camera.camera_height_m,), tilts=config.tilts())
         return query_from_mask(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg)
     bins = config.bins or max(8, int(round(360.0 / (config.sigma_deg / 2))))
     return query_from_landmarks(query, camera, bins=bins, radii=radii, heading_deg=config.heading_deg)

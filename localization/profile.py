@@ -36,6 +36,7 @@ Imports: numpy, osmseg core, localization.landmarks.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -46,8 +47,8 @@ from localization.landmarks import LandmarkClasses, Landmarks, _landmark_lut, _m
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
 
-__all__ = ["OTHER", "STANDING_MASK_CLASSES", "STANDING_LANDMARKS", "SemanticMap", "Camera", "QueryProfile", "semantic_map",
-           "query_from_mask", "query_from_landmarks", "AerialMaskIndex", "AerialLandmarkIndex", "ray_radii",
+__all__ = ["MASK_MIN_CONFIDENCE", "OTHER", "STANDING_MASK_CLASSES", "STANDING_LANDMARKS", "SemanticMap", "Camera", "QueryProfile", "semantic_map",
+           "query_from_mask", "query_poses", "query_from_landmarks", "AerialMaskIndex", "AerialLandmarkIndex", "ray_radii",
            "OPAQUE_LANDMARKS", "HALF_WIDTHS_M", "first_hits", "seen_fraction", "check_view_shape"]
 
 #: Mask classes that stand up from the ground and hide what lies behind them (case-insensitive).
@@ -60,6 +61,9 @@ STANDING_LANDMARKS = ("building", "vegetation")
 OPAQUE_LANDMARKS = ("building",)
 #: Half-widths (m) an opaque landmark point may stand for; its predicted profile is the mean over them.
 HALF_WIDTHS_M = (4.0, 6.0, 8.0)
+#: The "not sure" threshold of an aerial mask: the confidence (localization.search) below which an
+#: answer is not given. Chosen on rendered views in Kotka (docs/localization.md): few wrong answers pass it.
+MASK_MIN_CONFIDENCE = 0.04
 #: How far beyond 180 degrees (nadir to zenith) a view may span from its top row to its bottom one:
 #: room for a panorama padded by a few rows (an equirectangular 2:1 image spans exactly 180).
 VERTICAL_SPAN_TOLERANCE = 0.05
@@ -146,6 +150,8 @@ class Camera:
     row_step_deg: float | None = None   # None: hfov / width
     horizon_row: float | None = None    # None: height / 2 - 0.5
     camera_height_m: float = 2.0
+    pitch_deg: float = 0.0              # tilt: the horizon lies pitch degrees lower at the centre column...
+    roll_deg: float = 0.0               # ...and roll degrees higher a quarter turn to its right (see tilt_rows)
 
     def __post_init__(self) -> None:
         if self.width < 2 or self.height < 2:
@@ -167,6 +173,22 @@ class Camera:
     @property
     def horizon(self) -> float:
         return self.horizon_row if self.horizon_row is not None else self.height / 2 - 0.5
+
+    @property
+    def level(self) -> bool:
+        return self.pitch_deg == 0 and self.roll_deg == 0
+
+    def tilt_rows(self, x: np.ndarray) -> np.ndarray:
+        """How many rows below :attr:`horizon` the horizon lies at columns ``x``: a tilted camera
+        sees it as a sinusoid, ``(pitch cos t - roll sin t) / step`` at the column's azimuth ``t``
+        from the centre column (pitched up, the horizon is lower ahead; rolled right side down,
+        it is higher on the right).
+
+        >>> Camera(360, 90, pitch_deg=2.0).tilt_rows(np.array([179.5, 359.5])).round(3).tolist()
+        [2.0, -2.0]
+        """
+        t = np.radians(self.hfov_deg * ((np.asarray(x, dtype=np.float64) + 0.5) / self.width - 0.5))
+        return (self.pitch_deg * np.cos(t) - self.roll_deg * np.sin(t)) / self.step
 
     def azimuths(self, x: np.ndarray, heading_deg: float) -> np.ndarray:
         """Compass azimuth (degrees, [0, 360)) of column coordinates ``x`` (centres at integers)."""
@@ -213,6 +235,8 @@ class QueryProfile:
     classes: tuple[str, ...]
     heading_deg: float | None  # the heading the azimuths were computed with; None: query frame (unknown)
     hfov_deg: float
+    pose: tuple[float, float, float] | None = None  # (camera height m, pitch, roll degrees) it was read with
+    variants: tuple["QueryProfile", ...] = ()  # the same query read with other camera poses; q is their mean
 
     @property
     def bins(self) -> int:
@@ -242,13 +266,42 @@ def query_from_mask(sem: SemanticMap, camera: Camera, *, bins: int, radii: tuple
     b = _bins_of(camera.azimuths(cols, heading_deg or 0.0), bins)
     per_bin = np.bincount(b, minlength=bins).astype(np.float64)
     q = np.zeros((n_c, n_r + 1, bins))
-    for k, row in enumerate(rows[0]):
-        lab = sem.labels[int(row)].astype(np.int64)
-        ok = lab >= 0
-        np.add.at(q[:, k, :], (lab[ok], b[ok]), 1.0)
+    if camera.level and np.array_equal(rows[0], np.rint([camera.row_of(float(d)) for d in radii_m])):
+        for k, row in enumerate(rows[0]):
+            lab = sem.labels[int(row)].astype(np.int64)
+            ok = lab >= 0
+            np.add.at(q[:, k, :], (lab[ok], b[ok]), 1.0)
+    else:  # a tilted camera, or another camera height than the radii were chosen for: a row per column
+        shift = camera.tilt_rows(cols)
+        for k, d in enumerate(radii_m):
+            row = np.rint(camera.row_of(float(d)) + shift).astype(np.int64)
+            inside = (row >= 0) & (row < camera.height)
+            lab = np.full(camera.width, -1, dtype=np.int64)
+            lab[inside] = sem.labels[row[inside], cols[inside]]
+            ok = lab >= 0
+            np.add.at(q[:, k, :], (lab[ok], b[ok]), 1.0)
 
     q[:, :n_r] /= np.maximum(per_bin, 1.0)[None, None, :]
-    return QueryProfile(q=q, radii_m=radii_m, classes=sem.classes, heading_deg=heading_deg, hfov_deg=camera.hfov_deg)
+    return QueryProfile(q=q, radii_m=radii_m, classes=sem.classes, heading_deg=heading_deg, hfov_deg=camera.hfov_deg,
+                        pose=(camera.camera_height_m, camera.pitch_deg, camera.roll_deg))
+
+
+def query_poses(sem: SemanticMap, camera: Camera, *, bins: int, radii: tuple[np.ndarray, np.ndarray],
+                heading_deg: float | None, heights: Sequence[float], tilts: Sequence[float]) -> QueryProfile:
+    """The query read once per camera pose (each of ``heights`` m, pitch and roll each of ``tilts``
+    degrees), for a camera whose height and tilt are not known.
+
+    The result's ``q`` is the mean of the poses' profiles, whose score at a position is the mean
+    of theirs (the score is linear in ``q``): a pose-blind profile for the coarse search. Its
+    ``variants`` are the poses' own profiles, of which the search keeps the best at each
+    refined position (:func:`localization.search.localize_profile`).
+    """
+    variants = tuple(query_from_mask(sem, dataclasses.replace(camera, camera_height_m=h, pitch_deg=p, roll_deg=r),
+                                     bins=bins, radii=radii, heading_deg=heading_deg)
+                     for h in heights for p in tilts for r in tilts)
+    first = variants[0]
+    return QueryProfile(q=np.mean([v.q for v in variants], axis=0), radii_m=first.radii_m, classes=first.classes,
+                        heading_deg=heading_deg, hfov_deg=first.hfov_deg, variants=variants)
 
 
 def query_from_landmarks(lm: Landmarks, camera: Camera, *, bins: int, radii: tuple[np.ndarray, np.ndarray],
@@ -301,7 +354,8 @@ class AerialMaskIndex:
         self._padded: tuple[int, np.ndarray] | None = None
         self.classes = sem.classes
         self.grid_m, self.levels, self.weighted = 4.0, 2, True
-        self.min_confidence = 0.6  # kappa of rendered views: docs/localization.md
+        self.min_kappa = 0.6         # kappa of rendered views in another scene: docs/localization.md
+        self.min_confidence = MASK_MIN_CONFIDENCE
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -445,7 +499,8 @@ class AerialLandmarkIndex:
         self.half_widths_m = tuple(half_widths_m)
         # point scores are peaked (a kernel a few degrees wide): a fine grid, one refinement
         self.grid_m, self.levels, self.weighted = 1.25, 1, False
-        self.min_confidence = 0.3  # a few points give a lower kappa: docs/localization.md
+        self.min_kappa = 0.3         # a few points give a lower kappa: docs/localization.md
+        self.min_confidence = 0.0    # not calibrated for points: no "not sure" gate
 
     @property
     def shape(self) -> tuple[int, int]:

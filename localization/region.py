@@ -12,15 +12,21 @@ candidates are ranked across blocks in degrees:
   at least one tile of map around it (about 75 m at zoom 18 at 60° N, more than the profile
   method's 60 m range): each place is answered by exactly one block, with its whole
   surroundings drawn.
+* Every block is scored against the same class frequencies, those of up to 16 blocks spread
+  over the region (:func:`prior_blocks`), so scores compare across blocks.
 * The answers are the candidates best first (the profile score: the share of the query's
-  profile the map agrees with, comparable across blocks), each with its confidence (its kappa
-  against its block's chance agreement, :mod:`localization.search`). Beside the best answer, the **best distinct
-  alternative**: the best candidate at least ``distinct_m`` from it. The margin between their
-  scores says how much better the answer fits than any other place (a look-alike has a small
-  margin).
+  profile the map agrees with), each with its kappa (against chance) and its **confidence**:
+  the share of its lead over chance that no place at least ``distinct_m`` away reaches, as
+  within one image (:mod:`localization.search`). Beside the best answer, the **best distinct
+  alternative** and the score margin between them: a look-alike place has a small margin and
+  the answer a confidence near 0.
+* A region is split between processes or machines by ``--shard K/N``: shard K searches the
+  blocks ``b`` with ``b % N == K - 1`` (:func:`search_part`) and :func:`merge_parts` ranks
+  what all shards found. A block's candidates depend on that block alone, so the answer is the
+  same for any number of shards.
 
 Everything is a function of the region, the query and the settings: no random choice.
-Imports: osmseg core, localization.profile, .pipeline, .landmarks, .result.
+Imports: osmseg core, localization.profile, .pipeline, .landmarks, .region_cache, .search.
 """
 
 from __future__ import annotations
@@ -28,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import math
-import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,15 +45,16 @@ import numpy as np
 from localization.landmarks import LandmarkClasses
 from localization.pipeline import profile_index, profile_query, run_profile
 from localization.profile import Camera, SemanticMap, semantic_map
+from localization.region_cache import BlockMasks
 from localization.search import ProfileConfig, class_prior, grid_positions
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
 from osmseg.grid import SampleGrid, ground_resolution
-from osmseg.osm.features import read_features
 from osmseg.progress import Progress, track
-from osmseg.rasterize import rasterize
+from osmseg.shard import Shard
 
-__all__ = ["RegionConfig", "Answer", "RegionResult", "region_blocks", "search_region", "distance_m", "pixel_lonlat"]
+__all__ = ["RegionConfig", "Answer", "RegionResult", "RegionPart", "region_blocks", "prior_blocks", "search_part",
+           "merge_parts", "search_region", "distance_m", "pixel_lonlat"]
 
 
 @dataclass(frozen=True)
@@ -82,10 +88,13 @@ class Answer:
     score: float
     confidence: float | None
     heading_deg: float | None
+    kappa: float | None = None
+    chance: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {"lon": round(self.lon, 7), "lat": round(self.lat, 7), "score": round(self.score, 5),
                 "confidence": None if self.confidence is None else round(self.confidence, 4),
+                "kappa": None if self.kappa is None else round(self.kappa, 4),
                 "heading_deg": None if self.heading_deg is None else round(self.heading_deg, 2)}
 
 
@@ -169,56 +178,125 @@ def region_blocks(config: RegionConfig) -> list[tuple[SampleGrid, frozenset[tupl
     return out
 
 
-def _block_masks(osm: Sequence[Path | str], blocks: Sequence[tuple[SampleGrid, frozenset[tuple[int, int]]]],
-                 table: ClassTable) -> Iterator[np.ndarray]:
-    for grid, _ in blocks:
-        yield rasterize(read_features(list(osm), grid, table), grid, table)
+#: At most this many blocks, spread evenly over the region, give its class frequencies.
+PRIOR_BLOCKS = 16
 
 
-def search_region(query: SemanticMap, camera: Camera, osm: Sequence[Path | str], table: ClassTable,
-                  classes: LandmarkClasses, config: RegionConfig, profile: ProfileConfig = ProfileConfig(),
-                  progress: Progress | None = None) -> RegionResult:
-    """Search every block of the region for ``query`` (its semantic map, seen by ``camera``).
+def prior_blocks(n: int) -> list[int]:
+    """The blocks whose class frequencies stand for the region's (the same for every shard).
+
+    >>> prior_blocks(5), prior_blocks(40)[:4], len(prior_blocks(40))
+    ([0, 1, 2, 3, 4], [0, 3, 5, 8], 16)
+    """
+    return sorted({int(round(v)) for v in np.linspace(0, n - 1, min(n, PRIOR_BLOCKS))})
+
+
+@dataclass
+class RegionPart:
+    """What one shard found in its blocks: the coarse candidates of every block (with its
+    number), the refined candidates of its best blocks, and each block's overview patch."""
+
+    shard: Shard
+    blocks: int
+    coarse: list[tuple[Answer, int]]
+    refined: dict[int, list[Answer]]
+    patches: dict[int, np.ndarray]
+
+
+def search_part(query: SemanticMap, camera: Camera, masks: BlockMasks, table: ClassTable, classes: LandmarkClasses,
+                config: RegionConfig, profile: ProfileConfig = ProfileConfig(), shard: Shard = Shard(1, 1),
+                progress: Progress | None = None) -> RegionPart:
+    """Search the blocks ``shard`` owns (block ``b`` with ``b % N == K - 1``) for ``query``.
 
     Two passes. The first scores every block on the profile method's coarse grid alone (no
     refinement), which leaves candidates spread over the whole block, so that places far
     apart all compete: this is where the best distinct alternative comes from. The second
-    searches again, coarse to fine, the blocks that hold the best ``top_k`` coarse places, and
-    their refined candidates are the answers.
+    searches again, coarse to fine, the blocks that hold this shard's best ``top_k`` coarse
+    places. Every block is scored against the same class frequencies (those of
+    :func:`prior_blocks`), so scores compare across blocks and shards, and a block's candidates
+    depend on that block alone: :func:`merge_parts` of any number of shards gives the answer
+    of one.
     """
     blocks = region_blocks(config)
-    coarse = dataclasses.replace(profile, top_k=config.per_block, min_confidence=0.0, levels=0)
-    fine = dataclasses.replace(profile, top_k=config.per_block, min_confidence=0.0)
+    coarse = dataclasses.replace(profile, top_k=config.per_block, min_confidence=-1.0, min_kappa=-1.0, levels=0)
+    fine = dataclasses.replace(profile, top_k=config.per_block, min_confidence=-1.0, min_kappa=-1.0)
     q = profile_query(query, camera, fine)
-    packed: list[bytes] = []  # each block's mask, deflated: memory stays small whatever the region's size
+    sample = prior_blocks(len(blocks))
     priors = []
-    overview = _Overview(blocks)
-    for (grid, core), mask in track(zip(blocks, _block_masks(osm, blocks, table)), progress, "drawing blocks",
-                                    total=len(blocks), unit="block"):
-        packed.append(zlib.compress(np.ascontiguousarray(mask, np.uint8).tobytes(), 1))
-        overview.paste(grid, mask)
-        index = _index(mask, grid, table, classes, coarse)
+    for b in track(sample, progress, "region's class frequencies", unit="block"):
+        index = _index(masks.mask(b), blocks[b][0], table, classes, coarse)
         priors.append(class_prior(index, q, grid_positions(index.shape, index.grid_m / index.resolution_m)))
-    prior = np.mean(priors, axis=0)  # one yardstick for every block: the region's class frequencies
-
-    def index_of(b: int) -> Any:
-        grid = blocks[b][0]
-        mask = np.frombuffer(zlib.decompress(packed[b]), np.uint8).reshape(grid.height, grid.width)
-        return _index(mask, grid, table, classes, coarse)
-
+    prior = np.mean(priors, axis=0)
+    mine = [b for b in range(len(blocks)) if shard.owns(b)]
     found: list[tuple[Answer, int]] = []
-    for b, (grid, core) in enumerate(track(blocks, progress, "searching blocks", unit="block")):
-        found += [(a, b) for a in _in_core(run_profile(coarse, index_of(b), q, prior=prior), grid, core, config.zoom)]
-    found.sort(key=lambda ab: (-ab[0].score, ab[0].lat, ab[0].lon))  # the profile score, as within one block
-    refined: list[Answer] = []
+    patches = {}
+    for b in track(mine, progress, "searching blocks", unit="block"):
+        grid, core = blocks[b]
+        mask = masks.mask(b)
+        patches[b] = _core_patch(grid, core, mask)
+        found += [(a, b) for a in _in_core(run_profile(coarse, _index(mask, grid, table, classes, coarse), q,
+                                                       prior=prior), grid, core, config.zoom)]
+    found.sort(key=_rank)
+    refined: dict[int, list[Answer]] = {}
     for b in dict.fromkeys(b for _, b in found[:config.top_k]):  # the blocks of the best places, best first
         grid, core = blocks[b]
-        refined += _in_core(run_profile(fine, index_of(b), q, prior=prior), grid, core, config.zoom)
-    refined.sort(key=lambda a: (-a.score, a.lat, a.lon))
+        refined[b] = _in_core(run_profile(fine, _index(masks.mask(b), grid, table, classes, coarse), q, prior=prior),
+                              grid, core, config.zoom)
+    return RegionPart(shard, len(blocks), found, refined, patches)
+
+
+def _rank(item: tuple[Answer, int] | Answer) -> tuple[float, float, float]:
+    a = item[0] if isinstance(item, tuple) else item
+    return (-a.score, a.lat, a.lon)
+
+
+def merge_parts(parts: Sequence[RegionPart], config: RegionConfig) -> RegionResult:
+    """The answers of the region from every shard's part (see :func:`search_part`)."""
+    shards = {p.shard.index for p in parts}
+    counts = {p.shard.count for p in parts}
+    if len(counts) != 1 or shards != set(range(1, next(iter(counts)) + 1)):
+        raise ConfigError(f"a region's answer needs every shard's part: have {sorted(shards)} of {sorted(counts)}")
+    blocks = region_blocks(config)
+    found = sorted((ab for p in parts for ab in p.coarse), key=_rank)
+    by_block = {b: answers for p in parts for b, answers in p.refined.items()}
+    refined = sorted((a for b in dict.fromkeys(b for _, b in found[:config.top_k]) for a in by_block[b]), key=_rank)
     answers = _spaced(refined, config.top_k, min_m=1.0)
-    everything = sorted([*refined, *(a for a, _ in found)], key=lambda a: (-a.score, a.lat, a.lon))
-    alternative = next((a for a in everything if answers and distance_m(answers[0], a) >= config.distinct_m), None)
+    # the alternative is refined as the answer was when one of the refined places is far enough
+    # (the best blocks and each one's own alternative), else the best coarse place far enough
+    alternative = next((a for a in refined if answers and distance_m(answers[0], a) >= config.distinct_m), None)
+    everything = sorted([*refined, *(a for a, _ in found)], key=_rank)
+    if alternative is None:
+        alternative = next((a for a in everything if answers and distance_m(answers[0], a) >= config.distinct_m), None)
+    answers = [_standing_out(a, alternative if i == 0 else None, everything, config.distinct_m)
+               for i, a in enumerate(answers)]
+    if alternative is not None:
+        alternative = _standing_out(alternative, None, everything, config.distinct_m)
+    overview = _Overview(blocks)
+    for p in parts:
+        for b, patch in p.patches.items():
+            overview.paste(blocks[b][0], patch)
     return RegionResult(tuple(answers), alternative, len(blocks), config, overview.pixels, overview.bounds)
+
+
+def _standing_out(a: Answer, rival: Answer | None, everything: Sequence[Answer], distinct_m: float) -> Answer:
+    """``a`` with its confidence: the share of its lead over chance that ``rival`` (else the best
+    place ``distinct_m`` or more away) does not reach (as :mod:`localization.search` in one image)."""
+    rival = rival or next((r for r in everything if distance_m(a, r) >= distinct_m), None)
+    if rival is None or a.chance is None:
+        return a
+    lead = a.score - a.chance
+    return dataclasses.replace(a, confidence=min(1.0, max(0.0, (a.score - rival.score) / lead)) if lead > 0 else 0.0)
+
+
+def search_region(query: SemanticMap, camera: Camera, osm: Sequence[Path | str], table: ClassTable,
+                  classes: LandmarkClasses, config: RegionConfig, profile: ProfileConfig = ProfileConfig(),
+                  progress: Progress | None = None, cache_dir: Path | None = None) -> RegionResult:
+    """Search every block of the region for ``query`` (its semantic map, seen by ``camera``) in
+    one process: :func:`search_part` of the one shard, merged. ``cache_dir``: see
+    :class:`~localization.region_cache.BlockMasks`."""
+    masks = BlockMasks(osm, table, [g for g, _ in region_blocks(config)], cache_dir)
+    return merge_parts([search_part(query, camera, masks, table, classes, config, profile, Shard(1, 1), progress)],
+                       config)
 
 
 #: the overview keeps every OVERVIEW_STEP-th pixel of each block's core (256 px tiles -> 32 px)
@@ -236,21 +314,30 @@ class _Overview:
         side = 256 // OVERVIEW_STEP
         self.pixels = np.zeros(((self.y1 - self.y0 + 1) * side, (self.x1 - self.x0 + 1) * side), np.uint8)
         self.side = side
-        self.cores = {id(grid): core for grid, core in blocks}
 
-    def paste(self, grid: SampleGrid, mask: np.ndarray) -> None:
-        small = mask[OVERVIEW_STEP // 2::OVERVIEW_STEP, OVERVIEW_STEP // 2::OVERVIEW_STEP]
+    def paste(self, grid: SampleGrid, patch: np.ndarray) -> None:
+        """Paste a block's :func:`_core_patch` (its core tiles, every OVERVIEW_STEP-th pixel)."""
         first = grid.tiles[0]
-        for x, y in self.cores[id(grid)]:
-            r, c = (y - first.y) * self.side, (x - first.x) * self.side
-            R, C = (y - self.y0) * self.side, (x - self.x0) * self.side
-            self.pixels[R:R + self.side, C:C + self.side] = small[r:r + self.side, c:c + self.side]
+        x0, y0 = first.x + 1, first.y + 1
+        for y in range(patch.shape[0] // self.side):
+            for x in range(patch.shape[1] // self.side):
+                R, C = (y0 + y - self.y0) * self.side, (x0 + x - self.x0) * self.side
+                self.pixels[R:R + self.side, C:C + self.side] = patch[y * self.side:(y + 1) * self.side,
+                                                                      x * self.side:(x + 1) * self.side]
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
         nw = mercantile.bounds(self.x0, self.y0, self.zoom)
         se = mercantile.bounds(self.x1, self.y1, self.zoom)
         return nw.west, se.south, se.east, nw.north
+
+
+def _core_patch(grid: SampleGrid, core: frozenset[tuple[int, int]], mask: np.ndarray) -> np.ndarray:
+    """The core of a block's mask (all but its outer ring of tiles), every OVERVIEW_STEP-th pixel."""
+    tile = 256
+    n = grid.size - 2
+    return np.ascontiguousarray(mask[tile:tile * (n + 1), tile:tile * (n + 1)][OVERVIEW_STEP // 2::OVERVIEW_STEP,
+                                                                            OVERVIEW_STEP // 2::OVERVIEW_STEP])
 
 
 def _index(mask: np.ndarray, grid: SampleGrid, table: ClassTable, classes: LandmarkClasses,
@@ -261,17 +348,19 @@ def _index(mask: np.ndarray, grid: SampleGrid, table: ClassTable, classes: Landm
 
 def _in_core(loc: Any, grid: SampleGrid, core: frozenset[tuple[int, int]], zoom: int) -> list[Answer]:
     """A block's candidates (``loc``: a profile-method :class:`~localization.result.Localization`)
-    that lie in its core, each with its kappa against the block's chance agreement."""
-    if loc.unanswered:
+    that lie in its core, each with its kappa against the block's chance agreement; the best
+    distinct alternative the block found is one of them (refined as the answer was)."""
+    if loc.unanswered and not loc.top_k:
         return []
     chance = loc.chance if loc.chance is not None else 0.0
     out = []
-    for x, y, score in loc.top_k:
-        b = grid.xy_bounds
+    b = grid.xy_bounds
+    for x, y, score in (*loc.top_k, *((loc.alternative,) if loc.alternative is not None else ())):
         lon, lat = pixel_lonlat((b.left, b.bottom, b.right, b.top), (grid.height, grid.width), (x, y))
         tile = mercantile.tile(lon, lat, zoom)
         if (tile.x, tile.y) in core:
-            out.append(Answer(lon, lat, score, (score - chance) / (1 - chance) if chance < 1 else 0.0, loc.heading_deg))
+            kappa = (score - chance) / (1 - chance) if chance < 1 else 0.0
+            out.append(Answer(lon, lat, score, None, loc.heading_deg, kappa, chance))
     return out
 
 
@@ -301,59 +390,3 @@ def pixel_lonlat(bounds: tuple[float, float, float, float], shape: tuple[int, in
     y = top - (xy[1] + 0.5) * (top - bottom) / height
     lon, lat = mercantile.lnglat(x, y)
     return lon, lat
-
-
-# --------------------------------------------------------------------------- files in, files out
-
-
-@dataclass(frozen=True)
-class RegionRequest:
-    """``osmseg localize --osm FILE --bbox W,S,E,N``'s inputs: the query file and the region's OSM."""
-
-    ground: Path
-    ground_options: Any  # localization.inputs.SideOptions
-    osm: tuple[Path, ...]
-    table: str = "classes13.toml"        # the classes the OSM is drawn in
-    aerial_classes: str = "aerial13"     # their landmark dictionary
-    fov_deg: float = 360.0
-    camera_height_m: float = 2.0
-    truth: tuple[float, float] | None = None  # lon, lat
-
-
-def localize_region(request: RegionRequest, config: RegionConfig, profile: ProfileConfig = ProfileConfig(),
-                    out_dir: Path | None = None, progress: Progress | None = None) -> RegionResult:
-    """Read the query, search the region, and (with ``out_dir``) write ``region.geojson``."""
-    import json
-
-    from localization.inputs import load_side
-    from localization.landmarks import load_landmark_classes
-    from localization.profile import check_view_shape
-    from osmseg.classes import load_class_table
-    from osmseg.output.atomic import atomic_write_text
-
-    for path in request.osm:
-        if not Path(path).is_file():
-            raise ConfigError(f"--osm {path} is not a file: give the region's OSM extract (.osm, .osm.pbf)")
-    ground = load_side(request.ground, request.ground_options)
-    if ground.semantic is None:
-        raise ConfigError(f"--ground {request.ground.name}: region search needs the query as a label mask "
-                          "(or an RGB image with --ground-checkpoint), not a landmark file")
-    g = ground.landmarks
-    check_view_shape(g.width, g.height, request.fov_deg, f"--ground {request.ground.name}",
-                     "give a panorama, or a photo with its field of view (--fov DEGREES)")
-    camera = Camera(g.width, g.height, hfov_deg=request.fov_deg, camera_height_m=request.camera_height_m)
-    result = search_region(ground.semantic, camera, request.osm, load_class_table(request.table),
-                           load_landmark_classes(request.aerial_classes), config, profile, progress)
-    if out_dir is not None:
-        doc = result.to_geojson()
-        if request.truth is not None and result.best is not None:
-            doc["properties"]["truth"] = {"lon": request.truth[0], "lat": request.truth[1],
-                                          "error_m": round(distance_m(result.best, request.truth), 2)}
-        atomic_write_text(Path(out_dir) / "region.geojson", json.dumps(doc, indent=2) + "\n")
-        if importlib.util.find_spec("matplotlib") is not None:  # the picture is optional, the answers are not
-            from localization.figures import region_png
-
-            error = (distance_m(result.best, request.truth) if request.truth is not None and result.best is not None
-                     else None)
-            region_png(Path(out_dir) / "region.png", result, load_class_table(request.table), request.truth, error)
-    return result

@@ -100,8 +100,20 @@ class Localization:
     feature_edges: dict[str, Any] | None = None
     method: str = "paper"
     heading_deg: float | None = None   # the profile method: the query's estimated (or given) heading
-    confidence: float | None = None    # the profile method: kappa of the best match (localization.search)
+    confidence: float | None = None    # the profile method: how far the answer stands out (localization.search)
+    kappa: float | None = None         # the profile method: kappa of the best match against chance
     chance: float | None = None        # the profile method: agreement of a random position
+    alternative: tuple[float, float, float] | None = None  # the profile method: (x, y, score) of the best
+                                                           # place at least distinct_m from the answer
+    camera_pose: tuple[float, float, float] | None = None  # the profile method with the camera pose searched:
+                                                           # the answer's (height m, pitch, roll degrees)
+
+    @property
+    def margin(self) -> float | None:
+        """The answer's score minus the best distinct alternative's (None: no alternative, or no answer)."""
+        if self.alternative is None or not self.top_k:
+            return None
+        return self.top_k[0][2] - self.alternative[2]
 
     def error(self, truth: tuple[float, float] | None, resolution: float | None = None
               ) -> tuple[float | None, float | None]:
@@ -137,9 +149,12 @@ class Localization:
             out["candidates"] = [{"x": float(x), "y": float(y), "likelihood": lk, "posterior": s}
                                  for (x, y), lk, s in zip(self.candidates.tolist(), _floats(self.likelihoods),
                                                           _floats(self.posteriors))]
-        for name in ("heading_deg", "confidence", "chance"):
+        for name in ("heading_deg", "confidence", "kappa", "chance", "margin", "camera_pose"):
             if getattr(self, name) is not None:
                 out[name] = getattr(self, name)
+        if self.alternative is not None:
+            x, y, s = self.alternative
+            out["alternative"] = {"x": x, "y": y, "score": round(s, 10)}
         if self.levels:
             out["levels"] = [lv.to_dict(all_candidates=False) for lv in self.levels]
         if self.feature_edges is not None:

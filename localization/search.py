@@ -21,11 +21,24 @@ the number of grid positions (the image area), in chunks of ``chunk`` positions 
 aerial side is never held at more than one chunk's profiles per thread. Each chunk's scores
 depend on that chunk alone, so the answer is the same at any chunk size and thread count.
 
-**Confidence.** The best score ``S*`` is compared with the agreement a position drawn at
-random would have: ``S0 = sum_{c,k} q[c, k] pbar[c, k]`` with ``pbar`` the mean aerial profile
-over the coarse grid and all azimuths. ``kappa = (S* - S0) / (1 - S0)`` (Cohen's kappa of the
-best match) is 0 for a query that fits no better than chance, and the answer is "not in this
-image" below ``min_confidence``.
+**Is it here at all?** The best score ``S*`` is compared with the agreement a position drawn
+at random would have: ``S0 = sum_{c,k} q[c, k] pbar[c, k]`` with ``pbar`` the mean aerial
+profile over the coarse grid and all azimuths. ``kappa = (S* - S0) / (1 - S0)`` (Cohen's kappa
+of the best match) is 0 for a query that fits no better than chance, and the answer is "not in
+this image" below ``min_kappa``.
+
+**Is it here, or somewhere that looks the same?** A look-alike place fits as well as the
+right one, so kappa is high for wrong answers too. The **best distinct alternative** is the
+best place at least ``distinct_m`` (50 m) from the answer (the best coarse positions that far
+away, refined as the answer was), and the **confidence** is the share of the answer's lead
+over chance that no such place reaches::
+
+    confidence = (S* - S_alt) / (S* - S0)
+
+0 when another place fits as well, larger the more the answer stands out (kappa where no place
+lies ``distinct_m`` away). Below ``min_confidence`` the answer is "not sure": the result keeps
+it, with the alternative. docs/localization.md gives how well it ranks wrong answers below
+right ones, per kind of query, and how the default threshold was chosen.
 
 Imports: numpy, osmseg core, localization.profile and localization.result.
 """
@@ -45,7 +58,7 @@ from localization.profile import QueryProfile
 from localization.result import Localization, unanswered
 from osmseg.errors import ConfigError
 
-__all__ = ["ProfileConfig", "AerialIndex", "grid_positions", "score_positions", "localize_profile"]
+__all__ = ["ProfileConfig", "AerialIndex", "grid_positions", "score_positions", "score_poses", "localize_profile"]
 
 
 @dataclass(frozen=True)
@@ -62,8 +75,10 @@ class ProfileConfig:
     levels: int | None = None      # refinements, each a third of the previous spacing [2 for a mask, 1 for points]
     heading_deg: float | None = 0.0  # compass azimuth of the query's centre column; None: unknown (searched)
     top_k: int = 5
-    min_confidence: float | None = None  # kappa below this: "not in this image" [the aerial side's: 0.6 for a
-                                         # mask, 0.3 for landmark points (docs/localization.md: how chosen)]
+    min_confidence: float | None = None  # confidence below this: "not sure" [the aerial side's: 0.04 for a mask,
+                                         # none for landmark points (docs/localization.md: how chosen)]
+    min_kappa: float | None = None  # kappa below this: "not in this image" [the aerial side's: 0.6 for a mask,
+                                    # 0.3 for landmark points]
     chunk: int = 1024              # positions scored at once (memory)
     samples: int = 24              # aerial ray samples between 0.6 m and the farthest radius
     sigma_deg: float = 8.0         # aerial landmark points: bearing kernel
@@ -73,6 +88,19 @@ class ProfileConfig:
                                    # [a mask: yes; points: no, their soft kernels have no such frequencies]
     min_prior: float = 0.01
     threads: int = 0               # chunks scored at once on threads; 0: one per core (the answer is the same)
+    distinct_m: float = 50.0       # the best distinct alternative lies at least this far from the answer
+    camera_heights: tuple[float, ...] = ()  # camera heights (m) to try when it is not known [the camera's own]
+    tilt_deg: float = 0.0          # the camera may be tilted this much in pitch and roll: searched [0: level]
+    tilt_step_deg: float = 1.0     # the tilts tried: -tilt to +tilt in these steps
+
+    def tilts(self) -> tuple[float, ...]:
+        """The pitches (and rolls) tried.
+
+        >>> ProfileConfig(tilt_deg=2.0).tilts()
+        (-2.0, -1.0, 0.0, 1.0, 2.0)
+        """
+        n = int(math.floor(self.tilt_deg / self.tilt_step_deg + 1e-9))
+        return tuple(round(i * self.tilt_step_deg, 6) for i in range(-n, n + 1))
 
     def __post_init__(self) -> None:
         if ((self.bins is not None and self.bins < 8) or self.radii < 1 or self.keep < 1 or (self.levels is not None and self.levels < 0)
@@ -82,6 +110,11 @@ class ProfileConfig:
             raise ConfigError("profile method: ranges must satisfy 0 < min < max and the grid spacing be > 0")
         if self.heading_deg is not None and not math.isfinite(self.heading_deg):
             raise ConfigError(f"heading must be a number of degrees or unknown, got {self.heading_deg}")
+        if not (0 <= self.tilt_deg <= 10 and self.tilt_step_deg > 0):
+            raise ConfigError(f"camera tilt must be 0-10 degrees in steps > 0, got {self.tilt_deg:g} in steps of "
+                              f"{self.tilt_step_deg:g}")
+        if any(not (0 < h < 100) for h in self.camera_heights):
+            raise ConfigError(f"camera heights must be positive metres, got {self.camera_heights}")
 
 
 class AerialIndex(Protocol):
@@ -92,7 +125,8 @@ class AerialIndex(Protocol):
     grid_m: float       # the coarse grid spacing that suits it
     levels: int         # and the refinements
     weighted: bool      # whether class-frequency weights suit it
-    min_confidence: float  # the "not in this image" threshold that suits it
+    min_confidence: float  # the "not sure" threshold that suits it (confidence: see the module docstring)
+    min_kappa: float       # the "not in this image" threshold that suits it
 
     @property
     def shape(self) -> tuple[int, int]: ...
@@ -166,6 +200,43 @@ def score_positions(index: AerialIndex, query: QueryProfile, xy: np.ndarray, con
         if s is not None:
             shift[start:start + len(b)] = s
     return best, shift
+
+
+def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config: ProfileConfig,
+                prior: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`score_positions` of the best of ``query.variants`` (camera poses) at each position:
+    ``(score, shift, pose index)``. The aerial profiles of a chunk are built once for all poses."""
+    variants = query.variants
+    qs = np.stack([v.q for v in variants]).astype(np.float32)                     # (H, C, R + 1, A)
+    if weights is not None:
+        qs = qs * weights[None, :, :, None].astype(np.float32)
+    totals = np.maximum(qs.sum(axis=(1, 2, 3)), 1e-9)                              # (H,)
+    u = np.einsum("hcra,cr->hra", qs, prior.astype(np.float32))                   # (H, R + 1, A)
+    known = query.heading_deg is not None
+    need = qs.sum(axis=(0, 3)) > 0
+    if not known:
+        qf, uf = np.conj(np.fft.rfft(qs, axis=-1)), np.conj(np.fft.rfft(u, axis=-1))
+
+    def one(part: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        P, V = index.profiles(part, query.radii_m, query.bins, need)
+        if known:
+            s = (np.einsum("ncra,hcra->nh", P, qs) + u.sum(axis=(1, 2))[None]
+                 - np.einsum("nra,hra->nh", V, u)) / totals[None]
+            pose = s.argmax(axis=1)
+            return s[np.arange(len(s)), pose], np.zeros(len(s)), pose
+        agree = np.fft.irfft(np.einsum("ncrf,hcrf->nhf", np.fft.rfft(P, axis=-1), qf), n=query.bins, axis=-1)
+        seen = np.fft.irfft(np.einsum("nrf,hrf->nhf", np.fft.rfft(V, axis=-1), uf), n=query.bins, axis=-1)
+        s = (agree + u.sum(axis=(1, 2))[None, :, None] - seen) / totals[None, :, None]   # (N, H, A)
+        pose = s.max(axis=2).argmax(axis=1)
+        best, shift = _peak(s[np.arange(len(s)), pose])
+        return best, shift, pose
+
+    chunk = max(1, config.chunk // max(1, len(variants) // 8))  # (N, H, A) stays near one chunk's profiles
+    parts = _map(one, [xy[i:i + chunk] for i in range(0, len(xy), chunk)], config.threads)
+    if not parts:
+        return np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int64)
+    return (np.concatenate([b for b, _, _ in parts]), np.concatenate([s for _, s, _ in parts]),
+            np.concatenate([p for _, _, p in parts]))
 
 
 def _rotations(P: np.ndarray, V: np.ndarray, qf: np.ndarray, uf: np.ndarray, u: np.ndarray, total: float,
@@ -294,6 +365,14 @@ def _nms(xy: np.ndarray, order: np.ndarray, radius: float, k: int) -> list[int]:
     return kept
 
 
+def _around(xy: np.ndarray, spacing: float, shape: tuple[int, int]) -> np.ndarray:
+    """A 3 x 3 grid of ``spacing`` around each of ``xy``, without duplicates, inside an image of ``shape``."""
+    h, w = shape
+    offsets = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], dtype=np.float64) * spacing
+    cand = np.unique(np.round((xy[:, None, :] + offsets[None]).reshape(-1, 2), 6), axis=0)
+    return cand[(cand[:, 0] >= -0.5) & (cand[:, 0] < w - 0.5) & (cand[:, 1] >= -0.5) & (cand[:, 1] < h - 0.5)]
+
+
 def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileConfig,
                      prior: np.ndarray | None = None) -> Localization:
     """Where ``query`` was taken in the aerial ``index``: the ``profile`` method's answer.
@@ -319,21 +398,45 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     mean = class_prior(index, query, xy) if prior is None else prior
     weights = -np.log(np.clip(mean, config.min_prior, 1.0)) if weighted else None
     score, shift = score_positions(index, query, xy, config, mean, weights, keep=config.keep)
-    h, w = index.shape
-    for _ in range(levels):
-        top = np.argsort(-score, kind="stable")[:config.keep]
-        spacing /= 3.0
-        offsets = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], dtype=np.float64) * spacing
-        cand = (xy[top][:, None, :] + offsets[None]).reshape(-1, 2)
-        cand = np.unique(np.round(cand, 6), axis=0)
-        cand = cand[(cand[:, 0] >= -0.5) & (cand[:, 0] < w - 0.5) & (cand[:, 1] >= -0.5) & (cand[:, 1] < h - 0.5)]
-        xy = cand
-        score, shift = score_positions(index, query, xy, config, mean, weights)
+    coarse_xy, coarse_score = xy, score
+    poses = np.zeros(len(xy), dtype=np.int64)
+
+    def refine(xy: np.ndarray, score: np.ndarray, shift: np.ndarray, keep: int, spacing: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        pose = np.zeros(len(xy), dtype=np.int64)
+        for _ in range(levels):  # (with no refinement, the poses' mean profile answers alone)
+            top = np.argsort(-score, kind="stable")[:keep]
+            spacing /= 3.0
+            xy = _around(xy[top], spacing, index.shape)
+            if query.variants:
+                score, shift, pose = score_poses(index, query, xy, config, mean, weights)
+            else:
+                score, shift = score_positions(index, query, xy, config, mean, weights)
+        return xy, score, shift, pose
+
+    xy, score, shift, poses = refine(xy, score, shift, config.keep, spacing)
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
     best = int(order[0])
-    qw = query.q.sum(axis=2) * (weights if weights is not None else 1.0)
+    pose_query = query.variants[int(poses[best])] if query.variants and levels else query
+    # the best distinct alternative: the best place at least distinct_m from the answer, refined as it was
+    far = np.hypot(*(coarse_xy - xy[best]).T) * index.resolution_m >= config.distinct_m
+    alternative: tuple[float, float, float] | None = None
+    if far.any() and np.isfinite(coarse_score[far]).any():
+        rivals = np.flatnonzero(far)[_nms(coarse_xy[far], np.argsort(-coarse_score[far], kind="stable"),
+                                          coarse_m / index.resolution_m, 5)]
+        rivals = rivals[np.isfinite(coarse_score[rivals])]
+        r_xy, r_score, _, _ = refine(coarse_xy[rivals], coarse_score[rivals], np.zeros(len(rivals)), len(rivals),
+                                     spacing)
+        r_far = np.hypot(*(r_xy - xy[best]).T) * index.resolution_m >= config.distinct_m
+        if r_far.any():
+            i = int(np.flatnonzero(r_far)[np.argmax(r_score[r_far])])
+            alternative = (float(r_xy[i, 0]), float(r_xy[i, 1]), float(r_score[i]))
+    qw = pose_query.q.sum(axis=2) * (weights if weights is not None else 1.0)
     chance = float((qw * mean).sum() / max(qw.sum(), 1e-9))
     kappa = (float(score[best]) - chance) / max(1e-9, 1.0 - chance)
+    lead = float(score[best]) - chance
+    confidence = (kappa if alternative is None
+                  else min(1.0, max(0.0, (float(score[best]) - alternative[2]) / lead)) if lead > 0 else 0.0)
     heading = (query.heading_deg if query.heading_deg is not None
                else float(shift[best] * 360.0 / query.bins) % 360.0)
     picked = _nms(xy, order, coarse_m / index.resolution_m, config.top_k)
@@ -341,10 +444,19 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     ties = int(np.isclose(score, score[best], rtol=1e-9, atol=1e-12).sum())
     result = Localization(candidates=xy, likelihoods=score, posteriors=score, order=order.astype(np.int64),
                           top_k=top_k, map_xy=(top_k[0][0], top_k[0][1]), ties=ties, unanswered=False,
-                          method="profile", heading_deg=round(heading, 3) % 360.0, confidence=round(kappa, 4),
-                          chance=round(chance, 4))
-    threshold = config.min_confidence if config.min_confidence is not None else index.min_confidence
-    if kappa < threshold:
+                          method="profile", heading_deg=round(heading, 3) % 360.0, confidence=round(confidence, 4),
+                          kappa=round(kappa, 4), chance=round(chance, 4), alternative=alternative,
+                          camera_pose=pose_query.pose if pose_query is not query else None)
+    min_kappa = config.min_kappa if config.min_kappa is not None else index.min_kappa
+    if kappa < min_kappa:
         return replace(result, unanswered=True, map_xy=None,
-                       reason=f"not in this image: confidence {kappa:.3f} is below {threshold:g}")
+                       reason=f"not in this image: kappa {kappa:.3f} is below {min_kappa:g}")
+    threshold = config.min_confidence if config.min_confidence is not None else index.min_confidence
+    if confidence < threshold:
+        where = ""
+        if alternative is not None:
+            away = math.hypot(alternative[0] - xy[best, 0], alternative[1] - xy[best, 1]) * index.resolution_m
+            where = f" (another place {away:.0f} m away fits almost as well)"
+        return replace(result, unanswered=True, map_xy=None,
+                       reason=f"not sure: confidence {confidence:.3f} is below {threshold:g}{where}")
     return result

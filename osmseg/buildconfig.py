@@ -19,6 +19,7 @@ from osmseg.places import Area, normalise_name
 from osmseg.processes import available_cores
 from osmseg.redact import redact
 from osmseg.rejection import FilterConfig
+from osmseg.shard import Shard
 
 __all__ = ["DEFAULT_ZOOM", "BuildConfig", "Shard", "available_cores", "sampling_box"]
 
@@ -26,32 +27,6 @@ __all__ = ["DEFAULT_ZOOM", "BuildConfig", "Shard", "available_cores", "sampling_
 #: Fine enough that footways, single trees and small buildings are several pixels wide, coarse
 #: enough that Bing/Esri cover every preset area at this level.
 DEFAULT_ZOOM = 18
-
-
-@dataclass(frozen=True)
-class Shard:
-    """``--shard K/N``: this process builds slots ``i`` with ``i % N == K - 1``."""
-
-    index: int  # 1-based K
-    count: int  # N
-
-    @classmethod
-    def parse(cls, text: str) -> "Shard":
-        """Parse ``K/N``.
-
-        >>> Shard.parse("2/8")
-        Shard(index=2, count=8)
-        """
-        try:
-            k, n = (int(v) for v in text.split("/"))
-        except ValueError:
-            raise ConfigError(f"--shard {text!r}: expected K/N, e.g. 1/4") from None
-        if not 1 <= k <= n:
-            raise ConfigError(f"--shard {text!r}: need 1 <= K <= N")
-        return cls(k, n)
-
-    def owns(self, slot: int) -> bool:
-        return slot % self.count == self.index - 1
 
 
 @dataclass(frozen=True)

@@ -8,10 +8,12 @@ separately and agree where their models coincide.
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import pytest
+from PIL import Image
 from shapely.geometry import box
 
 from localization.georender import Camera, GroundPatch, Scene, Solid, pixel_directions, render, tree_crown
@@ -385,10 +387,11 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     e, n = lonlat(140, 140)
     args = ["localize", "--ground", str(tmp_path / "query.png"), "--ground-classes", "aerial13", "--ground-table",
             "classes13.toml", "--osm", str(osm), "--bbox", f"{w},{s},{e},{n}", "--truth", f"{truth[0]},{truth[1]}",
-            "--out", str(tmp_path / "out")]
+            "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache")]
     runs = [CliRunner().invoke(cli, args) for _ in range(2)]
     assert runs[0].exit_code == 0, runs[0].output
-    assert runs[0].stdout == runs[1].stdout  # the same answers every time
+    assert runs[0].stdout == runs[1].stdout  # the same answers every time...
+    assert " 0 read from the cache" in runs[0].stderr and "(0 drawn from OSM" in runs[1].stderr  # ...drawn once
     doc = json.loads((tmp_path / "out" / "region.geojson").read_text())
     with Image.open(tmp_path / "out" / "region.png") as picture:  # the map: the region, the answers, a legend
         assert picture.format == "PNG" and min(picture.size) > 200
@@ -403,3 +406,103 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     assert bad.exit_code == 2 and "--resolution applies to an aerial image" in bad.output
     no_box = CliRunner().invoke(cli, ["localize", "--ground", str(tmp_path / "query.png"), "--osm", str(osm)])
     assert no_box.exit_code == 2 and "--bbox" in no_box.output
+    # the region as a centre and a radius: the square around the disc, the same answers
+    centre = lonlat(0.0, 0.0)
+    disc = [a for a in args if a not in ("--bbox", f"{w},{s},{e},{n}")]
+    disc[disc.index("--out") + 1] = str(tmp_path / "disc")
+    by_disc = CliRunner().invoke(cli, [*disc, "--lon", str(centre[0]), "--lat", str(centre[1]), "--radius-km", "0.14"])
+    assert by_disc.exit_code == 0, by_disc.output
+    assert by_disc.stdout.splitlines()[1].split()[1:3] == runs[0].stdout.splitlines()[1].split()[1:3]
+    both = CliRunner().invoke(cli, [*args, "--lat", str(centre[1]), "--lon", str(centre[0]), "--radius-km", "1"])
+    assert both.exit_code == 2 and "give the region once" in both.output
+    half = CliRunner().invoke(cli, [*disc, "--lat", str(centre[1]), "--radius-km", "1"])
+    assert half.exit_code == 2 and "go together" in half.output
+
+
+def test_a_region_split_into_shards_answers_as_one_process(tmp_path) -> None:
+    """--shard K/N: each shard writes its part, the last one merges; any number of shards gives
+    the bytes of one process's region.geojson, and a finished shard run again does not search."""
+    from click.testing import CliRunner
+
+    from localization.georender_osm import scene_from_osm
+    from localization.render import panorama_table
+    from osmseg.classes import load_class_table
+    from osmseg.cli.main import cli
+
+    osm = town(tmp_path)
+    table = load_class_table("classes13.toml")
+    scene = scene_from_osm([osm], LON0, LAT0, table, radius_m=200, seed=0)
+    view = render(scene.scene, Camera(10.0, -25.0, eye_m=1.7, width=1232, height=224, heading_deg=40.0),
+                  panorama_table(table).by_name["sky"].id, table.unlabeled.id)
+    sky = panorama_table(table).by_name["sky"].id
+    Image.fromarray(np.where(view == sky, table.unlabeled.id, view).astype(np.uint8)).save(tmp_path / "query.png")
+    w, s = lonlat(-140, -140)
+    e, n = lonlat(140, 140)
+
+    def run(out: str, *extra: str):
+        return CliRunner().invoke(cli, ["localize", "--ground", str(tmp_path / "query.png"), "--ground-classes",
+                                        "aerial13", "--ground-table", "classes13.toml", "--osm", str(osm), "--bbox",
+                                        f"{w},{s},{e},{n}", "--heading", "unknown", "--out", str(tmp_path / out),
+                                        "--cache-dir", str(tmp_path / "cache"), *extra])
+
+    one = run("one")
+    assert one.exit_code == 0, one.output
+    expected = (tmp_path / "one" / "region.geojson").read_bytes()
+    assert json.loads(expected)["properties"]["blocks"] >= 2
+    for count in (2, 3):
+        for k in range(1, count + 1):
+            res = run(f"split{count}", "--shard", f"{k}/{count}")
+            assert res.exit_code == 0, res.output
+            done = (tmp_path / f"split{count}" / "region.geojson").is_file()
+            assert done == (k == count), res.output             # only the last shard writes the answers
+            if k < count:
+                assert f"{k} of {count} parts" in res.stderr
+        assert (tmp_path / f"split{count}" / "region.geojson").read_bytes() == expected
+    parts = sorted((tmp_path / "split2" / "region-parts").glob("*/1-of-2.json"))
+    stamp = parts[0].stat().st_mtime_ns
+    again = run("split2", "--shard", "1/2")
+    assert again.exit_code == 0 and parts[0].stat().st_mtime_ns == stamp  # its part was kept, not searched again
+    assert (tmp_path / "split2" / "region.geojson").read_bytes() == expected
+    no_out = CliRunner().invoke(cli, ["localize", "--ground", str(tmp_path / "query.png"), "--osm", str(osm),
+                                      "--bbox", f"{w},{s},{e},{n}", "--shard", "1/2"])
+    assert no_out.exit_code == 2 and "--shard 1/2 needs --out" in no_out.output
+
+
+def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> None:
+    """A view of the OSM town drawn by a camera 2.4 m up, pitched up 2° and rolled 1° (right side
+    down): told the height and tilt are unknown, the profile method tries 1.6/2.0/2.4 m and
+    pitch and roll in 1° steps, and answers with the pose the camera had, at the place it stood."""
+    import mercantile
+    import rasterio
+
+    from localization.cli import UNKNOWN_HEIGHTS
+    from localization.georender_osm import scene_from_osm
+    from localization.landmarks import load_landmark_classes
+    from localization.pipeline import profile_index, run_profile
+    from localization.profile import Camera as QueryCamera, semantic_map
+    from localization.render import panorama_table
+    from localization.search import ProfileConfig
+    from osmseg.classes import load_class_table
+
+    osm = town(tmp_path)
+    table, classes = load_class_table("classes13.toml"), load_landmark_classes("aerial13")
+    tif, res = osm_mask(osm, tmp_path / "town.tif", LON0, LAT0, zoom=19, size=5)
+    with rasterio.open(tif) as ds:
+        mask, b = ds.read(1), ds.bounds
+    index = profile_index(semantic_map(mask, table, classes), res)
+    scene = scene_from_osm([osm], LON0, LAT0, table, radius_m=250, seed=0)
+    lon, lat = lonlat(10.0, -25.0)                              # on the street x = 10, between two blocks
+    mx, my = mercantile.xy(lon, lat)
+    truth_px = ((mx - b.left) / (b.right - b.left) * mask.shape[1] - 0.5,
+                (b.top - my) / (b.top - b.bottom) * mask.shape[0] - 0.5)
+    x, y = scene.to_local(lon, lat)
+    sky = panorama_table(table).by_name["sky"].id
+    view = render(scene.scene, Camera(x, y, eye_m=2.4, heading_deg=0.0, pitch_deg=2.0, roll_deg=1.0), sky,
+                  table.unlabeled.id)
+    query = semantic_map(np.where(view == sky, table.unlabeled.id, view).astype(np.uint8), table, classes)
+    config = ProfileConfig(camera_heights=UNKNOWN_HEIGHTS, tilt_deg=2.0, min_confidence=-1.0, min_kappa=-1.0)
+    loc = run_profile(config, index, query, QueryCamera(1232, 224))
+    assert math.hypot(loc.map_xy[0] - truth_px[0], loc.map_xy[1] - truth_px[1]) * res <= 2.0
+    assert loc.camera_pose is not None
+    height, pitch, roll = loc.camera_pose
+    assert height == 2.4 and abs(pitch - 2.0) <= 1.0 and abs(roll - 1.0) <= 1.0

@@ -22,7 +22,7 @@ from localization.cli import localize_bench_command, localize_command
 from localization.compare import photo_view, roc_auc
 from localization.landmarks import landmarks_from_mask
 from localization.pipeline import profile_index, profile_query, run_profile
-from localization.profile import Camera, query_from_mask, ray_radii, semantic_map
+from localization.profile import MASK_MIN_CONFIDENCE, Camera, query_from_mask, ray_radii, semantic_map
 from localization.render import RenderConfig, object_heights, render_panorama
 from localization.search import ProfileConfig
 from test_loc_render import CLASSES, RES, TABLE, B, GRASS, ROAD, town
@@ -53,7 +53,7 @@ def test_a_panorama_with_known_heading_is_found_within_a_metre(scene, xy) -> Non
     loc = run_profile(ProfileConfig(), index, q.semantic, q.camera)
     assert not loc.unanswered and loc.method == "profile"
     assert _error_m(loc, xy) <= 1.0
-    assert loc.heading_deg == 0.0 and loc.confidence > 0.8
+    assert loc.heading_deg == 0.0 and loc.kappa > 0.8 and loc.confidence >= MASK_MIN_CONFIDENCE
 
 
 @pytest.mark.parametrize("xy,heading", [(TRUTHS[0], 137.0), (TRUTHS[1], 301.5), (TRUTHS[2], 12.0)])
@@ -70,7 +70,8 @@ def test_a_90_degree_photo_with_unknown_heading_is_localized(scene) -> None:
     xy, heading = TRUTHS[0], 200.0
     q = _query(mask, xy, heading, fov=90.0)
     assert q.camera.width == 308 and q.camera.hfov_deg == pytest.approx(90.0)
-    loc = run_profile(ProfileConfig(heading_deg=None), index, q.semantic, q.camera)
+    # a quarter of the view in a town of repeated blocks: right, and barely above its look-alikes
+    loc = run_profile(ProfileConfig(heading_deg=None, min_confidence=-1.0), index, q.semantic, q.camera)
     assert _error_m(loc, xy) <= 3.0
     assert abs((loc.heading_deg - heading + 180) % 360 - 180) <= 5.0
 
@@ -108,15 +109,38 @@ def test_confidence_separates_matching_from_non_matching_aerial_images(scene) ->
     match, non = [], []
     for xy in TRUTHS:
         q = _query(mask, xy)
-        match.append(run_profile(ProfileConfig(min_confidence=0.0), index, q.semantic, q.camera).confidence)
-        non += [run_profile(ProfileConfig(min_confidence=0.0), o, q.semantic, q.camera).confidence for o in others]
+        match.append(run_profile(ProfileConfig(min_kappa=-1.0), index, q.semantic, q.camera).kappa)
+        non += [run_profile(ProfileConfig(min_kappa=-1.0), o, q.semantic, q.camera).kappa for o in others]
     assert min(match) > max(non)
     assert roc_auc(match, non) == 1.0
-    # below the threshold the answer is "not in this image", with the confidence kept
+    # below the threshold the answer is "not in this image", with the kappa kept
     q = _query(mask, TRUTHS[0])
-    loc = run_profile(ProfileConfig(min_confidence=max(non) + 0.5 * (min(match) - max(non))), others[0], q.semantic,
+    loc = run_profile(ProfileConfig(min_kappa=max(non) + 0.5 * (min(match) - max(non))), others[0], q.semantic,
                       q.camera)
     assert loc.unanswered and loc.map_xy is None and loc.reason.startswith("not in this image")
+
+
+def test_a_look_alike_place_makes_the_answer_not_sure(scene) -> None:
+    """The same query in the town and in an image holding the town twice, side by side: the
+    match is as good in both (kappa), but only the single town's answer stands out from every
+    place 50 m or more away; with two copies the best distinct alternative is the other copy,
+    the confidence is about 0 and the answer is "not sure", naming how far the look-alike is."""
+    mask, index = scene
+    twice = np.concatenate([mask, np.full((mask.shape[0], 40), GRASS, np.uint8), mask], axis=1)
+    twin = profile_index(semantic_map(twice, TABLE, CLASSES), RES)
+    q = _query(mask, TRUTHS[0])
+    one = run_profile(ProfileConfig(), index, q.semantic, q.camera)
+    two = run_profile(ProfileConfig(), twin, q.semantic, q.camera)
+    assert not one.unanswered and one.confidence >= MASK_MIN_CONFIDENCE and _error_m(one, TRUTHS[0]) <= 1.0
+    assert abs(two.kappa - one.kappa) < 0.05                      # it fits as well as ever...
+    assert two.unanswered and two.confidence < 0.01               # ...but so does the other copy
+    alt = two.alternative
+    copy_x = TRUTHS[0][0] + mask.shape[1] + 40
+    best = two.top_k[0]
+    assert {round(best[0] / 10), round(alt[0] / 10)} & {round(TRUTHS[0][0] / 10), round(copy_x / 10)}
+    assert abs(abs(alt[0] - best[0]) - (mask.shape[1] + 40)) * RES <= 2.0 and abs(alt[1] - best[1]) * RES <= 2.0
+    away = abs(alt[0] - best[0]) * RES
+    assert two.reason.startswith("not sure") and f"{away:.0f} m away" in two.reason
 
 
 def test_landmark_lists_on_both_sides(scene) -> None:
@@ -160,7 +184,7 @@ def test_localize_cli_with_the_profile_method(scene, tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["method"] == "profile" and out["truth"]["error_m"] <= 1.5
-    assert abs((out["heading_deg"] - heading + 180) % 360 - 180) <= 4.0 and out["confidence"] > 0.5
+    assert abs((out["heading_deg"] - heading + 180) % 360 - 180) <= 4.0 and out["kappa"] > 0.5 and out["confidence"] >= MASK_MIN_CONFIDENCE
     bad = CliRunner().invoke(localize_command, [*base, "--method", "paper", "--heading", "unknown"])
     assert bad.exit_code == 2 and "--method profile" in bad.output
     default = CliRunner().invoke(localize_command, [*base, "--json"])  # the profile method is the default

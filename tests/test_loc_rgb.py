@@ -59,7 +59,7 @@ def test_rgb_aerial_and_rgb_panorama_localize_through_both_methods(trained: dict
             "--ground", str(trained["query"]), "--ground-checkpoint", str(trained["ground_run"]),
             "--resolution", "0.5", "--truth", truth, "--json"]
     runner = CliRunner()
-    res = runner.invoke(osmseg_main, [*base, "--method", "profile", "--min-confidence", "0.2"])  # segmented: lower
+    res = runner.invoke(osmseg_main, [*base, "--method", "profile", "--min-kappa", "0.2"])  # segmented: lower
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["method"] == "profile" and not out["unanswered"]

@@ -20,18 +20,10 @@ from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.rejection import FilterConfig
 from osmseg.output import command_line
-from osmseg.cli.common import command_line_of, output_options, progress_bars, report_errors
+from osmseg.cli.common import command_line_of, default_cache_dir, output_options, progress_bars, report_errors
 from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT, missing_bing_key
 from osmseg.places import Area, find_preset, parse_bbox
 from osmseg.redact import redact
-
-
-def default_cache_dir() -> Path:
-    """Shared HTTP/OSM cache: $OSMSEG_CACHE_DIR, else $XDG_CACHE_HOME/osmseg, else ~/.cache/osmseg."""
-    if "OSMSEG_CACHE_DIR" in os.environ:
-        return Path(os.environ["OSMSEG_CACHE_DIR"])
-    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    return base / "osmseg"
 
 
 def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: str | None, radius_km: float | None) -> Area:

@@ -7,10 +7,12 @@ from __future__ import annotations
 import functools
 import importlib.util
 import logging
+import os
 import re
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, Callable, TypeVar
 
 import click
@@ -323,3 +325,11 @@ def typed_options(ctx: click.Context) -> set[str]:
     typed = (click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)
     given = {name for name in ctx.params if ctx.get_parameter_source(name) in typed}
     return given | set(ctx.meta.get("osmseg.renamed", {}))
+
+
+def default_cache_dir() -> Path:
+    """Shared HTTP/OSM cache: $OSMSEG_CACHE_DIR, else $XDG_CACHE_HOME/osmseg, else ~/.cache/osmseg."""
+    if "OSMSEG_CACHE_DIR" in os.environ:
+        return Path(os.environ["OSMSEG_CACHE_DIR"])
+    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+    return base / "osmseg"
