@@ -45,7 +45,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from localization.cli import UNKNOWN_HEIGHTS  # noqa: E402
+from localization.search import UNKNOWN_HEIGHTS  # noqa: E402
 from localization.compare import roc_auc  # noqa: E402
 from localization.georender import Camera as GeoCamera, render  # noqa: E402
 from localization.georender_osm import scene_from_osm  # noqa: E402
@@ -100,7 +100,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                          "unknown --tilt TILT): it tries 1.6, 2.0 and 2.4 m and pitch and roll in 1° steps")
     ap.add_argument("--json", type=Path, help="also write every figure here")
     args = ap.parse_args(argv)
-    logging.getLogger("osmseg").setLevel(logging.ERROR)  # the extract's clipped ways: said once per way, not here
     if not args.osm.is_file():
         print(f"skipped: {args.osm} is absent (../shared/data holds the Kotka extract)")
         return {}
@@ -172,4 +171,5 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
+    logging.getLogger("osmseg").setLevel(logging.ERROR)  # the extract's clipped ways: said once per way, not here
     main()

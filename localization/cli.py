@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 from pathlib import Path
 from typing import Any
 
@@ -36,63 +35,14 @@ import click
 
 from osmseg.cli.common import output_options, parse_size, progress_bars, renamed_option, report_errors, typed_options
 from localization.cli_region import RegionArgs, region_options, run_region
+from localization.cli_options import (parse_camera_height, parse_heading, parse_heights, parse_point, parse_window,
+                                      parse_windows)
+from localization.cli_summary import format_summary
 from localization.inputs import SideOptions
 from osmseg.errors import ConfigError
-from osmseg.units import degrees, metres, number, pixels, quantity, ratio
+from osmseg.units import degrees, metres, number, pixels, ratio
 
 logger = logging.getLogger(__name__)
-
-# --------------------------------------------------------------------------- parsing options
-
-
-def _point(value: str | None) -> tuple[float, float] | None:
-    """``"375,380"`` -> (375.0, 380.0).
-
-    >>> _point("375,380.5")
-    (375.0, 380.5)
-    """
-    if value is None:
-        return None
-    try:
-        x, y = (float(v) for v in value.split(","))
-    except ValueError:
-        raise ConfigError(f"--truth must be X,Y in aerial pixels, e.g. 375,380; got {value!r}") from None
-    if not (math.isfinite(x) and math.isfinite(y)):
-        raise ConfigError(f"--truth must be finite numbers, got {value!r}")
-    return x, y
-
-
-def _window(value: str) -> int | None:
-    """``--window``: pixels, or None for "auto".
-
-    >>> _window("auto"), _window("120")
-    (None, 120)
-    """
-    if value.strip().lower() == "auto":
-        return None
-    try:
-        w = int(value)
-    except ValueError:
-        raise ConfigError(f"--window must be a number of pixels or 'auto', got {value!r}") from None
-    if w < 1:
-        raise ConfigError(f"--window must be at least 1 pixel, got {w}")
-    return w
-
-
-def _windows(value: str) -> tuple[int, ...]:
-    """``--windows``: pixel sizes, coarse to fine.
-
-    >>> _windows("400,200,100")
-    (400, 200, 100)
-    """
-    try:
-        sizes = tuple(int(v) for v in value.split(","))
-    except ValueError:
-        raise ConfigError(f"--windows must be pixel sizes, coarse to fine, e.g. 400,200,100; got {value!r}") from None
-    if not sizes or min(sizes) < 1:
-        raise ConfigError(f"--windows must be positive pixel sizes, got {value!r}")
-    return sizes
-
 
 # --------------------------------------------------------------------------- checks and output
 
@@ -217,7 +167,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
     from localization.search import ProfileConfig
 
     verbosity = (ctx.obj or {}).get("verbosity", 0)
-    camera_height, heights = _camera_height(camera_height_text)
+    camera_height, heights = parse_camera_height(camera_height_text)
     if region.given or aerial_path is None:  # a region of OSM, no aerial image
         stray = _given(ctx, ("aerial_path", "aerial_size", "aerial_checkpoint", "aerial_image", "resolution",
                              "window_text", "ground_window", "p", "stride", "hierarchical", "windows_text",
@@ -225,13 +175,13 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                              "panorama"))
         run_region(ctx, ground_path, region, method, ground_classes, ground_table, ground_size,
                    ground_checkpoint, aerial_classes, aerial_table or "classes13.toml", mode, min_size, grid_stride,
-                   ProfileConfig(heading_deg=_heading(heading_text), camera_heights=heights, tilt_deg=tilt_deg),
+                   ProfileConfig(heading_deg=parse_heading(heading_text), camera_heights=heights, tilt_deg=tilt_deg),
                    fov_deg, camera_height, top_k, truth_text, out_dir, as_json, verbosity, stray)
         return
     if stray := _given(ctx, ("zoom", "cache_dir")):
         raise ConfigError(f"{', '.join(stray)} is for a region (--osm FILE --bbox W,S,E,N): add them, or leave "
                           "it out")
-    window, windows, truth = _window(window_text), _windows(windows_text), _point(truth_text)
+    window, windows, truth = parse_window(window_text), parse_windows(windows_text), parse_point(truth_text)
     if feature_threshold is None and (stray := _given(ctx, ("feature_checkpoint", "feature_metric", "feature_reduce",
                                                             "feature_components"))):
         raise ConfigError(f"{', '.join(stray)} set how --feature-threshold removes edges: add --feature-threshold "
@@ -247,7 +197,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
     config = LocalizeConfig(window=window, query_window=ground_window, p=p, stride=stride, top_k=top_k,
                             fast=not reference, hierarchical=hierarchical, windows=windows, features=features,
                             method=method, conventions=conventions, fov_deg=fov_deg, camera_height_m=camera_height,
-                            profile=ProfileConfig(heading_deg=_heading(heading_text), top_k=top_k,
+                            profile=ProfileConfig(heading_deg=parse_heading(heading_text), top_k=top_k,
                                                   min_confidence=min_confidence, min_kappa=min_kappa,
                                                   camera_heights=heights, tilt_deg=tilt_deg))
 
@@ -288,6 +238,10 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                     else f"window {result.window} px{' (auto)' if window is None else ''}")
             click.echo(f"{used}, ground window {result.query_window} px, {result.n_cliques} cliques, "
                        f"{len(result.candidates)} candidates{ties}", err=True)
+        if "map_lonlat" in report.summary:
+            where = report.summary["map_lonlat"]
+            click.echo(f"the answer in degrees (the aerial image's georeference): {where['lon']:.7f}, "
+                       f"{where['lat']:.7f}", err=True)
         if report.error_px is not None:
             click.echo(f"error of the best location: {pixels(report.error_px)}"
                        + (f" ({metres(report.error_m)})" if report.error_m is not None else ""), err=True)
@@ -303,60 +257,6 @@ def _misplaced(stray: list[str], owner: str, fix: str) -> ConfigError:
     """
     verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
     return ConfigError(f"{', '.join(stray)} {verb} to {owner}: add {fix}, or leave {them} out")
-
-
-#: the camera heights tried for --camera-height unknown (m): a hand-held camera to a car-mounted one
-UNKNOWN_HEIGHTS = (1.6, 2.0, 2.4)
-
-
-def _camera_height(value: str) -> tuple[float, tuple[float, ...]]:
-    """``--camera-height``: (metres, heights to try: none when known).
-
-    >>> _camera_height("1.7"), _camera_height("unknown")
-    ((1.7, ()), (2.0, (1.6, 2.0, 2.4)))
-    """
-    if value.strip().lower() == "unknown":
-        return 2.0, UNKNOWN_HEIGHTS
-    try:
-        height = float(value)
-    except ValueError:
-        raise ConfigError(f"--camera-height must be metres above the ground or 'unknown', got {value!r}") from None
-    if not (math.isfinite(height) and height > 0):
-        raise ConfigError(f"--camera-height must be a positive number of metres, got {value!r}")
-    return height, ()
-
-
-def _heading(value: str) -> float | None:
-    """``--heading``: degrees, or None for "unknown".
-
-    >>> _heading("unknown"), _heading("90")
-    (None, 90.0)
-    """
-    if value.strip().lower() == "unknown":
-        return None
-    try:
-        heading = float(value)
-    except ValueError:
-        raise ConfigError(f"--heading must be degrees clockwise from north or 'unknown', got {value!r}") from None
-    if not math.isfinite(heading):
-        raise ConfigError(f"--heading must be a finite number of degrees, got {value!r}")
-    return heading % 360.0
-
-
-def _heights(values: tuple[str, ...]) -> dict[str, float]:
-    """``("building=12", "tree=5")`` -> the default heights updated with these."""
-    from localization.render import DEFAULT_HEIGHTS
-
-    heights = dict(DEFAULT_HEIGHTS)
-    for item in values:
-        name, eq, metres = item.partition("=")
-        try:
-            heights[name.strip()] = float(metres)
-        except ValueError:
-            raise ConfigError(f"--class-height {item!r}: write CLASS=METRES, e.g. building=12") from None
-        if not eq or not name.strip():
-            raise ConfigError(f"--class-height {item!r}: write CLASS=METRES, e.g. building=12")
-    return heights
 
 
 #: Options that only make sense for one kind of SOURCE (a mistake to give for the other).
@@ -510,7 +410,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         viewpoints=viewpoints, seed=seed, landmarks=landmark_dict, mode=mode, min_size=min_size, stride=stride,
         window=window, p=p, top_k=top_k, margin_m=margin, stand_on=tuple(stand_on) or None, subsets=subsets,
         render=RenderConfig(width=width, height=height, camera_height_m=camera_height, max_range_m=max_range,
-                            heights=_heights(class_height), height_spread=height_spread, height_seed=seed),
+                            heights=parse_heights(class_height), height_spread=height_spread, height_seed=seed),
         noise=NoiseConfig(confusion=confusion, miss_small_px=miss_small, miss_prob=miss_prob, offset_m=offset),
         save_panoramas=save_panoramas, pictures=pictures, query_landmarks=query_landmarks, visible_min_px=visible_min_px,
         methods=methods, heading=heading, fov_deg=fov_deg, negatives=negatives, renderer=renderer,
@@ -531,57 +431,3 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     if verbosity >= 0:
         click.echo(format_summary(results), err=True)
     click.echo(str(out_dir / "results.json"))
-
-
-def format_summary(results: dict[str, Any]) -> str:
-    """A few lines for the terminal: the default method's result when it ran (else the first
-    method's: :func:`localization.compare.headline`), the blind baselines, the first method's
-    class-subset trend when it was computed (the paper method's), and every method side by side.
-    Figures at the one precision of :mod:`osmseg.units`."""
-    from localization.compare import headline
-
-    u = results.get("unit", "m")
-    b = results["baselines"]
-    name, s = headline(results)
-    methods = results.get("methods") or {}
-    first = (results.get("settings", {}).get("methods") or list(methods) or [name])[0]  # the subsets' method
-    rec = ", ".join(f"@{r} {u} {ratio(v)}" for r, v in s["recall_at"].items())
-    second = list(s["recall_at"])[1]
-    in_px = "" if u == "px" else f" ({pixels(s['mean_error_px'])})"
-    lines = [
-        f"{s['n']} {results.get('queries', 'queries')}, classes {'+'.join(results['classes'])}",
-        f"{name + ' method' if name else 'result'}: {s['answered']} answered, {s['unanswered']} unanswered, "
-        f"{s['tied']} tied; error median {quantity(s['median_error'], u)}, mean {quantity(s['mean_error'], u)}"
-        f"{in_px}; top-5 mean distance {quantity(s['top5_mean_distance'], u)}",
-        f"recall {rec}; blind guesses: image centre {quantity(b['centre_guess_mean'], u)}, "
-        f"random {quantity(b['random_guess_mean'], u)}",
-    ]
-    if b.get("random_candidate_median") is not None:
-        lines.append(f"{first} method, a random candidate: median {quantity(b['random_candidate_median'], u)}")
-    by_k = results["by_num_classes"]
-    if len(by_k) > 1:
-        lines.append(f"{first} method by number of landmark classes:")
-        for k, entry in sorted(by_k.items(), key=lambda kv: int(kv[0])):
-            e = entry["summary"]
-            lines.append(f"  {k} classes ({len(entry['subsets'])} subsets): median {quantity(e['median_error'], u)}, "
-                         f"recall@{second} {u} {ratio(e['recall_at'][second])}, unanswered {e['unanswered']}/{e['n']}")
-    if methods:
-        lines.append(method_table(methods, u))
-    return "\n".join(lines)
-
-
-def method_table(methods: dict[str, Any], unit: str) -> str:
-    """The methods side by side: one row each (the numbers of results.json's ``methods``), errors
-    in ``unit``, recall and AUC as ratios, heading error in degrees, time in seconds per view."""
-    radii = list(next(iter(methods.values()))["recall_at"])
-    head = (f"{'method':<8} {'answered':>8} {'median ' + unit:>9} {'mean ' + unit:>9} "
-            + " ".join(f"{'@' + r + unit:>6}" for r in radii) + f" {'heading°':>8} {'AUC':>6} {'s/view':>7}")
-    rows = [head]
-    for name, m in methods.items():
-        rows.append(f"{name:<8} {str(m['answered']) + '/' + str(m['n']):>8} {number(m['median_error'], unit):>9} "
-                    f"{number(m['mean_error'], unit):>9} "
-                    + " ".join(f"{number(m['recall_at'][r], 'ratio'):>6}" for r in radii)
-                    + f" {number(m['median_heading_error_deg'], 'deg'):>8} {number(m['roc_auc'], 'ratio'):>6} "
-                    f"{number(m.get('right_wrong_auc'), 'ratio'):>7} {number(m.get('accepted'), 'ratio'):>8} "
-                    f"{number(m.get('false_accept'), 'ratio'):>6} {number(m['localize_mean_s'], 's'):>7}")
-    return "\n".join(rows)

@@ -102,7 +102,7 @@ def disc_bbox(lon: float, lat: float, radius_km: float) -> tuple[float, float, f
     """The square (W, S, E, N in degrees) around the disc of ``radius_km`` centred on ``lon, lat``.
 
     >>> [round(v, 4) for v in disc_bbox(26.95, 60.53, 1.0)]
-    [26.9318, 60.521, 26.9682, 60.539]
+    [26.9317, 60.521, 26.9683, 60.539]
     """
     if not (math.isfinite(lat) and math.isfinite(lon) and -85.05 <= lat <= 85.05 and -180 <= lon <= 180):
         raise ConfigError(f"--lat {lat} --lon {lon}: out of range for Web Mercator (|lat| <= 85.05, |lon| <= 180)")
@@ -203,6 +203,11 @@ def run_region(ctx: click.Context, ground: Path | None, region: RegionArgs, meth
             click.echo(f"best distinct alternative ({config.distinct_m:g} m or more away): {alt.lon:.7f}, "
                        f"{alt.lat:.7f}, {metres(distance_m(result.best, alt))} from the answer; score margin "
                        f"{ratio(result.margin)}", err=True)
+        from localization.profile import MASK_MIN_CONFIDENCE
+
+        if result.best.confidence is not None and result.best.confidence < MASK_MIN_CONFIDENCE:
+            click.echo(f"not sure: the answer's confidence {ratio(result.best.confidence)} is below "
+                       f"{MASK_MIN_CONFIDENCE:g}: the alternative fits almost as well (docs/localization.md)", err=True)
         if result.best.heading_deg is not None and profile.heading_deg is None:
             click.echo(f"heading of the answer: {degrees(result.best.heading_deg)}", err=True)
         if request.truth is not None:

@@ -97,6 +97,20 @@ def _manifest_for(mask: Path) -> tuple[ClassTable, dict[str, Any], Path] | None:
     return None
 
 
+def manifest_bounds_3857(mask: Path) -> tuple[tuple[float, float, float, float], tuple[int, int]] | None:
+    """The Web Mercator bounds (left, bottom, right, top) and shape (rows, cols) of a dataset
+    mask, from the manifest of the osmseg dataset listing it; None when there is none."""
+    found = _manifest_for(mask)
+    if found is None:
+        return None
+    _, sample, _ = found
+    bounds = sample.get("bounds_3857")
+    if not isinstance(bounds, list) or len(bounds) != 4:
+        return None
+    shape = read_raster(mask).pixels.shape[:2]
+    return (float(bounds[0]), float(bounds[1]), float(bounds[2]), float(bounds[3])), (int(shape[0]), int(shape[1]))
+
+
 def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: SideOptions, dictionary: Any,
                rgb: np.ndarray | None, table: ClassTable | None) -> Side:
     """Landmarks of a label mask, with the best background at hand (RGB image, class colours)."""

@@ -204,6 +204,32 @@ class LocalizeReport:
     written: list[Path] = field(default_factory=list)
 
 
+def answer_lonlat(aerial: Path, xy: tuple[float, float]) -> tuple[float, float] | None:
+    """Longitude and latitude of aerial pixel ``xy`` when the aerial file is georeferenced: a
+    GeoTIFF with a CRS, or a mask of an osmseg dataset (its manifest's ``bounds_3857``); else None."""
+    if aerial.suffix.lower() in (".tif", ".tiff"):
+        import rasterio
+        from rasterio.warp import transform as warp
+
+        try:
+            with rasterio.open(aerial) as ds:
+                if ds.crs is None:
+                    return None
+                x, y = ds.transform * (xy[0] + 0.5, xy[1] + 0.5)
+                lon, lat = warp(ds.crs, "EPSG:4326", [x], [y])
+                return float(lon[0]), float(lat[0])
+        except rasterio.errors.RasterioIOError:
+            return None
+    from localization.inputs import manifest_bounds_3857
+    from osmseg.grid import pixel_lonlat
+
+    found = manifest_bounds_3857(aerial)
+    if found is None:
+        return None
+    bounds, shape = found
+    return pixel_lonlat(bounds, shape, xy)
+
+
 def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path | None = None) -> LocalizeReport:
     """Read both sides, localize, and (with ``out_dir``) write ``result.json`` and the pictures."""
     aerial = load_side(request.aerial, request.aerial_options)
@@ -230,6 +256,8 @@ def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path
     error_px, error_m = result.error(truth, resolution)
     if truth is not None:
         summary["truth"] = {"x": truth[0], "y": truth[1], "error_px": error_px, "error_m": error_m}
+    if result.map_xy is not None and (where := answer_lonlat(request.aerial, result.map_xy)) is not None:
+        summary["map_lonlat"] = {"lon": round(where[0], 7), "lat": round(where[1], 7)}
     report = LocalizeReport(result, aerial, ground, error_px, error_m, summary)
     if out_dir is not None:
         report.written.extend(_pictures(out_dir, report, config, resolution))

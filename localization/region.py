@@ -44,12 +44,12 @@ import numpy as np
 
 from localization.landmarks import LandmarkClasses
 from localization.pipeline import profile_index, profile_query, run_profile
-from localization.profile import Camera, SemanticMap, semantic_map
+from localization.profile import MASK_MIN_CONFIDENCE, Camera, SemanticMap, semantic_map
 from localization.region_cache import BlockMasks
 from localization.search import ProfileConfig, class_prior, grid_positions
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
-from osmseg.grid import SampleGrid, ground_resolution
+from osmseg.grid import SampleGrid, ground_resolution, pixel_lonlat
 from osmseg.progress import Progress, track
 from osmseg.shard import Shard
 
@@ -132,6 +132,8 @@ class RegionResult:
         return {"type": "FeatureCollection", "features": features,
                 "properties": {"bbox": list(self.config.bbox), "zoom": self.config.zoom, "blocks": self.blocks,
                                "distinct_m": self.config.distinct_m,
+                               "sure": None if self.best is None or self.best.confidence is None
+                               else self.best.confidence >= MASK_MIN_CONFIDENCE,
                                "margin": None if margin is None else round(margin, 5)}}
 
 
@@ -373,20 +375,3 @@ def _spaced(found: Sequence[Answer], k: int, min_m: float) -> list[Answer]:
             if len(out) == k:
                 break
     return out
-
-
-def pixel_lonlat(bounds: tuple[float, float, float, float], shape: tuple[int, int],
-                 xy: tuple[float, float]) -> tuple[float, float]:
-    """Longitude and latitude of pixel ``(x, y)`` (centres at integers) of a ``shape`` mask whose
-    Web Mercator ``bounds`` are (left, bottom, right, top).
-
-    >>> b = (*mercantile.xy(0.0, -0.001), *mercantile.xy(0.002, 0.001))
-    >>> [round(v, 6) for v in pixel_lonlat(b, (200, 200), (99.5, 99.5))]
-    [0.001, 0.0]
-    """
-    left, bottom, right, top = bounds
-    height, width = shape
-    x = left + (xy[0] + 0.5) * (right - left) / width
-    y = top - (xy[1] + 0.5) * (top - bottom) / height
-    lon, lat = mercantile.lnglat(x, y)
-    return lon, lat

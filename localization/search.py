@@ -58,7 +58,11 @@ from localization.profile import QueryProfile
 from localization.result import Localization, unanswered
 from osmseg.errors import ConfigError
 
-__all__ = ["ProfileConfig", "AerialIndex", "grid_positions", "score_positions", "score_poses", "localize_profile"]
+__all__ = ["UNKNOWN_HEIGHTS", "ProfileConfig", "AerialIndex", "grid_positions", "score_positions", "score_poses", "localize_profile"]
+
+
+#: the camera heights tried when the height is not known (m): a hand-held camera to a car-mounted one
+UNKNOWN_HEIGHTS = (1.6, 2.0, 2.4)
 
 
 @dataclass(frozen=True)

@@ -215,3 +215,20 @@ def ground_pixel_size(crs: Any, transform: Affine, width: int, height: int) -> f
     down = geod.inv(lon[0], lat[0], lon[2], lat[2])[2]
     size = (right + down) / 2
     return round(size, 4) if math.isfinite(size) and size > 0 else None
+
+
+def pixel_lonlat(bounds: tuple[float, float, float, float], shape: tuple[int, int],
+                 xy: tuple[float, float]) -> tuple[float, float]:
+    """Longitude and latitude of pixel ``(x, y)`` (centres at integers) of a ``shape`` mask whose
+    Web Mercator ``bounds`` are (left, bottom, right, top).
+
+    >>> b = (*mercantile.xy(0.0, -0.001), *mercantile.xy(0.002, 0.001))
+    >>> [round(v, 6) for v in pixel_lonlat(b, (200, 200), (99.5, 99.5))]
+    [0.001, 0.0]
+    """
+    left, bottom, right, top = bounds
+    height, width = shape
+    x = left + (xy[0] + 0.5) * (right - left) / width
+    y = top - (xy[1] + 0.5) * (top - bottom) / height
+    lon, lat = mercantile.lnglat(x, y)
+    return lon, lat

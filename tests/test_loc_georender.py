@@ -475,7 +475,7 @@ def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> N
     import mercantile
     import rasterio
 
-    from localization.cli import UNKNOWN_HEIGHTS
+    from localization.search import UNKNOWN_HEIGHTS
     from localization.georender_osm import scene_from_osm
     from localization.landmarks import load_landmark_classes
     from localization.pipeline import profile_index, run_profile
@@ -506,3 +506,21 @@ def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> N
     assert loc.camera_pose is not None
     height, pitch, roll = loc.camera_pose
     assert height == 2.4 and abs(pitch - 2.0) <= 1.0 and abs(roll - 1.0) <= 1.0
+    # the same through the command line, on the GeoTIFF: the answer also in degrees
+    from click.testing import CliRunner
+
+    from localization.region import distance_m
+    from osmseg.cli.main import cli
+
+    Image.fromarray(np.where(view == sky, table.unlabeled.id, view).astype(np.uint8)).save(tmp_path / "query.png")
+    res = CliRunner().invoke(cli, ["localize", "--aerial", str(tif), "--aerial-table", "classes13.toml", "--ground",
+                                   str(tmp_path / "query.png"), "--ground-classes", "aerial13", "--ground-table",
+                                   "classes13.toml", "--camera-height", "unknown", "--tilt", "2",
+                                   "--min-confidence", "-1", "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert distance_m((out["map_lonlat"]["lon"], out["map_lonlat"]["lat"]), (lon, lat)) <= 2.0
+    assert out["camera_pose"][0] == 2.4
+    bad = CliRunner().invoke(cli, ["localize", "--aerial", str(tif), "--ground", str(tmp_path / "query.png"),
+                                   "--camera-height", "tall"])
+    assert bad.exit_code == 2 and "'unknown'" in bad.output
