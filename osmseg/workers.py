@@ -47,7 +47,7 @@ import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from queue import Empty
@@ -61,7 +61,7 @@ from osmseg.errors import DatasetError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
 from osmseg.output.overview import OVERVIEW_SAMPLES
-from osmseg.processes import stop_unless_deferred, worker_context
+from osmseg.processes import interrupts_deferred, stop_unless_deferred, worker_context
 from osmseg.records import SlotOutcome
 from osmseg.slots import Pipeline, http_config, open_pipeline, run_slot
 from osmseg.state import BuildState
@@ -337,7 +337,7 @@ class SlotRunner:
         queue = iter(slots)
         limit = self.workers * (1 + QUEUED_PER_WORKER)
         submit: Callable[[int], Future[SlotOutcome]] = lambda s: pool.submit(_build_slot, s, first.may_show(s))
-        with _interrupts_deferred():  # the first submits start the worker processes
+        with interrupts_deferred():  # the first submits start the worker processes
             for slot in queue:
                 pending.add(submit(slot))
                 if len(pending) >= limit:
@@ -353,36 +353,6 @@ class SlotRunner:
                 pending.add(submit(slot))
                 if len(pending) >= limit:
                     break
-
-
-@contextmanager
-def _interrupts_deferred() -> Iterator[None]:
-    """Hold a Ctrl-C (and a SIGTERM the command line turned into an exception) back until the
-    block is done, then deliver it to the handler that was there.
-
-    Around the submits that start worker processes: interrupted between the fork server's fork
-    and the pool noting the new process, the build would stop without stopping that worker, which
-    then fails to unpickle its start-up data (the build's semaphores are gone) with a traceback.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[tuple[int, Any]] = []
-    # SIGINT unless ignored; SIGTERM where the command line made it an exception (else it kills at once)
-    deferred = [s for s in (signal.SIGINT, signal.SIGTERM)
-                if signal.getsignal(s) != signal.SIG_IGN and (s == signal.SIGINT or callable(signal.getsignal(s)))]
-    previous = {s: signal.signal(s, lambda signum, frame: caught.append((signum, frame))) for s in deferred}
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-        if caught:
-            handler = previous[signal.Signals(caught[0][0])]
-            if callable(handler):
-                handler(*caught[0])  # Python's default SIGINT handler raises KeyboardInterrupt
-            else:  # SIGINT set to its default action: what Python's own handler would have raised
-                raise KeyboardInterrupt
 
 
 def _kill(pool: ProcessPoolExecutor) -> None:

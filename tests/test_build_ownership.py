@@ -316,6 +316,36 @@ def test_a_run_sweeps_the_temporary_folders_of_ended_runs_only(tmp_path: Path) -
     shutil.rmtree(tmpdir)
 
 
+#: A signal whose handler runs inside a finalizer (here a ``__del__``), where Python drops its exception.
+STOP_IN_A_FINALIZER = """
+import os, signal, sys, time
+from osmseg.processes import Terminated, terminate_by_exception
+terminate_by_exception()
+stop = {"SIGINT": signal.SIGINT, "SIGTERM": signal.SIGTERM}[sys.argv[1]]
+
+class Finalized:
+    def __del__(self):
+        os.kill(os.getpid(), stop)  # the handler runs before os.kill returns: inside __del__
+
+try:
+    Finalized()
+    for _ in range(200):
+        time.sleep(0.01)
+    print("went on")
+except (KeyboardInterrupt, Terminated) as stopped:
+    print(type(stopped).__name__)
+"""
+
+
+def test_a_ctrl_c_or_sigterm_whose_handler_runs_in_a_finalizer_still_stops_the_command() -> None:
+    """What CI hit: a SIGTERM whose handler ran in a weakref callback during training was printed as
+    "Exception ignored" and dropped, and the run went on to its last epoch and exited 0."""
+    for stop, raised in (("SIGTERM", "Terminated"), ("SIGINT", "KeyboardInterrupt")):
+        run = subprocess.run([sys.executable, "-c", STOP_IN_A_FINALIZER, stop], capture_output=True, text=True,
+                             timeout=60, cwd=Path(__file__).resolve().parents[1])
+        assert (run.stdout, run.stderr) == (raised + "\n", "")
+
+
 def test_a_ctrl_c_or_sigterm_while_signals_are_held_arrives_as_the_block_ends() -> None:
     """What the command line's imports run under (the exit status of a Ctrl-C in a compiled
     module's start, above): the signal is neither lost nor delivered inside the block."""

@@ -191,3 +191,31 @@ def test_spec_checks_its_fields(spec: ModelSpec) -> None:
     with pytest.raises(ConfigError, match="ignore_index"):
         replace(spec, ignore_index=9)
     assert spec.palette()[1].tolist() == spec.class_table["classes"][1]["color"]
+
+
+def test_a_sigterm_while_a_checkpoint_is_written_lets_the_write_finish_then_stops(
+        spec: ModelSpec, trained: tuple[SegNet, torch.optim.Optimizer], tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """What CI hit: a SIGTERM inside torch.save's zip writer surfaced as torch's own RuntimeError
+    ("unexpected pos") with a traceback, instead of the command's one line and exit 143."""
+    import signal
+
+    from osmseg.processes import Terminated, terminate_by_exception
+
+    model, _ = trained
+    real_save = torch.save
+
+    def killed_while_saving(obj: Any, f: Any) -> None:
+        os.kill(os.getpid(), signal.SIGTERM)  # Python runs the handler before this line returns
+        real_save(obj, f)
+
+    monkeypatch.setattr(torch, "save", killed_while_saving)
+    before = signal.getsignal(signal.SIGTERM)
+    terminate_by_exception()
+    try:
+        with pytest.raises(Terminated):
+            save_checkpoint(tmp_path / "best.pt", {"spec": spec, "model": model.state_dict(), "epoch": 4})
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert os.listdir(tmp_path) == ["best.pt"]  # whole, and no temporary file left
+    assert load_checkpoint(tmp_path / "best.pt")["epoch"] == 4

@@ -33,6 +33,7 @@ import torch
 from torch import Tensor
 
 from osmseg.errors import ConfigError
+from osmseg.processes import interrupts_deferred
 from training.distributed import pick_device
 from training.errors import CheckpointError
 from training.model import SegNet, build_model, load_encoder_weights
@@ -96,11 +97,12 @@ def save_checkpoint(path: Path, state: Mapping[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")  # open() honours the umask
     try:
-        with tmp.open("xb") as f:
-            torch.save(payload, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        with interrupts_deferred():  # a Ctrl-C or SIGTERM inside torch.save's zip writer surfaces as its error
+            with tmp.open("xb") as f:
+                torch.save(payload, f)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
