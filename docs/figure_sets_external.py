@@ -441,3 +441,18 @@ def region(ws: Workspace) -> dict[str, Figure]:
         "region.blocks": F(count(first["blocks"])),
         "region.baseline": F(metres(first["baseline_random_street_median_m"])),
     }
+
+
+@figure_set("memory", "expensive", needs="shared data")
+def memory(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/localize_memory.py: the resident memory of one `osmseg localize` command on Kotka masks of 1280² and 6400²"""
+    m = benchmark(ws, "localize_memory.py", "--work", str(ws.root / "localize-memory"))
+    rows = [[f"{r['size_px']}²", r["method"], count(round(r["max_rss_mb"])), count(round(r["above_base_mb"])),
+             f"{r['bytes_per_px']:.1f}", seconds(r["seconds"])] for r in m["runs"]]
+    return {
+        "memory.table": F(table(["mask", "method", "max RSS MB", "above the interpreter MB", "bytes per pixel",
+                                 "time"], rows), r"(?m)\| [\d,]+ \| [\d,]+ \| [\d.]+ \| [\d.,]+ s \|$"),
+        "memory.base": F(count(round(m["base_mb"]))),
+        "memory.slope": F(" and ".join(f"{v:.1f} ({k})" for k, v in m["bytes_per_further_px"].items()),
+                          r"[\d.]+"),
+    }

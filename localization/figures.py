@@ -64,6 +64,11 @@ def class_colours(classes: Sequence[str]) -> list[str]:
     return out
 
 
+#: The most pixels across a background is drawn from: more than the picture holds (MAX_INCHES at its dpi),
+#: and a 6400 px mask drawn whole took 2.6 GB in matplotlib.
+MAX_BACKGROUND_PX = 2048
+
+
 def _size(width: int, height: int, extra: float = 0.6) -> tuple[float, float]:
     scale = MAX_INCHES / max(width, height, 1)
     return max(3.0, width * scale), max(1.5, height * scale) + extra
@@ -75,7 +80,8 @@ def _background(ax: Axes, image: np.ndarray | None, width: int, height: int) -> 
         if img.shape[:2] != (height, width):
             raise ConfigError(f"background of {img.shape[1]}x{img.shape[0]} px does not match the "
                               f"landmarks' image of {width}x{height} px")
-        ax.imshow(img, cmap="gray" if img.ndim == 2 else None, interpolation="antialiased",
+        step = -(-max(height, width) // MAX_BACKGROUND_PX)  # matplotlib holds several float copies of what it draws
+        ax.imshow(img[::step, ::step], cmap="gray" if img.ndim == 2 else None, interpolation="antialiased",
                   extent=(-0.5, width - 0.5, height - 0.5, -0.5))
     else:
         ax.add_patch(Rectangle((-0.5, -0.5), width, height, color="0.93", zorder=0))

@@ -114,7 +114,7 @@ def manifest_bounds_3857(mask: Path) -> tuple[tuple[float, float, float, float],
 def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: SideOptions, dictionary: Any,
                rgb: np.ndarray | None, table: ClassTable | None) -> Side:
     """Landmarks of a label mask, with the best background at hand (RGB image, class colours)."""
-    from localization.landmarks import landmarks_from_mask
+    from localization.landmarks import landmarks_from_mask, panorama_table
     from localization.profile import semantic_map
 
     background = rgb
@@ -128,9 +128,11 @@ def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: S
             image = next((root / rel for rel in sorted(sample["files"]) if rel.startswith("images/")), None)
             if background is None and image is not None and image.is_file():
                 background = _drawable(_read_image(image)[0])  # the sample's photo, whatever its format
+    if table is not None and opts.name == "ground" and max(table.by_id) < 255:
+        table = panorama_table(table)  # a view from the ground may show the sky, as the renderers draw it
     ids: Any = {c.id: c.name for c in table.by_id.values()} if table is not None else None
     colours = {c.id: c.color for c in table.by_id.values()} if table is not None else {}
-    mask = pixels.astype(np.int64)
+    mask = pixels if np.issubdtype(pixels.dtype, np.integer) else pixels.astype(np.int64)  # not 8 bytes a pixel
     lm = landmarks_from_mask(mask, ids, dictionary, mode=opts.mode, stride=opts.grid_stride,
                              min_size=opts.min_size, panorama=opts.panorama)
     paint: Callable[[], np.ndarray] | None = None

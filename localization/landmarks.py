@@ -46,12 +46,12 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from osmseg.classes import ClassTable, load_class_table
+from osmseg.classes import ClassDef, ClassTable, load_class_table
 from osmseg.errors import ClassTableError, ConfigError
 from osmseg.datafiles import DATA_DIR, load_toml
 
-__all__ = ["MODES", "PAPER_CLASSES", "LandmarkClasses", "Landmarks", "landmarks_from_mask",
-           "landmark_dictionary_path", "load_landmark_classes"]
+__all__ = ["MODES", "PAPER_CLASSES", "SKY_COLOR", "SKY_NAME", "LandmarkClasses", "Landmarks", "landmarks_from_mask",
+           "landmark_dictionary_path", "load_landmark_classes", "panorama_table"]
 
 #: The landmark classes of Verde et al. (2020), in the order the dictionaries list them.
 PAPER_CLASSES = ("building", "road", "vegetation", "footway")
@@ -265,10 +265,11 @@ def landmarks_from_mask(mask: np.ndarray, mask_table: ClassTable | Mapping[int, 
     xy: list[np.ndarray] = []
     cls: list[np.ndarray] = []
     pixels: list[np.ndarray] = []
-    landmark_of = lut[mask]
+    landmark_of = (lut.astype(np.int8) if len(classes.names) < 127 else lut)[mask]  # 1 byte a pixel
     for c in range(len(classes.names)):
         labels, n = ndimage.label(landmark_of == c, structure=_EIGHT)
         if n == 0:
+            del labels  # not two int32 label images at once
             continue
         if panorama:
             labels, n = _merge_across_seam(labels, n)
@@ -279,6 +280,7 @@ def landmarks_from_mask(mask: np.ndarray, mask_table: ClassTable | Mapping[int, 
             pixels.extend(_pixels(labels, n, kept))
         xy.append(comp_xy)
         cls.append(np.full(len(comp_xy), c, dtype=np.int64))
+        del labels
     return Landmarks(xy=np.concatenate(xy) if xy else np.zeros((0, 2)),
                      cls=np.concatenate(cls) if cls else np.zeros(0, dtype=np.int64),
                      classes=classes.names, width=width, height=height,
@@ -311,7 +313,7 @@ def _landmark_lut(mask: np.ndarray, mask_table: ClassTable | Mapping[int, str] |
     if unknown:
         raise ConfigError(f"landmark dictionary {classes.name!r} maps classes {unknown} that {table_name} does not "
                           "have: use the dictionary made for this class table")
-    present = np.unique(mask)
+    present = _values_present(mask)
     stray = [int(v) for v in present if int(v) not in ids]
     if stray:
         raise ConfigError(f"the mask has label values {stray[:10]} that {table_name} does not define: pass the class "
@@ -322,6 +324,21 @@ def _landmark_lut(mask: np.ndarray, mask_table: ClassTable | Mapping[int, str] |
         if target is not None:
             lut[value] = classes.names.index(target)
     return lut
+
+
+def _values_present(mask: np.ndarray, rows: int = 512) -> np.ndarray:
+    """The distinct values of an integer ``mask``, sorted: ``np.unique`` without its sorted copy of
+    the whole mask (eight bytes a pixel for a large aerial mask), counted ``rows`` rows at a time.
+
+    >>> _values_present(np.array([[3, 1], [1, 0]], dtype=np.uint8)).tolist()
+    [0, 1, 3]
+    """
+    if mask.dtype.kind != "u" or mask.dtype.itemsize > 2:
+        return np.unique(mask)
+    counts = np.zeros(1 << (8 * mask.dtype.itemsize), dtype=np.int64)
+    for top in range(0, mask.shape[0], rows):
+        counts += np.bincount(mask[top:top + rows].ravel(), minlength=len(counts))
+    return np.flatnonzero(counts).astype(mask.dtype)
 
 
 def _merge_across_seam(labels: np.ndarray, n: int) -> tuple[np.ndarray, int]:
@@ -343,9 +360,24 @@ def _merge_across_seam(labels: np.ndarray, n: int) -> tuple[np.ndarray, int]:
     return new[labels], len(keep_order)
 
 
+#: Rows of an aerial mask's component labels summed at once by :func:`_centroids`.
+CENTROID_ROWS = 256
+
+
 def _centroids(labels: np.ndarray, n: int, min_size: int, panorama: bool) -> tuple[np.ndarray, np.ndarray]:
     """Labels of the components of at least ``min_size`` pixels, and their ``(x, y)`` centroids."""
     width = labels.shape[1]
+    if not panorama:  # an aerial mask: its sums row block by row block (the same sums: integers, exact)
+        sizes, sum_x, sum_y = np.zeros(n + 1, dtype=np.int64), np.zeros(n + 1), np.zeros(n + 1)
+        for top in range(0, labels.shape[0], CENTROID_ROWS):
+            flat = labels[top:top + CENTROID_ROWS].ravel()
+            rows = len(flat) // width
+            sizes += np.bincount(flat, minlength=n + 1)
+            sum_x += np.bincount(flat, weights=np.tile(np.arange(width, dtype=np.float64), rows), minlength=n + 1)
+            sum_y += np.bincount(flat, weights=np.repeat(np.arange(top, top + rows, dtype=np.float64), width),
+                                 minlength=n + 1)
+        kept = np.flatnonzero(sizes[1:] >= max(min_size, 1)) + 1
+        return kept, np.stack([sum_x[kept] / sizes[kept], sum_y[kept] / sizes[kept]], axis=1)
     flat = labels.ravel()
     where = np.flatnonzero(flat)
     lab = flat[where]
@@ -354,16 +386,16 @@ def _centroids(labels: np.ndarray, n: int, min_size: int, panorama: bool) -> tup
     kept = np.flatnonzero(sizes[1:] >= max(min_size, 1)) + 1
     cx = np.bincount(lab, weights=xs, minlength=n + 1)[kept] / sizes[kept]
     cy = np.bincount(lab, weights=ys, minlength=n + 1)[kept] / sizes[kept]
-    if panorama:  # components touching both edges: circular mean of x, from their column histograms
-        wraps = np.isin(kept, np.intersect1d(labels[:, 0], labels[:, -1]))
-        if wraps.any():
-            row = np.full(n + 1, -1)
-            row[kept[wraps]] = np.arange(wraps.sum())
-            r = row[lab]
-            hist = np.bincount(r[r >= 0] * width + xs[r >= 0], minlength=int(wraps.sum()) * width)
-            angle = 2 * np.pi * np.arange(width) / width
-            hist = hist.reshape(-1, width).astype(np.float64)
-            cx[wraps] = _circular_x(hist @ np.sin(angle), hist @ np.cos(angle), width)
+    # a panorama: components touching both edges get the circular mean of x, from their column histograms
+    wraps = np.isin(kept, np.intersect1d(labels[:, 0], labels[:, -1]))
+    if wraps.any():
+        row = np.full(n + 1, -1)
+        row[kept[wraps]] = np.arange(wraps.sum())
+        r = row[lab]
+        hist = np.bincount(r[r >= 0] * width + xs[r >= 0], minlength=int(wraps.sum()) * width)
+        angle = 2 * np.pi * np.arange(width) / width
+        hist = hist.reshape(-1, width).astype(np.float64)
+        cx[wraps] = _circular_x(hist @ np.sin(angle), hist @ np.cos(angle), width)
     return kept, np.stack([cx, cy], axis=1)
 
 
@@ -407,3 +439,27 @@ def _grid_points(labels: np.ndarray, kept: np.ndarray, centroids: np.ndarray, st
 
 def _is_int(value: object) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+#: The class a ground view shows above everything (:func:`panorama_table`), and its colour.
+SKY_NAME = "sky"
+SKY_COLOR = (135, 206, 250)
+
+
+def panorama_table(table: ClassTable | Mapping[str, object] | str) -> ClassTable:
+    """The aerial class table plus ``sky`` (next free id), unless it already has a sky class: what a
+    view from the ground shows (the renderers draw it; ``osmseg localize`` reads a ground mask so).
+
+    >>> t = panorama_table("classes13.toml")
+    >>> t.by_name["sky"].id, t.by_name["building"].id, t.name
+    (14, 1, 'osm13+sky')
+    """
+    base = table if isinstance(table, ClassTable) else (
+        load_class_table(table) if isinstance(table, str) else ClassTable.from_dict(table))
+    if SKY_NAME in base.by_name:
+        return base
+    sky_id = max(c.id for c in (base.unlabeled, *base.classes)) + 1
+    if sky_id > 255:
+        raise ConfigError("class table has no free id for the sky class (ids must stay <= 255)")
+    sky = ClassDef(id=sky_id, name=SKY_NAME, color=SKY_COLOR)
+    return dataclasses.replace(base, name=f"{base.name}+{SKY_NAME}", classes=(*base.classes, sky))

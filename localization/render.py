@@ -64,9 +64,9 @@ from typing import Any
 
 import numpy as np
 
-from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask
+from localization.landmarks import SKY_COLOR, SKY_NAME, LandmarkClasses, Landmarks, landmarks_from_mask, panorama_table
 from localization.profile import check_view_shape
-from osmseg.classes import ClassDef, ClassTable, load_class_table
+from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError
 
 __all__ = [
@@ -77,8 +77,6 @@ __all__ = [
 
 #: Heights in metres of the classes that stand up from the ground (by class name); others are 0.
 DEFAULT_HEIGHTS: Mapping[str, float] = {"building": 10.0, "tree": 6.0}
-SKY_NAME = "sky"
-SKY_COLOR = (135, 206, 250)
 
 
 @dataclass(frozen=True)
@@ -174,23 +172,6 @@ def _as_table(table: ClassTable | Mapping[str, Any] | str) -> ClassTable:
     if isinstance(table, str):
         return load_class_table(table)
     return ClassTable.from_dict(table)
-
-
-def panorama_table(table: ClassTable | Mapping[str, Any] | str) -> ClassTable:
-    """The aerial class table plus ``sky`` (next free id), unless it already has a sky class.
-
-    >>> t = panorama_table("classes13.toml")
-    >>> t.by_name["sky"].id, t.by_name["building"].id, t.name
-    (14, 1, 'osm13+sky')
-    """
-    base = _as_table(table)
-    if SKY_NAME in base.by_name:
-        return base
-    sky_id = max(c.id for c in (base.unlabeled, *base.classes)) + 1
-    if sky_id > 255:
-        raise ConfigError("class table has no free id for the sky class (ids must stay <= 255)")
-    sky = ClassDef(id=sky_id, name=SKY_NAME, color=SKY_COLOR)
-    return dataclasses.replace(base, name=f"{base.name}+{SKY_NAME}", classes=(*base.classes, sky))
 
 
 # --------------------------------------------------------------------------- panorama geometry
@@ -437,13 +418,18 @@ def render_view(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str, r
 
 
 def save_panorama_png(path: Path | str, panorama: Panorama) -> Path:
-    """Write the panorama in its class colours as an RGB PNG (atomic, no timestamp)."""
+    """Write the panorama as a paletted PNG (atomic, no timestamp): its pixels are the class ids, its
+    palette the class colours, so a viewer shows the colours and ``osmseg localize --ground`` takes
+    the file as a query mask, as GDAL and PIL read it as one band of ids."""
     import io
 
     from PIL import Image
 
     from osmseg.output.atomic import atomic_write_bytes
 
+    labels = np.ascontiguousarray(panorama.labels, dtype=np.uint8)  # class ids are 0-255 (ClassTable)
+    image = Image.frombytes("P", (labels.shape[1], labels.shape[0]), labels.tobytes())
+    image.putpalette(panorama.table.palette().tobytes())
     buf = io.BytesIO()
-    Image.fromarray(panorama.rgb()).save(buf, format="PNG")
+    image.save(buf, format="PNG")
     return atomic_write_bytes(Path(path), buf.getvalue())

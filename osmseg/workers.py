@@ -359,6 +359,7 @@ def _kill(pool: ProcessPoolExecutor) -> None:
     """Stop a pool at once: drop queued tasks, ask the workers to stop (SIGTERM: a slot being built
     unwinds and removes its temporary files), kill those still there after a moment, reap them."""
     processes = list((getattr(pool, "_processes", None) or {}).values())  # before shutdown forgets them
+    manager = getattr(pool, "_executor_manager_thread", None)  # so does it this thread
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
         if process.is_alive():
@@ -370,3 +371,5 @@ def _kill(pool: ProcessPoolExecutor) -> None:
             process.kill()
             process.join(timeout=10)
     pool.shutdown(wait=True)
+    if manager is not None:  # ended, its wakeup pipe closed: else the interpreter's exit may write to that pipe
+        manager.join(timeout=10)  # as the thread closes it, "Bad file descriptor" (CPython gh-109370, 3.11)

@@ -261,6 +261,12 @@ def test_bench_end_to_end_on_a_constructed_town(tmp_path: Path) -> None:
     results = run_bench([scene], config, tmp_path)
     _check_results(results, 3, tmp_path)
     assert len(list((tmp_path / "panoramas").glob("*.png"))) == 1
+    # the saved panorama holds the class ids (so it can be a query mask) and shows the class colours
+    first = results["viewpoints"][0]
+    drawn = render_view(scene.mask, TABLE, RES, tuple(first["truth"]), CLASSES).panorama
+    with Image.open(tmp_path / "panoramas" / "0000_town.png") as im:
+        assert im.mode == "P" and np.array_equal(np.asarray(im), drawn.labels)
+        assert np.array_equal(np.asarray(im.convert("RGB")), panorama_table(TABLE).colorize(drawn.labels))
     views = sorted(p.name for p in (tmp_path / "views").glob("*.png"))
     assert views == ["0000_town_map.png", "0000_town_panorama.png", "0001_town_map.png", "0001_town_panorama.png"]
     with Image.open(tmp_path / "views" / "0000_town_map.png") as im:  # the 400 px mask, drawn with its legend
@@ -405,3 +411,40 @@ def test_bench_with_visible_query_landmarks(tmp_path: Path) -> None:
     assert rec["query_landmarks"] == len(visible_landmarks(pano, cells, lm)[0])
     with pytest.raises(ConfigError, match="mask landmarks"):
         BenchConfig(query_landmarks="visible", noise=NoiseConfig(confusion=0.2))
+
+
+def test_aerial_landmarks_of_a_byte_mask_are_those_of_the_same_mask_in_int64() -> None:
+    """The one-byte path for large masks (row-block centroids, a byte lookup) finds the same points."""
+    mask = np.tile(town(400, seed=3), (2, 3))  # more rows than one block of centroid sums
+    for mode in ("centroid", "grid"):
+        small = landmarks_from_mask(mask, TABLE, CLASSES, mode=mode)
+        wide = landmarks_from_mask(mask.astype(np.int64), TABLE, CLASSES, mode=mode)
+        assert len(small.xy) > 50 and np.array_equal(small.xy, wide.xy) and np.array_equal(small.cls, wide.cls)
+    strip = np.full((4, 600), B, np.uint8)
+    strip[0] = GRASS  # apart from the town above: rows 597-599 alone
+    one = landmarks_from_mask(np.vstack([mask[:596, :600], strip]), TABLE, CLASSES)
+    assert any(np.allclose(p, (299.5, 598.0)) for p in one.xy)  # the bottom strip's centre, by hand
+
+
+def test_a_saved_panorama_is_a_query_the_localize_command_takes(tmp_path: Path) -> None:
+    """What a user does next: the bench's saved panorama (sky and all) given to ``osmseg localize``."""
+    from localization.cli import localize_command
+
+    mask_file = tmp_path / "town.png"
+    Image.fromarray(town(seed=4)).save(mask_file)
+    runner = CliRunner()
+    res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", str(RES), "--out", str(tmp_path / "b"),
+                                                 "--viewpoints", "1", "--method", "profile", "--no-negatives",
+                                                 "--no-plots", "--save-panoramas", "1"], obj={"verbosity": -1})
+    assert res.exit_code == 0, res.output
+    truth = json.loads((tmp_path / "b" / "results.json").read_text())["viewpoints"][0]["truth"]
+    pano = tmp_path / "b" / "panoramas" / "0000_town.png"
+    with Image.open(pano) as im:
+        assert SKY in np.asarray(im)  # a class the aerial table does not have
+    tables = ["--aerial-classes", "aerial13", "--aerial-table", "classes13.toml",
+              "--ground-classes", "aerial13", "--ground-table", "classes13.toml"]
+    res = runner.invoke(localize_command, ["--ground", str(pano), "--aerial", str(mask_file), "--resolution", str(RES),
+                                           *tables, "--out", str(tmp_path / "loc")], obj={"verbosity": -1})
+    assert res.exit_code == 0, res.output
+    answer = json.loads((tmp_path / "loc" / "result.json").read_text())["map"]
+    assert math.dist((answer["x"], answer["y"]), truth) * RES < 2.0
