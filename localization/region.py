@@ -357,12 +357,15 @@ def _in_core(loc: Any, grid: SampleGrid, core: frozenset[tuple[int, int]], zoom:
     chance = loc.chance if loc.chance is not None else 0.0
     out = []
     b = grid.xy_bounds
-    for x, y, score in (*loc.top_k, *((loc.alternative,) if loc.alternative is not None else ())):
+    places = [(*place, heading) for place, heading in zip(loc.top_k, loc.headings)]
+    if loc.alternative is not None:
+        places.append((*loc.alternative, loc.alternative_heading))
+    for x, y, score, heading in places:  # each place with the heading the query fits best there
         lon, lat = pixel_lonlat((b.left, b.bottom, b.right, b.top), (grid.height, grid.width), (x, y))
         tile = mercantile.tile(lon, lat, zoom)
         if (tile.x, tile.y) in core:
             kappa = (score - chance) / (1 - chance) if chance < 1 else 0.0
-            out.append(Answer(lon, lat, score, None, loc.heading_deg, kappa, chance))
+            out.append(Answer(lon, lat, score, None, heading, kappa, chance))
     return out
 
 

@@ -107,6 +107,8 @@ class Localization:
                                                            # place at least distinct_m from the answer
     camera_pose: tuple[float, float, float] | None = None  # the profile method with the camera pose searched:
                                                            # the answer's (height m, pitch, roll degrees)
+    headings: tuple[float, ...] = ()   # the profile method: the heading at each of top_k (each place its own)
+    alternative_heading: float | None = None  # the profile method: the heading at the alternative
 
     @property
     def margin(self) -> float | None:

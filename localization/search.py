@@ -425,32 +425,41 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     # the best distinct alternative: the best place at least distinct_m from the answer, refined as it was
     far = np.hypot(*(coarse_xy - xy[best]).T) * index.resolution_m >= config.distinct_m
     alternative: tuple[float, float, float] | None = None
+    alternative_heading: float | None = None
+
+    def heading_at(shifts: np.ndarray | None, i: int) -> float:
+        """The heading (degrees) at place ``i``: the given one, or its best azimuth shift (in bins)."""
+        if query.heading_deg is not None or shifts is None:
+            return round(float(query.heading_deg or 0.0), 3) % 360.0
+        return round(float(shifts[i] * 360.0 / query.bins) % 360.0, 3) % 360.0
+
     if far.any() and np.isfinite(coarse_score[far]).any():
         rivals = np.flatnonzero(far)[_nms(coarse_xy[far], np.argsort(-coarse_score[far], kind="stable"),
                                           coarse_m / index.resolution_m, 5)]
         rivals = rivals[np.isfinite(coarse_score[rivals])]
-        r_xy, r_score, _, _ = refine(coarse_xy[rivals], coarse_score[rivals], np.zeros(len(rivals)), len(rivals),
+        r_xy, r_score, r_shift, _ = refine(coarse_xy[rivals], coarse_score[rivals], np.zeros(len(rivals)), len(rivals),
                                      spacing)
         r_far = np.hypot(*(r_xy - xy[best]).T) * index.resolution_m >= config.distinct_m
         if r_far.any():
             i = int(np.flatnonzero(r_far)[np.argmax(r_score[r_far])])
             alternative = (float(r_xy[i, 0]), float(r_xy[i, 1]), float(r_score[i]))
+            alternative_heading = heading_at(r_shift, i)
     qw = pose_query.q.sum(axis=2) * (weights if weights is not None else 1.0)
     chance = float((qw * mean).sum() / max(qw.sum(), 1e-9))
     kappa = (float(score[best]) - chance) / max(1e-9, 1.0 - chance)
     lead = float(score[best]) - chance
     confidence = (kappa if alternative is None
                   else min(1.0, max(0.0, (float(score[best]) - alternative[2]) / lead)) if lead > 0 else 0.0)
-    heading = (query.heading_deg if query.heading_deg is not None
-               else float(shift[best] * 360.0 / query.bins) % 360.0)
     picked = _nms(xy, order, coarse_m / index.resolution_m, config.top_k)
     top_k = tuple((float(xy[i, 0]), float(xy[i, 1]), float(score[i])) for i in picked)
     ties = int(np.isclose(score, score[best], rtol=1e-9, atol=1e-12).sum())
     result = Localization(candidates=xy, likelihoods=score, posteriors=score, order=order.astype(np.int64),
                           top_k=top_k, map_xy=(top_k[0][0], top_k[0][1]), ties=ties, unanswered=False,
-                          method="profile", heading_deg=round(heading, 3) % 360.0, confidence=round(confidence, 4),
+                          method="profile", heading_deg=heading_at(shift, best), confidence=round(confidence, 4),
                           kappa=round(kappa, 4), chance=round(chance, 4), alternative=alternative,
-                          camera_pose=pose_query.pose if pose_query is not query else None)
+                          camera_pose=pose_query.pose if pose_query is not query else None,
+                          headings=tuple(heading_at(shift, i) for i in picked),
+                          alternative_heading=alternative_heading)
     min_kappa = config.min_kappa if config.min_kappa is not None else index.min_kappa
     if kappa < min_kappa:
         return replace(result, unanswered=True, map_xy=None,

@@ -143,6 +143,21 @@ def test_a_look_alike_place_makes_the_answer_not_sure(scene) -> None:
     assert two.reason.startswith("not sure") and f"{away:.0f} m away" in two.reason
 
 
+def test_each_place_found_carries_its_own_heading(scene) -> None:
+    """With the heading unknown, every place of the answer (top-k, the alternative) is fitted at its
+    own heading: the town beside a copy turned a quarter turn gives headings 90 degrees apart."""
+    mask, _ = scene
+    assert mask.shape[0] == mask.shape[1]
+    turned = np.concatenate([mask, np.full((mask.shape[0], 40), GRASS, np.uint8), np.rot90(mask, k=-1)], axis=1)
+    index = profile_index(semantic_map(turned, TABLE, CLASSES), RES)
+    q = _query(mask, TRUTHS[0])
+    loc = run_profile(ProfileConfig(heading_deg=None), index, q.semantic, q.camera)
+    assert len(loc.headings) == len(loc.top_k) and loc.headings[0] == loc.heading_deg
+    assert loc.alternative is not None and loc.alternative_heading is not None
+    apart = (loc.alternative_heading - loc.heading_deg) % 360.0
+    assert min(abs(apart - 90.0), abs(apart - 270.0)) <= 5.0, (loc.heading_deg, loc.alternative_heading)
+
+
 def test_landmark_lists_on_both_sides(scene) -> None:
     """The paper's input, points only: grid points of the aerial mask, grid points of the panorama."""
     mask, _ = scene
