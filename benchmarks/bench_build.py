@@ -54,7 +54,8 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 import osmium
@@ -66,6 +67,7 @@ from rasterio.warp import reproject, transform_bounds
 from rasterio.windows import Window, from_bounds
 
 ROOT = Path(__file__).resolve().parents[1]
+R = TypeVar("R")
 sys.path.insert(0, str(ROOT))
 
 from osmseg.buildconfig import BuildConfig, available_cores  # noqa: E402
@@ -232,7 +234,7 @@ def floor_per_sample(tif: Path, cache: Path, samples: int,
     parts = dict.fromkeys(FLOOR_PARTS, 0.0)
     pillow, remapped, t_read, t_bare = 0.0, 0.0, [], []
 
-    def timed_cpu(part: str, fn):  # type: ignore[no-untyped-def]
+    def timed_cpu(part: str, fn: Callable[[], R]) -> R:
         start = time.process_time()
         result = fn()
         parts[part] += time.process_time() - start

@@ -183,7 +183,7 @@ def bench(model: SegNet, height: int, width: int, batch: int, modes: list[tuple[
 
 def median(runs: list[T]) -> T:
     """The run with the median wall time (a Result or a (wall, CPU) pair)."""
-    return sorted(runs, key=lambda r: r.seconds if isinstance(r, Result) else r[0])[len(runs) // 2]
+    return sorted(runs, key=lambda r: r.seconds if isinstance(r, Result) else r[0])[len(runs) // 2]  # type: ignore[index]
 
 
 def params(model: SegNet) -> str:

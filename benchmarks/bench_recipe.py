@@ -208,7 +208,7 @@ def curves_png(results: list[dict[str, Any]], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, (loss_ax, acc_ax) = plt.subplots(1, 2, figsize=(11, 6), dpi=100)
-    colours = plt.get_cmap("tab20").colors  # a colour each for up to 20 variants
+    colours = [plt.get_cmap("tab20")(i) for i in range(20)]  # a colour each for up to 20 variants
     for i, r in enumerate(results):
         pixels, acc, loss = zip(*r["curve"], strict=True)
         style = {"label": f"{r['name']}: {r['what']}", "linewidth": 2.2 if r["name"] in ("osmseg", "paper") else 1,

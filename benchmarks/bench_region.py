@@ -103,9 +103,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if not args.osm.is_file():
         print(f"skipped: {args.osm} is absent (../shared/data holds the Kotka extract)")
         return {}
-    bbox = tuple(float(v) for v in args.bbox.split(","))
+    west, south, east, north = (float(v) for v in args.bbox.split(","))
+    bbox = (west, south, east, north)
     eye = tuple(float(v) for v in args.eye.split(","))
-    config = RegionConfig(bbox=bbox)  # type: ignore[arg-type]
+    config = RegionConfig(bbox=bbox)
     blocks = region_blocks(config)
     rng = np.random.default_rng(args.seed)
     pano = panorama_table(TABLE)

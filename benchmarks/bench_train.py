@@ -129,7 +129,7 @@ def sync(device: torch.device) -> None:
 
 
 # ------------------------------------------------------------------------------ measure
-def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> dict[str, float]:
+def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> dict[str, Any]:
     """Loop and bare throughput of one configuration, printed on two lines (and returned)."""
     reset_peak_rss()
     if case.device.type == "cuda":
@@ -159,8 +159,9 @@ def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> dict[str,
         train_set = PatchDataset(files * reps, config.patch_size, **common)  # images repeated if too few batches
 
     torch.manual_seed(seed)
-    model = build_model(spec).to(case.device, memory_format=torch.channels_last if case.channels_last
-                                 else torch.contiguous_format)
+    model = build_model(spec).to(case.device)
+    if case.channels_last:
+        model = model.to(memory_format=torch.channels_last)
     params = sum(p.numel() for p in model.parameters())
     criterion = nn.CrossEntropyLoss(weight=None if weights is None else weights.to(case.device),
                                     ignore_index=-100 if spec.ignore_index is None else spec.ignore_index)
