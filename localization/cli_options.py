@@ -12,7 +12,7 @@ import math
 from localization.search import UNKNOWN_HEIGHTS
 from osmseg.errors import ConfigError
 
-__all__ = ["parse_point", "parse_window", "parse_windows", "parse_camera_height", "parse_heading", "parse_heights"]
+__all__ = ["parse_pair", "parse_point", "parse_window", "parse_windows", "parse_camera_height", "parse_heading", "parse_heights"]
 
 
 def parse_point(value: str | None) -> tuple[float, float] | None:
@@ -23,13 +23,24 @@ def parse_point(value: str | None) -> tuple[float, float] | None:
     """
     if value is None:
         return None
+    return parse_pair(value, f"--truth must be X,Y in aerial pixels, e.g. 375,380; got {value!r}",
+                      f"--truth must be finite numbers, got {value!r}")
+
+
+def parse_pair(value: str, usage: str, not_finite: str) -> tuple[float, float]:
+    """Two comma-separated finite numbers; ConfigError ``usage`` when they are not two numbers,
+    ``not_finite`` when one is infinite or NaN.
+
+    >>> parse_pair("26.9,60.5", "give LON,LAT", "finite, please")
+    (26.9, 60.5)
+    """
     try:
-        x, y = (float(v) for v in value.split(","))
+        a, b = (float(v) for v in value.split(","))
     except ValueError:
-        raise ConfigError(f"--truth must be X,Y in aerial pixels, e.g. 375,380; got {value!r}") from None
-    if not (math.isfinite(x) and math.isfinite(y)):
-        raise ConfigError(f"--truth must be finite numbers, got {value!r}")
-    return x, y
+        raise ConfigError(usage) from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ConfigError(not_finite)
+    return a, b
 
 
 def parse_window(value: str) -> int | None:

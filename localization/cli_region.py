@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from localization.cli_options import parse_pair
 from localization.inputs import SideOptions
 from osmseg.cli.common import default_cache_dir, parse_size, progress_bars
 from osmseg.errors import ConfigError
@@ -134,13 +135,8 @@ def parse_lonlat(text: str | None) -> tuple[float, float] | None:
     """``--truth LON,LAT`` of a region search, or None."""
     if text is None:
         return None
-    try:
-        lon, lat = (float(v) for v in text.split(","))
-    except ValueError:
-        raise ConfigError(f"with --osm, --truth is LON,LAT in degrees, got {text!r}") from None
-    if not (math.isfinite(lon) and math.isfinite(lat)):
-        raise ConfigError(f"with --osm, --truth is LON,LAT in finite degrees, got {text!r}")
-    return lon, lat
+    return parse_pair(text, f"with --osm, --truth is LON,LAT in degrees, got {text!r}",
+                      f"with --osm, --truth is LON,LAT in finite degrees, got {text!r}")
 
 
 def answers_table(result: "RegionResult") -> str:
