@@ -11,8 +11,9 @@ known|unknown] [--eye 1.5,2.5] [--tilt 2] [--json PATH]``. Defaults: the Kotka e
   a seeded compass heading, an eye height drawn from ``--eye`` and pitch and roll from
   ``±--tilt`` degrees. The method is told none of these: it assumes a 2 m camera, level, and
   (with ``--heading unknown``) searches the heading; with ``--search-pose`` it is told that
-  height and tilt are unknown and searches them too (1.6, 2.0, 2.4 m; pitch and roll within
-  ``±--tilt`` in 1° steps).
+  height and tilt are unknown: it reads the tilt from the view's horizon (within ``±--tilt``,
+  :mod:`localization.horizon`) and searches the height (1.5 to 2.5 m). The view keeps its sky,
+  as a segmented photo shows it.
 * **Search**: :func:`localization.region.search_region` over the whole ``--bbox``, the drawn
   blocks cached in a temporary folder, so the first query draws the region and the others
   read it (``s/query`` is reported for both).
@@ -37,6 +38,8 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +64,37 @@ KOTKA = ROOT.parent / "shared" / "data" / "helsinki-osm" / "kotka.osm.pbf"
 KOTKA_BBOX = (26.93, 60.52, 26.97, 60.54)
 TABLE = load_class_table("classes13.toml")
 CLASSES = load_landmark_classes("aerial13")
+PANO = panorama_table(TABLE)   # the views' classes: the table's and the sky
+
+
+@dataclass(frozen=True)
+class View:
+    """One benchmark view: where it stands (degrees), how the camera was held, and its pixels (PANO ids)."""
+
+    lon: float
+    lat: float
+    heading: float
+    eye_m: float
+    pitch: float
+    roll: float
+    pixels: np.ndarray
+
+
+def draw_views(osm: Path, points: list[tuple[float, float]], rng: np.random.Generator, seed: int,
+               eye: tuple[float, ...], tilt: float, fov: float) -> Iterator[View]:
+    """The view at each of ``points``, drawn by the geometry renderer as it is asked for: a seeded
+    compass heading, an eye height in ``eye`` (MIN, MAX) and pitch and roll in ``±tilt``, drawn
+    from ``rng`` in that order, view by view; a ``fov``-degree image 224 rows high."""
+    width = int(round(1232 * fov / 360))
+    sky = PANO.by_name["sky"].id
+    for i, (lon, lat) in enumerate(points):
+        heading = float(rng.uniform(0, 360))
+        h = float(rng.uniform(eye[0], eye[1]))
+        pitch, roll = (float(v) for v in rng.uniform(-tilt, tilt, 2))
+        scene = scene_from_osm([osm], lon, lat, TABLE, radius_m=160, seed=seed + i)
+        pixels = render(scene.scene, GeoCamera(0.0, 0.0, eye_m=h, heading_deg=heading, pitch_deg=pitch, roll_deg=roll,
+                                               hfov_deg=fov, width=width, height=224), sky, TABLE.unlabeled.id)
+        yield View(lon, lat, heading, h, pitch, roll, pixels)
 
 
 def street_points(masks: BlockMasks, blocks: list[Any], n: int, rng: np.random.Generator,
@@ -97,7 +131,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--tilt", type=float, default=0.0, help="pitch and roll drawn from +-TILT degrees")
     ap.add_argument("--search-pose", action="store_true",
                     help="tell the method the camera height and tilt are unknown (osmseg localize --camera-height "
-                         "unknown --tilt TILT): it tries 1.6, 2.0 and 2.4 m and pitch and roll in 1° steps")
+                         "unknown --tilt TILT): it reads the tilt from the horizon and tries 1.5 to 2.5 m")
     ap.add_argument("--json", type=Path, help="also write every figure here")
     args = ap.parse_args(argv)
     if not args.osm.is_file():
@@ -109,8 +143,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     config = RegionConfig(bbox=bbox)
     blocks = region_blocks(config)
     rng = np.random.default_rng(args.seed)
-    pano = panorama_table(TABLE)
-    sky = pano.by_name["sky"].id
     width = int(round(1232 * args.fov / 360))
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as cache:
@@ -120,16 +152,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         print(f"{len(blocks)} blocks; {args.queries} views at street points, fov {args.fov:g}°, heading "
               f"{args.heading}, eye {eye[0]:g}-{eye[1]:g} m, tilt ±{args.tilt:g}°", flush=True)
         print(f"{'#':>3} {'error m':>9} {'conf':>6} {'kappa':>6} {'s':>6}")
-        for i, (lon, lat) in enumerate(points):
-            heading = float(rng.uniform(0, 360))
-            h = float(rng.uniform(eye[0], eye[1]))
-            pitch, roll = (float(v) for v in rng.uniform(-args.tilt, args.tilt, 2))
-            scene = scene_from_osm([args.osm], lon, lat, TABLE, radius_m=160, seed=args.seed + i)
-            view = render(scene.scene, GeoCamera(0.0, 0.0, eye_m=h, heading_deg=heading, pitch_deg=pitch,
-                                                 roll_deg=roll, hfov_deg=args.fov, width=width, height=224),
-                          sky, TABLE.unlabeled.id)
-            labels = np.where(view == sky, TABLE.unlabeled.id, view).astype(np.uint8)
-            query = semantic_map(labels, TABLE, CLASSES)
+        for i, v in enumerate(draw_views(args.osm, points, rng, args.seed, eye, args.tilt, args.fov)):
+            lon, lat, heading, h, pitch, roll = v.lon, v.lat, v.heading, v.eye_m, v.pitch, v.roll
+            query = semantic_map(v.pixels, PANO, CLASSES)  # with its sky, as a segmented photo shows it
             camera = Camera(width, 224, hfov_deg=args.fov, camera_height_m=2.0)
             profile = ProfileConfig(heading_deg=heading if args.heading == "known" else None,
                                     camera_heights=UNKNOWN_HEIGHTS if args.search_pose else (),

@@ -134,11 +134,12 @@ def _table(result: Any) -> str:
 @click.option("--fov", "fov_deg", type=click.FloatRange(10, 360), default=360.0, show_default=True,
               help="Profile method: horizontal field of view of the ground image in degrees (a photo: 60-120).")
 @click.option("--camera-height", "camera_height_text", default="2", show_default=True,
-              help="Profile method: metres of the ground camera above the ground, or 'unknown' to try 1.6, 2.0 and "
-                   "2.4 m (a hand-held camera to a car's).")
+              help="Profile method: metres of the ground camera above the ground, or 'unknown' to try 1.5 to "
+                   "2.5 m in 0.25 m steps (a hand-held camera to a car's), each place with the height that fits it.")
 @click.option("--tilt", "tilt_deg", type=click.FloatRange(0, 10), default=0.0, show_default="level",
               help="Profile method: the camera may be tilted up to this many degrees in pitch and roll; the tilt is "
-                   "searched in 1° steps with the position (slower).")
+                   "read from the ground mask's horizon, where its sky ends and its ground begins (give the sky as a "
+                   "class: the ground table's 'sky', id 14 for classes13).")
 @click.option("--min-confidence", type=click.FloatRange(-1, 1), show_default="0.04 for an aerial mask, none for aerial "
               "landmark points", help="Profile method: below this confidence (how far the answer stands out from "
               "the best place 50 m or more away) the answer is 'not sure'.")

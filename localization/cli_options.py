@@ -79,7 +79,7 @@ def parse_camera_height(value: str) -> tuple[float, tuple[float, ...]]:
     """``--camera-height``: (metres, heights to try: none when known).
 
     >>> parse_camera_height("1.7"), parse_camera_height("unknown")
-    ((1.7, ()), (2.0, (1.6, 2.0, 2.4)))
+    ((1.7, ()), (2.0, (1.5, 1.75, 2.0, 2.25, 2.5)))
     """
     if value.strip().lower() == "unknown":
         return 2.0, UNKNOWN_HEIGHTS

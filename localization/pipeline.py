@@ -24,6 +24,7 @@ import numpy as np
 
 from localization.features import FeatureEdges
 from localization.graph import CONVENTIONS, Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
+from localization.horizon import estimate_tilt
 from localization.inputs import Side, SideOptions, load_side, with_photo
 from localization.landmarks import Landmarks
 from localization.match import DEFAULT_P, Localization, localize, match_cliques, unanswered
@@ -152,9 +153,12 @@ def profile_query(query: SemanticMap | Landmarks, camera: Camera, config: Profil
     """The query side of the profile method, in compass azimuths (heading given) or its own frame (unknown)."""
     radii = ray_radii(camera, config.radii, config.min_range_m, config.max_range_m)
     if isinstance(query, SemanticMap):
-        if config.camera_heights or config.tilt_deg > 0:
+        if config.tilt_deg > 0:  # the horizon read from the view: where its sky ends and its ground begins
+            tilt = estimate_tilt(query, camera, config.tilt_deg)
+            camera = replace(camera, pitch_deg=tilt.pitch_deg, roll_deg=tilt.roll_deg)
+        if config.camera_heights:
             return query_poses(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg,
-                               heights=config.camera_heights or (camera.camera_height_m,), tilts=config.tilts())
+                               heights=config.camera_heights)
         return query_from_mask(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg)
     bins = config.bins or max(8, int(round(360.0 / (config.sigma_deg / 2))))
     return query_from_landmarks(query, camera, bins=bins, radii=radii, heading_deg=config.heading_deg)

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from localization.landmarks import LandmarkClasses, Landmarks, _landmark_lut, _mask_names
+from localization.landmarks import SKY_NAME, LandmarkClasses, Landmarks, _landmark_lut, _mask_names
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
 
@@ -96,12 +96,15 @@ class SemanticMap:
     """A mask in profile classes: ``labels`` (H, W) int8 index into ``classes`` or -1, ``standing`` (H, W) bool.
 
     ``classes`` are the dictionary's landmark classes and, last, :data:`OTHER` (its
-    ``other_ground`` classes: known flat ground of no landmark class).
+    ``other_ground`` classes: known flat ground of no landmark class). ``sky`` (H, W) bool marks
+    the pixels of a class named ``sky`` (a ground view's), None when the mask's table has none:
+    where the sky ends tells a tilted camera's horizon (:mod:`localization.horizon`).
     """
 
     labels: np.ndarray
     standing: np.ndarray
     classes: tuple[str, ...]
+    sky: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -132,8 +135,15 @@ def semantic_map(mask: np.ndarray, table: ClassTable | Mapping[int, str] | None,
             lut[value] = len(classes.names)
     if not np.issubdtype(mask.dtype, np.integer):
         mask = mask.astype(np.int64)
+    sky_ids = [value for value, name in names.items() if value < len(lut) and name.lower() == SKY_NAME]
+    sky = None
+    if sky_ids:  # a ground view's table (an aerial one has no sky: no array for its many pixels)
+        sky_lut = np.zeros(len(lut), dtype=bool)
+        sky_lut[sky_ids] = True
+        sky = sky_lut[mask]
     # the lookups at one byte a pixel: a 6400 px mask through int64 took a third of a GB more
-    return SemanticMap(labels=lut.astype(np.int8)[mask], standing=stand_lut[mask], classes=(*classes.names, OTHER))
+    return SemanticMap(labels=lut.astype(np.int8)[mask], standing=stand_lut[mask], classes=(*classes.names, OTHER),
+                       sky=sky)
 
 
 @dataclass(frozen=True)
@@ -238,7 +248,7 @@ class QueryProfile:
     heading_deg: float | None  # the heading the azimuths were computed with; None: query frame (unknown)
     hfov_deg: float
     pose: tuple[float, float, float] | None = None  # (camera height m, pitch, roll degrees) it was read with
-    variants: tuple["QueryProfile", ...] = ()  # the same query read with other camera poses; q is their mean
+    variants: tuple["QueryProfile", ...] = ()  # the same query read at other camera heights; q is their mean
 
     @property
     def bins(self) -> int:
@@ -289,18 +299,17 @@ def query_from_mask(sem: SemanticMap, camera: Camera, *, bins: int, radii: tuple
 
 
 def query_poses(sem: SemanticMap, camera: Camera, *, bins: int, radii: tuple[np.ndarray, np.ndarray],
-                heading_deg: float | None, heights: Sequence[float], tilts: Sequence[float]) -> QueryProfile:
-    """The query read once per camera pose (each of ``heights`` m, pitch and roll each of ``tilts``
-    degrees), for a camera whose height and tilt are not known.
+                heading_deg: float | None, heights: Sequence[float]) -> QueryProfile:
+    """The query read once per camera height (each of ``heights`` m, the tilt ``camera``'s), for a
+    camera whose height is not known: distances read from its rows scale with it.
 
-    The result's ``q`` is the mean of the poses' profiles, whose score at a position is the mean
-    of theirs (the score is linear in ``q``): a pose-blind profile for the coarse search. Its
-    ``variants`` are the poses' own profiles, of which the search keeps the best at each
-    refined position (:func:`localization.search.localize_profile`).
+    The result's ``q`` is the mean of the heights' profiles, whose score at a position is the
+    mean of theirs (the score is linear in ``q``). Its ``variants`` are the heights' own
+    profiles, of which the search keeps the best at each position
+    (:func:`localization.search.localize_profile`).
     """
-    variants = tuple(query_from_mask(sem, dataclasses.replace(camera, camera_height_m=h, pitch_deg=p, roll_deg=r),
-                                     bins=bins, radii=radii, heading_deg=heading_deg)
-                     for h in heights for p in tilts for r in tilts)
+    variants = tuple(query_from_mask(sem, dataclasses.replace(camera, camera_height_m=h), bins=bins, radii=radii,
+                                     heading_deg=heading_deg) for h in heights)
     first = variants[0]
     return QueryProfile(q=np.mean([v.q for v in variants], axis=0), radii_m=first.radii_m, classes=first.classes,
                         heading_deg=heading_deg, hfov_deg=first.hfov_deg, variants=variants)

@@ -62,7 +62,7 @@ __all__ = ["UNKNOWN_HEIGHTS", "ProfileConfig", "AerialIndex", "grid_positions", 
 
 
 #: the camera heights tried when the height is not known (m): a hand-held camera to a car-mounted one
-UNKNOWN_HEIGHTS = (1.6, 2.0, 2.4)
+UNKNOWN_HEIGHTS = (1.5, 1.75, 2.0, 2.25, 2.5)
 
 
 @dataclass(frozen=True)
@@ -94,17 +94,8 @@ class ProfileConfig:
     threads: int = 0               # chunks scored at once on threads; 0: one per core (the answer is the same)
     distinct_m: float = 50.0       # the best distinct alternative lies at least this far from the answer
     camera_heights: tuple[float, ...] = ()  # camera heights (m) to try when it is not known [the camera's own]
-    tilt_deg: float = 0.0          # the camera may be tilted this much in pitch and roll: searched [0: level]
-    tilt_step_deg: float = 1.0     # the tilts tried: -tilt to +tilt in these steps
-
-    def tilts(self) -> tuple[float, ...]:
-        """The pitches (and rolls) tried.
-
-        >>> ProfileConfig(tilt_deg=2.0).tilts()
-        (-2.0, -1.0, 0.0, 1.0, 2.0)
-        """
-        n = int(math.floor(self.tilt_deg / self.tilt_step_deg + 1e-9))
-        return tuple(round(i * self.tilt_step_deg, 6) for i in range(-n, n + 1))
+    tilt_deg: float = 0.0          # the camera may be tilted this much in pitch and roll: its tilt is read from
+                                   # where the query's sky ends and its ground begins (localization.horizon) [0: level]
 
     def __post_init__(self) -> None:
         if ((self.bins is not None and self.bins < 8) or self.radii < 1 or self.keep < 1 or (self.levels is not None and self.levels < 0)
@@ -114,9 +105,8 @@ class ProfileConfig:
             raise ConfigError("profile method: ranges must satisfy 0 < min < max and the grid spacing be > 0")
         if self.heading_deg is not None and not math.isfinite(self.heading_deg):
             raise ConfigError(f"heading must be a number of degrees or unknown, got {self.heading_deg}")
-        if not (0 <= self.tilt_deg <= 10 and self.tilt_step_deg > 0):
-            raise ConfigError(f"camera tilt must be 0-10 degrees in steps > 0, got {self.tilt_deg:g} in steps of "
-                              f"{self.tilt_step_deg:g}")
+        if not 0 <= self.tilt_deg <= 10:
+            raise ConfigError(f"camera tilt must be 0-10 degrees, got {self.tilt_deg:g}")
         if any(not (0 < h < 100) for h in self.camera_heights):
             raise ConfigError(f"camera heights must be positive metres, got {self.camera_heights}")
 
@@ -208,8 +198,8 @@ def score_positions(index: AerialIndex, query: QueryProfile, xy: np.ndarray, con
 
 def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config: ProfileConfig,
                 prior: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`score_positions` of the best of ``query.variants`` (camera poses) at each position:
-    ``(score, shift, pose index)``. The aerial profiles of a chunk are built once for all poses."""
+    """:func:`score_positions` of the best of ``query.variants`` (camera heights) at each position:
+    ``(score, shift, variant index)``. The aerial profiles of a chunk are built once for all of them."""
     variants = query.variants
     qs = np.stack([v.q for v in variants]).astype(np.float32)                     # (H, C, R + 1, A)
     if weights is not None:
@@ -220,8 +210,36 @@ def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config:
     need = qs.sum(axis=(0, 3)) > 0
     if not known:
         qf, uf = np.conj(np.fft.rfft(qs, axis=-1)), np.conj(np.fft.rfft(u, axis=-1))
+    # a mask's rays name the class seen in each cell: look it up in the queries, no one-hot profiles
+    # (slot R is empty for a query mask, and so is its chance credit)
+    lookup = hasattr(index, "labels") and not float(qs[:, :, -1, :].sum())
+    n_r, bins = len(query.radii_m), query.bins
+    rows_c, rows_r = np.nonzero(need[:, :n_r])
+    by_class = [(c, np.ascontiguousarray(qs[:, c, :n_r, :].reshape(len(qs), -1).T))   # (R * A, H) per class
+                for c in range(qs.shape[1]) if need[c, :n_r].any()]
+    base = u.sum(axis=(1, 2))
+
+    def looked_up(part: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        lab, valid = index.labels(part, query.radii_m, bins)  # type: ignore[attr-defined]
+        if known:
+            seen_as = lab.reshape(len(part), -1)
+            num = np.zeros((len(part), len(qs)), np.float32)                                # (N, H)
+            for c, table in by_class:  # the cells that see class c, times every height's query there
+                num += (seen_as == c).astype(np.float32) @ table
+            s = (num + base[None] - np.einsum("nra,hra->nh", valid.astype(np.float32), u[:, :n_r])) / totals[None]
+            pose = s.argmax(axis=1)
+            return s[np.arange(len(s)), pose], np.zeros(len(s)), pose
+        onehot = (lab[:, rows_r, :] == rows_c[None, :, None].astype(lab.dtype)).astype(np.float32)   # (N, K, A)
+        agree = np.einsum("nkf,hkf->nhf", np.fft.rfft(onehot, axis=-1), qf[:, rows_c, rows_r])
+        seen = np.einsum("nrf,hrf->nhf", np.fft.rfft(valid.astype(np.float32), axis=-1), uf[:, :n_r])
+        s = (np.fft.irfft(agree - seen, n=bins, axis=-1) + base[None, :, None]) / totals[None, :, None]
+        pose = s.max(axis=2).argmax(axis=1)
+        best, shift = _peak(s[np.arange(len(s)), pose])
+        return best, shift, pose
 
     def one(part: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if lookup:
+            return looked_up(part)
         P, V = index.profiles(part, query.radii_m, query.bins, need)
         if known:
             s = (np.einsum("ncra,hcra->nh", P, qs) + u.sum(axis=(1, 2))[None]
@@ -358,12 +376,29 @@ def _parabola(s: np.ndarray, k: np.ndarray) -> np.ndarray:
     return np.where(np.abs(den) > 1e-12, np.clip(0.5 * (y0 - y2) / np.where(den == 0, 1, den), -0.5, 0.5), 0.0)
 
 
+def _level(query: QueryProfile) -> bool:
+    """Whether ``query`` was read as a level camera's (its pose's pitch and roll 0, or no pose)."""
+    return query.pose is None or query.pose[1:] == (0.0, 0.0)
+
+
 def _nms(xy: np.ndarray, order: np.ndarray, radius: float, k: int) -> list[int]:
-    """The first ``k`` of ``order`` that are at least ``radius`` from every one kept before them."""
+    """The first ``k`` of ``order`` that are at least ``radius`` from every one kept before them.
+
+    Kept positions are filed in cells ``radius`` wide, so each is compared only with those of
+    the 3 x 3 cells around it (the same answer as comparing with all of them).
+
+    >>> _nms(np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0], [3.5, 0.0]]), np.arange(4), 2.0, 3)
+    [0, 2]
+    """
     kept: list[int] = []
+    cells: dict[tuple[int, int], list[int]] = {}
     for i in order:
-        if all(math.hypot(*(xy[i] - xy[j])) >= radius for j in kept):
+        x, y = float(xy[i, 0]), float(xy[i, 1])
+        cx, cy = math.floor(x / radius), math.floor(y / radius)
+        if all(math.hypot(x - xy[j, 0], y - xy[j, 1]) >= radius
+               for dx in (-1, 0, 1) for dy in (-1, 0, 1) for j in cells.get((cx + dx, cy + dy), ())):
             kept.append(int(i))
+            cells.setdefault((cx, cy), []).append(int(i))
             if len(kept) == k:
                 break
     return kept
@@ -401,14 +436,16 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     xy = grid_positions(index.shape, spacing)
     mean = class_prior(index, query, xy) if prior is None else prior
     weights = -np.log(np.clip(mean, config.min_prior, 1.0)) if weighted else None
-    score, shift = score_positions(index, query, xy, config, mean, weights, keep=config.keep)
-    coarse_xy, coarse_score = xy, score
-    poses = np.zeros(len(xy), dtype=np.int64)
+    if query.variants:  # each position scored with the camera pose that fits it best, from the coarse grid on
+        score, shift, poses = score_poses(index, query, xy, config, mean, weights)
+    else:
+        score, shift = score_positions(index, query, xy, config, mean, weights, keep=config.keep)
+        poses = np.zeros(len(xy), dtype=np.int64)
+    coarse_xy, coarse_score, coarse_shift, coarse_poses = xy, score, shift, poses
 
-    def refine(xy: np.ndarray, score: np.ndarray, shift: np.ndarray, keep: int, spacing: float
+    def refine(xy: np.ndarray, score: np.ndarray, shift: np.ndarray, pose: np.ndarray, keep: int, spacing: float
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        pose = np.zeros(len(xy), dtype=np.int64)
-        for _ in range(levels):  # (with no refinement, the poses' mean profile answers alone)
+        for _ in range(levels):
             top = np.argsort(-score, kind="stable")[:keep]
             spacing /= 3.0
             xy = _around(xy[top], spacing, index.shape)
@@ -418,10 +455,10 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
                 score, shift = score_positions(index, query, xy, config, mean, weights)
         return xy, score, shift, pose
 
-    xy, score, shift, poses = refine(xy, score, shift, config.keep, spacing)
+    xy, score, shift, poses = refine(xy, score, shift, poses, config.keep, spacing)
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
     best = int(order[0])
-    pose_query = query.variants[int(poses[best])] if query.variants and levels else query
+    pose_query = query.variants[int(poses[best])] if query.variants else query
     # the best distinct alternative: the best place at least distinct_m from the answer, refined as it was
     far = np.hypot(*(coarse_xy - xy[best]).T) * index.resolution_m >= config.distinct_m
     alternative: tuple[float, float, float] | None = None
@@ -437,8 +474,8 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
         rivals = np.flatnonzero(far)[_nms(coarse_xy[far], np.argsort(-coarse_score[far], kind="stable"),
                                           coarse_m / index.resolution_m, 5)]
         rivals = rivals[np.isfinite(coarse_score[rivals])]
-        r_xy, r_score, r_shift, _ = refine(coarse_xy[rivals], coarse_score[rivals], np.zeros(len(rivals)), len(rivals),
-                                     spacing)
+        r_xy, r_score, r_shift, _ = refine(coarse_xy[rivals], coarse_score[rivals], coarse_shift[rivals],
+                                           coarse_poses[rivals], len(rivals), spacing)
         r_far = np.hypot(*(r_xy - xy[best]).T) * index.resolution_m >= config.distinct_m
         if r_far.any():
             i = int(np.flatnonzero(r_far)[np.argmax(r_score[r_far])])
@@ -457,7 +494,7 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
                           top_k=top_k, map_xy=(top_k[0][0], top_k[0][1]), ties=ties, unanswered=False,
                           method="profile", heading_deg=heading_at(shift, best), confidence=round(confidence, 4),
                           kappa=round(kappa, 4), chance=round(chance, 4), alternative=alternative,
-                          camera_pose=pose_query.pose if pose_query is not query else None,
+                          camera_pose=pose_query.pose if query.variants or not _level(query) else None,
                           headings=tuple(heading_at(shift, i) for i in picked),
                           alternative_heading=alternative_heading)
     min_kappa = config.min_kappa if config.min_kappa is not None else index.min_kappa

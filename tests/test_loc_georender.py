@@ -381,7 +381,7 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     view = render(scene.scene, Camera(*at, eye_m=1.7, width=1232, height=224),
                   panorama_table(table).by_name["sky"].id, table.unlabeled.id)
     sky = panorama_table(table).by_name["sky"].id
-    Image.fromarray(np.where(view == sky, table.unlabeled.id, view).astype(np.uint8)).save(tmp_path / "query.png")
+    Image.fromarray(view.astype(np.uint8)).save(tmp_path / "query.png")  # id 14: the sky of the ground table
     truth = lonlat(*at)
     w, s = lonlat(-140, -140)
     e, n = lonlat(140, 140)
@@ -435,7 +435,7 @@ def test_a_region_split_into_shards_answers_as_one_process(tmp_path) -> None:
     view = render(scene.scene, Camera(10.0, -25.0, eye_m=1.7, width=1232, height=224, heading_deg=40.0),
                   panorama_table(table).by_name["sky"].id, table.unlabeled.id)
     sky = panorama_table(table).by_name["sky"].id
-    Image.fromarray(np.where(view == sky, table.unlabeled.id, view).astype(np.uint8)).save(tmp_path / "query.png")
+    Image.fromarray(view.astype(np.uint8)).save(tmp_path / "query.png")  # id 14: the sky of the ground table
     w, s = lonlat(-140, -140)
     e, n = lonlat(140, 140)
 
@@ -469,9 +469,10 @@ def test_a_region_split_into_shards_answers_as_one_process(tmp_path) -> None:
 
 
 def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> None:
-    """A view of the OSM town drawn by a camera 2.4 m up, pitched up 2° and rolled 1° (right side
-    down): told the height and tilt are unknown, the profile method tries 1.6/2.0/2.4 m and
-    pitch and roll in 1° steps, and answers with the pose the camera had, at the place it stood."""
+    """A view of the OSM town drawn by a camera 2.25 m up, pitched up 1.7° and rolled 0.8° (right
+    side down): told the height and tilt are unknown, the profile method reads the tilt from where
+    the view's sky meets its ground, tries 1.5 to 2.5 m, and answers with the pose the camera had,
+    at the place it stood. Told the camera is level and 2 m up, it reads distances wrongly."""
     import mercantile
     import rasterio
 
@@ -481,6 +482,7 @@ def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> N
     from localization.pipeline import profile_index, run_profile
     from localization.profile import Camera as QueryCamera, semantic_map
     from localization.render import panorama_table
+    from localization.result import Localization
     from localization.search import ProfileConfig
     from osmseg.classes import load_class_table
 
@@ -497,22 +499,30 @@ def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> N
                 (b.top - my) / (b.top - b.bottom) * mask.shape[0] - 0.5)
     x, y = scene.to_local(lon, lat)
     sky = panorama_table(table).by_name["sky"].id
-    view = render(scene.scene, Camera(x, y, eye_m=2.4, heading_deg=0.0, pitch_deg=2.0, roll_deg=1.0), sky,
+    view = render(scene.scene, Camera(x, y, eye_m=2.25, heading_deg=0.0, pitch_deg=1.7, roll_deg=0.8), sky,
                   table.unlabeled.id)
-    query = semantic_map(np.where(view == sky, table.unlabeled.id, view).astype(np.uint8), table, classes)
+    query = semantic_map(view, panorama_table(table), classes)
+    assert query.sky is not None and query.sky.any()
     config = ProfileConfig(camera_heights=UNKNOWN_HEIGHTS, tilt_deg=2.0, min_confidence=-1.0, min_kappa=-1.0)
     loc = run_profile(config, index, query, QueryCamera(1232, 224))
     assert math.hypot(loc.map_xy[0] - truth_px[0], loc.map_xy[1] - truth_px[1]) * res <= 2.0
     assert loc.camera_pose is not None
     height, pitch, roll = loc.camera_pose
-    assert height == 2.4 and abs(pitch - 2.0) <= 1.0 and abs(roll - 1.0) <= 1.0
+    assert height == 2.25 and abs(pitch - 1.7) <= 0.2 and abs(roll - 0.8) <= 0.2
+    level = run_profile(ProfileConfig(min_confidence=-1.0, min_kappa=-1.0), index, query, QueryCamera(1232, 224))
+    def error_m(result: Localization) -> float:
+        return math.hypot(result.map_xy[0] - truth_px[0], result.map_xy[1] - truth_px[1]) * res
+
+    # read as a level camera 2 m up, the view fits its own place worse (0.79 against 0.88) and lands farther off
+    assert float(loc.likelihoods[loc.order[0]]) > float(level.likelihoods[level.order[0]]) + 0.05
+    assert error_m(level) > error_m(loc)
     # the same through the command line, on the GeoTIFF: the answer also in degrees
     from click.testing import CliRunner
 
     from localization.region import distance_m
     from osmseg.cli.main import cli
 
-    Image.fromarray(np.where(view == sky, table.unlabeled.id, view).astype(np.uint8)).save(tmp_path / "query.png")
+    Image.fromarray(view.astype(np.uint8)).save(tmp_path / "query.png")  # id 14: the sky of the ground table
     res = CliRunner().invoke(cli, ["localize", "--aerial", str(tif), "--aerial-table", "classes13.toml", "--ground",
                                    str(tmp_path / "query.png"), "--ground-classes", "aerial13", "--ground-table",
                                    "classes13.toml", "--camera-height", "unknown", "--tilt", "2",
@@ -520,7 +530,7 @@ def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> N
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert distance_m((out["map_lonlat"]["lon"], out["map_lonlat"]["lat"]), (lon, lat)) <= 2.0
-    assert out["camera_pose"][0] == 2.4
+    assert out["camera_pose"][0] == 2.25 and abs(out["camera_pose"][1] - 1.7) <= 0.2
     bad = CliRunner().invoke(cli, ["localize", "--aerial", str(tif), "--ground", str(tmp_path / "query.png"),
                                    "--camera-height", "tall"])
     assert bad.exit_code == 2 and "'unknown'" in bad.output
