@@ -456,3 +456,16 @@ def memory(ws: Workspace) -> dict[str, Figure]:
         "memory.slope": F(" and ".join(f"{v:.1f} ({k})" for k, v in m["bytes_per_further_px"].items()),
                           r"[\d.]+"),
     }
+
+
+@figure_set("horizon", "expensive", needs="shared data")
+def horizon(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_horizon.py: the tilt read from the horizon of the region benchmark's 30 tilted Kotka views"""
+    h = benchmark(ws, "bench_horizon.py")
+    ways = h["summary"]["ways"]
+    rows = [[way, f"{w['median_deg']:.2f}°", f"{w['max_deg']:.2f}°", ratio(w["within_0.25"])] for way, w in ways.items()]
+    return {
+        "horizon.table": F(table(["tilt read", "median error", "largest", "within 0.25°"], rows)),
+        "horizon.sky": F(f"{ways['with its sky']['median_deg']:.2f}°"),
+        "horizon.level": F(f"{ways['level (the baseline)']['median_deg']:.2f}°"),
+    }

@@ -43,8 +43,10 @@ step:
    to fine, with the heading known or searched by circular cross-correlation, photos of a
    limited field of view, kappa (the best match against chance: "not in this image") and a
    confidence (how far the answer stands out from the best place 50 m or more away: "not
-   sure" when a look-alike fits as well); :mod:`localization.compare` runs the methods side by side in the benchmarks and
-   :mod:`localization.scores` turns their answers into errors, recall and baselines.
+   sure" when a look-alike fits as well); :mod:`localization.horizon` reads a tilted camera's
+   pitch and roll from where the query's sky meets its ground; :mod:`localization.compare` runs
+   the methods side by side in the benchmarks and :mod:`localization.scores` turns their
+   answers into errors, recall and baselines.
    (:mod:`localization.windows` and :mod:`localization.cells` hold the window arithmetic and
    the component-landmark sweep of :mod:`localization.graph`.)
 6. :mod:`localization.region` -- **a region from OpenStreetMap alone** (``osmseg localize

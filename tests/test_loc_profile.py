@@ -282,6 +282,30 @@ def test_pruned_search_keeps_the_exhaustive_best(scene) -> None:
     assert np.allclose(pruned_shift[best], full_shift[best], atol=1e-3)
 
 
+@pytest.mark.parametrize("heading", [75.0, None])
+def test_several_heights_score_each_position_as_the_best_of_them_alone(scene, heading) -> None:
+    """score_poses (the heights of --camera-height unknown, from class lookups and matrix products)
+    gives each position the best of the scores each height's profile gets by itself from
+    score_positions (one-hot profiles), and says which height that was."""
+    from localization.profile import query_poses
+    from localization.search import class_prior, grid_positions, score_poses, score_positions
+
+    mask, index = scene
+    q = _query(mask, TRUTHS[0], heading=75.0)
+    config = ProfileConfig(heading_deg=heading, chunk=256)
+    radii = ray_radii(q.camera, config.radii, config.min_range_m, config.max_range_m)
+    query = query_poses(q.semantic, q.camera, bins=72, radii=radii, heading_deg=heading, heights=(1.5, 2.0, 2.5))
+    xy = grid_positions(index.shape, 4.0 / RES)
+    prior = class_prior(index, query, xy)
+    weights = -np.log(np.clip(prior, config.min_prior, 1.0))
+    score, shift, which = score_poses(index, query, xy, config, prior, weights)
+    alone = np.stack([score_positions(index, v, xy, config, prior, weights)[0] for v in query.variants], axis=1)
+    assert np.allclose(score, alone.max(axis=1), atol=1e-5)
+    clear = np.sort(alone, axis=1)[:, -1] - np.sort(alone, axis=1)[:, -2] > 1e-4   # no near tie between heights
+    assert clear.sum() > len(xy) // 2 and np.array_equal(which[clear], alone.argmax(axis=1)[clear])
+    assert {int(w) for w in which} == {0, 1, 2}   # each height fits somewhere best
+
+
 @pytest.mark.parametrize("heading,levels", [(None, None), (None, 0), (30.0, None)])
 def test_answers_do_not_depend_on_the_thread_count(scene, heading, levels) -> None:
     """Also every coarse score (levels 0): the pruned search accepts chunks as one thread would."""
