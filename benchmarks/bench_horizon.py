@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_region import CLASSES, KOTKA, KOTKA_BBOX, PANO, TABLE, draw_views, street_points  # noqa: E402
+from bench_region import CLASSES, PANO, TABLE, draw_views, street_points, view_options  # noqa: E402
 from localization.horizon import estimate_tilt  # noqa: E402
 from localization.profile import Camera, semantic_map  # noqa: E402
 from localization.region import RegionConfig, region_blocks  # noqa: E402
@@ -44,13 +44,7 @@ WAYS = ("with its sky", "without a sky class", "level (the baseline)")
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--osm", type=Path, default=KOTKA)
-    ap.add_argument("--bbox", default=",".join(f"{v:g}" for v in KOTKA_BBOX))
-    ap.add_argument("--queries", type=int, default=30)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--fov", type=float, default=360.0)
-    ap.add_argument("--eye", default="1.5,2.5", help="eye height range MIN,MAX in metres the views are drawn at")
-    ap.add_argument("--tilt", type=float, default=2.0, help="pitch and roll drawn from +-TILT degrees, and read within")
+    view_options(ap, eye="1.5,2.5", tilt=2.0)   # the tilt is also read within +-TILT
     ap.add_argument("--json", type=Path, help="also write every figure here")
     args = ap.parse_args(argv)
     if not args.osm.is_file():

@@ -119,16 +119,21 @@ def street_points(masks: BlockMasks, blocks: list[Any], n: int, rng: np.random.G
     return out
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def view_options(ap: argparse.ArgumentParser, eye: str, tilt: float) -> None:
+    """The options that say which views are drawn (:func:`draw_views`), with these defaults."""
     ap.add_argument("--osm", type=Path, default=KOTKA)
     ap.add_argument("--bbox", default=",".join(f"{v:g}" for v in KOTKA_BBOX))
     ap.add_argument("--queries", type=int, default=30)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fov", type=float, default=360.0)
+    ap.add_argument("--eye", default=eye, help="eye height range MIN,MAX in metres the views are drawn at")
+    ap.add_argument("--tilt", type=float, default=tilt, help="pitch and roll drawn from +-TILT degrees")
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    view_options(ap, eye="2,2", tilt=0.0)
     ap.add_argument("--heading", choices=["known", "unknown"], default="known")
-    ap.add_argument("--eye", default="2,2", help="eye height range MIN,MAX in metres the views are drawn at")
-    ap.add_argument("--tilt", type=float, default=0.0, help="pitch and roll drawn from +-TILT degrees")
     ap.add_argument("--search-pose", action="store_true",
                     help="tell the method the camera height and tilt are unknown (osmseg localize --camera-height "
                          "unknown --tilt TILT): it reads the tilt from the horizon and tries 1.5 to 2.5 m")
