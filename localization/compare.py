@@ -35,7 +35,7 @@ from localization.render import Panorama
 from localization.scores import error_fields, heading_error
 from localization.search import AerialIndex, ProfileConfig
 
-__all__ = ["Query", "confidence_of", "headline", "photo_view", "run_method", "roc_auc", "method_summary"]
+__all__ = ["Query", "confidence_of", "headline", "photo_columns", "photo_view", "run_method", "roc_auc", "method_summary"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,19 @@ class Query:
     landmarks: Landmarks
     camera: Camera
     heading_deg: float   # the true heading (compass azimuth of the centre column)
+
+
+def photo_columns(width: int, fov_deg: float) -> slice:
+    """The columns of a ``width``-pixel 360° panorama that a photo of ``fov_deg`` facing its centre sees.
+
+    >>> photo_columns(1232, 90), photo_columns(1232, 360)
+    (slice(462, 770, None), slice(0, 1232, None))
+    """
+    if fov_deg >= 360:
+        return slice(0, width)
+    n = max(2, int(round(width * fov_deg / 360.0)))
+    start = (width - n) // 2
+    return slice(start, start + n)
 
 
 def photo_view(panorama: Panorama, classes: LandmarkClasses, fov_deg: float, *, camera_height_m: float,
@@ -59,9 +72,9 @@ def photo_view(panorama: Panorama, classes: LandmarkClasses, fov_deg: float, *, 
             labels, panorama.table, classes, mode=mode, min_size=min_size, stride=stride, panorama=True)
         cam = Camera(w, h, hfov_deg=360.0, row_step_deg=step, camera_height_m=camera_height_m)
     else:
-        n = max(2, int(round(w * fov_deg / 360.0)))
-        start = (w - n) // 2
-        labels = np.ascontiguousarray(labels[:, start:start + n])
+        cols = photo_columns(w, fov_deg)
+        start, n = cols.start, cols.stop - cols.start
+        labels = np.ascontiguousarray(labels[:, cols])
         lm = landmarks_from_mask(labels, panorama.table, classes, mode=mode, min_size=min_size, stride=stride)
         cam = Camera(n, h, hfov_deg=n * step, row_step_deg=step, camera_height_m=camera_height_m)
         # the photo's centre looks along the panorama's heading, half a column off when n and w differ in parity

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from localization.compare import method_summary, photo_view, run_method
+from localization.compare import method_summary, photo_columns, photo_view, run_method
 from localization.profile import MASK_MIN_CONFIDENCE
 from localization.evaluate_plots import plot_classes, plot_confidence, plot_errors
 from localization.geobench import geometry_view, geotiff_bounds_3857, scene_for_mask
@@ -444,11 +444,14 @@ def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, 
     loc = run(LocalizeConfig(p=config.p, top_k=config.top_k), graph, view.landmarks)
     query = view.landmarks
     pano_graph = adjacency(cliques_fast(query, query.height)) if len(query) else np.zeros((0, 0), bool)
+    rgb = view.panorama.rgb()
+    cols = photo_columns(rgb.shape[1], config.fov_deg)   # a photo's landmarks are in its own columns
+    what = "rendered panorama" if config.fov_deg >= 360 else f"{config.fov_deg:g}° photo"
     return [localization_png(stem.with_name(stem.name + "_map.png"), loc, graph.landmarks,
                              image=scene.table.colorize(scene.mask), truth=view.truth, resolution=scene.resolution_m,
                              classes=[(c.name, c.color) for c in scene.table.classes if (scene.mask == c.id).any()]),
-            graph_png(stem.with_name(stem.name + "_panorama.png"), query, pano_graph, image=view.panorama.rgb(),
-                      title=f"rendered panorama at ({view.truth[0]:.0f}, {view.truth[1]:.0f}): {len(query)} landmarks")]
+            graph_png(stem.with_name(stem.name + "_panorama.png"), query, pano_graph, image=rgb[:, cols],
+                      title=f"{what} at ({view.truth[0]:.0f}, {view.truth[1]:.0f}): {len(query)} landmarks")]
 
 
 def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], AerialGraph]],

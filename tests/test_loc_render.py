@@ -289,6 +289,20 @@ def test_bench_end_to_end_on_a_constructed_town(tmp_path: Path) -> None:
     assert strip(again["viewpoints"]) == strip(results["viewpoints"])  # same seed, same viewpoints and answers
 
 
+def test_pictures_of_a_photo_show_the_photo_not_the_whole_panorama(tmp_path: Path) -> None:
+    """--fov 90 --pictures: the landmarks are in the photo's 308 columns, and so is the picture under them."""
+    scene = Scene("town", town(), TABLE, RES)
+    config = BenchConfig(viewpoints=1, seed=5, margin_m=10.0, pictures=1, fov_deg=90.0, methods=("profile",),
+                         negatives=False)
+    run_bench([scene], config, tmp_path, plots=False)
+    with Image.open(tmp_path / "views" / "0000_town_panorama.png") as photo:
+        photo_aspect = photo.size[0] / photo.size[1]
+    run_bench([scene], BenchConfig(viewpoints=1, seed=5, margin_m=10.0, pictures=1, methods=("profile",),
+                                   negatives=False), tmp_path / "pano", plots=False)
+    with Image.open(tmp_path / "pano" / "views" / "0000_town_panorama.png") as pano:
+        assert photo_aspect < 0.5 * pano.size[0] / pano.size[1]   # 308x224 drawn, not 1232x224
+
+
 def test_cli_on_a_mask_file_and_on_a_dataset_folder(tmp_path: Path) -> None:
     mask_file = tmp_path / "town.png"
     Image.fromarray(town()).save(mask_file)
