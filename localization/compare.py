@@ -100,8 +100,10 @@ def confidence_of(loc: Localization) -> float:
 def run_method(method: str, query: Query, truth: tuple[float, float], scale: float, *,
                paper: Callable[[], tuple[AerialGraph, AerialGraph | None]],
                profile: Callable[[], tuple[AerialIndex, AerialIndex | None]],
-               paper_config: LocalizeConfig, profile_config: ProfileConfig, heading_known: bool) -> dict[str, Any]:
-    """One method on one view: its error, heading error, time, and confidence on the match and a non-match.
+               paper_config: LocalizeConfig, profile_config: ProfileConfig, heading_known: bool
+               ) -> tuple[dict[str, Any], Localization]:
+    """One method on one view: its error, heading error, time, and confidence on the match and a non-match,
+    and its answer (for a picture).
 
     ``paper``/``profile`` give the aerial side of the view's scene and of a non-matching scene
     (None with a single scene), built once per scene by the caller.
@@ -129,7 +131,7 @@ def run_method(method: str, query: Query, truth: tuple[float, float], scale: flo
                 "kappa": loc.kappa, "chance": loc.chance,
                 "negative_kappa": None if negative is None else negative.kappa,
                 "score": round(loc.top_k[0][2], 6) if loc.top_k else None})
-    return out
+    return out, loc
 
 
 def roc_auc(positive: Sequence[float], negative: Sequence[float]) -> float | None:

@@ -54,6 +54,7 @@ from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_ma
 from localization.match import DEFAULT_P
 from localization.pipeline import METHODS, AerialGraph, LocalizeConfig, aerial_graph, profile_index, run
 from localization.profile import semantic_map
+from localization.result import Localization
 from localization.render import (NoiseConfig, RenderConfig, RenderedView, object_heights, render_view,
                                  save_panorama_png)
 from localization.scores import _mean, baselines, by_num_classes, chance_errors, score, summarize
@@ -400,21 +401,23 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
         t_render = time.perf_counter() - t0
         if index < config.save_panoramas:
             save_panorama_png(out_dir / "panoramas" / f"{index:04d}_{scene.name}.png", view.panorama)
-        if index < config.pictures:
-            draw_view(out_dir / "views" / f"{index:04d}_{scene.name}", scene, view, graphs[si][subsets[0]], config)
         centre, uniform = chance_errors(scene.mask.shape, truth, scene.resolution_m)
         photo = config.fov_deg < 360
         paper_config = LocalizeConfig(p=config.p, top_k=config.top_k,
                                       query_window=query.camera.height if photo else None)
         by_method: dict[str, dict[str, Any]] = {}
+        answers: dict[str, Localization] = {}
         for method in config.methods:
-            by_method[method] = run_method(
+            by_method[method], answers[method] = run_method(
                 method, query, truth, scene.resolution_m,
                 paper=lambda: (graphs[si][subsets[0]],
                                graphs[other[si]][subsets[0]] if si in other else None),
                 profile=lambda: (index_of(si), index_of(other[si]) if si in other else None),
                 paper_config=paper_config, profile_config=config.profile, heading_known=config.heading == "known")
         first = config.methods[0]
+        if index < config.pictures:  # the first method's answer on the map
+            draw_view(out_dir / "views" / f"{index:04d}_{scene.name}", scene, view, graphs[si][subsets[0]],
+                      answers[first], config)
         if first == "paper":
             scored, t_loc = localize_subsets(graphs[si], view.landmarks, truth, scene.resolution_m, config.p,
                                              config.top_k, query_window=paper_config.query_window)
@@ -436,12 +439,13 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     return results
 
 
-def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, config: BenchConfig) -> list[Path]:
-    """``STEM_map.png`` (the mask with candidates, top-k and truth) and ``STEM_panorama.png`` (its graph)."""
+def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, loc: Localization,
+              config: BenchConfig) -> list[Path]:
+    """``STEM_map.png`` (the mask with ``loc``'s candidates, top-k and truth) and ``STEM_panorama.png``
+    (the view's landmark graph over it)."""
     from localization.graph import adjacency
     from localization.figures import graph_png, localization_png
 
-    loc = run(LocalizeConfig(p=config.p, top_k=config.top_k), graph, view.landmarks)
     query = view.landmarks
     pano_graph = adjacency(cliques_fast(query, query.height)) if len(query) else np.zeros((0, 0), bool)
     rgb = view.panorama.rgb()
