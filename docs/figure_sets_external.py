@@ -411,6 +411,37 @@ def renderers(ws: Workspace) -> dict[str, Figure]:
     }
 
 
+#: the rows of docs/localization.md's ceiling table: (QUERY_KINDS index, the target's "right" in metres)
+CEILING_KINDS = ((2, 25.0), (4, 10.0))
+
+
+@figure_set("ceiling", "expensive", needs="shared data")
+def ceiling(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_ceiling.py on the renderers table's 90° and noise rows: what a perfect search would reach"""
+    osm = str(ws.shared.joinpath(*KOTKA))
+    res, _ = ws.run(str(REPO_ROOT / "benchmarks" / "osm_mask.py"), osm, "kotka.tif", "--lon", "26.9475", "--lat",
+                    "60.5337", python=True)
+    rows, found = [], {}
+    for i, right in CEILING_KINDS:
+        label, extra = QUERY_KINDS[i]
+        for renderer in ("mask", "geometry"):
+            more = ("--renderer", "geometry", "--osm", osm) if renderer == "geometry" else ()
+            out = f"ceiling-{renderer}-{i}"
+            ws.bench("kotka.tif", "--out", f"{out}/", "--resolution", res.strip(), "--viewpoints", "40", "--method",
+                     "profile", "--no-negatives", "--save-panoramas", "40", *more, *extra)
+            c = benchmark(ws, "bench_ceiling.py", str(ws.root / out), str(ws.root / "kotka.tif"), "--right", f"{right:g}")
+            found[(i, renderer)] = c
+            rows.append([label if renderer == "mask" else "", renderer, f"{right:g} m",
+                         *(ratio(c["shares"][k]) for k in ("right", "lost by the search", "a tie",
+                                                           "a look-alike fits better")), ratio(c["ceiling"])])
+    return {
+        "ceiling.table": F(table(["views", "renderer", "right within", "right", "lost by the search", "a tie",
+                                  "a look-alike fits better", "ceiling"], rows)),
+        "ceiling.photo": F(ratio(found[(2, "geometry")]["ceiling"])),
+        "ceiling.noise": F(ratio(found[(4, "geometry")]["ceiling"])),
+    }
+
+
 #: the rows of docs/localization.md's region table: (label, bench_region.py options)
 REGION_KINDS = (
     ("panoramas, camera 2 m and level, heading known", ()),
