@@ -52,9 +52,9 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from collections.abc import Callable
 from typing import Any, TypeVar
 
 import numpy as np
@@ -72,12 +72,12 @@ sys.path.insert(0, str(ROOT))
 
 from osmseg.buildconfig import BuildConfig, available_cores  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
+from osmseg.grid import pad_bbox  # noqa: E402
+from osmseg.imagery.remap import source_pixels, warp_bilinear  # noqa: E402
 from osmseg.osm.features import read_features  # noqa: E402
 from osmseg.osm.localfile import LocalFileSource  # noqa: E402
 from osmseg.output.geotiff import encode_cog, write_class_metadata  # noqa: E402
 from osmseg.output.writer import COMPRESS_LEVEL, PHOTO_COMPRESS_LEVEL, encode_jpeg, encode_png  # noqa: E402
-from osmseg.grid import pad_bbox  # noqa: E402
-from osmseg.imagery.remap import source_pixels, warp_bilinear  # noqa: E402
 from osmseg.places import Area  # noqa: E402
 from osmseg.slots import attempt_grid  # noqa: E402
 

@@ -34,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_region import CLASSES, PANO, TABLE, draw_views, street_points, view_options  # noqa: E402
+
 from localization.horizon import estimate_tilt  # noqa: E402
 from localization.profile import Camera, semantic_map  # noqa: E402
 from localization.region import RegionConfig, region_blocks  # noqa: E402

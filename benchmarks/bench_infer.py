@@ -53,10 +53,10 @@ from PIL import Image
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from training.spec import ModelSpec  # noqa: E402
 from training.infer import DEFAULT_OVERLAP_FRACTION, predict_array  # noqa: E402
-from training.predict import predict_file  # noqa: E402
 from training.model import SegNet, build_model, model_spec  # noqa: E402
+from training.predict import predict_file  # noqa: E402
+from training.spec import ModelSpec  # noqa: E402
 from training.tiling import WindowGrid  # noqa: E402
 
 MANILA = ROOT.parent / "shared" / "data" / "oam-rgb" / "manila.tif"

@@ -37,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_localize_graph import aerial_mask  # noqa: E402
+
 from localization import cells, graph, windows  # noqa: E402
 from localization.landmarks import landmarks_from_mask, load_landmark_classes  # noqa: E402
 from localization.match import localize  # noqa: E402

@@ -76,8 +76,9 @@ ROOT = HERE.parent
 sys.path[:0] = [str(ROOT), str(HERE)]
 
 from kampala import BUILDING, UNLABELED, build_kampala  # noqa: E402
-from osmseg.grid import ground_pixel_size  # noqa: E402
 from pixel_baseline import Fitted, back_to_grid, building_scores, fit_baseline, resample  # noqa: E402
+
+from osmseg.grid import ground_pixel_size  # noqa: E402
 from training.data import PATCH_SIZE, dataset_resolution, discover_camvid, patch_boxes  # noqa: E402
 from training.recipe import recipe_named  # noqa: E402
 

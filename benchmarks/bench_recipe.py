@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from training.config import make_config  # noqa: E402
-from training.data import discover_dataset, files_by_name, validate, weights_from_histograms, dataset_class_table  # noqa: E402
+from training.data import dataset_class_table, discover_dataset, files_by_name, validate, weights_from_histograms  # noqa: E402
 from training.evaluate import EvalOptions, run_eval  # noqa: E402
 from training.train import run  # noqa: E402
 
@@ -103,8 +103,9 @@ def steps_per_epoch_of(run_dir: Path) -> int:
 def batch_stat_accuracy(checkpoint: Path, dataset: Path) -> float:
     """Test pixel accuracy of ``checkpoint`` with BatchNorm normalising each whole test image by
     its own statistics (training mode, no gradient)."""
-    from osmseg.images import read_label, read_rgb
     from torchvision.transforms.v2 import functional as F
+
+    from osmseg.images import read_label, read_rgb
     from training.checkpoint import load_checkpoint, model_from_checkpoint
 
     model, spec = model_from_checkpoint(checkpoint, device="cpu")

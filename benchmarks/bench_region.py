@@ -48,7 +48,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from localization.search import UNKNOWN_HEIGHTS  # noqa: E402
 from localization.compare import roc_auc  # noqa: E402
 from localization.georender import Camera as GeoCamera, render  # noqa: E402
 from localization.georender_osm import scene_from_osm  # noqa: E402
@@ -57,7 +56,7 @@ from localization.profile import MASK_MIN_CONFIDENCE, Camera, semantic_map  # no
 from localization.region import RegionConfig, distance_m, pixel_lonlat, region_blocks, search_region  # noqa: E402
 from localization.region_cache import BlockMasks  # noqa: E402
 from localization.render import panorama_table  # noqa: E402
-from localization.search import ProfileConfig  # noqa: E402
+from localization.search import UNKNOWN_HEIGHTS, ProfileConfig  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 
 KOTKA = ROOT.parent / "shared" / "data" / "helsinki-osm" / "kotka.osm.pbf"

@@ -35,9 +35,9 @@ import resource
 import sys
 import tempfile
 import time
-from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch

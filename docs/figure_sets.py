@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from figures import DEMO_BUILD, Figure, Workspace, figure_set, transcript
+
 from osmseg.units import count, degrees, factor, metres, number, ratio, seconds
 
 #: the s/view column of localize-bench's method table (the last number of a row, with the spaces that pad it

@@ -12,8 +12,8 @@ from typing import Any
 
 from figure_sets import MASK_THRESHOLD, TIMING_COLUMN, F, by_classes, of, px_stats, span, table
 from figures import REPO_ROOT, Figure, Workspace, figure_set, transcript
-from osmseg.units import count, degrees, factor, metres, number, pixels, ratio, seconds
 
+from osmseg.units import count, degrees, factor, metres, number, pixels, ratio, seconds
 
 # --------------------------------------------------------------------------- the authors' annotated pairs
 

@@ -74,15 +74,15 @@ class FigureSet:
     name: str
     cost: str                      # "cheap" | "expensive"
     needs: str                     # "" | "torch" | "shared data" | "pairs"
-    measure: Callable[["Workspace"], dict[str, Figure]]
+    measure: Callable[[Workspace], dict[str, Figure]]
     about: str
 
 
 SETS: dict[str, FigureSet] = {}
 
 
-def figure_set(name: str, cost: str, needs: str = "") -> Callable[[Callable[["Workspace"], dict[str, Figure]]],
-                                                                   Callable[["Workspace"], dict[str, Figure]]]:
+def figure_set(name: str, cost: str, needs: str = "") -> Callable[[Callable[[Workspace], dict[str, Figure]]],
+                                                                   Callable[[Workspace], dict[str, Figure]]]:
     """Register a function measuring the figures ``name.*`` (its docstring says what it runs)."""
     def register(measure: Callable[[Workspace], dict[str, Figure]]) -> Callable[[Workspace], dict[str, Figure]]:
         SETS[name] = FigureSet(name, cost, needs, measure, (measure.__doc__ or "").strip().splitlines()[0])

@@ -33,12 +33,18 @@ from typing import Any
 
 import click
 
-from osmseg.cli.common import output_options, parse_size, progress_bars, renamed_option, report_errors, typed_options
+from localization.cli_options import (
+    parse_camera_height,
+    parse_heading,
+    parse_heights,
+    parse_point,
+    parse_window,
+    parse_windows,
+)
 from localization.cli_region import RegionArgs, region_options, run_region
-from localization.cli_options import (parse_camera_height, parse_heading, parse_heights, parse_point, parse_window,
-                                      parse_windows)
 from localization.cli_summary import format_summary
 from localization.inputs import SideOptions
+from osmseg.cli.common import output_options, parse_size, progress_bars, renamed_option, report_errors, typed_options
 from osmseg.errors import ConfigError
 from osmseg.units import degrees, metres, number, pixels, ratio
 

@@ -139,7 +139,7 @@ def parse_lonlat(text: str | None) -> tuple[float, float] | None:
                       f"with --osm, --truth is LON,LAT in finite degrees, got {text!r}")
 
 
-def answers_table(result: "RegionResult") -> str:
+def answers_table(result: RegionResult) -> str:
     """The answers, best first, as a fixed-width table."""
     lines = [f"{'rank':>4}  {'lon':>12}  {'lat':>12}  {'score':>7}  {'kappa':>6}  {'confidence':>10}"]
     for rank, a in enumerate(result.answers, start=1):
@@ -151,7 +151,7 @@ def answers_table(result: "RegionResult") -> str:
 def run_region(ctx: click.Context, ground: Path | None, region: RegionArgs, method: str, ground_classes: str,
                ground_table: str | None, ground_size: str | None, ground_checkpoint: Path | None,
                aerial_classes: str, aerial_table: str, mode: str, min_size: int, grid_stride: int,
-               profile: "ProfileConfig", fov_deg: float, camera_height: float, top_k: int,
+               profile: ProfileConfig, fov_deg: float, camera_height: float, top_k: int,
                truth_text: str | None, out_dir: Path | None, as_json: bool, verbosity: int,
                stray: list[str]) -> None:
     """Region mode of ``osmseg localize`` (``stray``: options that belong to an aerial image)."""

@@ -57,8 +57,8 @@ DEMO_VIEWPOINTS = 12
 
 def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: Progress | None) -> None:
     """Render panoramas in the demo masks and localize them with both methods (localize-bench, a few viewpoints)."""
-    from localization.evaluate import BenchConfig, load_dataset_scenes, run_bench
     from localization.cli_summary import format_summary
+    from localization.evaluate import BenchConfig, load_dataset_scenes, run_bench
 
     loc_dir = out_dir / "localize"
     drawing = importlib.util.find_spec("matplotlib") is not None

@@ -45,7 +45,6 @@ from typing import Any
 import numpy as np
 
 from localization.compare import method_summary, photo_columns, photo_view, run_method
-from localization.profile import MASK_MIN_CONFIDENCE
 from localization.evaluate_plots import plot_classes, plot_confidence, plot_errors
 from localization.geobench import geometry_view, geotiff_bounds_3857, scene_for_mask
 from localization.georender_osm import OsmScene
@@ -53,10 +52,9 @@ from localization.graph import cliques_fast
 from localization.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
 from localization.match import DEFAULT_P
 from localization.pipeline import METHODS, AerialGraph, LocalizeConfig, aerial_graph, profile_index, run
-from localization.profile import semantic_map
+from localization.profile import MASK_MIN_CONFIDENCE, semantic_map
+from localization.render import NoiseConfig, RenderConfig, RenderedView, object_heights, render_view, save_panorama_png
 from localization.result import Localization
-from localization.render import (NoiseConfig, RenderConfig, RenderedView, object_heights, render_view,
-                                 save_panorama_png)
 from localization.scores import _mean, baselines, by_num_classes, chance_errors, score, summarize
 from localization.search import AerialIndex, ProfileConfig
 from localization.visible import landmark_cells, visible_landmarks
@@ -64,8 +62,8 @@ from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_text
-from osmseg.progress import Progress, track
 from osmseg.output.manifest import manifest_path, read_manifest
+from osmseg.progress import Progress, track
 
 logger = logging.getLogger(__name__)
 
@@ -443,8 +441,8 @@ def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, 
               config: BenchConfig) -> list[Path]:
     """``STEM_map.png`` (the mask with ``loc``'s candidates, top-k and truth) and ``STEM_panorama.png``
     (the view's landmark graph over it)."""
-    from localization.graph import adjacency
     from localization.figures import graph_png, localization_png
+    from localization.graph import adjacency
 
     query = view.landmarks
     pano_graph = adjacency(cliques_fast(query, query.height)) if len(query) else np.zeros((0, 0), bool)

@@ -23,11 +23,19 @@ import numpy as np
 from localization.georender import Camera, render
 from localization.georender_osm import OsmScene, scene_from_osm
 from localization.landmarks import LandmarkClasses, landmarks_from_mask
-from osmseg.grid import pixel_lonlat
-from localization.render import (SKY_NAME, NoiseConfig, Panorama, RenderConfig, RenderedView, apply_noise,
-                                 offset_viewpoint, panorama_table)
+from localization.render import (
+    SKY_NAME,
+    NoiseConfig,
+    Panorama,
+    RenderConfig,
+    RenderedView,
+    apply_noise,
+    offset_viewpoint,
+    panorama_table,
+)
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
+from osmseg.grid import pixel_lonlat
 
 __all__ = ["Bounds", "geotiff_bounds_3857", "scene_for_mask", "geometry_view"]
 

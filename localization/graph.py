@@ -78,8 +78,19 @@ from scipy.spatial import cKDTree
 
 from localization.cells import _component_planes, _distinct
 from localization.landmarks import Landmarks
-from localization.windows import (CONVENTIONS, Cliques, _cuts, _empty_from, _Geometry, _geometry, _in_cyclic,
-                                  _in_linear, _intervals, _row_runs, _run_cliques)
+from localization.windows import (
+    CONVENTIONS,
+    Cliques,
+    _cuts,
+    _empty_from,
+    _Geometry,
+    _geometry,
+    _in_cyclic,
+    _in_linear,
+    _intervals,
+    _row_runs,
+    _run_cliques,
+)
 
 __all__ = ["CONVENTIONS", "Cliques", "adjacency", "cliques_fast", "cliques_reference", "window_size_auto"]
 

@@ -47,8 +47,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from osmseg.classes import ClassDef, ClassTable, load_class_table
-from osmseg.errors import ClassTableError, ConfigError
 from osmseg.datafiles import DATA_DIR, load_toml
+from osmseg.errors import ClassTableError, ConfigError
 
 __all__ = ["MODES", "PAPER_CLASSES", "SKY_COLOR", "SKY_NAME", "LandmarkClasses", "Landmarks", "landmarks_from_mask",
            "landmark_dictionary_path", "load_landmark_classes", "panorama_table"]

@@ -184,7 +184,7 @@ class _EdgeTable:
 
     @classmethod
     def build(cls, c: sparse.csr_matrix, cls_idx: np.ndarray, n_classes: int,
-              drop: np.ndarray | None = None) -> "_EdgeTable":
+              drop: np.ndarray | None = None) -> _EdgeTable:
         """``drop``: optional ``(K, K)`` bool, landmark pairs whose edge is removed.
 
         See :func:`localization.refine.feature_edge_mask`.

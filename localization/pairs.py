@@ -33,16 +33,22 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-
-from localization.evaluate import aerial_graphs, localize_subsets, subsets_of, write_results
-from localization.scores import (RECALL_RADII_M, baselines, by_num_classes, chance_errors, error_fields,
-                                 heading_error, summarize)
 from localization.compare import RIGHT_WRONG, confidence_of, method_summary
+from localization.evaluate import aerial_graphs, localize_subsets, subsets_of, write_results
 from localization.landmark_files import read_landmarks
 from localization.landmarks import LandmarkClasses, Landmarks, load_landmark_classes
 from localization.pipeline import METHODS, LocalizeConfig, aerial_graph, profile_index, run, run_profile
 from localization.profile import Camera, check_view_shape
 from localization.result import DEFAULT_P
+from localization.scores import (
+    RECALL_RADII_M,
+    baselines,
+    by_num_classes,
+    chance_errors,
+    error_fields,
+    heading_error,
+    summarize,
+)
 from localization.search import ProfileConfig
 from osmseg import __version__
 from osmseg.errors import ConfigError, DatasetError

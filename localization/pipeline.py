@@ -28,9 +28,18 @@ from localization.horizon import estimate_tilt
 from localization.inputs import Side, SideOptions, load_side, with_photo
 from localization.landmarks import Landmarks
 from localization.match import DEFAULT_P, Localization, localize, match_cliques, unanswered
-from localization.profile import (AerialLandmarkIndex, AerialMaskIndex, Camera, QueryProfile, SemanticMap,
-                                  check_view_shape, query_from_landmarks, query_from_mask, query_poses,
-                                  ray_radii)
+from localization.profile import (
+    AerialLandmarkIndex,
+    AerialMaskIndex,
+    Camera,
+    QueryProfile,
+    SemanticMap,
+    check_view_shape,
+    query_from_landmarks,
+    query_from_mask,
+    query_poses,
+    ray_radii,
+)
 from localization.refine import HIERARCHY, localize_hierarchical
 from localization.search import AerialIndex, ProfileConfig, localize_profile
 from osmseg.errors import ConfigError, DatasetError

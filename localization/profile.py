@@ -248,7 +248,7 @@ class QueryProfile:
     heading_deg: float | None  # the heading the azimuths were computed with; None: query frame (unknown)
     hfov_deg: float
     pose: tuple[float, float, float] | None = None  # (camera height m, pitch, roll degrees) it was read with
-    variants: tuple["QueryProfile", ...] = ()  # the same query read at other camera heights; q is their mean
+    variants: tuple[QueryProfile, ...] = ()  # the same query read at other camera heights; q is their mean
 
     @property
     def bins(self) -> int:

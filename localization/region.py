@@ -32,9 +32,8 @@ Imports: osmseg core, localization.profile, .pipeline, .landmarks, .region_cache
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any

@@ -27,8 +27,16 @@ from typing import Any
 import numpy as np
 
 from localization.profile import Camera, SemanticMap
-from localization.region import (Answer, RegionConfig, RegionPart, RegionResult, distance_m, merge_parts,
-                                 region_blocks, search_part)
+from localization.region import (
+    Answer,
+    RegionConfig,
+    RegionPart,
+    RegionResult,
+    distance_m,
+    merge_parts,
+    region_blocks,
+    search_part,
+)
 from localization.region_cache import BlockMasks, osm_key
 from localization.search import ProfileConfig
 from osmseg.errors import ConfigError

@@ -96,7 +96,7 @@ class Localization:
     n_cliques: int = 0
     relevant: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     clique_likelihoods: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    levels: tuple["Localization", ...] = ()
+    levels: tuple[Localization, ...] = ()
     feature_edges: dict[str, Any] | None = None
     method: str = "paper"
     heading_deg: float | None = None   # the profile method: the query's estimated (or given) heading

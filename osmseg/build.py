@@ -22,19 +22,19 @@ from pathlib import Path
 
 from osmseg.buildconfig import DEFAULT_ZOOM, BuildConfig, Shard, sampling_box
 from osmseg.errors import ConfigError
+from osmseg.finalize import ENTRIES_PREFIX, finalize
 from osmseg.grid import LngLatBBox, ground_resolution, pad_bbox
 from osmseg.net.http import HttpClient
-from osmseg.finalize import ENTRIES_PREFIX, finalize
 from osmseg.output.atomic import sweep_temp_files as sweep_temp
 from osmseg.output.manifest import SAMPLE_DIRS
 from osmseg.output.stac import ITEMS_DIR, STAC_DIR
 from osmseg.output.writer import IMAGE_FORMATS
+from osmseg.processes import start_fork_server, sweep_owned
 from osmseg.progress import Progress, report
 from osmseg.records import SlotOutcome
 from osmseg.sampling import check_room
 from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions, warn_upsampling
 from osmseg.state import STATE_DIR, STATE_SUBDIRS, BuildState
-from osmseg.processes import start_fork_server, sweep_owned
 from osmseg.workers import FirstSamples, SlotRunner
 
 logger = logging.getLogger(__name__)

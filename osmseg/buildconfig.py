@@ -13,7 +13,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from osmseg.errors import ConfigError
 from osmseg.grid import TILE_SIZE, LngLatBBox, ground_resolution, pad_bbox
 from osmseg.places import Area, normalise_name
 from osmseg.processes import available_cores

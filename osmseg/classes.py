@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from osmseg.errors import ClassTableError, DatasetError
 from osmseg.datafiles import load_toml
+from osmseg.errors import ClassTableError, DatasetError
 
 RGB = tuple[int, int, int]
 
@@ -161,7 +161,7 @@ class ClassTable:
     classes: tuple[ClassDef, ...]
     unlabeled: ClassDef
     description: str = ""
-    base: "ClassTable | None" = None  # for mapped tables (classes6): the table rules come from
+    base: ClassTable | None = None  # for mapped tables (classes6): the table rules come from
     hidden: tuple[Rule, ...] = ()  # features not visible from above (tunnels...): never drawn
 
     @property

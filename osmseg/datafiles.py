@@ -8,9 +8,10 @@ something else: :mod:`osmseg.output.manifest` writes and reads it.) Imports: osm
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Any
+
+import tomllib
 
 from osmseg.errors import ConfigError
 

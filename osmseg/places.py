@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from osmseg.datafiles import load_toml
 from osmseg.errors import ConfigError, UnknownPlaceError
 from osmseg.grid import LngLatBBox
-from osmseg.datafiles import load_toml
 
 EARTH_RADIUS_M = 6371008.8
 

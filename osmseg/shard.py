@@ -22,7 +22,7 @@ class Shard:
     count: int  # N
 
     @classmethod
-    def parse(cls, text: str) -> "Shard":
+    def parse(cls, text: str) -> Shard:
         """Parse ``K/N``.
 
         >>> Shard.parse("2/8")

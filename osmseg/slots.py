@@ -25,8 +25,15 @@ import numpy as np
 from osmseg.buildconfig import BuildConfig, sampling_box
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import RetriesExhausted
-from osmseg.grid import (LngLatBBox, SampleGrid, ground_resolution, pad_bbox, resolution_mismatch, sample_grid,
-                         zoom_for_resolution)
+from osmseg.grid import (
+    LngLatBBox,
+    SampleGrid,
+    ground_resolution,
+    pad_bbox,
+    resolution_mismatch,
+    sample_grid,
+    zoom_for_resolution,
+)
 from osmseg.imagery import make_provider
 from osmseg.imagery.base import ImageryProvider
 from osmseg.images import read_rgb

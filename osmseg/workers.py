@@ -44,7 +44,7 @@ import signal
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import ExitStack
@@ -336,7 +336,9 @@ class SlotRunner:
         pending: set[Future[SlotOutcome]] = set()
         queue = iter(slots)
         limit = self.workers * (1 + QUEUED_PER_WORKER)
-        submit: Callable[[int], Future[SlotOutcome]] = lambda s: pool.submit(_build_slot, s, first.may_show(s))
+        def submit(s: int) -> Future[SlotOutcome]:
+            return pool.submit(_build_slot, s, first.may_show(s))
+
         with interrupts_deferred():  # the first submits start the worker processes
             for slot in queue:
                 pending.add(submit(slot))

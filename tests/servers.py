@@ -243,7 +243,7 @@ class _RequestHandler(BaseHTTPRequestHandler):
             else:
                 try:
                     reply = scripted(seen)
-                except Exception as exc:  # noqa: BLE001 - reported by the fixture instead
+                except Exception as exc:
                     owner.handler_errors.append(exc)
                     reply = Reply(500, f"route handler failed: {exc!r}\n")
             owner._sleep(reply.delay)

@@ -27,14 +27,13 @@ import numpy as np
 import pytest
 import rasterio
 from click.testing import CliRunner, Result
+from conftest import REPO_ROOT, TEST_DATA, TINYCITY, TINYCITY_CENTRE
 from PIL import Image
 from rasterio.windows import Window
 
 from osmseg.classes import load_class_table
 from osmseg.cli.main import cli
 from osmseg.datafiles import DATA_DIR
-
-from conftest import REPO_ROOT, TEST_DATA, TINYCITY, TINYCITY_CENTRE
 
 LON, LAT = TINYCITY_CENTRE
 TILES = TEST_DATA / "imagery" / "tiles"  # z18 tiles of a 3x3 block in Berlin

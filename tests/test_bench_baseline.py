@@ -21,16 +21,15 @@ import mercantile
 import numpy as np
 import pytest
 import rasterio
-from PIL import Image
-
 from conftest import REPO_ROOT, shared_path
+from PIL import Image
 
 sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
 pytest.importorskip("sklearn", reason="the pixel baseline needs scikit-learn (the bench extra)")
 
-import kampala  # noqa: E402
-import pixel_baseline  # noqa: E402
-from pixel_baseline import building_scores, fit_baseline  # noqa: E402
+import kampala
+import pixel_baseline
+from pixel_baseline import building_scores, fit_baseline
 
 ROOF, GROUND = (200, 90, 60), (80, 140, 70)
 

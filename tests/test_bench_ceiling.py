@@ -7,12 +7,12 @@ import sys
 
 import numpy as np
 import pytest
-from PIL import Image
-
 from conftest import REPO_ROOT
+from PIL import Image
+from test_loc_render import RES, TABLE, town
+
 from localization.evaluate import BenchConfig, Scene, run_bench
 from localization.search import ProfileConfig
-from test_loc_render import RES, TABLE, town
 
 sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
 

@@ -13,7 +13,6 @@ import sys
 
 import mercantile
 import numpy as np
-
 from conftest import REPO_ROOT, shared_path
 
 sys.path.insert(0, str(REPO_ROOT / "benchmarks"))

@@ -23,14 +23,14 @@ import numpy as np
 import pytest
 import rasterio
 from click.testing import CliRunner
+from conftest import TEST_DATA, TINYCITY, TINYCITY_CENTRE
 from PIL import Image
 from rio_cogeo.cogeo import cog_validate
+from servers import ScriptedServer
 
 from osmseg.classes import load_class_table
 from osmseg.cli.main import cli
 from osmseg.demo.render import IDS13, MATERIALS
-
-from conftest import TEST_DATA, TINYCITY, TINYCITY_CENTRE
 
 LON, LAT = TINYCITY_CENTRE
 TABLE = load_class_table("classes13.toml")
@@ -42,7 +42,7 @@ def build_args(out: Path, imagery: Path, *extra: str, samples: int = 3) -> list[
             "--cache-dir", str(out.parent / "cache"), *extra]
 
 
-def run_cli(*args: str) -> "click.testing.Result":  # noqa: F821
+def run_cli(*args: str) -> click.testing.Result:  # noqa: F821
     return CliRunner().invoke(cli, ["-q", *args], catch_exceptions=False)
 
 
@@ -257,7 +257,7 @@ def test_bad_input_gives_one_line_and_a_usage_exit(tmp_path: Path, args: list[st
 
 
 def test_osm_objects_that_cannot_be_placed_are_said_loudly_and_recorded(tmp_path: Path, imagery_tif: Path,
-                                                                         http_server: "ScriptedServer") -> None:
+                                                                         http_server: ScriptedServer) -> None:
     """An OSM API answer whose ways come without their nodes: a warning on stderr, and counts in
     the manifest, instead of a silently empty mask."""
     from servers import Reply

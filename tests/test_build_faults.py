@@ -32,20 +32,23 @@ import signal
 import subprocess
 import sys
 import threading
-import zlib
-from xml.etree import ElementTree
 import time
+import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
+from xml.etree import ElementTree
 
 import mercantile
 import numpy as np
 import pytest
 import rasterio
+import servers
 from click.testing import CliRunner, Result
+from conftest import TEST_DATA
 from PIL import Image
+from servers import Reply, ScriptedServer, Seen
 
 from osmseg.classes import load_class_table
 from osmseg.cli.main import cli
@@ -53,10 +56,6 @@ from osmseg.demo.render import render_aerial
 from osmseg.grid import TILE_SIZE, sample_grid
 from osmseg.osm.features import read_features
 from osmseg.rasterize import rasterize
-
-import servers
-from conftest import TEST_DATA
-from servers import Reply, ScriptedServer, Seen
 
 TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
 LON, LAT, ZOOM = 24.94, 60.17, 18

@@ -30,12 +30,11 @@ import time
 from pathlib import Path
 
 import pytest
+from test_build_workers import build_args, descendants, one_worker, run_cli, tree_bytes, wait_gone  # noqa: F401
 
 from osmseg.errors import DatasetBusy, DatasetError
 from osmseg.processes import INTERRUPTED, TERMINATED, owner
 from training.splits import sample_groups
-
-from test_build_workers import build_args, descendants, one_worker, run_cli, tree_bytes, wait_gone  # noqa: F401
 
 #: Starts ``osmseg ARGS`` at a common instant: once its imports are done it says so (a file
 #: ``READY_DIR/ready-PID``), then waits for ``READY_DIR/go`` to name the instant, and busy-waits

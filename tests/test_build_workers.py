@@ -21,13 +21,20 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
-from osmseg.cli.main import cli
-
 from conftest import TINYCITY, TINYCITY_CENTRE
 from servers import Reply
-from test_build_faults import Services, build_args as service_args, run_cli as service_cli
-from test_build_faults import clean, module_services, pinned_clock, services, tiles  # noqa: F401  (fixtures)
+from test_build_faults import (  # noqa: F401  (fixtures)
+    Services,
+    build_args as service_args,
+    clean,
+    module_services,
+    pinned_clock,
+    run_cli as service_cli,
+    services,
+    tiles,
+)
+
+from osmseg.cli.main import cli
 
 LON, LAT = TINYCITY_CENTRE
 
@@ -44,7 +51,7 @@ def tree_bytes(root: Path) -> dict[str, bytes]:
             if p.is_file() and ".osmseg-build" not in p.parts}
 
 
-def run_cli(*args: str) -> "click.testing.Result":  # noqa: F821
+def run_cli(*args: str) -> click.testing.Result:  # noqa: F821
     return CliRunner().invoke(cli, ["-q", *args], catch_exceptions=False)
 
 
@@ -220,7 +227,7 @@ def test_record_with_several_workers_is_a_usage_error(tmp_path: Path, imagery_ti
 
 # -- one polite client across workers -------------------------------------------------------------
 
-def test_workers_share_the_per_host_limit_and_a_retry_after(services: Services, tmp_path: Path) -> None:  # noqa: F811
+def test_workers_share_the_per_host_limit_and_a_retry_after(services: Services, tmp_path: Path) -> None:
     """Two workers fetching 25 tiles each on 4 threads would have 8 requests in flight; the host's
     limit (6) holds across them, and a 429 with Retry-After: 2 answered to one worker holds back
     every worker's requests to that host for those two seconds.
@@ -316,7 +323,7 @@ def test_the_executable_starts_the_fork_server_before_it_imports_the_builder(
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     said = [line for line in run.stderr.splitlines() if line.startswith("CHILDREN ")]
-    children = eval(said[-1].split(" ", 1)[1])  # noqa: S307 (our own repr of a list of str)
+    children = eval(said[-1].split(" ", 1)[1])
     servers = [c for c in children if "forkserver" in c]
     assert len(servers) == (1 if early else 0), children
     assert (tmp_path / "ds" / "manifest.json").exists()

@@ -21,11 +21,10 @@ from pathlib import Path
 import click
 import pytest
 from click.testing import CliRunner
+from conftest import TEST_DATA
 
 from osmseg.cli.main import cli
 from osmseg.demo import DEMO_CASSETTE
-
-from conftest import TEST_DATA
 
 TINYSEG = TEST_DATA / "tinyseg"
 COMMANDS = sorted(cli.list_commands(click.Context(cli)))

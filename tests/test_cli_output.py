@@ -17,10 +17,9 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+from conftest import TEST_DATA
 
 from osmseg.cli.main import cli
-
-from conftest import TEST_DATA
 
 TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
 TINYSEG = TEST_DATA / "tinyseg"

@@ -2,21 +2,21 @@
 
 from __future__ import annotations
 
-import json
 import itertools
+import json
 import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from conftest import TEST_DATA
 from PIL import Image
 
-from conftest import TEST_DATA
 from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
-from training.augment import GEOMETRIC, OVERHEAD, STREET, Draw, orient
 from osmseg.images import read_label, read_rgb
+from training.augment import GEOMETRIC, OVERHEAD, STREET, Draw, orient
 from training.data import (
     PatchDataset,
     SampleFiles,

@@ -9,10 +9,10 @@ import numpy as np
 from click.testing import CliRunner
 from PIL import Image
 
-from osmseg import __version__
 from localization.demo import DEMO_VIEWPOINTS
-from osmseg.demo import DEMO_CASSETTE, DEMO_SAMPLES
+from osmseg import __version__
 from osmseg.cli.main import cli
+from osmseg.demo import DEMO_CASSETTE, DEMO_SAMPLES
 
 
 def test_demo_builds_offline_and_says_what_it_used(tmp_path: Path) -> None:

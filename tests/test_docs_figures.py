@@ -12,12 +12,11 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from conftest import REPO_ROOT
 
 sys.path.insert(0, str(REPO_ROOT / "docs"))
-import figures  # noqa: E402  (docs/figures.py)
-import figure_sets  # noqa: E402,F401  (registers the sets)
+import figure_sets
+import figures
 
 
 def test_every_marker_is_closed_and_names_a_set() -> None:

@@ -7,10 +7,9 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+from conftest import TEST_DATA, shared_path
 
 from osmseg.cli.main import cli
-
-from conftest import TEST_DATA, shared_path
 
 
 @pytest.fixture(scope="module")

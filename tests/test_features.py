@@ -12,6 +12,7 @@ import numpy as np
 import osmium
 import pytest
 import shapely
+from test_rasterize import T13, at, centre, load_tinycity
 
 import osmseg.classes
 import osmseg.osm.coastline
@@ -24,7 +25,6 @@ from osmseg.grid import sample_grid
 from osmseg.osm.coastline import sea_polygon
 from osmseg.osm.features import FeatureSet, read_features
 from osmseg.rasterize import rasterize
-from test_rasterize import T13, at, centre, load_tinycity
 
 D = load_tinycity()
 WATER = T13.by_name["water"].id

@@ -21,6 +21,7 @@ import numpy as np
 import osmium
 import pytest
 import shapely
+from conftest import shared_path
 from rasterio.features import rasterize
 
 from osmseg.classes import ClassTable, load_class_table
@@ -28,7 +29,6 @@ from osmseg.grid import sample_grid
 from osmseg.osm.features import FeatureSet, read_features
 from osmseg.osm.geometry import to_mercator
 from osmseg.osm.objects import COAST, WayRule, clip_to, rules_of
-from conftest import shared_path
 
 pytestmark = pytest.mark.shared_data
 

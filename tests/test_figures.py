@@ -12,13 +12,13 @@ from PIL import Image
 
 from osmseg.classes import load_class_table
 from osmseg.errors import DatasetError
-from training.metrics import metrics_from_matrix
 from training.figures import (
     confusion_matrix_png,
     per_class_iou_png,
     qualitative_panels,
     training_curves_png,
 )
+from training.metrics import metrics_from_matrix
 
 TABLE = {
     "name": "tiny",

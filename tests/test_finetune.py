@@ -21,10 +21,10 @@ from PIL import Image
 
 torch = pytest.importorskip("torch")
 
+from conftest import TEST_DATA  # noqa: E402
+
 from osmseg.cli.main import cli  # noqa: E402
 from training.checkpoint import load_checkpoint  # noqa: E402
-
-from conftest import TEST_DATA  # noqa: E402
 
 TINYSEG = TEST_DATA / "tinyseg"
 TINY = TEST_DATA / "train" / "tiny.yaml"

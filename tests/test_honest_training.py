@@ -30,13 +30,13 @@ from PIL import Image
 
 torch = pytest.importorskip("torch")
 
+from conftest import TEST_DATA, shared_path  # noqa: E402
+
 from osmseg.cli.main import cli  # noqa: E402
 from training.checkpoint import load_checkpoint  # noqa: E402
 from training.engine import StepOptions, train_one_epoch  # noqa: E402
 from training.model import SegNet  # noqa: E402
 from training.splits import make_splits  # noqa: E402
-
-from conftest import TEST_DATA, shared_path  # noqa: E402
 
 TINYSEG = TEST_DATA / "tinyseg"
 TINY = TEST_DATA / "train" / "tiny.yaml"

@@ -10,24 +10,25 @@ ramp), so every check is "the pixel at tile i's offset came from tile i".
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-from collections.abc import Iterator
-
 import io
 import json
 import logging
 import multiprocessing
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import mercantile
 import numpy as np
-from scipy import ndimage
 import pytest
 import rasterio
+from conftest import TEST_DATA, shared_path
 from PIL import Image
 from pyproj import Transformer
 from rasterio.transform import from_origin
+from scipy import ndimage
+from servers import Reply
 
 from osmseg.errors import AuthError, ConfigError, ImageryError, RetriesExhausted
 from osmseg.grid import TILE_SIZE, SampleGrid, sample_grid
@@ -40,9 +41,6 @@ from osmseg.imagery import (
 from osmseg.imagery.bing import AUTH_MESSAGE
 from osmseg.imagery.mosaic import assemble
 from osmseg.net.http import HttpClient, HttpConfig
-
-from conftest import TEST_DATA, shared_path
-from servers import Reply
 
 DATA = TEST_DATA / "imagery"
 LON, LAT, ZOOM = 13.4050, 52.5200, 18  # as in tests/data/imagery/data.py
@@ -675,8 +673,8 @@ def test_geotiff_warp_matches_gdal_warping_the_whole_raster(tmp_path: Path) -> N
     hardest case: any misplacement shows), in a rotated CRS, at three zooms, also where the
     sample runs off the raster. Equal up to rounding and OpenCV's 1/32-pixel placement; the
     validity mask differs only on the footprint's edge."""
-    from rasterio.warp import reproject
     from rasterio.enums import Resampling
+    from rasterio.warp import reproject
 
     lon, lat = 24.94, 60.17
     x, y = Transformer.from_crs("EPSG:4326", "EPSG:3067", always_xy=True).transform(lon, lat)

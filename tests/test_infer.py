@@ -15,22 +15,21 @@ from xml.dom import minidom
 import numpy as np
 import pytest
 import rasterio
-from rio_cogeo.cogeo import cog_validate
 import torch
+from conftest import shared_path
 from PIL import Image
 from rasterio.crs import CRS
 from rasterio.transform import from_origin
+from rio_cogeo.cogeo import cog_validate
 from torch import nn
 
 from osmseg.errors import ConfigError, ImageryError
 from osmseg.output.geotiff import read_class_table
 from osmseg.progress import Step
-from training.spec import ModelSpec
 from training.infer import predict_array
 from training.predict import predict_file
+from training.spec import ModelSpec
 from training.tiling import WindowGrid, blend_weight, letterbox
-
-from conftest import shared_path
 
 torch.set_num_threads(1)
 

@@ -20,11 +20,11 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
+from localization.cli import localize_command
 from localization.features import FeatureEdges, dropped_edges, landmark_features
 from localization.graph import cliques_fast
 from localization.landmarks import Landmarks, landmarks_from_mask, load_landmark_classes
 from localization.match import class_adjacency
-from localization.cli import localize_command
 from osmseg.errors import ConfigError
 
 CLASSES = ("building", "road")

@@ -311,8 +311,8 @@ def test_geometry_views_of_real_osm_are_localized_by_the_profile_method(tmp_path
     import json
 
     from click.testing import CliRunner
-
     from conftest import shared_path
+
     from osmseg.cli.main import cli
 
     pbf = shared_path("helsinki-osm", "kotka.osm.pbf")
@@ -380,7 +380,6 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     at = (10.0, -25.0)  # on the north-south street x = 10, between two blocks
     view = render(scene.scene, Camera(*at, eye_m=1.7, width=1232, height=224),
                   panorama_table(table).by_name["sky"].id, table.unlabeled.id)
-    sky = panorama_table(table).by_name["sky"].id
     Image.fromarray(view.astype(np.uint8)).save(tmp_path / "query.png")  # id 14: the sky of the ground table
     truth = lonlat(*at)
     w, s = lonlat(-140, -140)
@@ -434,7 +433,6 @@ def test_a_region_split_into_shards_answers_as_one_process(tmp_path) -> None:
     scene = scene_from_osm([osm], LON0, LAT0, table, radius_m=200, seed=0)
     view = render(scene.scene, Camera(10.0, -25.0, eye_m=1.7, width=1232, height=224, heading_deg=40.0),
                   panorama_table(table).by_name["sky"].id, table.unlabeled.id)
-    sky = panorama_table(table).by_name["sky"].id
     Image.fromarray(view.astype(np.uint8)).save(tmp_path / "query.png")  # id 14: the sky of the ground table
     w, s = lonlat(-140, -140)
     e, n = lonlat(140, 140)
@@ -476,14 +474,13 @@ def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> N
     import mercantile
     import rasterio
 
-    from localization.search import UNKNOWN_HEIGHTS
     from localization.georender_osm import scene_from_osm
     from localization.landmarks import load_landmark_classes
     from localization.pipeline import profile_index, run_profile
     from localization.profile import Camera as QueryCamera, semantic_map
     from localization.render import panorama_table
     from localization.result import Localization
-    from localization.search import ProfileConfig
+    from localization.search import UNKNOWN_HEIGHTS, ProfileConfig
     from osmseg.classes import load_class_table
 
     osm = town(tmp_path)

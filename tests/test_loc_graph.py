@@ -15,8 +15,7 @@ import pytest
 
 from localization.graph import Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
 from localization.landmark_files import read_landmarks
-from localization.landmarks import (PAPER_CLASSES, LandmarkClasses, Landmarks, landmarks_from_mask,
-                                    load_landmark_classes)
+from localization.landmarks import PAPER_CLASSES, LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
 from osmseg.classes import load_class_table
 from osmseg.errors import ClassTableError, ConfigError, DatasetError
 

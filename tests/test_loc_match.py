@@ -15,19 +15,27 @@ import math
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from conftest import write_dataset_manifest
 from PIL import Image
 
-from conftest import write_dataset_manifest
+from localization.cli import localize_command
+from localization.figures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
 from localization.graph import cliques_fast
 from localization.landmarks import Landmarks
 from localization.match import (
-    DEFAULT_P, class_adjacency, extend_cliques, inverted_index, likelihood, localize, match_cliques, posteriors, rank,
+    DEFAULT_P,
+    class_adjacency,
+    extend_cliques,
+    inverted_index,
+    likelihood,
+    localize,
+    match_cliques,
+    posteriors,
+    rank,
     relevant_cliques,
 )
 from localization.refine import feature_edge_mask, inherit, localize_hierarchical
-from localization.figures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
 from osmseg.classes import load_class_table
-from localization.cli import localize_command
 from osmseg.errors import ConfigError
 
 NAMES = ("building", "road", "vegetation", "footway")

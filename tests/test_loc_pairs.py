@@ -15,9 +15,9 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
+from localization.cli import localize_bench_command
 from localization.match import localize
 from localization.pairs import PairsConfig, load_pairs, run_pairs
-from localization.cli import localize_bench_command
 from osmseg.errors import DatasetError
 
 AERIAL = (400, 400)

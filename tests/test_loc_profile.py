@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from PIL import Image
+from test_loc_render import CLASSES, GRASS, RES, ROAD, TABLE, B, town
 
 from localization.cli import localize_bench_command, localize_command
 from localization.compare import photo_view, roc_auc
@@ -25,7 +26,6 @@ from localization.pipeline import profile_index, profile_query, run_profile
 from localization.profile import MASK_MIN_CONFIDENCE, Camera, query_from_mask, ray_radii, semantic_map
 from localization.render import RenderConfig, object_heights, render_panorama
 from localization.search import ProfileConfig
-from test_loc_render import CLASSES, RES, TABLE, B, GRASS, ROAD, town
 
 TRUTHS = [(137.0, 251.0), (262.0, 118.0), (318.0, 345.0)]  # on a road, on grass, on a road
 

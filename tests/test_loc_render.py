@@ -16,18 +16,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from conftest import write_dataset_manifest
 from PIL import Image
 
-from conftest import write_dataset_manifest
-from localization.evaluate import BenchConfig, load_dataset_scenes, run_bench, Scene
-from localization.pipeline import LocalizeConfig, aerial_graph, run
+from localization.cli import localize_bench_command
+from localization.evaluate import BenchConfig, Scene, load_dataset_scenes, run_bench
 from localization.landmarks import landmarks_from_mask, load_landmark_classes
 from localization.match import localize
+from localization.pipeline import LocalizeConfig, aerial_graph, run
+from localization.render import (
+    NoiseConfig,
+    RenderConfig,
+    apply_noise,
+    azimuth_to_column,
+    elevation_to_row,
+    panorama_table,
+    render_panorama,
+    render_view,
+)
 from localization.visible import landmark_cells, visible_landmarks
-from localization.render import (NoiseConfig, RenderConfig, apply_noise, azimuth_to_column, elevation_to_row,
-                                 panorama_table, render_panorama, render_view)
 from osmseg.classes import load_class_table
-from localization.cli import localize_bench_command
 from osmseg.errors import ConfigError
 
 TABLE = load_class_table("classes13.toml")

@@ -30,7 +30,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     import sys
 
     sys.path.insert(0, str(HERE / "data" / "rgbpipe"))
-    import data as rgbpipe  # noqa: PLC0415  (the generator of this test's data)
+    import data as rgbpipe
 
     root = tmp_path_factory.mktemp("rgbpipe")
     paths = rgbpipe.generate(root)

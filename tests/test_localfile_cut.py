@@ -25,8 +25,9 @@ BOX = LngLatBBox(0.0, 0.0, 0.004, 0.002)
 
 
 def osm_xml(path: Path, nodes: dict[int, tuple[float, float]], ways: dict[int, list[int]],
-            relations: dict[int, list[tuple[str, int]]] = {}, version: dict[int, int] = {}) -> Path:
+            relations: dict[int, list[tuple[str, int]]] | None = None, version: dict[int, int] | None = None) -> Path:
     """An OSM XML file: ``nodes`` id -> (lon, lat), ``ways`` id -> node ids, multipolygons id -> members."""
+    relations, version = relations or {}, version or {}
     lines = ['<?xml version="1.0"?>', '<osm version="0.6" generator="test">']
     lines += [f'<node id="{i}" version="{version.get(i, 1)}" timestamp="2024-01-0{version.get(i, 1)}T00:00:00Z" '
               f'lat="{lat}" lon="{lon}"/>' for i, (lon, lat) in nodes.items()]
@@ -42,13 +43,13 @@ def osm_xml(path: Path, nodes: dict[int, tuple[float, float]], ways: dict[int, l
     return path
 
 
-def assert_same_as_fetch(path: Path, boxes: list[LngLatBBox], tmp_path: Path, prepare: list[LngLatBBox] = [],
+def assert_same_as_fetch(path: Path, boxes: list[LngLatBBox], tmp_path: Path, prepare: tuple[LngLatBBox, ...] = (),
                          **kwargs) -> list:
     """``cut(boxes)`` in one work folder, ``fetch`` box by box in another: same bytes, file and marker."""
     cutter, fetcher = LocalFileSource(path, tmp_path / "cut"), LocalFileSource(path, tmp_path / "fetch")
     if prepare:
-        cutter.prepare(prepare)
-        fetcher.prepare(prepare)
+        cutter.prepare(list(prepare))
+        fetcher.prepare(list(prepare))
     got = cutter.cut(boxes, **kwargs)
     for box, extract in zip(boxes, got):
         want = fetcher.fetch(box)
@@ -192,7 +193,7 @@ def test_cut_of_real_helsinki_boxes_is_fetch_byte_for_byte(tmp_path):
     boxes = [pad_bbox(sample_grid(lon, lat, 18).bbox, 60) for lon, lat in centres]
     boxes.append(pad_bbox(sample_grid(24.944, 60.1715, 19).bbox, 60))  # a smaller one, inside another
     area = pad_bbox(LngLatBBox(24.939, 60.169, 24.949, 60.174), 300)
-    got = assert_same_as_fetch(helsinki, boxes, tmp_path, prepare=[area], batch=4)
+    got = assert_same_as_fetch(helsinki, boxes, tmp_path, prepare=(area,), batch=4)
     counts = [sum(e.info["counts"].values()) for e in got]
     assert counts[-2] == 0 and min(counts[:5]) > 1000
     assert any(r["r"] for r in (e.info["counts"] for e in got))

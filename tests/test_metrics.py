@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from conftest import shared_path
+
 from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from training.metrics import (

@@ -7,11 +7,10 @@ Fault tests talk to a real HTTP server on 127.0.0.1 (``tests/servers.py``).
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import importlib.util
 import json
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 import mercantile
@@ -239,7 +238,7 @@ def test_local_prepare_cuts_helsinki_once_for_three_boxes(tmp_path):
     grids = [sample_grid(24.944, 60.170, 18), sample_grid(24.9385, 60.1665, 19), sample_grid(24.950, 60.176, 19)]
     boxes = [pad_bbox(g.bbox, 100) for g in grids]
     source = LocalFileSource(copy, tmp_path / "work")
-    region = source.prepare(boxes)
+    source.prepare(boxes)
     copy.unlink()  # from now on only the region file can be read: proves one pass over the input
     extracts = [source.fetch(b) for b in boxes]
     with pytest.raises(OSMDataError):  # a box nobody prepared needs the (gone) input file

@@ -16,7 +16,6 @@ from PIL import Image
 
 from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.rejection import FilterConfig, Rejection
 from osmseg.grid import SampleGrid, sample_grid
 from osmseg.images import read_label
 from osmseg.output import (
@@ -37,6 +36,7 @@ from osmseg.output import (
 )
 from osmseg.output.manifest import FORMAT, FORMAT_VERSION, class_totals
 from osmseg.output.overview import MARGIN, legend_height
+from osmseg.rejection import FilterConfig, Rejection
 
 TABLE = load_class_table("classes13.toml")
 GRID = sample_grid(13.4050, 52.5200, zoom=18)

@@ -30,6 +30,7 @@ import numpy as np
 import pytest
 import shapely
 from click.testing import CliRunner
+from conftest import shared_path
 from PIL import Image
 
 from osmseg.classes import load_class_table
@@ -37,8 +38,6 @@ from osmseg.cli.main import cli
 from osmseg.grid import SampleGrid, sample_grid
 from osmseg.osm.features import read_features
 from osmseg.rasterize import rasterize
-
-from conftest import shared_path
 
 TABLE = load_class_table("classes13.toml")
 HIGHWAY, PARK, TREE = (TABLE.by_name[n].id for n in ("highway", "park", "tree"))

@@ -22,6 +22,7 @@ import pytest
 import xyzservices
 import xyzservices.providers
 from click.testing import CliRunner, Result
+from conftest import TEST_DATA
 from PIL import Image
 from vcr.serialize import deserialize
 from vcr.serializers import yamlserializer
@@ -43,8 +44,6 @@ from osmseg.imagery.xyz import fill_template
 from osmseg.net.cassette import clean_url
 from osmseg.net.http import HttpClient, HttpConfig
 from osmseg.redact import redact
-
-from conftest import TEST_DATA
 
 DATA = TEST_DATA / "providers"
 ESRI_CASSETTE = DATA / "esri.yaml"

@@ -21,11 +21,10 @@ from xml.dom import minidom
 import pytest
 import rasterio
 from click.testing import CliRunner
+from conftest import TINYCITY, TINYCITY_CENTRE
 
 from osmseg.cli.main import cli
 from osmseg.output.manifest import verify
-
-from conftest import TINYCITY, TINYCITY_CENTRE
 
 LON, LAT = TINYCITY_CENTRE
 SYSTEM_PYTHON = "/usr/bin/python3"  # where Debian's python3-qgis puts QGIS's Python bindings
@@ -64,9 +63,9 @@ def test_every_label_geotiff_has_a_style_with_its_class_colours_and_names(built:
         with rasterio.open(out / "geo" / f"{name}.tif") as src:
             colours, tags = src.colormap(1), src.tags(1)
         # the raster's own colour table and class tags, as rasterio reads them
-        assert palette == {i: ("#%02x%02x%02x" % colours[i][:3], tags[f"CLASS_{i}"]) for i in by_id}
+        assert palette == {i: ("#{:02x}{:02x}{:02x}".format(*colours[i][:3]), tags[f"CLASS_{i}"]) for i in by_id}
         assert {i: label for i, (_, label) in palette.items()} == {i: c["name"] for i, c in by_id.items()}
-        assert palette[8] == ("#%02x%02x%02x" % tuple(by_id[8]["color"]), "water")
+        assert palette[8] == ("#{:02x}{:02x}{:02x}".format(*by_id[8]["color"]), "water")
 
 
 def test_verify_and_the_zip_cover_the_styles(built: tuple[Path, dict], tmp_path: Path) -> None:
@@ -118,7 +117,7 @@ def test_qgis_itself_shows_the_class_names_in_the_legend(built: tuple[Path, dict
     kind, legend = qgis_legend(out / "geo" / f"{name}.tif")
     classes = sorted(manifest["classes"]["classes"], key=lambda c: c["id"])
     assert kind == "paletted"
-    assert legend == [(c["name"], "#%02x%02x%02x" % tuple(c["color"])) for c in classes]
+    assert legend == [(c["name"], "#{:02x}{:02x}{:02x}".format(*c["color"])) for c in classes]
     # the check has teeth: without its style, QGIS labels the same raster's entries by value
     bare = tmp_path / "bare.tif"
     shutil.copy(out / "geo" / f"{name}.tif", bare)

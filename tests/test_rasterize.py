@@ -13,13 +13,13 @@ from types import ModuleType
 
 import numpy as np
 import pytest
+from conftest import TEST_DATA
 
 import osmseg.rasterize
 from osmseg.classes import load_class_table
 from osmseg.errors import ClassTableError
 from osmseg.osm.features import FeatureSet, read_features
 from osmseg.rasterize import rasterize, to_table
-from conftest import TEST_DATA
 
 T13 = load_class_table("classes13.toml")
 T6 = load_class_table("classes6.toml")

@@ -32,10 +32,9 @@ from typing import Any
 import click
 import pytest
 from click.testing import CliRunner, Result
+from conftest import REPO_ROOT, SHARED_DATA
 
 from osmseg.cli.main import cli
-
-from conftest import REPO_ROOT, SHARED_DATA
 
 README = REPO_ROOT / "README.md"
 DEMO_CASSETTE = REPO_ROOT / "osmseg" / "demo" / "helsinki.yaml.gz"
@@ -93,7 +92,7 @@ def kill_after_first_sample(args: list[str], out: Path, env: dict[str, str] | No
     assert not (out / "manifest.json").exists(), "the build finished before it could be killed"
 
 
-def check_three_ways(args_for: "callable", tmp_path: Path, env: dict[str, str] | None = None) -> dict[str, bytes]:
+def check_three_ways(args_for: callable, tmp_path: Path, env: dict[str, str] | None = None) -> dict[str, bytes]:
     """Run whole, rerun into the same folder, kill and resume (see the module doc); the whole build's files."""
     whole_out = tmp_path / "whole" / "ds"
     first = run(args_for(whole_out), env)

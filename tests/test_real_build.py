@@ -14,12 +14,11 @@ from pathlib import Path
 import mercantile
 import numpy as np
 from click.testing import CliRunner
+from conftest import shared_path
 from PIL import Image
 
 from osmseg.cli.main import cli
 from osmseg.quality import edge_alignment
-
-from conftest import shared_path
 
 # 5x5 grids whose centre tile is in this range lie inside the complete z21 block
 CENTRE_X, CENTRE_Y = (1238450, 1238457), (1046530, 1046533)

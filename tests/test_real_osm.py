@@ -24,6 +24,7 @@ import numpy as np
 import osmium
 import pytest
 import shapely
+from conftest import shared_path
 from PIL import Image
 
 from osmseg.classes import load_class_table
@@ -31,7 +32,6 @@ from osmseg.grid import SampleGrid, sample_grid
 from osmseg.osm.features import read_features
 from osmseg.quality import edge_alignment, outline
 from osmseg.rasterize import rasterize
-from conftest import shared_path
 
 pytestmark = pytest.mark.shared_data
 

@@ -17,16 +17,16 @@ from click.testing import CliRunner, Result
 
 torch = pytest.importorskip("torch")
 
+from conftest import TEST_DATA  # noqa: E402
+
 from osmseg.cli.main import cli  # noqa: E402
 from osmseg.errors import ConfigError, DatasetError  # noqa: E402
+from osmseg.images import read_label  # noqa: E402
 from training.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
 from training.config import TrainConfig  # noqa: E402
-from osmseg.images import read_label  # noqa: E402
 from training.data import discover  # noqa: E402
 from training.recipe import RECIPE_FIELDS  # noqa: E402
 from training.sampling import CROPS_PER_IMAGE, RandomCrops  # noqa: E402
-
-from conftest import TEST_DATA  # noqa: E402
 
 TINYSEG = TEST_DATA / "tinyseg"
 TINY = TEST_DATA / "train" / "tiny.yaml"

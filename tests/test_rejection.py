@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import shared_path
 
 from osmseg.errors import ConfigError
 from osmseg.rejection import REASONS, FilterConfig, Rejection, check_imagery, check_labels, check_sample, grey_std
-from conftest import shared_path
 
 DEFAULT = FilterConfig()
 

@@ -16,13 +16,12 @@ import numpy as np
 import pytest
 import shapely
 from click.testing import CliRunner, Result
+from conftest import TEST_DATA
 
 from osmseg.cli.main import cli
 from osmseg.grid import LngLatBBox, sample_grid
 from osmseg.places import Area
 from osmseg.sampling import block_centre, candidate_blocks, overlap_groups
-
-from conftest import TEST_DATA
 
 LON, LAT = 24.94, 60.17
 

@@ -41,6 +41,8 @@ with warnings.catch_warnings():  # pystac flags the label extension as unmaintai
     warnings.simplefilter("ignore", DeprecationWarning)
     from pystac.extensions.label import LabelExtension, LabelType
 
+from conftest import TEST_DATA
+
 from osmseg.classes import load_class_table
 from osmseg.cli.main import cli
 from osmseg.demo.render import render_aerial
@@ -49,8 +51,6 @@ from osmseg.grid import sample_grid
 from osmseg.osm.features import read_features
 from osmseg.output.stac import write_stac
 from osmseg.rasterize import rasterize
-
-from conftest import TEST_DATA
 
 TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
 LON, LAT = 24.94, 60.17
@@ -266,7 +266,7 @@ def test_overviews_count_the_label_pixels_of_each_class_id(built: tuple[Path, Pa
             assert np.array_equal(src.read(1), pixels)
         for c in classes:
             assert tags[f"CLASS_{c.value}"] == c.title
-            assert "%02X%02X%02X" % colours[c.value][:3] == c.color_hint
+            assert "{:02X}{:02X}{:02X}".format(*colours[c.value][:3]) == c.color_hint
 
 
 def test_raster_vision_finds_label_cog_and_image_of_every_sample(built: tuple[Path, Path, dict[str, Any]]) -> None:

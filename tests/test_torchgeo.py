@@ -30,22 +30,21 @@ import pytest
 
 pytest.importorskip("torchgeo")
 
-import rasterio  # noqa: E402
-import torch  # noqa: E402
-from affine import Affine  # noqa: E402
-from click.testing import CliRunner  # noqa: E402
-from PIL import Image  # noqa: E402
-from rasterio.enums import ColorInterp  # noqa: E402
-from rio_cogeo.cogeo import cog_validate  # noqa: E402
-from torch.utils.data import DataLoader  # noqa: E402
-from torchgeo.datasets import IntersectionDataset, RasterDataset, stack_samples  # noqa: E402
-from torchgeo.samplers import RandomGeoSampler  # noqa: E402
+import rasterio
+import torch
+from affine import Affine
+from click.testing import CliRunner
+from conftest import TINYCITY, TINYCITY_CENTRE
+from PIL import Image
+from rasterio.enums import ColorInterp
+from rio_cogeo.cogeo import cog_validate
+from torch.utils.data import DataLoader
+from torchgeo.datasets import IntersectionDataset, RasterDataset, stack_samples
+from torchgeo.samplers import RandomGeoSampler
 
-from osmseg.classes import load_class_table  # noqa: E402
-from osmseg.cli.main import cli  # noqa: E402
-from osmseg.demo.render import IDS13, MATERIALS  # noqa: E402
-
-from conftest import TINYCITY, TINYCITY_CENTRE  # noqa: E402
+from osmseg.classes import load_class_table
+from osmseg.cli.main import cli
+from osmseg.demo.render import IDS13, MATERIALS
 
 LON, LAT = TINYCITY_CENTRE
 TABLE = load_class_table("classes13.toml")

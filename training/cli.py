@@ -19,8 +19,7 @@ from pathlib import Path
 
 import click
 
-from osmseg.cli.common import (output_options, progress_bars, renamed_option, report_errors, require_torch,
-                               typed_options)
+from osmseg.cli.common import output_options, progress_bars, renamed_option, report_errors, require_torch, typed_options
 from osmseg.errors import ConfigError
 from osmseg.units import ratio
 

@@ -27,10 +27,11 @@ from __future__ import annotations
 
 import json
 import logging
-import tomllib
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
+
+import tomllib
 
 from osmseg.errors import ConfigError
 from training.recipe import RECIPE_FIELDS, Recipe, recipe_named

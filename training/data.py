@@ -42,10 +42,10 @@ from torch.utils.data import Dataset
 from torchvision.transforms.v2 import functional as F
 
 from osmseg.classes import ClassTable, load_class_table
+from osmseg.errors import DatasetError
 from osmseg.grid import ground_pixel_size
 from osmseg.images import image_size, is_tiff, read_label, read_rgb
 from osmseg.output.manifest import manifest_path, read_manifest
-from osmseg.errors import DatasetError
 from training.augment import OVERHEAD, AugmentConfig, Draw, draw, item_rng, jitter, orient
 
 logger = logging.getLogger(__name__)

@@ -17,7 +17,6 @@ import torch
 from torch import nn
 
 from osmseg.progress import Progress, track
-
 from training.distributed import all_reduce_sum, is_distributed
 from training.metrics import ConfusionMatrix
 

@@ -29,12 +29,12 @@ from osmseg.images import read_label, read_rgb
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.progress import Progress, track
 from training.checkpoint import load_checkpoint, model_from_checkpoint
-from training.spec import ModelSpec
 from training.data import SampleFiles, dataset_class_table, discover_dataset
-from training.infer import InferenceOptions
-from training.predict import predict_image, target_resolution
-from training.metrics import ConfusionMatrix, format_table, load_class_mapping
 from training.figures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
+from training.infer import InferenceOptions
+from training.metrics import ConfusionMatrix, format_table, load_class_mapping
+from training.predict import predict_image, target_resolution
+from training.spec import ModelSpec
 from training.train import dataset_fingerprint, has_class_table, model_classes
 
 logger = logging.getLogger(__name__)

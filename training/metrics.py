@@ -40,8 +40,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from osmseg.errors import ConfigError, DatasetError
 from osmseg.datafiles import load_toml
+from osmseg.errors import ConfigError, DatasetError
 from osmseg.units import number
 
 __all__ = [

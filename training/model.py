@@ -49,8 +49,8 @@ from torch import Tensor, nn
 
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from training.spec import ARCHS, IMAGENET_MEAN, IMAGENET_STD, ModelSpec
 from training.config import PRESET_NAMES
+from training.spec import ARCHS, IMAGENET_MEAN, IMAGENET_STD, ModelSpec
 
 logger = logging.getLogger(__name__)
 
@@ -312,7 +312,7 @@ def load_encoder_weights(model: SegNet, source: str | Path) -> None:
             raise ConfigError(f"encoder weights {path} not found; give a .pth of torchvision vgg16_bn or 'imagenet'")
         try:
             state = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:  # noqa: BLE001 - any failure means "not a readable state dict"
+        except Exception as exc:
             raise ConfigError(f"{path} is not a readable vgg16_bn state dict ({type(exc).__name__}); "
                               "save it with torch.save(model.state_dict(), path)") from None
         if not isinstance(state, Mapping):

@@ -13,12 +13,11 @@ on (seed, epoch, index), so a resumed CPU run ends with the same weights as one 
 
 from __future__ import annotations
 
-
 import csv
 import dataclasses
+import functools
 import hashlib
 import io
-import functools
 import logging
 import math
 import signal
@@ -55,9 +54,9 @@ from training.data import (
 )
 from training.distributed import Dist, barrier, cleanup, setup
 from training.engine import StepOptions, evaluate, train_one_epoch
+from training.model import PRESETS, build_model, model_spec, unlabeled_as_background
 from training.recipe import RECIPES, Recipe, lr_factor, steps_per_epoch
 from training.sampling import RandomCrops, crop_sampler
-from training.model import PRESETS, build_model, model_spec, unlabeled_as_background
 from training.spec import ModelSpec
 from training.splits import choose_splits, class_pixels, read_splits, sample_groups, split_warning, write_splits
 
@@ -81,7 +80,7 @@ def rounded(loss: float | None, digits: int = 6) -> float | None:
     return None if loss is None else round(loss, digits)
 
 
-def poly_lambda(total_steps: int, power: float):  # noqa: ANN201 - a closure for LambdaLR
+def poly_lambda(total_steps: int, power: float):
     """Learning-rate factor ``(1 - step / total) ** power``, never below 0 (no warm-up)."""
     return lambda step: lr_factor(step, total_steps, 0, "poly", power)
 

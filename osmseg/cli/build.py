@@ -17,13 +17,13 @@ from typing import Any
 import click
 
 from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
-from osmseg.errors import ConfigError, DatasetError
-from osmseg.rejection import FilterConfig
-from osmseg.output import command_line
 from osmseg.cli.common import command_line_of, default_cache_dir, output_options, progress_bars, report_errors
+from osmseg.errors import ConfigError, DatasetError
 from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT, missing_bing_key
+from osmseg.output import command_line
 from osmseg.places import Area, find_preset, parse_bbox
 from osmseg.redact import redact
+from osmseg.rejection import FilterConfig
 
 
 def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: str | None, radius_km: float | None) -> Area:

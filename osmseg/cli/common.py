@@ -10,19 +10,19 @@ import logging
 import os
 import re
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, TypeVar
+from typing import Any, TypeVar
 
 import click
 from tqdm import tqdm
 
 from osmseg.errors import ConfigError, OsmsegError
+from osmseg.output.manifest import command_line
 from osmseg.processes import INTERRUPTED, TERMINATED, Terminated
 from osmseg.progress import Progress, Step
 from osmseg.redact import RedactingFilter
-from osmseg.output.manifest import command_line
 
 F = TypeVar("F", bound=Callable[..., Any])
 

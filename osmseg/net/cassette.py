@@ -39,8 +39,8 @@ from urllib3 import HTTPResponse
 from urllib3._collections import HTTPHeaderDict
 
 from osmseg.errors import ConfigError, OfflineCacheMiss
-from osmseg.redact import SECRET_HEADERS, SECRET_PARAMS, redact
 from osmseg.output.atomic import atomic_write_bytes
+from osmseg.redact import SECRET_HEADERS, SECRET_PARAMS, redact
 
 if TYPE_CHECKING:
     from vcr.request import Request as VcrRequest

@@ -60,6 +60,7 @@ from osmseg.errors import (
     ServiceUnavailable,
     first_line,
 )
+from osmseg.net.cassette import RETRY_STATUSES, RecordAdapter, ReplayAdapter
 from osmseg.net.failures import (
     BAD_URL_EXCEPTIONS,
     NO_CONNECTION,
@@ -69,7 +70,6 @@ from osmseg.net.failures import (
     retry_after,
     status_hint,
 )
-from osmseg.net.cassette import RETRY_STATUSES, RecordAdapter, ReplayAdapter
 from osmseg.net.gates import SharedHostGate, shared_gates_supported
 from osmseg.redact import SECRET_HEADERS, SECRET_PARAMS, install_log_redaction, redact
 

@@ -32,9 +32,9 @@ request.  Malformed XML never reaches the parser: it raises a one-line ``OSMData
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from email.utils import parsedate_to_datetime
 from pathlib import Path
-from collections.abc import Callable
 from typing import Any
 
 import requests
@@ -42,7 +42,6 @@ import requests
 from osmseg.errors import HTTPStatusError, NetworkError, OSMDataError, OSMLimitError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
-from osmseg.redact import redact
 from osmseg.osm.base import OsmExtract
 from osmseg.osm.store import (
     OSM_ATTRIBUTION,
@@ -55,6 +54,7 @@ from osmseg.osm.store import (
     store_osm_xml,
     write_done,
 )
+from osmseg.redact import redact
 
 logger = logging.getLogger(__name__)
 

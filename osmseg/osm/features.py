@@ -67,8 +67,20 @@ from osmseg.errors import OSMDataError
 from osmseg.grid import SampleGrid, XYBounds
 from osmseg.osm.coastline import sea_polygon
 from osmseg.osm.geometry import even_odd, mercator_scale, polygonal, to_mercator
-from osmseg.osm.objects import (Member, SecondPass, Shapes, WayRule, as_linestring_wkb, clip_to, few_points,
-                                key_filter, located_runs, member_lines, rules_of, spells_no_area_relation)
+from osmseg.osm.objects import (
+    Member,
+    SecondPass,
+    Shapes,
+    WayRule,
+    as_linestring_wkb,
+    clip_to,
+    few_points,
+    key_filter,
+    located_runs,
+    member_lines,
+    rules_of,
+    spells_no_area_relation,
+)
 from osmseg.osm.renumber import original_id, write_renumbered
 
 logger = logging.getLogger(__name__)

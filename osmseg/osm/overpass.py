@@ -44,9 +44,9 @@ from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import CorruptResponse, OSMDataError, OSMLimitError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
-from osmseg.redact import redact
 from osmseg.osm.base import OsmExtract
 from osmseg.osm.store import OSM_ATTRIBUTION, OsmScan, cache_name, check_bbox, read_done, store_osm_xml, write_done
+from osmseg.redact import redact
 
 logger = logging.getLogger(__name__)
 

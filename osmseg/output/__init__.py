@@ -24,8 +24,8 @@ from osmseg.output.manifest import (
     verify,
     write_manifest,
 )
-from osmseg.output.package import make_zip
 from osmseg.output.overview import write_class_histogram, write_overview
+from osmseg.output.package import make_zip
 from osmseg.output.stac import write_stac
 from osmseg.output.writer import sample_paths, write_sample
 

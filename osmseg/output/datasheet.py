@@ -11,8 +11,8 @@ Everything comes from the manifest, so the datasheet is as deterministic as the 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from osmseg.classes import ClassTable

@@ -24,10 +24,10 @@ import mercantile
 
 from osmseg.errors import DatasetBusy, DatasetError
 from osmseg.folderlock import STATE_DIR, FolderLock
-from osmseg.rejection import REASONS, Rejection
 from osmseg.grid import SampleGrid
-from osmseg.redact import redact
 from osmseg.output.atomic import atomic_path, sha256_file
+from osmseg.redact import redact
+from osmseg.rejection import REASONS, Rejection
 
 MANIFEST_NAME = "manifest.json"
 FORMAT = "osmseg-dataset"

@@ -21,8 +21,8 @@ from PIL import Image, ImageDraw, ImageFont
 
 from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
-from osmseg.output.atomic import atomic_write_bytes
 from osmseg.images import read_rgb
+from osmseg.output.atomic import atomic_write_bytes
 from osmseg.output.writer import PHOTO_COMPRESS_LEVEL, encode_png
 
 OVERVIEW_NAME = "overview.png"

@@ -139,7 +139,7 @@ def classification(table: ClassTable) -> list[Classification]:
     names = [machine_name(c.name) for c in classes]
     if len(set(names)) != len(names):
         raise DatasetError(f"manifest classes: names {[c.name for c in classes]} do not stay distinct as {names}")
-    return [Classification.create(value=c.id, name=n, title=c.name, color_hint="%02X%02X%02X" % c.color,
+    return [Classification.create(value=c.id, name=n, title=c.name, color_hint="{:02X}{:02X}{:02X}".format(*c.color),
                                   description=UNLABELED_TEXT if c.id == table.unlabeled.id else None) for c, n in zip(classes, names)]
 
 

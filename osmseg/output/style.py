@@ -54,7 +54,7 @@ def qml_style(table: ClassTable, band: int = 1) -> bytes:
     ET.SubElement(renderer, "rasterTransparency")
     palette = ET.SubElement(renderer, "colorPalette")
     for c in sorted((table.unlabeled, *table.classes), key=lambda c: c.id):
-        ET.SubElement(palette, "paletteEntry", {"value": str(c.id), "color": "#%02x%02x%02x" % c.color,
+        ET.SubElement(palette, "paletteEntry", {"value": str(c.id), "color": "#{:02x}{:02x}{:02x}".format(*c.color),
                                                 "alpha": "255", "label": c.name})
     ET.SubElement(pipe, "brightnesscontrast", {"brightness": "0", "contrast": "0", "gamma": "1"})
     ET.SubElement(pipe, "huesaturation", {"saturation": "0", "grayscaleMode": "0", "colorizeOn": "0",

@@ -276,7 +276,7 @@ def api_map(p: Planet, box: LngLatBBox, node_limit: int) -> tuple[int, dict[str,
     rels = {rid for rid, (members, _) in p.relations.items()
             if any((t == "n" and ref in nodes) or (t == "w" and ref in ways) for t, ref, _ in members)}
     rels |= {rid for rid, (members, _) in p.relations.items() if any(t == "r" and ref in rels for t, ref, _ in members)}
-    head = [f'<?xml version="1.0" encoding="UTF-8"?>',
+    head = ['<?xml version="1.0" encoding="UTF-8"?>',
             f'<osm version="0.6" generator="{CGIMAP}" copyright="OpenStreetMap and contributors" '
             'attribution="http://www.openstreetmap.org/copyright" license="http://opendatacommons.org/licenses/odbl/1-0/">',
             f' <bounds minlat="{box.south:.7f}" minlon="{box.west:.7f}" maxlat="{box.north:.7f}" maxlon="{box.east:.7f}"/>']

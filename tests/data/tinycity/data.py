@@ -48,7 +48,7 @@ from xml.sax.saxutils import quoteattr
 import mercantile
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
-from osmseg.grid import SampleGrid, sample_grid  # noqa: E402
+from osmseg.grid import SampleGrid, sample_grid
 
 HERE = Path(__file__).resolve().parent
 OSM_FILE = HERE / "tinycity.osm"
