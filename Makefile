@@ -21,7 +21,8 @@ test: $(VENV)/.installed
 	$(BIN)/lint-imports
 	$(BIN)/ruff check .
 	$(BIN)/mypy
-	$(BIN)/pytest -q
+	# one test process per core, and the 20 slowest tests named at the end
+	$(BIN)/pytest -q -n auto --durations=20
 
 test-slow: $(VENV)/.installed
 	$(BIN)/pytest -q -m slow
