@@ -287,7 +287,7 @@ def floor_per_sample(tif: Path, cache: Path, samples: int,
             statistics.median(t_bare))
 
 
-def _timed(fn, repeat: int = 3) -> float:
+def _timed(fn: Callable[[], object], repeat: int = 3) -> float:
     times = []
     for _ in range(repeat):
         start = time.perf_counter()

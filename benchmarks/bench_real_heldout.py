@@ -65,7 +65,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import rasterio
@@ -105,12 +105,12 @@ def osmseg(args: list[str], log: Path) -> str:
 
 def read_band(path: Path) -> np.ndarray:
     with rasterio.open(path) as ds:
-        return ds.read(1)
+        return cast("np.ndarray", ds.read(1))
 
 
 def read_rgb(path: Path) -> np.ndarray:
     with rasterio.open(path) as ds:
-        return ds.read([1, 2, 3]).transpose(1, 2, 0)
+        return cast("np.ndarray", ds.read([1, 2, 3]).transpose(1, 2, 0))
 
 
 def pooled(pairs: Pairs) -> dict[str, Any]:

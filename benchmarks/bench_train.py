@@ -192,7 +192,7 @@ def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> dict[str,
         with torch.autocast(case.device.type, dtype=torch.float16, enabled=case.amp):
             loss = nn.functional.cross_entropy(model(x), y)
         optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        loss.backward()  # type: ignore[no-untyped-call]
         optimizer.step()
         sync(case.device)
         bare_ends.append(time.perf_counter())

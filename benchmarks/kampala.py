@@ -32,7 +32,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import mercantile
 import numpy as np
@@ -139,7 +139,7 @@ def mosaic_labels(mosaic: Mosaic, polygons: list[Any], alpha: np.ndarray) -> np.
     labels = rasterize([(p, BUILDING) for p in polygons], out_shape=mosaic.shape, transform=mosaic.transform,
                        fill=BACKGROUND, dtype="uint8")
     labels[alpha == 0] = UNLABELED
-    return labels
+    return cast("np.ndarray", labels)
 
 
 def write_geotiff(path: Path, bands: np.ndarray, transform: Any) -> None:

@@ -40,7 +40,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -186,7 +186,7 @@ def _read_mask(path: Path) -> np.ndarray:
         raise DatasetError(f"{path}: cannot read the label mask ({exc}); give a PNG or GeoTIFF of class ids") from None
     if mask.ndim != 2 or not np.issubdtype(mask.dtype, np.integer):
         raise DatasetError(f"{path}: a label mask must be a single-band image of class ids, got shape {mask.shape}")
-    return mask
+    return cast("np.ndarray", mask)
 
 
 def load_mask_scene(path: Path, table: ClassTable | str, resolution_m: float) -> Scene:

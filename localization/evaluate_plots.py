@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -89,7 +89,7 @@ def plot_errors(results: dict[str, Any], path: Path) -> Path:
         ax.set_ylabel(f"fraction of {results.get('queries', 'queries')}")
         ax.set_title(errors_title(results))
         ax.legend(loc="lower right", fontsize=8)
-        return figures.save_png(fig, path)
+        return cast(Path, figures.save_png(fig, path))
 
 
 def plot_classes(results: dict[str, Any], path: Path) -> Path:
@@ -120,7 +120,7 @@ def plot_classes(results: dict[str, Any], path: Path) -> Path:
         ax_rec.set_xticks(xs)
         ax_rec.legend(fontsize=8)
         fig.suptitle("Effect of the number of landmark classes (subsets pooled)")
-        return figures.save_png(fig, path)
+        return cast(Path, figures.save_png(fig, path))
 
 
 def plot_confidence(results: dict[str, Any], path: Path) -> Path | None:
@@ -147,4 +147,4 @@ def plot_confidence(results: dict[str, Any], path: Path) -> Path | None:
             ax.set_title(f"{m}: ROC AUC {ratio(summary['roc_auc'])}")
             ax.legend(fontsize=8)
         fig.suptitle("Does the confidence tell a match from a non-match?")
-        return figures.save_png(fig, path)
+        return cast("Path | None", figures.save_png(fig, path))

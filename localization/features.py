@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy import sparse
@@ -158,7 +158,7 @@ def landmark_features(image_rgb: np.ndarray, landmarks: Landmarks, model: Any, *
             grid = ((2 * xy + 1) / scale - 1).view(1, 1, -1, 2)  # -1/+1 = the image's outer edges
             sampled = torch.nn.functional.grid_sample(fmap, grid, mode="bilinear", padding_mode="border",
                                                       align_corners=False)
-            return sampled[0, :, 0, :].T.double().cpu().numpy()
+            return cast("np.ndarray", sampled[0, :, 0, :].T.double().cpu().numpy())
     cells = fmap[0].flatten(1).T.double().cpu().numpy()  # (h * w, C)
     return np.asarray(_component_cells(landmarks, fmap.shape[2], fmap.shape[3]) @ cells)
 

@@ -72,6 +72,7 @@ True
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -135,7 +136,7 @@ def adjacency(cliques: Cliques) -> np.ndarray:
     if members.shape[0] == 0:
         return np.zeros((members.shape[1], members.shape[1]), dtype=bool)
     c = members.astype(np.float32)  # counts <= M are exact in float32 up to 2**24 cliques
-    return (c.T @ c) > 0
+    return cast("np.ndarray", (c.T @ c) > 0)
 
 
 # ------------------------------------------------------------------------------ window geometry

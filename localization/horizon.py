@@ -24,7 +24,7 @@ Imports: numpy, localization.profile.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -75,7 +75,8 @@ def _excess(above: np.ndarray, below: np.ndarray, camera: Camera, pitch: np.ndar
     t = np.radians(camera.hfov_deg * ((cols + 0.5) / camera.width - 0.5))
     row = camera.horizon + (pitch[:, None] * np.cos(t)[None] - roll[:, None] * np.sin(t)[None]) / camera.step
     # a horizon between pixel rows: the sky row's centre lies half a row above it, the ground's below
-    return (np.maximum(0.0, above[None] + 0.5 - row) + np.maximum(0.0, row - (below[None] - 0.5))).sum(axis=1)
+    excess = np.maximum(0.0, above[None] + 0.5 - row) + np.maximum(0.0, row - (below[None] - 0.5))
+    return cast("np.ndarray", excess.sum(axis=1))
 
 
 def _best(above: np.ndarray, below: np.ndarray, camera: Camera, pitches: np.ndarray, rolls: np.ndarray

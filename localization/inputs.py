@@ -12,7 +12,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -162,7 +162,7 @@ def _colourise(mask: np.ndarray, colours: dict[int, Any], ids: dict[int, str] | 
             target = dictionary.mapping.get(name)
             if target is not None and 0 <= cid < 256:  # pale, so the graph drawn over it stands out
                 lut[cid] = [round(255 - 0.45 * (255 - 255 * v)) for v in to_rgb(palette[target])]
-    return lut[mask]
+    return cast("np.ndarray", lut[mask])
 
 
 def _drawable(pixels: np.ndarray) -> np.ndarray | None:

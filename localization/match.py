@@ -43,6 +43,7 @@ import functools
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy import sparse
@@ -233,14 +234,14 @@ class _EdgeTable:
 def _normalise(counts: np.ndarray) -> np.ndarray:
     """Rows of edge counts divided by their sums (rows without edges stay 0)."""
     total = counts.sum(axis=-1, keepdims=True)
-    return np.divide(counts, total, out=np.zeros_like(counts), where=total > 0)
+    return cast("np.ndarray", np.divide(counts, total, out=np.zeros_like(counts), where=total > 0))
 
 
 def _symmetric(lower: np.ndarray, n: int) -> np.ndarray:
     """The symmetric ``(n, n)`` matrix whose flattened lower triangle is ``lower``."""
     w = np.zeros((n, n), dtype=np.float64)
     w[np.tril_indices(n)] = lower
-    return w + np.tril(w, k=-1).T
+    return cast("np.ndarray", w + np.tril(w, k=-1).T)
 
 
 def class_adjacency(members: np.ndarray, lm: Landmarks, classes: Sequence[str] | None = None,
@@ -271,7 +272,7 @@ def _ncc(query: np.ndarray, candidates: np.ndarray) -> np.ndarray:
     """Eq. 3.3 of one lower-triangle vector against rows of others; 0 where either is all zero."""
     num = candidates @ query
     den = np.sqrt(np.dot(query, query) * np.einsum("ij,ij->i", candidates, candidates))
-    return np.minimum(1.0, np.divide(num, den, out=np.zeros(len(candidates)), where=den > 0))
+    return cast("np.ndarray", np.minimum(1.0, np.divide(num, den, out=np.zeros(len(candidates)), where=den > 0)))
 
 
 def likelihood(query_w: np.ndarray, candidate_w: np.ndarray) -> float:
@@ -321,7 +322,7 @@ def posteriors(likelihoods: np.ndarray) -> np.ndarray:
     others = (lik.sum() - lik) / (n - 1)
     num = lik * prior
     den = num + others * (1.0 - prior)
-    return np.divide(num, den, out=np.zeros(n), where=den > 0)
+    return cast("np.ndarray", np.divide(num, den, out=np.zeros(n), where=den > 0))
 
 
 # --------------------------------------------------------------------------- localize

@@ -31,7 +31,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from localization.compare import RIGHT_WRONG, confidence_of, method_summary
 from localization.evaluate import aerial_graphs, localize_subsets, subsets_of, write_results
@@ -135,7 +135,7 @@ def _size(image: Path | None, given: tuple[int, int] | None, where: Path, side: 
 
     try:
         with Image.open(image) as im:
-            return im.size
+            return cast("tuple[int, int]", im.size)
     except OSError as exc:
         raise DatasetError(f"{image}: cannot read the image for its size ({exc}); remove it or "
                            f"give --{side}-size") from None
@@ -205,7 +205,7 @@ def load_pairs(folder: Path, config: PairsConfig = PairsConfig()) -> list[Pair]:
 
 def _mean_time(records: Sequence[dict[str, Any]]) -> float:
     """Mean time of the full-class localization (graph building and matching) per pair, as in the bench."""
-    return round(sum(r["localize_s"] for r in records) / max(len(records), 1), 4)
+    return float(round(sum(r["localize_s"] for r in records) / max(len(records), 1), 4))
 
 
 def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, progress: Progress | None = None,

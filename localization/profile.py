@@ -40,6 +40,7 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -490,7 +491,7 @@ def seen_fraction(bearing: np.ndarray, dist_m: np.ndarray, depths: Sequence[np.n
         return np.ones(np.shape(bearing))
     bins = depths[0].shape[1]
     b = np.rint(np.mod(bearing, 2 * np.pi) / (2 * np.pi / bins)).astype(np.int64) % bins  # as first_hits rounds
-    return np.mean([dist_m <= np.take_along_axis(d, b, axis=1) for d in depths], axis=0)
+    return cast("np.ndarray", np.mean([dist_m <= np.take_along_axis(d, b, axis=1) for d in depths], axis=0))
 
 
 class AerialLandmarkIndex:

@@ -13,11 +13,13 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from typing import cast
 
 import numpy as np
 
 from localization.landmarks import Landmarks
-from localization.match import DEFAULT_P, Localization, answered, localize
+from localization.match import DEFAULT_P, Localization, localize
+from localization.result import answered
 from osmseg.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -43,7 +45,7 @@ def inherit(fine: np.ndarray, coarse: np.ndarray, coarse_scores: np.ndarray, coa
     if len(fine) == 0 or len(coarse) == 0:
         return np.zeros(len(fine))
     inside = np.all(np.abs(fine[:, None, :] - coarse[None, :, :]) <= coarse_window / 2.0 + 1e-9, axis=2)
-    return np.where(inside, coarse_scores[None, :], 0.0).max(axis=1)
+    return cast("np.ndarray", np.where(inside, coarse_scores[None, :], 0.0).max(axis=1))
 
 
 def localize_hierarchical(aerial: Landmarks, query: Landmarks, windows: Sequence[int] = HIERARCHY, *,
@@ -127,4 +129,4 @@ def feature_edge_mask(features: np.ndarray, threshold: float, *, metric: str = "
         raise ConfigError(f"metric must be 'euclidean' or 'cosine', got {metric!r}")
     close = dist < threshold
     np.fill_diagonal(close, False)
-    return close
+    return cast("np.ndarray", close)

@@ -60,7 +60,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -218,7 +218,8 @@ def elevation_to_row(elevation_deg: float, config: RenderConfig) -> float:
 def _rows_reached(top_deg: np.ndarray, config: RenderConfig) -> np.ndarray:
     """How many rows, counted from the bottom, have their centre at or below ``top_deg``."""
     k = np.floor(top_deg / config.row_step_deg + config.height / 2 + 0.5)
-    return np.clip(np.nan_to_num(k, neginf=0.0, posinf=config.height), 0, config.height).astype(np.int64)
+    rows = np.clip(np.nan_to_num(k, neginf=0.0, posinf=config.height), 0, config.height)
+    return cast("np.ndarray", rows.astype(np.int64))
 
 
 def _class_id(table: ClassTable, name: str) -> int:
@@ -259,7 +260,7 @@ def object_heights(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str
     lut = _height_lut(panorama_table(table), config)
     out = lut[mask].astype(np.float32)
     if config.height_spread <= 0:
-        return out
+        return cast("np.ndarray", out)
     rng = np.random.default_rng([config.height_seed, 7])
     for cid in np.flatnonzero(lut > 0):
         labels, n = ndimage.label(mask == cid, structure=np.ones((3, 3), dtype=bool))
@@ -267,7 +268,7 @@ def object_heights(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str
             factor = rng.uniform(1 - config.height_spread, 1 + config.height_spread, n + 1).astype(np.float32)
             factor[0] = 1.0
             out = np.where(labels > 0, out * factor[labels], out)
-    return out
+    return cast("np.ndarray", out)
 
 
 def render_panorama(mask: np.ndarray, table: ClassTable | Mapping[str, Any] | str, resolution_m: float,

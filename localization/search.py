@@ -50,7 +50,7 @@ import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar, cast
 
 import numpy as np
 
@@ -345,7 +345,7 @@ def class_prior(index: AerialIndex, query: QueryProfile, xy: np.ndarray, n: int 
     """How often each class is predicted at each radius (C, R + 1), over ``n`` evenly picked positions of ``xy``."""
     pick = xy[np.linspace(0, len(xy) - 1, min(n, len(xy))).astype(np.int64)]
     P, V = index.profiles(pick, query.radii_m, query.bins)
-    return P.sum(axis=(0, 3)) / np.maximum(V.sum(axis=(0, 2)), 1.0)[None, :]
+    return cast("np.ndarray", P.sum(axis=(0, 3)) / np.maximum(V.sum(axis=(0, 2)), 1.0)[None, :])
 
 
 def _threads(threads: int) -> int:

@@ -23,6 +23,7 @@ from pathlib import Path
 from osmseg.buildconfig import DEFAULT_ZOOM, BuildConfig, Shard, sampling_box
 from osmseg.errors import ConfigError
 from osmseg.finalize import ENTRIES_PREFIX, finalize
+from osmseg.folderlock import STATE_DIR
 from osmseg.grid import LngLatBBox, ground_resolution, pad_bbox
 from osmseg.net.http import HttpClient
 from osmseg.output.atomic import sweep_temp_files as sweep_temp
@@ -34,7 +35,7 @@ from osmseg.progress import Progress, report
 from osmseg.records import SlotOutcome
 from osmseg.sampling import check_room
 from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions, warn_upsampling
-from osmseg.state import STATE_DIR, STATE_SUBDIRS, BuildState
+from osmseg.state import STATE_SUBDIRS, BuildState
 from osmseg.workers import FirstSamples, SlotRunner
 
 logger = logging.getLogger(__name__)
@@ -49,7 +50,7 @@ class BuildSummary:
 
     out_dir: Path
     accepted: int = 0
-    rejected: Counter = field(default_factory=Counter)
+    rejected: Counter[str] = field(default_factory=Counter)
     gave_up: int = 0
     osm_problems: int = 0
     pending_other_shards: int = 0

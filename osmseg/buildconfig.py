@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from osmseg.grid import TILE_SIZE, LngLatBBox, ground_resolution, pad_bbox
 from osmseg.places import Area, normalise_name
@@ -67,7 +67,7 @@ class BuildConfig:
         Returned in its JSON form (tuples as lists), so the identity a rerun computes equals,
         value for value, the one read back from ``.osmseg-build/config.json``.
         """
-        return json.loads(json.dumps(self._identity(), allow_nan=False))
+        return cast("dict[str, Any]", json.loads(json.dumps(self._identity(), allow_nan=False)))
 
     def _identity(self) -> dict[str, Any]:
         return {

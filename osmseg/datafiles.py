@@ -9,7 +9,7 @@ something else: :mod:`osmseg.output.manifest` writes and reads it.) Imports: osm
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import tomllib
 
@@ -34,7 +34,7 @@ def load_toml(name: str) -> dict[str, Any]:
     path = find_data_file(name)
     try:
         with path.open("rb") as f:
-            return tomllib.load(f)
+            return cast("dict[str, Any]", tomllib.load(f))
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc}); fix the file") from None
     except OSError as exc:

@@ -102,7 +102,7 @@ class SampleGrid:
     @property
     def pixel_size(self) -> float:
         """Pixel side in Web Mercator metres (not ground metres; see ground_resolution)."""
-        return EARTH_CIRCUMFERENCE / (TILE_SIZE * 2**self.zoom)
+        return float(EARTH_CIRCUMFERENCE / (TILE_SIZE * 2**self.zoom))
 
     @property
     def ground_resolution(self) -> float:
@@ -149,7 +149,7 @@ def ground_resolution(lat: float, zoom: int) -> float:
     >>> round(ground_resolution(52.52, 18), 3)
     0.363
     """
-    return math.cos(math.radians(lat)) * EARTH_CIRCUMFERENCE / (TILE_SIZE * 2**zoom)
+    return float(math.cos(math.radians(lat)) * EARTH_CIRCUMFERENCE / (TILE_SIZE * 2**zoom))
 
 
 def resolution_mismatch(pixel_m: float, wanted_m: float) -> float | None:

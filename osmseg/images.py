@@ -24,7 +24,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import rasterio
@@ -92,7 +92,7 @@ class PixelRule:
             return data
         top = 2**self.bits - 1
         wide = np.minimum(data.astype(np.uint32), top)
-        return ((wide * 255 + top // 2) // top).astype(np.uint8)
+        return cast("np.ndarray", ((wide * 255 + top // 2) // top).astype(np.uint8))
 
 
 def pixel_rule(dataset: Any, name: str, error: type[Exception] = ImageryError) -> PixelRule:

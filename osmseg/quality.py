@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 
@@ -64,7 +64,7 @@ def outline(mask: np.ndarray) -> np.ndarray:
     core[:-1] &= mask[1:]
     core[:, 1:] &= mask[:, :-1]
     core[:, :-1] &= mask[:, 1:]
-    return mask & ~core
+    return cast("np.ndarray", mask & ~core)
 
 
 def edge_alignment(rgb: np.ndarray, mask: np.ndarray, max_shift: int = 6) -> Alignment:

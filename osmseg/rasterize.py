@@ -22,7 +22,7 @@ label masks; 0 means no feature covers the pixel.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import shapely
@@ -51,8 +51,10 @@ def rasterize(features: Iterable[Feature], grid: SampleGrid, table: ClassTable |
     shape = (grid.height, grid.width)
     if not items:
         return np.zeros(shape, dtype=np.uint8)
-    return _burn(zip(geojson_polygons([f.geometry for f in items]), (f.class_id for f in items)), out_shape=shape,
-                 transform=grid.transform, fill=0, all_touched=False, merge_alg=MergeAlg.replace, dtype="uint8")
+    burned: np.ndarray = _burn(zip(geojson_polygons([f.geometry for f in items]), (f.class_id for f in items)),
+                               out_shape=shape, transform=grid.transform, fill=0, all_touched=False,
+                               merge_alg=MergeAlg.replace, dtype="uint8")
+    return burned
 
 
 def geojson_polygons(geometries: Sequence[BaseGeometry]) -> list[dict[str, Any]]:
@@ -86,8 +88,8 @@ def to_table(labels: np.ndarray, source: ClassTable, target: ClassTable) -> np.n
     that ``target`` does not list become unlabeled (0).
     """
     if target is source or target.name == source.name:
-        return labels.copy()
+        return cast("np.ndarray", labels.copy())
     if target.base is None or target.base.name != source.name:
         raise ClassTableError(f"class table {target.name!r} is not a mapping of {source.name!r}; "
                               "its 'base' must name the table the labels were made with")
-    return target.lookup_from_base()[labels]
+    return cast("np.ndarray", target.lookup_from_base()[labels])

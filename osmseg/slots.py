@@ -216,7 +216,7 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int,
 
 
 def _image_file(written: dict[str, Any]) -> str:
-    return next(rel for rel in written["files"] if rel.startswith("images/"))
+    return str(next(rel for rel in written["files"] if rel.startswith("images/")))
 
 
 def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int,

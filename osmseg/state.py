@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from osmseg.errors import DatasetError
 from osmseg.folderlock import STATE_DIR, FolderLock
@@ -194,7 +194,7 @@ def _read_json(path: Path) -> dict[str, Any] | None:
     if not path.exists():
         return None
     try:
-        return json.loads(path.read_text())
+        return cast("dict[str, Any] | None", json.loads(path.read_text()))
     except ValueError:
         # Only possible if the file was edited by hand: atomic writes never leave halves.
         raise DatasetError(f"{path} is corrupt; delete it and rerun the same command to redo that attempt") from None

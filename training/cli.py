@@ -100,7 +100,7 @@ def _recipes_default(name: str) -> str:
                 note=" (DataLoader processes; build's --workers counts build processes)")
 @click.pass_context
 @report_errors
-def train_command(ctx: click.Context, dataset: Path, out_dir: Path, config_file: str | None,
+def train_command(ctx: click.Context, /, dataset: Path, out_dir: Path, config_file: str | None,
                   keep_unlabeled: bool, **options: object) -> None:
     """Train a SegNet on DATASET (a folder made by `osmseg build`, or images/ + labels/)."""
     require_torch()

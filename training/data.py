@@ -316,7 +316,7 @@ def median_frequency_weights(labels: Iterable[np.ndarray], num_classes: int, ign
 Box = tuple[int, int, int, int]  # top, left, height, width
 
 
-class PatchDataset(Dataset):
+class PatchDataset(Dataset[tuple[torch.Tensor, torch.Tensor]]):
     """Patches of labelled images: item ``i`` is one (image, patch box) pair.
 
     Returns ``(image, mask)``: image a float32 tensor ``(3, H, W)`` scaled to 0..1 and then
@@ -350,7 +350,7 @@ class PatchDataset(Dataset):
         self.cache_images = cache_images
         self._cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         # Shared memory, so that DataLoader workers (persistent ones too) see set_epoch().
-        self._epoch = torch.zeros(1, dtype=torch.int64).share_memory_()
+        self._epoch = torch.zeros(1, dtype=torch.int64).share_memory_()  # type: ignore[no-untyped-call]
         self.items: list[tuple[int, Box]] = []
         for fi, f in enumerate(self.files):
             height, width = _check_sizes(f)

@@ -12,6 +12,7 @@ import logging
 import warnings
 from collections.abc import Callable, Iterable, Sized
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import nn
@@ -41,7 +42,7 @@ class StepOptions:
         return torch.autocast(device_type=self.device.type, dtype=torch.float16, enabled=self.amp)
 
 
-def _batches(loader: Iterable, opts: StepOptions, task: str, progress: Progress | None) -> Iterable:
+def _batches(loader: Iterable[Any], opts: StepOptions, task: str, progress: Progress | None) -> Iterable[Any]:
     total = len(loader) if isinstance(loader, Sized) else None
     if opts.max_steps is not None and total is not None:
         total = min(total, opts.max_steps)
@@ -64,7 +65,7 @@ def train_one_epoch(
     optimizer: torch.optim.Optimizer,
     scheduler: torch.optim.lr_scheduler.LRScheduler,
     scaler: torch.amp.GradScaler,
-    loader: Iterable,
+    loader: Iterable[Any],
     opts: StepOptions,
     epoch: int,
     on_step: Callable[[int, float], None] | None = None,
@@ -126,7 +127,7 @@ def train_one_epoch(
 def evaluate(
     model: nn.Module,
     criterion: nn.Module,
-    loader: Iterable,
+    loader: Iterable[Any],
     opts: StepOptions,
     num_classes: int,
     ignore_index: int | None,

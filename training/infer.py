@@ -38,7 +38,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
 import torch
@@ -240,7 +240,7 @@ class RasterSource:
     def _read(self, **kwargs: Any) -> np.ndarray:
         """RGB ``(h, w, 3)``, or a palette's RGBA ``(h, w, 4)``."""
         try:
-            return self.rule.colours(self.dataset.read(self.indexes, **kwargs)).transpose(1, 2, 0)
+            return cast("np.ndarray", self.rule.colours(self.dataset.read(self.indexes, **kwargs)).transpose(1, 2, 0))
         except RasterioError as exc:
             raise ImageryError(f"{self.name}: cannot read pixels ({error_reason(exc)}); "
                                f"the file may be truncated or corrupt") from None
@@ -267,7 +267,8 @@ class RasterSource:
         if self.palette:
             return self._read(window=window)[:, :, 3] >= 128  # the table's alpha, as the builder reads it
         try:
-            return self.dataset.read_masks(1, window=window) >= 128  # an alpha band: as the builder, half opaque
+            opaque = self.dataset.read_masks(1, window=window) >= 128  # an alpha band: as the builder, half opaque
+            return cast("np.ndarray", opaque)
         except RasterioError as exc:
             raise ImageryError(f"{self.name}: cannot read its mask ({error_reason(exc)})") from None
 

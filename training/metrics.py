@@ -387,7 +387,7 @@ def load_class_mapping(path_or_name: str | Path) -> ClassMapping:
     def check_class(value: Any, key: str) -> str:
         if value not in classes:
             raise ConfigError(f"{where}: {key} maps to unknown class {value!r}; use one of {classes}")
-        return value
+        return str(value)
 
     gt_raw = raw.get("ground_truth")
     if not isinstance(gt_raw, dict) or not gt_raw:

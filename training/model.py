@@ -41,7 +41,7 @@ import dataclasses
 import logging
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -185,7 +185,7 @@ class SegNet(nn.Module):
             if skip is not None:
                 x = x + skip
             x = stage(x)
-        return self.classifier(x)
+        return cast("Tensor", self.classifier(x))
 
 
 def build_model(spec: ModelSpec) -> SegNet:

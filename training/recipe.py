@@ -135,7 +135,7 @@ def lr_factor(step: int, total: int, warmup: int, schedule: str, power: float = 
     t = min(1.0, (step - warmup) / max(1, total - warmup))
     if schedule == "cosine":
         return 0.5 * (1.0 + math.cos(math.pi * t))
-    return max(0.0, 1.0 - t) ** power
+    return float(max(0.0, 1.0 - t) ** power)
 
 
 def steps_per_epoch(recipe: Recipe, training_pixels: int, world_size: int = 1) -> int:

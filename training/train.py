@@ -22,7 +22,7 @@ import logging
 import math
 import signal
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from contextlib import ExitStack
 from dataclasses import asdict
 from pathlib import Path
@@ -80,7 +80,7 @@ def rounded(loss: float | None, digits: int = 6) -> float | None:
     return None if loss is None else round(loss, digits)
 
 
-def poly_lambda(total_steps: int, power: float):
+def poly_lambda(total_steps: int, power: float) -> Callable[[int], float]:
     """Learning-rate factor ``(1 - step / total) ** power``, never below 0 (no warm-up)."""
     return lambda step: lr_factor(step, total_steps, 0, "poly", power)
 
@@ -101,7 +101,7 @@ def make_scheduler(optimizer: torch.optim.Optimizer, recipe: Recipe,
                                      power=recipe.poly_power))
 
 
-def seeded_loader(dataset: PatchDataset, config: TrainConfig, d: Dist, shuffle: bool) -> DataLoader:
+def seeded_loader(dataset: PatchDataset, config: TrainConfig, d: Dist, shuffle: bool) -> DataLoader[Any]:
     """A loader whose order depends only on (seed, epoch) and the number of processes.
 
     Random crops (:class:`~training.sampling.RandomCrops`) are taken in order, each process
@@ -124,7 +124,7 @@ def seeded_loader(dataset: PatchDataset, config: TrainConfig, d: Dist, shuffle: 
                       worker_init_fn=_loader_worker_start if config.loader_workers > 0 else None)
 
 
-def stop_loader_workers(*loaders: DataLoader) -> None:
+def stop_loader_workers(*loaders: DataLoader[Any]) -> None:
     """End the persistent workers of ``loaders`` now, however training ends.
 
     torch ends them when the loader's iterator is garbage: at once on a normal end, but when

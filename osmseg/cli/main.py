@@ -28,7 +28,7 @@ from osmseg.cli.verify import verify_command
 PLUGIN_GROUP = "osmseg.commands"
 
 
-@with_plugins(sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name))
+@with_plugins(sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name))  # type: ignore[untyped-decorator]
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "show_default": True})
 @click.version_option(__version__, "--version", prog_name="osmseg")
 @click.option("-v", "--verbose", count=True, show_default=False,

@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> None:
                 self._adapter = recorder
                 return session
 
-        osmseg.build.HttpClient = RecordingClient  # type: ignore[misc]  # this script only
+        osmseg.build.HttpClient = RecordingClient  # type: ignore[attr-defined]  # this script only
         # one process: the recording client patched in here is this process's (workers would make their own)
         config = replace(demo_config(work / "demo-out"), cache_dir=None, cassette=None, workers=1)
         summary = build(config, env={"BING_MAPS_KEY": "demo-key-not-secret"})

@@ -109,7 +109,7 @@ class LockedSQLiteCache(SQLiteCache):
 
     def close(self) -> None:
         with self._db_lock:
-            super().close()
+            super().close()  # type: ignore[no-untyped-call]
 
 
 def _cache_error(path: Path | str, exc: BaseException) -> CacheError:

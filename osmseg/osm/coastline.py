@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
+from typing import cast
 
 import numpy as np
 import shapely
@@ -92,7 +93,7 @@ def _faces(coast: BaseGeometry, box: BaseGeometry) -> np.ndarray:
     """The faces that the coastline cuts ``box`` into."""
     inside = shapely.intersection(coast, box)
     noded = shapely.union_all([inside, box.exterior])
-    return shapely.get_parts(shapely.polygonize(shapely.get_parts(noded)))
+    return cast("np.ndarray", shapely.get_parts(shapely.polygonize(shapely.get_parts(noded))))
 
 
 def _segments(lines: Sequence[BaseGeometry]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

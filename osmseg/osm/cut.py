@@ -297,7 +297,7 @@ def _read(src: str, boxes: Sequence[LngLatBBox], reach: float) -> _Index:
         rel_node_offsets=rel_node_offsets, rel_nodes=mp_node_pos, rel_position=_ints(mp_position))
 
 
-def _ints(values: array) -> Ints:
+def _ints(values: array[int]) -> Ints:
     return np.frombuffer(values, dtype=np.int64) if values else np.zeros(0, np.int64)
 
 

@@ -218,4 +218,4 @@ def _read_geometries(path: Path) -> Iterator[BaseGeometry]:
 
 def _in_wgs84(geom: BaseGeometry) -> bool:
     w, s, e, n = geom.bounds
-    return -180 <= w <= e <= 180 and -90 <= s <= n <= 90
+    return bool(-180 <= w <= e <= 180 and -90 <= s <= n <= 90)

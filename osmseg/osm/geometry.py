@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from functools import reduce
+from typing import cast
 
 import numpy as np
 import shapely
@@ -33,7 +34,7 @@ def lonlat_to_mercator(coords: np.ndarray) -> np.ndarray:
 
 def to_mercator(geoms: np.ndarray) -> np.ndarray:
     """Shapely geometries in lon/lat degrees to EPSG:3857 metres."""
-    return shapely.transform(geoms, lonlat_to_mercator)
+    return cast("np.ndarray", shapely.transform(geoms, lonlat_to_mercator))
 
 
 def mercator_scale(lonlat: np.ndarray) -> np.ndarray:
@@ -50,7 +51,7 @@ def mercator_scale(lonlat: np.ndarray) -> np.ndarray:
     [2.0, 1.0]
     """
     _, south, _, north = shapely.bounds(lonlat).T
-    return 1.0 / np.cos(np.radians(np.clip((south + north) / 2, -MAX_LAT, MAX_LAT)))  # as projected
+    return cast("np.ndarray", 1.0 / np.cos(np.radians(np.clip((south + north) / 2, -MAX_LAT, MAX_LAT))))  # as projected
 
 
 def polygonal(geom: BaseGeometry) -> BaseGeometry | None:

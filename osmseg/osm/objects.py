@@ -43,7 +43,7 @@ import mmap
 import weakref
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, Generic, NamedTuple, TypeVar
+from typing import Any, Generic, NamedTuple, TypeVar, cast
 
 import numpy as np
 import osmium
@@ -103,7 +103,7 @@ class TagDecisions(Generic[T]):
             node = node[1].get(get(node[0]))
         if node is None:
             return self.learn(tags)
-        return node[0]
+        return cast(T, node[0])
 
     def learn(self, tags: Any) -> T:
         """Run ``decide`` on ``tags`` and add the path of its look-ups to the tree."""
@@ -424,4 +424,4 @@ def clip_to(shapes: np.ndarray, box: tuple[float, float, float, float], valid: n
     inside[inside & ~valid] = shapely.is_valid(shapes[inside & ~valid])
     out = shapes.copy()
     out[~inside] = shapely.intersection(shapes[~inside], shapely.box(left, bottom, right, top))
-    return out
+    return cast("np.ndarray", out)

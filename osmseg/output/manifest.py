@@ -18,7 +18,7 @@ import shlex
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import mercantile
 
@@ -256,7 +256,7 @@ def read_manifest(path: Path) -> dict[str, Any]:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{file} is not valid JSON ({exc}); rebuild the dataset or restore the file") from None
     validate_manifest(manifest, where=str(file))
-    return manifest
+    return cast("dict[str, Any]", manifest)
 
 
 def config_entry(identity: dict[str, Any]) -> dict[str, Any]:

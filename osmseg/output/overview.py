@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from itertools import islice
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
@@ -49,7 +49,7 @@ def _file(out_dir: Path, sample: Mapping[str, Any], folder: str) -> Path:
             path = out_dir / rel
             if not path.is_file():
                 raise DatasetError(f"{path} is missing; rebuild the dataset (the manifest lists it)")
-            return path
+            return cast(Path, path)
     raise DatasetError(f"sample {sample.get('name', '?')} lists no file under {folder}/; rebuild it")
 
 
