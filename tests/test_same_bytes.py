@@ -8,7 +8,6 @@ import sys
 from pathlib import Path
 
 import torch
-
 from conftest import REPO_ROOT
 
 sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
