@@ -44,7 +44,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from localization.compare import method_summary, photo_columns, photo_view, run_method
+from localization.compare import Query, method_summary, photo_columns, photo_view, run_method
 from localization.evaluate_plots import plot_classes, plot_confidence, plot_errors
 from localization.geobench import geometry_view, geotiff_bounds_3857, scene_for_mask
 from localization.georender_osm import OsmScene
@@ -311,6 +311,118 @@ def subsets_of(classes: LandmarkClasses, all_subsets: bool) -> list[tuple[str, .
     return [full] + ([s for s in class_subsets(full) if len(s) < len(full)] if all_subsets else [])
 
 
+class _Bench:
+    """One benchmark run over ``scenes``: what is built once per scene (aerial landmarks and their
+    graphs, object heights, profile indexes, 3-D scenes), and each view rendered and localized."""
+
+    def __init__(self, scenes: Sequence[Scene], config: BenchConfig) -> None:
+        self.scenes, self.config = scenes, config
+        self.classes = landmark_classes_for(scenes[0].table, config.landmarks)
+        self.subsets = subsets_of(self.classes, config.subsets_on)
+        self.graphs: list[dict[tuple[str, ...], AerialGraph]] = []
+        self.aerial: list[tuple[Landmarks, np.ndarray]] = []  # each scene's landmarks and the cell each pixel is in
+        self.heights = [object_heights(sc.mask, sc.table,
+                                       dataclasses.replace(config.render, height_seed=config.render.height_seed + i))
+                        if config.render.height_spread > 0 else None for i, sc in enumerate(scenes)]
+        self.indexes: dict[int, AerialIndex] = {}
+        self.solids: dict[int, OsmScene] = {}  # --renderer geometry: each scene's 3-D scene, built once
+        for scene in scenes:
+            if config.query_landmarks == "visible":  # the cells say which aerial landmark a panorama pixel shows
+                full, cells = landmark_cells(scene.mask, scene.table, self.classes, mode=config.mode,
+                                             min_size=config.min_size, stride=config.stride)
+            else:
+                full = landmarks_from_mask(scene.mask, scene.table, self.classes, mode=config.mode,
+                                           min_size=config.min_size, stride=config.stride)
+                cells = np.zeros((0, 0), dtype=np.int64)
+            self.aerial.append((full, cells))
+            self.graphs.append(aerial_graphs(full, self.subsets, config.window))
+        self.other = ({si: (si + 1) % len(scenes) for si in range(len(scenes))}
+                      if config.negatives and len(scenes) > 1 else {})
+
+    def solid_scene(self, si: int) -> OsmScene:
+        if si not in self.solids:
+            bounds = self.scenes[si].bounds_3857
+            if bounds is None:
+                raise ConfigError(f"{self.scenes[si].name}: the geometry renderer needs to know where the mask lies: "
+                                  "give a dataset made by `osmseg build` or a GeoTIFF mask in EPSG:3857")
+            self.solids[si] = scene_for_mask(self.config.osm, bounds, self.scenes[si].table,
+                                             self.config.render.max_range_m, self.config.seed)
+        return self.solids[si]
+
+    def index_of(self, si: int) -> AerialIndex:
+        if si not in self.indexes:
+            sc = self.scenes[si]
+            self.indexes[si] = profile_index(semantic_map(sc.mask, sc.table, self.classes), sc.resolution_m,
+                                             self.config.profile)
+        return self.indexes[si]
+
+    def render(self, si: int, index: int, truth: tuple[float, float]) -> tuple[RenderedView, Query, float, float]:
+        """View ``index`` at ``truth`` in scene ``si``: ``(view, query, its heading, seconds to render)``."""
+        config, scene = self.config, self.scenes[si]
+        seq = np.random.SeedSequence([config.seed, config.noise.seed, index])  # each view its own noise
+        noise_seed, heading_seed = (int(v) for v in seq.generate_state(2))
+        noise = dataclasses.replace(config.noise, seed=noise_seed)
+        heading = (float(np.random.default_rng(heading_seed).uniform(0.0, 360.0)) if config.heading == "unknown"
+                   else config.render.heading_deg)
+        t0 = time.perf_counter()
+        visible = config.query_landmarks == "visible"
+        camera = dataclasses.replace(config.render, heading_deg=heading)
+        view: RenderedView
+        if config.renderer == "geometry":
+            view = geometry_view(self.solid_scene(si), scene.bounds_3857 or (0, 0, 0, 0), scene.mask.shape,
+                                 scene.resolution_m, scene.table, truth, self.classes, config=camera, noise=noise,
+                                 mode=config.mode, min_size=config.min_size, stride=config.stride)
+        else:
+            view = render_view(scene.mask, scene.table, scene.resolution_m, truth, self.classes, config=camera,
+                               noise=noise, mode=config.mode, min_size=config.min_size, stride=config.stride,
+                               sources=visible, heights=self.heights[si])
+        if visible:
+            shown, _ = visible_landmarks(view.panorama, self.aerial[si][1], self.aerial[si][0], config.visible_min_px)
+            view = dataclasses.replace(view, landmarks=shown)
+        query = photo_view(view.panorama, self.classes, config.fov_deg, camera_height_m=config.render.camera_height_m,
+                           mode=config.mode, min_size=config.min_size, stride=config.stride,
+                           landmarks=view.landmarks)
+        return dataclasses.replace(view, landmarks=query.landmarks), query, heading, time.perf_counter() - t0
+
+    def record(self, si: int, index: int, truth: tuple[float, float], out_dir: Path) -> dict[str, Any]:
+        """View ``index`` rendered, saved and drawn as asked, localized by every method: its results.json record."""
+        config, scene = self.config, self.scenes[si]
+        view, query, heading, t_render = self.render(si, index, truth)
+        if index < config.save_panoramas:
+            save_panorama_png(out_dir / "panoramas" / f"{index:04d}_{scene.name}.png", view.panorama)
+        centre, uniform = chance_errors(scene.mask.shape, truth, scene.resolution_m)
+        photo = config.fov_deg < 360
+        paper_config = LocalizeConfig(p=config.p, top_k=config.top_k,
+                                      query_window=query.camera.height if photo else None)
+        full, other = self.subsets[0], self.other
+        by_method: dict[str, dict[str, Any]] = {}
+        answers: dict[str, Localization] = {}
+        for method in config.methods:
+            by_method[method], answers[method] = run_method(
+                method, query, truth, scene.resolution_m,
+                paper=lambda: (self.graphs[si][full], self.graphs[other[si]][full] if si in other else None),
+                profile=lambda: (self.index_of(si), self.index_of(other[si]) if si in other else None),
+                paper_config=paper_config, profile_config=config.profile, heading_known=config.heading == "known")
+        first = config.methods[0]
+        if index < config.pictures:  # the first method's answer on the map
+            draw_view(out_dir / "views" / f"{index:04d}_{scene.name}", scene, view, self.graphs[si][full],
+                      answers[first], config)
+        if first == "paper":
+            scored, t_loc = localize_subsets(self.graphs[si], view.landmarks, truth, scene.resolution_m, config.p,
+                                             config.top_k, query_window=paper_config.query_window)
+        else:
+            scored, t_loc = {**by_method[first], "candidate_guess": None, "candidates": 0}, by_method[first]["localize_s"]
+        return {
+            "index": index, "scene": scene.name, "truth": [truth[0], truth[1]],
+            "camera": [round(view.panorama.camera[0], 3), round(view.panorama.camera[1], 3)],
+            "heading_deg": round(heading, 3), "resolution_m": scene.resolution_m,
+            "query_landmarks": int(len(view.landmarks.xy)),
+            "classes_seen": sorted({view.landmarks.classes[c] for c in np.unique(view.landmarks.cls)}),
+            "centre_guess": round(centre, 4), "random_guess": round(uniform, 4),
+            "render_s": round(t_render, 4), "localize_s": round(t_loc, 4), **scored, "methods": by_method,
+        }
+
+
 def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, progress: Progress | None = None,
               plots: bool = True, source: str = "") -> dict[str, Any]:
     """Run the benchmark over ``scenes`` (viewpoints spread round-robin) and write results.json + plots.
@@ -323,116 +435,19 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     if config.pictures and importlib.util.find_spec("matplotlib") is None:
         raise ConfigError("--pictures needs matplotlib: pip install matplotlib (or leave --pictures out)")
     out_dir = Path(out_dir)
-    classes = landmark_classes_for(scenes[0].table, config.landmarks)
-    subsets = subsets_of(classes, config.subsets_on)
-    graphs: list[dict[tuple[str, ...], AerialGraph]] = []
-    placements: list[np.ndarray] = []
+    bench = _Bench(scenes, config)
     counts = [config.viewpoints // len(scenes) + (i < config.viewpoints % len(scenes)) for i in range(len(scenes))]
     place_rng = np.random.default_rng([config.seed, 0])
-    aerial: list[tuple[Landmarks, np.ndarray]] = []  # each scene's landmarks and the cell each pixel is in
-    heights = [object_heights(sc.mask, sc.table, dataclasses.replace(config.render, height_seed=config.render.height_seed + i))
-               if config.render.height_spread > 0 else None for i, sc in enumerate(scenes)]
-    indexes: dict[int, AerialIndex] = {}
-    solids: dict[int, OsmScene] = {}  # --renderer geometry: each scene's 3-D scene, built once
-
-    def solid_scene(si: int) -> OsmScene:
-        if si not in solids:
-            bounds = scenes[si].bounds_3857
-            if bounds is None:
-                raise ConfigError(f"{scenes[si].name}: the geometry renderer needs to know where the mask lies: give a "
-                                  "dataset made by `osmseg build` or a GeoTIFF mask in EPSG:3857")
-            solids[si] = scene_for_mask(config.osm, bounds, scenes[si].table, config.render.max_range_m, config.seed)
-        return solids[si]
-
-    def index_of(si: int) -> AerialIndex:
-        if si not in indexes:
-            sc = scenes[si]
-            indexes[si] = profile_index(semantic_map(sc.mask, sc.table, classes), sc.resolution_m, config.profile)
-        return indexes[si]
-
-    for scene, count in zip(scenes, counts):
-        if config.query_landmarks == "visible":  # the cells say which aerial landmark a panorama pixel shows
-            full, cells = landmark_cells(scene.mask, scene.table, classes, mode=config.mode,
-                                         min_size=config.min_size, stride=config.stride)
-        else:
-            full = landmarks_from_mask(scene.mask, scene.table, classes, mode=config.mode, min_size=config.min_size,
-                                       stride=config.stride)
-            cells = np.zeros((0, 0), dtype=np.int64)
-        aerial.append((full, cells))
-        graphs.append(aerial_graphs(full, subsets, config.window))
-        margin = int(math.ceil(config.margin_m / scene.resolution_m))
-        placements.append(place_viewpoints(scene.mask, standable_ids(scene.table, config), count, margin, place_rng)
-                          if count else np.zeros((0, 2), dtype=np.int64))
+    placements = [place_viewpoints(scene.mask, standable_ids(scene.table, config), count,
+                                   int(math.ceil(config.margin_m / scene.resolution_m)), place_rng)
+                  if count else np.zeros((0, 2), dtype=np.int64) for scene, count in zip(scenes, counts)]
     # round-robin over the masks: viewpoint 0 on mask 0, 1 on mask 1, ...
     jobs = [(si, placements[si][i]) for i in range(max(counts)) for si in range(len(scenes)) if i < counts[si]]
-    other = {si: (si + 1) % len(scenes) for si in range(len(scenes))} if config.negatives and len(scenes) > 1 else {}
-
-    records: list[dict[str, Any]] = []
     t_start = time.perf_counter()
-    for index, (si, xy) in enumerate(track(jobs, progress, "viewpoints", unit="view")):
-        scene = scenes[si]
-        truth = (float(xy[0]), float(xy[1]))
-        seq = np.random.SeedSequence([config.seed, config.noise.seed, index])  # each view its own noise
-        noise_seed, heading_seed = (int(v) for v in seq.generate_state(2))
-        noise = dataclasses.replace(config.noise, seed=noise_seed)
-        heading = (float(np.random.default_rng(heading_seed).uniform(0.0, 360.0)) if config.heading == "unknown"
-                   else config.render.heading_deg)
-        t0 = time.perf_counter()
-        visible = config.query_landmarks == "visible"
-        camera = dataclasses.replace(config.render, heading_deg=heading)
-        view: RenderedView
-        if config.renderer == "geometry":
-            view = geometry_view(solid_scene(si), scene.bounds_3857 or (0, 0, 0, 0), scene.mask.shape,
-                                 scene.resolution_m, scene.table, truth, classes, config=camera, noise=noise,
-                                 mode=config.mode, min_size=config.min_size, stride=config.stride)
-        else:
-            view = render_view(scene.mask, scene.table, scene.resolution_m, truth, classes, config=camera, noise=noise,
-                               mode=config.mode, min_size=config.min_size, stride=config.stride, sources=visible,
-                               heights=heights[si])
-        if visible:
-            shown, _ = visible_landmarks(view.panorama, aerial[si][1], aerial[si][0], config.visible_min_px)
-            view = dataclasses.replace(view, landmarks=shown)
-        query = photo_view(view.panorama, classes, config.fov_deg, camera_height_m=config.render.camera_height_m,
-                           mode=config.mode, min_size=config.min_size, stride=config.stride,
-                           landmarks=view.landmarks)
-        view = dataclasses.replace(view, landmarks=query.landmarks)
-        t_render = time.perf_counter() - t0
-        if index < config.save_panoramas:
-            save_panorama_png(out_dir / "panoramas" / f"{index:04d}_{scene.name}.png", view.panorama)
-        centre, uniform = chance_errors(scene.mask.shape, truth, scene.resolution_m)
-        photo = config.fov_deg < 360
-        paper_config = LocalizeConfig(p=config.p, top_k=config.top_k,
-                                      query_window=query.camera.height if photo else None)
-        by_method: dict[str, dict[str, Any]] = {}
-        answers: dict[str, Localization] = {}
-        for method in config.methods:
-            by_method[method], answers[method] = run_method(
-                method, query, truth, scene.resolution_m,
-                paper=lambda: (graphs[si][subsets[0]],
-                               graphs[other[si]][subsets[0]] if si in other else None),
-                profile=lambda: (index_of(si), index_of(other[si]) if si in other else None),
-                paper_config=paper_config, profile_config=config.profile, heading_known=config.heading == "known")
-        first = config.methods[0]
-        if index < config.pictures:  # the first method's answer on the map
-            draw_view(out_dir / "views" / f"{index:04d}_{scene.name}", scene, view, graphs[si][subsets[0]],
-                      answers[first], config)
-        if first == "paper":
-            scored, t_loc = localize_subsets(graphs[si], view.landmarks, truth, scene.resolution_m, config.p,
-                                             config.top_k, query_window=paper_config.query_window)
-        else:
-            scored, t_loc = {**by_method[first], "candidate_guess": None, "candidates": 0}, by_method[first]["localize_s"]
-        records.append({
-            "index": index, "scene": scene.name, "truth": [truth[0], truth[1]],
-            "camera": [round(view.panorama.camera[0], 3), round(view.panorama.camera[1], 3)],
-            "heading_deg": round(heading, 3), "resolution_m": scene.resolution_m,
-            "query_landmarks": int(len(view.landmarks.xy)),
-            "classes_seen": sorted({view.landmarks.classes[c] for c in np.unique(view.landmarks.cls)}),
-            "centre_guess": round(centre, 4), "random_guess": round(uniform, 4),
-            "render_s": round(t_render, 4), "localize_s": round(t_loc, 4), **scored, "methods": by_method,
-        })
-    total = time.perf_counter() - t_start
-
-    results = _results(scenes, graphs, subsets, records, config, classes, source, total)
+    records = [bench.record(si, index, (float(xy[0]), float(xy[1])), out_dir)
+               for index, (si, xy) in enumerate(track(jobs, progress, "viewpoints", unit="view"))]
+    results = _results(scenes, bench.graphs, bench.subsets, records, config, bench.classes, source,
+                       time.perf_counter() - t_start)
     write_results(results, out_dir, plots)
     return results
 

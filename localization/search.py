@@ -412,6 +412,87 @@ def _around(xy: np.ndarray, spacing: float, shape: tuple[int, int]) -> np.ndarra
     return cand[(cand[:, 0] >= -0.5) & (cand[:, 0] < w - 0.5) & (cand[:, 1] >= -0.5) & (cand[:, 1] < h - 0.5)]
 
 
+@dataclass(frozen=True)
+class _Scoring:
+    """What every level of one query's search shares: the aerial side, the query, its settings,
+    the class frequencies it is compared with and weighed by, and the number of refinements."""
+
+    index: AerialIndex
+    query: QueryProfile
+    config: ProfileConfig
+    mean: np.ndarray
+    weights: np.ndarray | None
+    levels: int
+
+    def score(self, xy: np.ndarray, keep: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(score, shift, pose)`` at positions ``xy``: the best camera pose at each when the query has several."""
+        if self.query.variants:  # each position scored with the camera pose that fits it best
+            return score_poses(self.index, self.query, xy, self.config, self.mean, self.weights)
+        score, shift = score_positions(self.index, self.query, xy, self.config, self.mean, self.weights, keep=keep)
+        return score, shift, np.zeros(len(xy), dtype=np.int64)
+
+    def refine(self, xy: np.ndarray, score: np.ndarray, shift: np.ndarray, pose: np.ndarray, keep: int,
+               spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Around the ``keep`` best of ``xy``, a 3 x 3 grid a third as wide, ``levels`` times."""
+        for _ in range(self.levels):
+            top = np.argsort(-score, kind="stable")[:keep]
+            spacing /= 3.0
+            xy = _around(xy[top], spacing, self.index.shape)
+            if self.query.variants:
+                score, shift, pose = self.score(xy)
+            else:
+                score, shift, _ = self.score(xy)
+        return xy, score, shift, pose
+
+
+def _heading_at(query: QueryProfile, shifts: np.ndarray | None, i: int) -> float:
+    """The heading (degrees) at place ``i``: the given one, or its best azimuth shift (in bins)."""
+    if query.heading_deg is not None or shifts is None:
+        return round(float(query.heading_deg or 0.0), 3) % 360.0
+    return round(float(shifts[i] * 360.0 / query.bins) % 360.0, 3) % 360.0
+
+
+def _alternative(s: _Scoring, coarse: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], answer: np.ndarray,
+                 coarse_m: float, spacing: float) -> tuple[tuple[float, float, float] | None, float | None]:
+    """The best distinct alternative ``((x, y, score), heading)``: the best place at least ``distinct_m``
+    from ``answer``, found among the 5 best spaced coarse positions that far away and refined as the
+    answer was; ``(None, None)`` when no place lies that far."""
+    coarse_xy, coarse_score, coarse_shift, coarse_poses = coarse
+    resolution = s.index.resolution_m
+    far = np.hypot(*(coarse_xy - answer).T) * resolution >= s.config.distinct_m
+    if not (far.any() and np.isfinite(coarse_score[far]).any()):
+        return None, None
+    rivals = np.flatnonzero(far)[_nms(coarse_xy[far], np.argsort(-coarse_score[far], kind="stable"),
+                                      coarse_m / resolution, 5)]
+    rivals = rivals[np.isfinite(coarse_score[rivals])]
+    r_xy, r_score, r_shift, _ = s.refine(coarse_xy[rivals], coarse_score[rivals], coarse_shift[rivals],
+                                         coarse_poses[rivals], len(rivals), spacing)
+    r_far = np.hypot(*(r_xy - answer).T) * resolution >= s.config.distinct_m
+    if not r_far.any():
+        return None, None
+    i = int(np.flatnonzero(r_far)[np.argmax(r_score[r_far])])
+    return (float(r_xy[i, 0]), float(r_xy[i, 1]), float(r_score[i])), _heading_at(s.query, r_shift, i)
+
+
+def _gated(result: Localization, kappa: float, confidence: float, config: ProfileConfig, index: AerialIndex,
+           answer: np.ndarray) -> Localization:
+    """``result`` left unanswered when its ``kappa`` says "not in this image" or its ``confidence`` "not
+    sure" (both unrounded: the result holds them rounded)."""
+    min_kappa = config.min_kappa if config.min_kappa is not None else index.min_kappa
+    if kappa < min_kappa:
+        return replace(result, unanswered=True, map_xy=None,
+                       reason=f"not in this image: kappa {kappa:.3f} is below {min_kappa:g}")
+    threshold = config.min_confidence if config.min_confidence is not None else index.min_confidence
+    if confidence < threshold:
+        where = ""
+        if result.alternative is not None:
+            away = math.hypot(result.alternative[0] - answer[0], result.alternative[1] - answer[1]) * index.resolution_m
+            where = f" (another place {away:.0f} m away fits almost as well)"
+        return replace(result, unanswered=True, map_xy=None,
+                       reason=f"not sure: confidence {confidence:.3f} is below {threshold:g}{where}")
+    return result
+
+
 def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileConfig,
                      prior: np.ndarray | None = None) -> Localization:
     """Where ``query`` was taken in the aerial ``index``: the ``profile`` method's answer.
@@ -423,65 +504,26 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     (:func:`class_prior`) to weigh and to compare with, when they should be another area's than
     this image's (a region searched in blocks scores every block against the region's).
     """
-    settings = {"method": "profile"}
     if tuple(index.classes) != tuple(query.classes):
         raise ConfigError(f"aerial classes {index.classes} and query classes {query.classes} differ: use landmark "
                           "dictionaries with the same landmark classes")
     if query.mass <= 0:
-        return unanswered("the query shows no landmark class on the ground rows or at any azimuth", **settings)
+        return unanswered("the query shows no landmark class on the ground rows or at any azimuth", method="profile")
     coarse_m = config.coarse_m if config.coarse_m is not None else index.grid_m
-    levels = config.levels if config.levels is not None else index.levels
     weighted = config.weighted if config.weighted is not None else index.weighted
     spacing = coarse_m / index.resolution_m
     xy = grid_positions(index.shape, spacing)
     mean = class_prior(index, query, xy) if prior is None else prior
-    weights = -np.log(np.clip(mean, config.min_prior, 1.0)) if weighted else None
-    if query.variants:  # each position scored with the camera pose that fits it best, from the coarse grid on
-        score, shift, poses = score_poses(index, query, xy, config, mean, weights)
-    else:
-        score, shift = score_positions(index, query, xy, config, mean, weights, keep=config.keep)
-        poses = np.zeros(len(xy), dtype=np.int64)
-    coarse_xy, coarse_score, coarse_shift, coarse_poses = xy, score, shift, poses
-
-    def refine(xy: np.ndarray, score: np.ndarray, shift: np.ndarray, pose: np.ndarray, keep: int, spacing: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        for _ in range(levels):
-            top = np.argsort(-score, kind="stable")[:keep]
-            spacing /= 3.0
-            xy = _around(xy[top], spacing, index.shape)
-            if query.variants:
-                score, shift, pose = score_poses(index, query, xy, config, mean, weights)
-            else:
-                score, shift = score_positions(index, query, xy, config, mean, weights)
-        return xy, score, shift, pose
-
-    xy, score, shift, poses = refine(xy, score, shift, poses, config.keep, spacing)
+    s = _Scoring(index, query, config, mean, -np.log(np.clip(mean, config.min_prior, 1.0)) if weighted else None,
+                 config.levels if config.levels is not None else index.levels)
+    score, shift, poses = s.score(xy, keep=config.keep)
+    coarse = (xy, score, shift, poses)
+    xy, score, shift, poses = s.refine(xy, score, shift, poses, config.keep, spacing)
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
     best = int(order[0])
     pose_query = query.variants[int(poses[best])] if query.variants else query
-    # the best distinct alternative: the best place at least distinct_m from the answer, refined as it was
-    far = np.hypot(*(coarse_xy - xy[best]).T) * index.resolution_m >= config.distinct_m
-    alternative: tuple[float, float, float] | None = None
-    alternative_heading: float | None = None
-
-    def heading_at(shifts: np.ndarray | None, i: int) -> float:
-        """The heading (degrees) at place ``i``: the given one, or its best azimuth shift (in bins)."""
-        if query.heading_deg is not None or shifts is None:
-            return round(float(query.heading_deg or 0.0), 3) % 360.0
-        return round(float(shifts[i] * 360.0 / query.bins) % 360.0, 3) % 360.0
-
-    if far.any() and np.isfinite(coarse_score[far]).any():
-        rivals = np.flatnonzero(far)[_nms(coarse_xy[far], np.argsort(-coarse_score[far], kind="stable"),
-                                          coarse_m / index.resolution_m, 5)]
-        rivals = rivals[np.isfinite(coarse_score[rivals])]
-        r_xy, r_score, r_shift, _ = refine(coarse_xy[rivals], coarse_score[rivals], coarse_shift[rivals],
-                                           coarse_poses[rivals], len(rivals), spacing)
-        r_far = np.hypot(*(r_xy - xy[best]).T) * index.resolution_m >= config.distinct_m
-        if r_far.any():
-            i = int(np.flatnonzero(r_far)[np.argmax(r_score[r_far])])
-            alternative = (float(r_xy[i, 0]), float(r_xy[i, 1]), float(r_score[i]))
-            alternative_heading = heading_at(r_shift, i)
-    qw = pose_query.q.sum(axis=2) * (weights if weights is not None else 1.0)
+    alternative, alternative_heading = _alternative(s, coarse, xy[best], coarse_m, spacing)
+    qw = pose_query.q.sum(axis=2) * (s.weights if s.weights is not None else 1.0)
     chance = float((qw * mean).sum() / max(qw.sum(), 1e-9))
     kappa = (float(score[best]) - chance) / max(1e-9, 1.0 - chance)
     lead = float(score[best]) - chance
@@ -492,21 +534,10 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     ties = int(np.isclose(score, score[best], rtol=1e-9, atol=1e-12).sum())
     result = Localization(candidates=xy, likelihoods=score, posteriors=score, order=order.astype(np.int64),
                           top_k=top_k, map_xy=(top_k[0][0], top_k[0][1]), ties=ties, unanswered=False,
-                          method="profile", heading_deg=heading_at(shift, best), confidence=round(confidence, 4),
-                          kappa=round(kappa, 4), chance=round(chance, 4), alternative=alternative,
+                          method="profile", heading_deg=_heading_at(query, shift, best),
+                          confidence=round(confidence, 4), kappa=round(kappa, 4), chance=round(chance, 4),
+                          alternative=alternative,
                           camera_pose=pose_query.pose if query.variants or not _level(query) else None,
-                          headings=tuple(heading_at(shift, i) for i in picked),
+                          headings=tuple(_heading_at(query, shift, i) for i in picked),
                           alternative_heading=alternative_heading)
-    min_kappa = config.min_kappa if config.min_kappa is not None else index.min_kappa
-    if kappa < min_kappa:
-        return replace(result, unanswered=True, map_xy=None,
-                       reason=f"not in this image: kappa {kappa:.3f} is below {min_kappa:g}")
-    threshold = config.min_confidence if config.min_confidence is not None else index.min_confidence
-    if confidence < threshold:
-        where = ""
-        if alternative is not None:
-            away = math.hypot(alternative[0] - xy[best, 0], alternative[1] - xy[best, 1]) * index.resolution_m
-            where = f" (another place {away:.0f} m away fits almost as well)"
-        return replace(result, unanswered=True, map_xy=None,
-                       reason=f"not sure: confidence {confidence:.3f} is below {threshold:g}{where}")
-    return result
+    return _gated(result, kappa, confidence, config, index, xy[best])
