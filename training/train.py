@@ -39,7 +39,7 @@ from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.progress import Progress, report
-from training.checkpoint import load_checkpoint, read_init, save_checkpoint
+from training.checkpoint import InitWeights, load_checkpoint, read_init, save_checkpoint
 from training.config import TrainConfig
 from training.data import (
     PatchDataset,
@@ -54,6 +54,7 @@ from training.data import (
 )
 from training.distributed import Dist, barrier, cleanup, setup
 from training.engine import StepOptions, evaluate, train_one_epoch
+from training.metrics import ConfusionMatrix
 from training.model import PRESETS, build_model, model_spec, unlabeled_as_background
 from training.recipe import RECIPES, Recipe, lr_factor, steps_per_epoch
 from training.sampling import RandomCrops, crop_sampler
@@ -319,6 +320,113 @@ def run(config: TrainConfig, progress: Progress | None = None) -> dict[str, Any]
         cleanup()
 
 
+def datasets(config: TrainConfig, d: Dist, spec: ModelSpec, files: list[SampleFiles], train_files: list[SampleFiles],
+             val_files: list[SampleFiles], histograms: np.ndarray, pixels: dict[str, np.ndarray], num_classes: int,
+             label_lut: np.ndarray | None) -> tuple[PatchDataset, PatchDataset, np.ndarray]:
+    """``(training set, validation set, the training files' pixels per model class)``: random crops or
+    patches of ``config.patch_size`` by the recipe, validation in whole patches."""
+    patches = functools.partial(PatchDataset, mean=spec.mean, std=spec.std, ignore_index=spec.ignore_index,
+                                seed=config.seed, num_classes=num_classes, label_lut=label_lut)
+    recipe = config.settings
+    index = {f.name: i for i, f in enumerate(files)}
+    train_pixels = int(histograms[[index[f.name] for f in train_files]].sum())
+    train_class_pixels = np.stack([pixels[f.name] for f in train_files])  # (files, model classes)
+    train_set: PatchDataset
+    if recipe.sampling == "random":
+        per_process = steps_per_epoch(recipe, train_pixels, d.world_size) * recipe.batch_size
+        train_set = RandomCrops(train_files, recipe.crop, per_process * d.world_size, mean=spec.mean, std=spec.std,
+                                ignore_index=spec.ignore_index, seed=config.seed, augment=config.augment,
+                                num_classes=num_classes, label_lut=label_lut,
+                                balance=recipe.balanced_crops, class_pixels=train_class_pixels)
+    else:
+        train_set = patches(train_files, config.patch_size, augment=config.augment)
+    val_set = patches(val_files, fitted_patch(config.patch_size, val_files), augment=False)  # 256-px tiles too
+    if len(train_set) == 0:
+        raise DatasetError(f"{config.dataset}: no training patches of {config.patch_size}; are the images smaller?")
+    return train_set, val_set, train_class_pixels
+
+
+def class_weights(recipe: Recipe, train_class_pixels: np.ndarray, spec: ModelSpec) -> torch.Tensor | None:
+    """The loss's class weights from the training split's pixels by model id (None: ``class_weights = "none"``)."""
+    if recipe.class_weights == "none":
+        return None
+    weights = weights_from_histograms(train_class_pixels, spec.ignore_index)  # by model id
+    if recipe.class_weights == "sqrt-median-frequency":  # the same order, a square root of the spread
+        weights = weights.sqrt()
+    return weights
+
+
+def placed_model(spec: ModelSpec, init: InitWeights | None, config: TrainConfig, d: Dist
+                 ) -> tuple[nn.Module, nn.Module, StepOptions]:
+    """``(model, what trains it, step options)``: the model built, initialised and on its device (channels
+    last and AMP on CUDA when asked), wrapped in DistributedDataParallel across processes."""
+    model = build_model(spec)
+    if init is not None:
+        init.apply(model)
+    opts = StepOptions(device=d.device, amp=config.amp and d.device.type == "cuda",
+                       channels_last=config.channels_last and d.device.type == "cuda",
+                       max_steps=config.max_steps_per_epoch)
+    model.to(d.device)
+    if opts.channels_last:
+        model.to(memory_format=torch.channels_last)
+    net: nn.Module = model
+    if d.distributed:
+        net = DistributedDataParallel(model, device_ids=[d.device.index] if d.device.type == "cuda" else None)
+    return model, net, opts
+
+
+def resumed(saved: dict[str, Any] | None, model: nn.Module, optimizer: Any, scheduler: Any, scaler: Any
+            ) -> tuple[list[dict[str, Any]], float, int]:
+    """``(history, best val mIoU, epochs done)`` of a saved run, its states loaded; nothing done for a new one."""
+    if saved is None:
+        return [], -math.inf, 0
+    model.load_state_dict(saved["model"])
+    optimizer.load_state_dict(saved["optimizer"])
+    scheduler.load_state_dict(saved["scheduler"])
+    scaler.load_state_dict(saved["scaler"])
+    history = list(saved["history"])
+    best = max((h["val_miou"] for h in history if h.get("val_miou") is not None), default=-math.inf)
+    return history, best, int(saved["epoch"])
+
+
+def run_record(spec: ModelSpec, config: TrainConfig, splits: dict[str, list[str]], weights: torch.Tensor | None,
+               saved: dict[str, Any] | None, init: InitWeights | None) -> dict[str, Any]:
+    """What every checkpoint of a run holds besides its states: the model, settings, splits, class
+    weights, the dataset's fingerprint and the initial weights' origin (a resumed run's own)."""
+    return {
+        "spec": asdict(spec), "config": config.to_dict(), "splits": splits,
+        "class_weights": None if weights is None else weights.cpu(),
+        "dataset_sha256": dataset_fingerprint(config.dataset),
+        "init": saved.get("init") if saved is not None else (init.record if init is not None else None),
+    }
+
+
+def validated(model: nn.Module, criterion: nn.Module, val_loader: DataLoader[Any], opts: StepOptions,
+              spec: ModelSpec, d: Dist, shown: Progress | None, epoch: int
+              ) -> tuple[float | None, ConfusionMatrix]:
+    """``(validation loss, confusion matrix)`` after ``epoch`` (from 0), in every process alike."""
+    if d.distributed:  # every process validates with rank 0's BN statistics (those saved below)
+        for buffer in model.buffers():
+            dist.broadcast(buffer, src=0)
+    # The plain module, not the DDP wrapper: its first forward after training would sync
+    # buffers (a collective), but processes may hold different numbers of val batches.
+    return evaluate(model, criterion, val_loader, opts, spec.num_classes, spec.ignore_index,
+                    progress=shown, task=f"epoch {epoch + 1} validate")
+
+
+def save_epoch(files_out: RunFiles, state: dict[str, Any], history: list[dict[str, Any]], metrics: dict[str, Any],
+               best: float) -> float:
+    """An epoch's files: best.pt when its mIoU beats ``best``, log.csv, then last.pt; returns the new best."""
+    if metrics["miou"] is not None and metrics["miou"] > best:
+        best = metrics["miou"]
+        save_checkpoint(files_out.best, state)
+    files_out.write_log(history)
+    # last.pt is the commit point of an epoch, written after best.pt and log.csv: a run
+    # killed in between redoes the epoch on resume and rewrites all three.
+    save_checkpoint(files_out.last, state)
+    return best
+
+
 def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress | None = None) -> dict[str, Any]:
     torch.manual_seed(config.seed)  # the same initial weights in every process
     dataset_table = training_class_table(config.dataset, config.classes, config.model)
@@ -344,43 +452,13 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
     spec = binary_if_one_class(spec, pixels, splits["train"], d, "the training split's labels")
     train_files = files_by_name(files, splits["train"])
     val_files = files_by_name(files, splits["val"])
-    patches = functools.partial(PatchDataset, mean=spec.mean, std=spec.std, ignore_index=spec.ignore_index,
-                                seed=config.seed, num_classes=dataset_table.num_classes, label_lut=label_lut)
     recipe = config.settings
-    index = {f.name: i for i, f in enumerate(files)}
-    train_pixels = int(histograms[[index[f.name] for f in train_files]].sum())
-    train_class_pixels = np.stack([pixels[f.name] for f in train_files])  # (files, model classes)
-    train_set: PatchDataset
-    if recipe.sampling == "random":
-        per_process = steps_per_epoch(recipe, train_pixels, d.world_size) * recipe.batch_size
-        train_set = RandomCrops(train_files, recipe.crop, per_process * d.world_size, mean=spec.mean, std=spec.std,
-                                ignore_index=spec.ignore_index, seed=config.seed, augment=config.augment,
-                                num_classes=dataset_table.num_classes, label_lut=label_lut,
-                                balance=recipe.balanced_crops, class_pixels=train_class_pixels)
-    else:
-        train_set = patches(train_files, config.patch_size, augment=config.augment)
-    val_set = patches(val_files, fitted_patch(config.patch_size, val_files), augment=False)  # 256-px tiles too
-    if len(train_set) == 0:
-        raise DatasetError(f"{config.dataset}: no training patches of {config.patch_size}; are the images smaller?")
+    train_set, val_set, train_class_pixels = datasets(config, d, spec, files, train_files, val_files, histograms,
+                                                      pixels, dataset_table.num_classes, label_lut)
 
-    weights = None
-    if recipe.class_weights != "none":
-        weights = weights_from_histograms(train_class_pixels, spec.ignore_index)  # by model id
-        if recipe.class_weights == "sqrt-median-frequency":  # the same order, a square root of the spread
-            weights = weights.sqrt()
-    model = build_model(spec)
-    if init is not None:
-        init.apply(model)
-    opts = StepOptions(device=d.device, amp=config.amp and d.device.type == "cuda",
-                       channels_last=config.channels_last and d.device.type == "cuda",
-                       max_steps=config.max_steps_per_epoch)
+    weights = class_weights(recipe, train_class_pixels, spec)
+    model, net, opts = placed_model(spec, init, config, d)
     shown = progress if d.is_main else None  # one process reports
-    model.to(d.device)
-    if opts.channels_last:
-        model.to(memory_format=torch.channels_last)
-    net: nn.Module = model
-    if d.distributed:
-        net = DistributedDataParallel(model, device_ids=[d.device.index] if d.device.type == "cuda" else None)
     criterion = nn.CrossEntropyLoss(weight=None if weights is None else weights.to(d.device),
                                     ignore_index=-100 if spec.ignore_index is None else spec.ignore_index)
     optimizer = make_optimizer(model, recipe)
@@ -392,26 +470,11 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
     scaler = torch.amp.GradScaler(d.device.type, enabled=opts.amp)
 
     files_out = RunFiles(config.out_dir, d, config.tensorboard)
-    history: list[dict[str, Any]] = []
-    best = -math.inf
-    start = 0
-    if saved is not None:
-        model.load_state_dict(saved["model"])
-        optimizer.load_state_dict(saved["optimizer"])
-        scheduler.load_state_dict(saved["scheduler"])
-        scaler.load_state_dict(saved["scaler"])
-        history = list(saved["history"])
-        best = max((h["val_miou"] for h in history if h.get("val_miou") is not None), default=-math.inf)
-        start = int(saved["epoch"])
-        if d.is_main:
-            logger.info("resuming %s after epoch %d", config.out_dir, start)
+    history, best, start = resumed(saved, model, optimizer, scheduler, scaler)
+    if saved is not None and d.is_main:
+        logger.info("resuming %s after epoch %d", config.out_dir, start)
 
-    base_state = {
-        "spec": asdict(spec), "config": config.to_dict(), "splits": splits,
-        "class_weights": None if weights is None else weights.cpu(),
-        "dataset_sha256": dataset_fingerprint(config.dataset),
-        "init": saved.get("init") if saved is not None else (init.record if init is not None else None),
-    }
+    base_state = run_record(spec, config, splits, weights, saved, init)
     report(shown, "train", start, config.epochs, "epoch")
     for epoch in range(start, config.epochs):
         began = time.monotonic()
@@ -421,13 +484,7 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
         lr = optimizer.param_groups[0]["lr"]
         train_loss = train_one_epoch(net, criterion, optimizer, scheduler, scaler, train_loader, opts, epoch + 1,
                                      progress=shown)
-        if d.distributed:  # every process validates with rank 0's BN statistics (those saved below)
-            for buffer in model.buffers():
-                dist.broadcast(buffer, src=0)
-        # The plain module, not the DDP wrapper: its first forward after training would sync
-        # buffers (a collective), but processes may hold different numbers of val batches.
-        val_loss, matrix = evaluate(model, criterion, val_loader, opts, spec.num_classes, spec.ignore_index,
-                                    progress=shown, task=f"epoch {epoch + 1} validate")
+        val_loss, matrix = validated(model, criterion, val_loader, opts, spec, d, shown, epoch)
         metrics = matrix.compute(spec.class_names)  # by id, never by list position
         row = {"epoch": epoch + 1, "lr": lr, "train_loss": rounded(train_loss), "val_loss": rounded(val_loss),
                "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
@@ -438,13 +495,7 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
             state = dict(base_state, model=model.state_dict(), optimizer=optimizer.state_dict(),
                          scheduler=scheduler.state_dict(), scaler=scaler.state_dict(), epoch=epoch + 1,
                          history=history, val_metrics=metrics)
-            if metrics["miou"] is not None and metrics["miou"] > best:
-                best = metrics["miou"]
-                save_checkpoint(files_out.best, state)
-            files_out.write_log(history)
-            # last.pt is the commit point of an epoch, written after best.pt and log.csv: a run
-            # killed in between redoes the epoch on resume and rewrites all three.
-            save_checkpoint(files_out.last, state)
+            best = save_epoch(files_out, state, history, metrics, best)
             logger.info("epoch %d/%d: train loss %s, val loss %s, val mIoU %s", epoch + 1, config.epochs,
                         rounded(train_loss, 4), rounded(val_loss, 4), metrics["miou"])
         barrier()
