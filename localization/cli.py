@@ -29,7 +29,7 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -47,6 +47,9 @@ from localization.inputs import SideOptions
 from osmseg.cli.common import output_options, parse_size, progress_bars, renamed_option, report_errors, typed_options
 from osmseg.errors import ConfigError
 from osmseg.units import degrees, metres, number, pixels, ratio
+
+if TYPE_CHECKING:  # the command imports the pipeline only when it runs
+    from localization.pipeline import LocalizeReport
 
 logger = logging.getLogger(__name__)
 
@@ -220,6 +223,13 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
         aerial_image=aerial_image, ground_image=ground_image, feature_checkpoint=feature_checkpoint,
         truth=truth, resolution_m=resolution)
     report = localize_files(request, config, out_dir)
+    _say(report, as_json=as_json, quiet=verbosity < 0, hierarchical=hierarchical, auto_window=window is None,
+         out_dir=out_dir)
+
+
+def _say(report: LocalizeReport, *, as_json: bool, quiet: bool, hierarchical: bool, auto_window: bool,
+         out_dir: Path | None) -> None:
+    """What ``osmseg localize`` prints: the answer on stdout (a table, or JSON), how it was found on stderr."""
     result = report.result
     if as_json:
         click.echo(json.dumps({**report.summary, **result.to_dict(all_candidates=False),
@@ -228,7 +238,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
         click.echo(f"unanswered: {result.reason}")
     else:
         click.echo(_table(result))
-    if verbosity >= 0 and not as_json:
+    if not quiet and not as_json:
         if result.method == "profile" and result.confidence is not None:
             alt = (f"; best place 50 m or more away scores {ratio(result.margin)} less" if result.margin is not None
                    else "")
@@ -242,7 +252,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
         elif not result.unanswered:
             ties = f", {result.ties} tied at the top (broken as documented)" if result.ties > 1 else ""
             used = (f"windows {', '.join(str(lv.window) for lv in result.levels)} px (hierarchical)" if hierarchical
-                    else f"window {result.window} px{' (auto)' if window is None else ''}")
+                    else f"window {result.window} px{' (auto)' if auto_window else ''}")
             click.echo(f"{used}, ground window {result.query_window} px, {result.n_cliques} cliques, "
                        f"{len(result.candidates)} candidates{ties}", err=True)
         if "map_lonlat" in report.summary:
