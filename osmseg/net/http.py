@@ -394,28 +394,20 @@ class HttpClient:
                     wait = min(asked, cfg.max_retry_after)
                     gate.pause(wait)
             if attempt + 1 < attempts:
-                first = host not in self._warned
-                self._warned.add(host)
-                # the first retry of a host is said at WARNING (a user sees why a build slows down),
-                # the rest at INFO (-v): a flaky server must not flood a log
-                logger.log(logging.WARNING if first else logging.INFO,
-                           "%s %s: %s; retry %d/%d in %.1f s%s",
-                           *(method, shown, problem, attempt + 1, cfg.retries, wait,
-                             " (further retries of this host: -v)" if first else ""))
+                self._say_retry(method, shown, host, problem, attempt, wait)
                 if STOPPING.wait(wait):  # the process is stopping: no more attempts
                     raise RetriesExhausted(f"{method} {shown}: stopped (the command is ending)")
-        if last_status is not None:
-            raise ServiceUnavailable(
-                f"{method} {shown} failed with HTTP {last_status} after {attempts} attempts: "
-                f"{status_hint(last_status)}",
-                last_status,
-            )
-        if problem.startswith("unusable answer"):
-            raise RetriesExhausted(f"{method} {shown}: {attempts} unusable answers in a row, the last: {problem[17:]}")
-        raise RetriesExhausted(
-            f"{method} {shown} failed after {attempts} attempts ({problem}): check the network "
-            "connection, or run the same command again later (finished work is kept)"
-        )
+        raise _given_up(f"{method} {shown}", attempts, problem, last_status)
+
+    def _say_retry(self, method: str, shown: str, host: str, problem: str, attempt: int, wait: float) -> None:
+        """Log a retry: the first of a host at WARNING (a user sees why a build slows down), the
+        rest at INFO (-v): a flaky server must not flood a log."""
+        first = host not in self._warned
+        self._warned.add(host)
+        logger.log(logging.WARNING if first else logging.INFO,
+                   "%s %s: %s; retry %d/%d in %.1f s%s",
+                   *(method, shown, problem, attempt + 1, self.config.retries, wait,
+                     " (further retries of this host: -v)" if first else ""))
 
     def _send(
         self,
@@ -512,3 +504,19 @@ class HttpClient:
         cache = getattr(self._session, "cache", None)  # a CachedSession's
         if cache is not None and not self.config.offline and not getattr(response, "from_cache", False):
             cache.save_response(response)
+
+
+def _given_up(request: str, attempts: int, problem: str, last_status: int | None) -> OsmsegError:
+    """The error of a ``request`` (method and shown URL) that ``attempts`` attempts did not get answered:
+    the last HTTP status that was worth retrying, unusable answers, or the last connection problem."""
+    if last_status is not None:
+        return ServiceUnavailable(
+            f"{request} failed with HTTP {last_status} after {attempts} attempts: {status_hint(last_status)}",
+            last_status,
+        )
+    if problem.startswith("unusable answer"):
+        return RetriesExhausted(f"{request}: {attempts} unusable answers in a row, the last: {problem[17:]}")
+    return RetriesExhausted(
+        f"{request} failed after {attempts} attempts ({problem}): check the network "
+        "connection, or run the same command again later (finished work is kept)"
+    )
