@@ -207,8 +207,10 @@ class _Index:
     rel_position: Ints  # multipolygon -> its position among the file's relations
 
 
-def _read(src: str, boxes: Sequence[LngLatBBox], reach: float) -> _Index:
-    """The one collecting pass over ``src`` and the indexes for ``boxes``."""
+def _collect(src: str) -> tuple[array[int], ...]:
+    """The one collecting pass over ``src``, into compact arrays: node ids and fixed-point x, y; way
+    ids, their sizes and node refs; relation ids; and of the multipolygons, their position among
+    the relations, member ways and their counts, member nodes and their counts."""
     node_ids, xs, ys = array("q"), array("i"), array("i")
     way_ids, way_sizes, refs = array("q"), array("q"), array("q")
     rel_ids, mp_position = array("q"), array("q")
@@ -235,7 +237,14 @@ def _read(src: str, boxes: Sequence[LngLatBBox], reach: float) -> _Index:
                 mp_nodes.extend(nodes)
                 mp_node_sizes.append(len(nodes))
             rel_ids.append(obj.id)
+    return (node_ids, xs, ys, way_ids, way_sizes, refs, rel_ids, mp_position, mp_ways, mp_way_sizes, mp_nodes,
+            mp_node_sizes)
 
+
+def _read(src: str, boxes: Sequence[LngLatBBox], reach: float) -> _Index:
+    """The one collecting pass over ``src`` and the indexes for ``boxes``."""
+    (node_ids, xs, ys, way_ids, way_sizes, refs, rel_ids, mp_position, mp_ways, mp_way_sizes, mp_nodes,
+     mp_node_sizes) = _collect(src)
     ids = np.frombuffer(node_ids, dtype=np.int64) if node_ids else np.zeros(0, np.int64)
     x = np.frombuffer(xs, dtype=np.int32) if xs else np.zeros(0, np.int32)
     y = np.frombuffer(ys, dtype=np.int32) if ys else np.zeros(0, np.int32)
