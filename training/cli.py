@@ -19,7 +19,15 @@ from pathlib import Path
 
 import click
 
-from osmseg.cli.common import output_options, progress_bars, renamed_option, report_errors, require_torch, typed_options
+from osmseg.cli.common import (
+    F,
+    output_options,
+    progress_bars,
+    renamed_option,
+    report_errors,
+    require_torch,
+    typed_options,
+)
 from osmseg.errors import ConfigError
 from osmseg.units import ratio
 
@@ -123,6 +131,28 @@ def train_command(ctx: click.Context, /, dataset: Path, out_dir: Path, config_fi
                            "log": str(out_dir / "log.csv")}))
 
 
+def inference_options(func: F) -> F:
+    """``--mode``, ``--join``, ``--tta``, ``--resolution`` and ``--device``: how ``predict`` and ``eval``
+    run a network over an image, declared once for both (as rasterio's shared option decorators)."""
+    options = [
+        click.option("--mode", type=click.Choice(["split-join", "rescale"]), default="split-join", show_default=True,
+                     help="split-join: windows of the training patch size; rescale: letterbox the whole image into "
+                          "one."),
+        click.option("--join", type=click.Choice(["blend", "crop"]), default="blend", show_default=True,
+                     help="split-join: blend overlapping windows smoothly, or keep each window's centre (the "
+                          "dissertation's)."),
+        click.option("--tta", is_flag=True, help="Average over flips (and 90-degree turns of square inputs)."),
+        click.option("--resolution", metavar="METRES|model",
+                     help="Resample georeferenced inputs to this ground pixel size before predicting ('model': the "
+                          "training data's, from the checkpoint); masks and labels stay on the input's grid."),
+        click.option("--device", default="auto", show_default=True,
+                     help="auto (a GPU when there is one) | cpu | cuda | cuda:N"),
+    ]
+    for option in reversed(options):
+        func = option(func)
+    return func
+
+
 @click.command("predict")
 @output_options
 @click.argument("checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path))
@@ -131,20 +161,12 @@ def train_command(ctx: click.Context, /, dataset: Path, out_dir: Path, config_fi
               help="Folder for the masks: NAME.png (class ids) and NAME_color.png for PNG/JPEG inputs; "
                    "NAME.tif and NAME_color.tif (Cloud-Optimized GeoTIFFs, georeferenced) for GeoTIFF inputs, with "
                    "NAME.qml, the QGIS style naming the classes.")
-@click.option("--mode", type=click.Choice(["split-join", "rescale"]), default="split-join", show_default=True,
-              help="split-join: windows of the training patch size; rescale: letterbox the whole image into one.")
-@click.option("--join", type=click.Choice(["blend", "crop"]), default="blend", show_default=True,
-              help="blend overlapping windows smoothly, or keep each window's centre (the dissertation's).")
+@inference_options
 @click.option("--overlap", type=click.IntRange(min=0), show_default="a quarter of the window",
               help="Window overlap in pixels.")
 @click.option("--block-size", type=click.IntRange(min=256), default=2048, show_default=True,
               help="Large rasters are predicted block by block (same result, bounded memory).")
-@click.option("--tta", is_flag=True, help="Average over flips (and 90-degree turns of square inputs).")
-@click.option("--resolution", "resolution", metavar="METRES|model",
-              help="Resample georeferenced inputs to this ground pixel size before predicting ('model': the "
-                   "training data's, from the checkpoint); the masks stay on the input's grid.")
 @click.option("--batch-size", type=int, default=4, show_default=True)
-@click.option("--device", default="auto", show_default=True, help="auto (a GPU when there is one) | cpu | cuda | cuda:N")
 @click.pass_context
 @report_errors
 def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ...], out_dir: Path, mode: str,
@@ -171,21 +193,14 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
 @click.option("--split", type=click.Choice(["test", "val", "train", "all"]), default="test", show_default=True,
               help="For the dataset the model was trained on: which of its recorded splits.")
 @click.option("--mapping", help="Class mapping for foreign labels, e.g. inria-buildings.toml (data_manifests/).")
-@click.option("--mode", type=click.Choice(["split-join", "rescale"]), default="split-join", show_default=True)
-@click.option("--join", type=click.Choice(["blend", "crop"]), default="blend", show_default=True,
-              help="split-join: blend overlapping windows, or keep each window's centre (the dissertation's).")
-@click.option("--resolution", "resolution_m", metavar="METRES|model",
-              help="Resample georeferenced inputs to this ground pixel size before predicting ('model': the "
-                   "training data's, from the checkpoint); labels stay on their grid.")
-@click.option("--tta", is_flag=True, help="Average predictions over flips (and 90-degree turns of square inputs).")
+@inference_options
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Folder for metrics.json, metrics.txt and the pictures.")
 @click.option("--panels", type=int, default=4, show_default=True, help="Samples shown in panels.png.")
-@click.option("--device", default="auto", show_default=True, help="auto (a GPU when there is one) | cpu | cuda | cuda:N")
 @click.pass_context
 @report_errors
 def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pairs: tuple[tuple[Path, Path], ...],
-                 split: str, mapping: str | None, mode: str, join: str, resolution_m: str | None, tta: bool,
+                 split: str, mapping: str | None, mode: str, join: str, resolution: str | None, tta: bool,
                  out_dir: Path, panels: int, device: str) -> None:
     """Evaluate CHECKPOINT on DATASET (its test split when it is the training dataset)."""
     if (dataset is None) == (not pairs):
@@ -196,7 +211,7 @@ def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pai
     from training.metrics import format_table
 
     opts = EvalOptions(mode=mode, join=join, tta=tta, split=split, mapping=mapping, panels=panels, device=device,
-                       resolution_m=resolution_m)
+                       resolution_m=resolution)
     with progress_bars(ctx.obj.get("progress", False)) as progress:
         metrics = run_eval(checkpoint, dataset, out_dir, opts, pairs, progress)
     if ctx.obj["verbosity"] >= 0:
