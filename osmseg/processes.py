@@ -240,8 +240,11 @@ def use_private_temp_dir() -> Path | None:
     try:
         _sweep_private_temp_dirs(base)
         private = Path(tempfile.mkdtemp(prefix=PRIVATE_TEMP_PREFIX, dir=base))
-        fd = os.open(private / _ALIVE, os.O_RDWR | os.O_CREAT, 0o600)
+        # the lock is taken before the file has its name: a sweep that starts this instant finds a
+        # folder without one ("being made", kept), never an unlocked lock file of a live run
+        fd = os.open(private / (_ALIVE + ".new"), os.O_RDWR | os.O_CREAT, 0o600)
         fcntl.flock(fd, fcntl.LOCK_SH)  # held until this process ends: its folder is not to be swept
+        os.rename(private / (_ALIVE + ".new"), private / _ALIVE)
     except OSError:
         return None
     _HELD.append(fd)

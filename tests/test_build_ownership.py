@@ -315,6 +315,46 @@ def test_a_run_sweeps_the_temporary_folders_of_ended_runs_only(tmp_path: Path) -
     shutil.rmtree(tmpdir)
 
 
+#: A run stopped by the scheduler between making its lock file and locking it (flock held back
+#: until the file named in argv[1] exists); then it says whether its folder is still there.
+STARTS_SLOWLY = """
+import fcntl, os, sys, time
+from pathlib import Path
+real = fcntl.flock
+def held_back(fd, op):
+    if op == fcntl.LOCK_SH:
+        print("made", flush=True)
+        while not Path(sys.argv[1]).exists():
+            time.sleep(0.01)
+    return real(fd, op)
+fcntl.flock = held_back
+from osmseg.processes import use_private_temp_dir
+private = use_private_temp_dir()
+print(private is not None and os.path.isdir(private), flush=True)
+"""
+
+
+def test_a_run_starting_while_another_sweeps_keeps_its_folder(tmp_path: Path) -> None:
+    """Each run sweeps the folders of ended runs as it starts. A run caught between making its
+    folder's lock file and locking it is alive: the sweep of a run starting that instant keeps it."""
+    tmpdir = Path(tempfile.mkdtemp(prefix="t", dir="/tmp"))
+    go = tmp_path / "go"
+    env = dict(os.environ, TMPDIR=str(tmpdir))
+    slow = subprocess.Popen([sys.executable, "-c", STARTS_SLOWLY, str(go)], stdout=subprocess.PIPE, env=env)
+    try:
+        assert slow.stdout is not None and slow.stdout.readline() == b"made\n"
+        run = subprocess.run([sys.executable, "-m", "osmseg", "--version"], env=env, capture_output=True, text=True,
+                             timeout=60)
+        assert run.returncode == 0, run.stderr
+        go.touch()
+        assert slow.stdout.readline() == b"True\n"   # its folder outlived the other run's sweep
+    finally:
+        go.touch()
+        slow.kill()
+        slow.wait()
+        shutil.rmtree(tmpdir)
+
+
 #: A signal whose handler runs inside a finalizer (here a ``__del__``), where Python drops its exception.
 STOP_IN_A_FINALIZER = """
 import os, signal, sys, time
