@@ -41,10 +41,10 @@ sys.path.insert(0, str(ROOT))
 
 from localization.compare import photo_view  # noqa: E402
 from localization.landmarks import load_landmark_classes, panorama_table  # noqa: E402
-from localization.pipeline import profile_query, run_profile  # noqa: E402
+from localization.pipeline import profile_query  # noqa: E402
 from localization.profile import AerialMaskIndex, semantic_map  # noqa: E402
 from localization.render import Panorama  # noqa: E402
-from localization.search import ProfileConfig, class_prior, grid_positions, score_poses, score_positions  # noqa: E402
+from localization.search import ProfileConfig, Scoring, localize_profile  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 from osmseg.images import read_label  # noqa: E402
 
@@ -98,8 +98,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     index = AerialMaskIndex(semantic_map(read_label(args.mask), table, classes), resolution)
     base = profile_config(settings)
     known = settings["heading"] == "known"
-    spacing = index.grid_m / 3 ** (base.levels if base.levels is not None else index.levels) / resolution
-    coarse = grid_positions(index.shape, index.grid_m / resolution)
     kinds: list[str] = []
     rows: list[dict[str, Any]] = []
     for v in views:
@@ -108,19 +106,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         query = photo_view(pano, classes, settings["fov_deg"], camera_height_m=settings["render"]["camera_height_m"],
                            mode=settings["mode"], min_size=settings["min_size"], stride=settings["stride"])
         cfg = replace(base, heading_deg=query.heading_deg if known else None)
-        loc = run_profile(cfg, index, query.semantic, query.camera)
         profile = profile_query(query.semantic, query.camera, cfg)
-        prior = class_prior(index, profile, coarse)
-        weights = -np.log(np.clip(prior, cfg.min_prior, 1.0)) if index.weighted else None
+        loc = localize_profile(index, profile, cfg)
+        scoring = Scoring.of(index, profile, cfg)   # positions scored as the search scores them
+        spacing = scoring.finest_px
         truth = np.asarray(v["truth"], dtype=np.float64)
         r = args.right / resolution
         grid = np.arange(-r, r + 1e-9, spacing)
         near = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
         near = near[np.hypot(near[:, 0], near[:, 1]) <= r] + truth
-        if profile.variants:
-            near_score = score_poses(index, profile, near, cfg, prior, weights)[0]
-        else:
-            near_score = score_positions(index, profile, near, cfg, prior, weights)[0]
+        near_score = scoring.score(near)[0]
         answer = float(loc.likelihoods[loc.order[0]])
         error = float(np.hypot(*(np.asarray(loc.map_xy) - truth))) * resolution if loc.map_xy else float("inf")
         kind = classify(answer, float(near_score.max()), error, args.right)

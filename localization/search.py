@@ -58,7 +58,7 @@ from localization.profile import QueryProfile
 from localization.result import Localization, unanswered
 from osmseg.errors import ConfigError
 
-__all__ = ["UNKNOWN_HEIGHTS", "ProfileConfig", "AerialIndex", "grid_positions", "score_positions", "score_poses", "localize_profile"]
+__all__ = ["UNKNOWN_HEIGHTS", "ProfileConfig", "AerialIndex", "Scoring", "grid_positions", "score_positions", "score_poses", "localize_profile"]
 
 
 #: the camera heights tried when the height is not known (m): a hand-held camera to a car-mounted one
@@ -413,9 +413,11 @@ def _around(xy: np.ndarray, spacing: float, shape: tuple[int, int]) -> np.ndarra
 
 
 @dataclass(frozen=True)
-class _Scoring:
+class Scoring:
     """What every level of one query's search shares: the aerial side, the query, its settings,
-    the class frequencies it is compared with and weighed by, and the number of refinements."""
+    the class frequencies it is compared with and weighed by, the coarse grid spacing (m) and the
+    number of refinements. :meth:`of` makes it as :func:`localize_profile` does, so a benchmark
+    scores any positions exactly as the search would (benchmarks/bench_ceiling.py)."""
 
     index: AerialIndex
     query: QueryProfile
@@ -423,6 +425,24 @@ class _Scoring:
     mean: np.ndarray
     weights: np.ndarray | None
     levels: int
+    coarse_m: float
+
+    @classmethod
+    def of(cls, index: AerialIndex, query: QueryProfile, config: ProfileConfig,
+           prior: np.ndarray | None = None) -> Scoring:
+        """The settings' or else the aerial side's grid, refinements and weighting; the class
+        frequencies ``prior``, or else this image's over the coarse grid (:func:`class_prior`)."""
+        coarse_m = config.coarse_m if config.coarse_m is not None else index.grid_m
+        weighted = config.weighted if config.weighted is not None else index.weighted
+        mean = (class_prior(index, query, grid_positions(index.shape, coarse_m / index.resolution_m))
+                if prior is None else prior)
+        return cls(index, query, config, mean, -np.log(np.clip(mean, config.min_prior, 1.0)) if weighted else None,
+                   config.levels if config.levels is not None else index.levels, coarse_m)
+
+    @property
+    def finest_px(self) -> float:
+        """The spacing (pixels) of the finest level's positions."""
+        return float(self.coarse_m / 3 ** self.levels / self.index.resolution_m)
 
     def score(self, xy: np.ndarray, keep: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(score, shift, pose)`` at positions ``xy``: the best camera pose at each when the query has several."""
@@ -452,7 +472,7 @@ def _heading_at(query: QueryProfile, shifts: np.ndarray | None, i: int) -> float
     return round(float(shifts[i] * 360.0 / query.bins) % 360.0, 3) % 360.0
 
 
-def _alternative(s: _Scoring, coarse: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], answer: np.ndarray,
+def _alternative(s: Scoring, coarse: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], answer: np.ndarray,
                  coarse_m: float, spacing: float) -> tuple[tuple[float, float, float] | None, float | None]:
     """The best distinct alternative ``((x, y, score), heading)``: the best place at least ``distinct_m``
     from ``answer``, found among the 5 best spaced coarse positions that far away and refined as the
@@ -509,13 +529,10 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
                           "dictionaries with the same landmark classes")
     if query.mass <= 0:
         return unanswered("the query shows no landmark class on the ground rows or at any azimuth", method="profile")
-    coarse_m = config.coarse_m if config.coarse_m is not None else index.grid_m
-    weighted = config.weighted if config.weighted is not None else index.weighted
+    s = Scoring.of(index, query, config, prior)
+    coarse_m, mean = s.coarse_m, s.mean
     spacing = coarse_m / index.resolution_m
     xy = grid_positions(index.shape, spacing)
-    mean = class_prior(index, query, xy) if prior is None else prior
-    s = _Scoring(index, query, config, mean, -np.log(np.clip(mean, config.min_prior, 1.0)) if weighted else None,
-                 config.levels if config.levels is not None else index.levels)
     score, shift, poses = s.score(xy, keep=config.keep)
     coarse = (xy, score, shift, poses)
     xy, score, shift, poses = s.refine(xy, score, shift, poses, config.keep, spacing)
