@@ -1,4 +1,4 @@
-"""How well a camera's tilt is read from its view's horizon (localization.horizon), on views the
+"""How well a camera's tilt is read from its view's horizon (localization.profile.horizon), on views the
 independent geometry renderer drew with a known tilt at Kotka street points.
 
 Run: ``.venv/bin/python benchmarks/bench_horizon.py [--queries 30] [--eye 1.5,2.5] [--tilt 2]
@@ -12,7 +12,7 @@ headings, eye heights, pitches and rolls). Each is read three ways, side by side
 * **level**, the baseline: pitch and roll 0, what the profile method assumes without ``--tilt``.
 
 Printed per way: the median and largest tilt error, ``hypot(pitch error, roll error)`` in
-degrees, and the share of views read within 0.25°. The renderer (localization/georender.py)
+degrees, and the share of views read within 0.25°. The renderer (localization/bench/georender.py)
 shares no code with the reader.
 """
 
@@ -35,10 +35,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_region import CLASSES, PANO, TABLE, draw_views, street_points, view_options  # noqa: E402
 
-from localization.horizon import estimate_tilt  # noqa: E402
-from localization.profile import Camera, semantic_map  # noqa: E402
-from localization.region import RegionConfig, region_blocks  # noqa: E402
-from localization.region_cache import BlockMasks  # noqa: E402
+from localization.common.views import Camera, semantic_map  # noqa: E402
+from localization.profile.horizon import estimate_tilt  # noqa: E402
+from localization.region.cache import BlockMasks  # noqa: E402
+from localization.region.search import RegionConfig, region_blocks  # noqa: E402
 
 WAYS = ("with its sky", "without a sky class", "level (the baseline)")
 

@@ -39,9 +39,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from localization.graph import Cliques, cliques_fast, cliques_reference, window_size_auto  # noqa: E402
-from localization.landmarks import Landmarks, landmarks_from_mask, load_landmark_classes  # noqa: E402
-from localization.match import localize  # noqa: E402
+from localization.common.landmarks import Landmarks, landmarks_from_mask, load_landmark_classes  # noqa: E402
+from localization.paper.graph import Cliques, cliques_fast, cliques_reference, window_size_auto  # noqa: E402
+from localization.paper.match import localize  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 
 HELSINKI = ROOT.parent / "shared" / "data" / "helsinki-osm" / "helsinki.osm.pbf"

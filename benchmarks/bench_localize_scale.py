@@ -5,8 +5,8 @@ figure is measured in this run, on the seeded street-grid masks of bench_localiz
 (as dense at every size: 50 buildings and 25 trees per 750 x 750 px), centroid landmarks:
 
 * **graph + candidates** (the paper method's aerial cliques, then the candidates of a
-  rendered panorama's query: :func:`localization.match.localize`): the banded hash sweep
-  of :func:`localization.graph.cliques_fast` against the K-bit-set cells it replaced
+  rendered panorama's query: :func:`localization.paper.match.localize`): the banded hash sweep
+  of :func:`localization.paper.graph.cliques_fast` against the K-bit-set cells it replaced
   (``_point_planes`` + ``_distinct``, still the component-landmark path), same cliques
   asserted; 750, 1500 and 3000 px;
 * **profile method**, one view: a 1280 x 1280 mask (the demo's size) and a ``--big`` one
@@ -38,13 +38,13 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_localize_graph import aerial_mask  # noqa: E402
 
-from localization import cells, graph, windows  # noqa: E402
-from localization.landmarks import landmarks_from_mask, load_landmark_classes  # noqa: E402
-from localization.match import localize  # noqa: E402
+from localization.bench.render import RenderConfig, render_panorama  # noqa: E402
+from localization.common.landmarks import landmarks_from_mask, load_landmark_classes  # noqa: E402
+from localization.common.views import Camera, semantic_map  # noqa: E402
+from localization.paper import cells, graph, windows  # noqa: E402
+from localization.paper.match import localize  # noqa: E402
 from localization.pipeline import profile_index, profile_query, run_profile  # noqa: E402
-from localization.profile import Camera, semantic_map  # noqa: E402
-from localization.render import RenderConfig, render_panorama  # noqa: E402
-from localization.search import ProfileConfig  # noqa: E402
+from localization.profile.search import ProfileConfig  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 
 #: every figure printed (written by --json): graphs by mask size, profile runs by "SIZE HEADING"

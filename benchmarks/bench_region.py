@@ -5,16 +5,16 @@ Run: ``.venv/bin/python benchmarks/bench_region.py [--queries 30] [--fov 360] [-
 known|unknown] [--eye 1.5,2.5] [--tilt 2] [--json PATH]``. Defaults: the Kotka extract of
 ``../shared/data/helsinki-osm`` (its ``--bbox``), 30 queries, seed 0.
 
-* **Queries** are drawn by :mod:`localization.georender` (3-D ray casting over the OSM
+* **Queries** are drawn by :mod:`localization.bench.georender` (3-D ray casting over the OSM
   geometry, heights from the tags; it shares no code with the profile method or with the
   rasteriser the region is drawn by): at a street point (a ``highway`` pixel of a seeded block),
   a seeded compass heading, an eye height drawn from ``--eye`` and pitch and roll from
   ``±--tilt`` degrees. The method is told none of these: it assumes a 2 m camera, level, and
   (with ``--heading unknown``) searches the heading; with ``--search-pose`` it is told that
   height and tilt are unknown: it reads the tilt from the view's horizon (within ``±--tilt``,
-  :mod:`localization.horizon`) and searches the height (1.5 to 2.5 m). The view keeps its sky,
+  :mod:`localization.profile.horizon`) and searches the height (1.5 to 2.5 m). The view keeps its sky,
   as a segmented photo shows it.
-* **Search**: :func:`localization.region.search_region` over the whole ``--bbox``, the drawn
+* **Search**: :func:`localization.region.search.search_region` over the whole ``--bbox``, the drawn
   blocks cached in a temporary folder, so the first query draws the region and the others
   read it (``s/query`` is reported for both).
 * **Scores**: top-1 error; recall at 10 and 25 m; how well the confidence ranks right answers
@@ -48,15 +48,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from localization.compare import roc_auc  # noqa: E402
-from localization.georender import Camera as GeoCamera, render  # noqa: E402
-from localization.georender_osm import scene_from_osm  # noqa: E402
-from localization.landmarks import load_landmark_classes  # noqa: E402
-from localization.profile import MASK_MIN_CONFIDENCE, Camera, semantic_map  # noqa: E402
-from localization.region import RegionConfig, distance_m, pixel_lonlat, region_blocks, search_region  # noqa: E402
-from localization.region_cache import BlockMasks  # noqa: E402
-from localization.render import panorama_table  # noqa: E402
-from localization.search import UNKNOWN_HEIGHTS, ProfileConfig  # noqa: E402
+from localization.bench.compare import roc_auc  # noqa: E402
+from localization.bench.georender import Camera as GeoCamera, render  # noqa: E402
+from localization.bench.georender_osm import scene_from_osm  # noqa: E402
+from localization.bench.render import panorama_table  # noqa: E402
+from localization.common.landmarks import load_landmark_classes  # noqa: E402
+from localization.common.views import Camera, semantic_map  # noqa: E402
+from localization.profile.profiles import MASK_MIN_CONFIDENCE  # noqa: E402
+from localization.profile.search import UNKNOWN_HEIGHTS, ProfileConfig  # noqa: E402
+from localization.region.cache import BlockMasks  # noqa: E402
+from localization.region.search import RegionConfig, distance_m, pixel_lonlat, region_blocks, search_region  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 
 KOTKA = ROOT.parent / "shared" / "data" / "helsinki-osm" / "kotka.osm.pbf"

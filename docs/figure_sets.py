@@ -80,8 +80,8 @@ def model(ws: Workspace) -> dict[str, Figure]:
 
 @figure_set("demo", "cheap")
 def demo(ws: Workspace) -> dict[str, Figure]:
-    """what osmseg demo builds, localizes and trains (osmseg.demo, localization.demo)"""
-    from localization.demo import DEMO_TRAINING, DEMO_VIEWPOINTS
+    """what osmseg demo builds, localizes and trains (osmseg.demo, localization.cli.demo)"""
+    from localization.cli.demo import DEMO_TRAINING, DEMO_VIEWPOINTS
     from osmseg.demo import demo_config
 
     config = demo_config(Path("demo"))
@@ -179,7 +179,7 @@ SETTINGS = (
     ("the same noise, `--heading unknown`", (*NOISE, "--heading", "unknown")),
     ("90° photos, `--fov 90 --heading unknown`", ("--fov", "90", "--heading", "unknown")),
 )
-#: the profile method's default "not in this image" kappa threshold for an aerial mask (localization.search)
+#: the profile method's default "not in this image" kappa threshold for an aerial mask (localization.profile.search)
 MASK_THRESHOLD = 0.6
 
 
@@ -222,8 +222,8 @@ def settings(ws: Workspace) -> dict[str, Figure]:
 def profile_weights(ws: Workspace) -> dict[tuple[str, str], float]:
     """Recall at 10 m of the profile method on 40 other views (seed 1) with and without its class
     weights, heading known and unknown (library calls: localize-bench has no option for them)."""
-    from localization.evaluate import BenchConfig, load_dataset_scenes, run_bench
-    from localization.search import ProfileConfig
+    from localization.bench.rendered import BenchConfig, load_dataset_scenes, run_bench
+    from localization.profile.search import ProfileConfig
 
     scenes = load_dataset_scenes(ws.root / ws.demo_dataset())
     out = {}

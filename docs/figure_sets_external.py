@@ -87,18 +87,18 @@ def bars(known: float, unknown: float) -> str:
 
 
 def loaded_pairs(ws: Workspace) -> list[Any]:
-    from localization.pairs import PairsConfig, load_pairs
+    from localization.bench.pairs import PairsConfig, load_pairs
 
     return load_pairs(ws.root / ws.pairs_folder(), PairsConfig(aerial_size=(750, 750), ground_size=(1232, 224)))
 
 
 def candidate_analysis(ws: Workspace, paper: dict[str, Any]) -> tuple[int, float]:
     """How often the candidate nearest the truth is ranked first, and the median error of the mean
-    of all candidate positions (what the selection alone gives), by localization.match.localize:
+    of all candidate positions (what the selection alone gives), by localization.paper.match.localize:
     the paper method as localize-bench runs it (its MAP errors are checked against results.json)."""
     import numpy as np
 
-    from localization.match import localize
+    from localization.paper.match import localize
 
     errors = {v["name"]: v["error_px"] for v in paper["viewpoints"]}
     first, means = 0, []
@@ -137,7 +137,7 @@ def sensitivity(ws: Workspace) -> str:
     """Mean pixel error of the profile method (heading known / unknown) with each of VARIANTS."""
     from dataclasses import replace
 
-    from localization.pairs import PairsConfig, run_pairs
+    from localization.bench.pairs import PairsConfig, run_pairs
 
     base = PairsConfig(resolution_m=0.25, aerial_size=(750, 750), ground_size=(1232, 224), methods=("profile",))
     parts = []
@@ -392,7 +392,7 @@ def renderers(ws: Workspace) -> dict[str, Figure]:
             rows.append([label if renderer == "mask" else "", renderer, metres(m["median_error"]),
                          *(ratio(m["recall_at"][k]) for k in ("10", "25")), ratio(m["right_wrong_auc"]),
                          ratio(m["accepted"]), ratio(m["false_accept"])])
-    from localization.compare import roc_auc
+    from localization.bench.compare import roc_auc
 
     def auc(rows_: list[dict[str, Any]], key: str) -> str:
         right = [v[key] for v in rows_ if v["error"] is not None and v["error"] <= 10]

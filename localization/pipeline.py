@@ -2,14 +2,14 @@
 
 :func:`run` takes a :class:`LocalizeConfig` (windows, candidate extension, hierarchy, feature
 edges), the aerial side (its landmarks, or an :class:`AerialGraph` built once for many
-queries) and the query's landmarks, and returns the :class:`~localization.result.Localization`.
+queries) and the query's landmarks, and returns the :class:`~localization.common.result.Localization`.
 ``osmseg localize`` (:func:`localize_files`, which also reads both sides and writes
-``result.json`` and pictures), the rendered-panorama benchmark (:mod:`localization.evaluate`)
-and the annotated-pairs protocol (:mod:`localization.pairs`) all call it, so a change to how
+``result.json`` and pictures), the rendered-panorama benchmark (:mod:`localization.bench.rendered`)
+and the annotated-pairs protocol (:mod:`localization.bench.pairs`) all call it, so a change to how
 a pair is localized is made here once.
 
-Imports: osmseg core, and localization (training only through :mod:`localization.inputs`
-and :mod:`localization.features`, when an RGB side is segmented or features are asked for).
+Imports: osmseg core, and localization (training only through :mod:`localization.common.inputs`
+and :mod:`localization.paper.features`, when an RGB side is segmented or features are asked for).
 """
 
 from __future__ import annotations
@@ -22,26 +22,24 @@ from typing import Any
 
 import numpy as np
 
-from localization.features import FeatureEdges
-from localization.graph import CONVENTIONS, Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
-from localization.horizon import estimate_tilt
-from localization.inputs import Side, SideOptions, load_side, with_photo
-from localization.landmarks import Landmarks
-from localization.match import DEFAULT_P, Localization, localize, match_cliques, unanswered
-from localization.profile import (
+from localization.common.inputs import Side, SideOptions, load_side, with_photo
+from localization.common.landmarks import Landmarks
+from localization.common.views import Camera, SemanticMap, check_view_shape
+from localization.paper.features import FeatureEdges
+from localization.paper.graph import CONVENTIONS, Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
+from localization.paper.match import DEFAULT_P, Localization, localize, match_cliques, unanswered
+from localization.paper.refine import HIERARCHY, localize_hierarchical
+from localization.profile.horizon import estimate_tilt
+from localization.profile.profiles import (
     AerialLandmarkIndex,
     AerialMaskIndex,
-    Camera,
     QueryProfile,
-    SemanticMap,
-    check_view_shape,
     query_from_landmarks,
     query_from_mask,
     query_poses,
     ray_radii,
 )
-from localization.refine import HIERARCHY, localize_hierarchical
-from localization.search import AerialIndex, ProfileConfig, localize_profile
+from localization.profile.search import AerialIndex, ProfileConfig, localize_profile
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_text
 
@@ -76,7 +74,7 @@ class LocalizeConfig:
     windows: tuple[int, ...] = HIERARCHY
     features: FeatureEdges | None = None
     method: str = DEFAULT_METHOD    # or "paper" (Verde et al. 2020); the profile method needs the resolution
-    conventions: str = "osmseg"     # the paper method's: osmseg, or the authors' MATLAB demo (localization.graph)
+    conventions: str = "osmseg"     # the paper method's: osmseg, or the authors' MATLAB demo (localization.paper.graph)
     profile: ProfileConfig = field(default_factory=ProfileConfig)  # the profile method's settings
     fov_deg: float = 360.0          # the query's horizontal field of view (profile method)
     camera_height_m: float = 2.0    # the query camera's height above the ground (profile method)
@@ -233,7 +231,7 @@ def answer_lonlat(aerial: Path, xy: tuple[float, float]) -> tuple[float, float] 
                 return float(lon[0]), float(lat[0])
         except rasterio.errors.RasterioIOError:
             return None
-    from localization.inputs import manifest_bounds_3857
+    from localization.common.inputs import manifest_bounds_3857
     from osmseg.grid import pixel_lonlat
 
     found = manifest_bounds_3857(aerial)
@@ -348,7 +346,7 @@ def _check_sides(aerial: Side, ground: Side, request: LocalizeFiles) -> None:
 def _pictures(out_dir: Path, report: LocalizeReport, config: LocalizeConfig, resolution: float | None) -> list[Path]:
     """localization.png in ``out_dir``, and for the paper method aerial_graph.png and ground_graph.png."""
     try:
-        from localization import figures
+        from localization.common import figures
     except ImportError:
         raise ConfigError("pictures need matplotlib: pip install matplotlib (or leave out --out)") from None
     result, aerial, ground = report.result, report.aerial, report.ground

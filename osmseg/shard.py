@@ -2,7 +2,7 @@
 
 A shard owns the items ``i`` with ``i % N == K - 1`` (a stable rule: the same item goes to the
 same shard on every machine and every rerun). The builder splits its slots this way and a
-region search (:mod:`localization.region`) its blocks. Imports: osmseg.errors.
+region search (:mod:`localization.region.search`) its blocks. Imports: osmseg.errors.
 """
 
 from __future__ import annotations

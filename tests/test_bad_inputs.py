@@ -90,7 +90,7 @@ def test_the_shipped_class_tables_load_with_a_colour_per_class(name: str) -> Non
 def scene(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """An aerial mask of tinycity (0.3 m/px), the panorama rendered at its centre (1232x224), that
     panorama turned into a 224x1232 portrait, a 90° photo cut from it, and their class table."""
-    from localization.render import render_panorama
+    from localization.bench.render import render_panorama
     from osmseg.grid import sample_grid
     from osmseg.osm.features import read_features
     from osmseg.rasterize import rasterize

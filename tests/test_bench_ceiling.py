@@ -11,8 +11,8 @@ from conftest import REPO_ROOT
 from PIL import Image
 from test_loc_render import RES, TABLE, town
 
-from localization.evaluate import BenchConfig, Scene, run_bench
-from localization.search import ProfileConfig
+from localization.bench.rendered import BenchConfig, Scene, run_bench
+from localization.profile.search import ProfileConfig
 
 sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
 

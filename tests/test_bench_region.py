@@ -21,8 +21,8 @@ sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
 def test_street_points_lie_on_highway_pixels_inside_the_region(tmp_path) -> None:
     import bench_region
 
-    from localization.region import RegionConfig, region_blocks
-    from localization.region_cache import BlockMasks
+    from localization.region.cache import BlockMasks
+    from localization.region.search import RegionConfig, region_blocks
     from osmseg.grid import sample_grid
     from osmseg.osm.features import read_features
     from osmseg.rasterize import rasterize

@@ -218,7 +218,7 @@ def test_localization_summary_leads_with_the_default_method_at_one_precision(tmp
         assert cells[1].count("/") == 1  # answered/asked
         assert all(decimals(c) == 3 for c in cells[4:7] if c != "-"), row  # recall columns are ratios
 
-    from localization.evaluate_plots import errors_title
+    from localization.bench.plots import errors_title
 
     title = errors_title(results)
     assert "angular profiles: median" in title and f"{profile['median_error']:.2f} m" in title

@@ -9,7 +9,7 @@ import numpy as np
 from click.testing import CliRunner
 from PIL import Image
 
-from localization.demo import DEMO_VIEWPOINTS
+from localization.cli.demo import DEMO_VIEWPOINTS
 from osmseg import __version__
 from osmseg.cli.main import cli
 from osmseg.demo import DEMO_CASSETTE, DEMO_SAMPLES

@@ -13,10 +13,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from localization.graph import cliques_fast, cliques_reference
-from localization.landmarks import Landmarks
-from localization.match import localize
-from localization.result import rank
+from localization.common.landmarks import Landmarks
+from localization.common.result import rank
+from localization.paper.graph import cliques_fast, cliques_reference
+from localization.paper.match import localize
 
 
 def matlab_covgraph(xy: np.ndarray, width: int, height: int, w: int, circular: bool = False
@@ -113,7 +113,7 @@ def test_a_worked_example_answers_at_the_first_window() -> None:
 def test_the_banded_sweep_gives_the_same_cliques_with_one_row_per_band(monkeypatch: pytest.MonkeyPatch,
                                                                          conventions: str) -> None:
     """The key-sum sweep works band by band of cell rows (bounded memory): bands of one row change nothing."""
-    from localization import graph
+    from localization.paper import graph
 
     rng = np.random.default_rng(7)
     xy = rng.integers(0, 80, size=(30, 2)).astype(float)

@@ -1,4 +1,4 @@
-"""Landmark features from a SegNet encoder (localization.features) and ``osmseg localize --feature-threshold``.
+"""Landmark features from a SegNet encoder (localization.paper.features) and ``osmseg localize --feature-threshold``.
 
 The network is a real SegNet at width 1/16, randomly initialised with a fixed seed and saved
 as a real checkpoint: its features mean nothing, but they are deterministic and exactly
@@ -20,11 +20,11 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
-from localization.cli import localize_command
-from localization.features import FeatureEdges, dropped_edges, landmark_features
-from localization.graph import cliques_fast
-from localization.landmarks import Landmarks, landmarks_from_mask, load_landmark_classes
-from localization.match import class_adjacency
+from localization.cli.commands import localize_command
+from localization.common.landmarks import Landmarks, landmarks_from_mask, load_landmark_classes
+from localization.paper.features import FeatureEdges, dropped_edges, landmark_features
+from localization.paper.graph import cliques_fast
+from localization.paper.match import class_adjacency
 from osmseg.errors import ConfigError
 
 CLASSES = ("building", "road")

@@ -1,4 +1,4 @@
-"""The geometry renderer (``localization/georender.py``) against angles computed by hand.
+"""The geometry renderer (``localization/bench/georender.py``) against angles computed by hand.
 
 Each scene is built so that the answer is one ``atan``: where a wall's top edge lies, where a
 taller building behind a lower one shows, where a camera's tilt moves a roof line. The last
@@ -16,7 +16,7 @@ import pytest
 from PIL import Image
 from shapely.geometry import box
 
-from localization.georender import Camera, GroundPatch, Scene, Solid, pixel_directions, render, tree_crown
+from localization.bench.georender import Camera, GroundPatch, Scene, Solid, pixel_directions, render, tree_crown
 from osmseg.errors import ConfigError
 
 SKY, FAR, GROUND, ROAD, BUILDING, WALL, TREE = 14, 0, 5, 6, 1, 2, 4
@@ -133,7 +133,7 @@ def test_pitching_up_moves_the_scene_down_and_roll_tilts_the_horizon() -> None:
 
 def test_both_renderers_agree_where_their_models_coincide() -> None:
     """A building of one height on flat ground, at 1 m a pixel: the mask renderer and this one."""
-    from localization.render import RenderConfig, panorama_table, render_panorama
+    from localization.bench.render import RenderConfig, panorama_table, render_panorama
     from osmseg.classes import load_class_table
 
     table = load_class_table("classes13.toml")
@@ -197,8 +197,8 @@ def square(cx: float, cy: float, half: float) -> list[tuple[float, float]]:
 
 
 def test_a_scene_from_osm_takes_heights_from_the_tags_and_draws_the_rest_from_the_seed(tmp_path) -> None:
-    from localization.georender_osm import scene_from_osm
-    from localization.render import panorama_table
+    from localization.bench.georender_osm import scene_from_osm
+    from localization.bench.render import panorama_table
     from osmseg.classes import load_class_table
 
     table = load_class_table("classes13.toml")
@@ -369,8 +369,8 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     from PIL import Image
     from shapely.geometry import shape
 
-    from localization.georender_osm import scene_from_osm
-    from localization.render import panorama_table
+    from localization.bench.georender_osm import scene_from_osm
+    from localization.bench.render import panorama_table
     from osmseg.classes import load_class_table
     from osmseg.cli.main import cli
 
@@ -423,8 +423,8 @@ def test_a_region_split_into_shards_answers_as_one_process(tmp_path) -> None:
     the bytes of one process's region.geojson, and a finished shard run again does not search."""
     from click.testing import CliRunner
 
-    from localization.georender_osm import scene_from_osm
-    from localization.render import panorama_table
+    from localization.bench.georender_osm import scene_from_osm
+    from localization.bench.render import panorama_table
     from osmseg.classes import load_class_table
     from osmseg.cli.main import cli
 
@@ -474,13 +474,13 @@ def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> N
     import mercantile
     import rasterio
 
-    from localization.georender_osm import scene_from_osm
-    from localization.landmarks import load_landmark_classes
+    from localization.bench.georender_osm import scene_from_osm
+    from localization.bench.render import panorama_table
+    from localization.common.landmarks import load_landmark_classes
+    from localization.common.result import Localization
+    from localization.common.views import Camera as QueryCamera, semantic_map
     from localization.pipeline import profile_index, run_profile
-    from localization.profile import Camera as QueryCamera, semantic_map
-    from localization.render import panorama_table
-    from localization.result import Localization
-    from localization.search import UNKNOWN_HEIGHTS, ProfileConfig
+    from localization.profile.search import UNKNOWN_HEIGHTS, ProfileConfig
     from osmseg.classes import load_class_table
 
     osm = town(tmp_path)
@@ -516,7 +516,7 @@ def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> N
     # the same through the command line, on the GeoTIFF: the answer also in degrees
     from click.testing import CliRunner
 
-    from localization.region import distance_m
+    from localization.region.search import distance_m
     from osmseg.cli.main import cli
 
     Image.fromarray(view.astype(np.uint8)).save(tmp_path / "query.png")  # id 14: the sky of the ground table

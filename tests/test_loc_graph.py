@@ -1,4 +1,4 @@
-"""Landmarks and landmark graphs (localization/landmarks.py, localization/graph.py).
+"""Landmarks and landmark graphs (localization/common/landmarks.py, localization/paper/graph.py).
 
 The graph tests check the cliques a user would read off a drawing (the dissertation's Figure
 3.1), and that the fast algorithm gives exactly the cliques of the paper's plain sliding
@@ -13,9 +13,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from localization.graph import Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
-from localization.landmark_files import read_landmarks
-from localization.landmarks import PAPER_CLASSES, LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
+from localization.common.landmark_files import read_landmarks
+from localization.common.landmarks import (
+    PAPER_CLASSES,
+    LandmarkClasses,
+    Landmarks,
+    landmarks_from_mask,
+    load_landmark_classes,
+)
+from localization.paper.graph import Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
 from osmseg.classes import load_class_table
 from osmseg.errors import ClassTableError, ConfigError, DatasetError
 

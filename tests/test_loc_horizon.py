@@ -1,5 +1,5 @@
-"""The horizon of a ground view (localization.horizon), read from views the independent
-geometry renderer drew (localization.georender: 3-D ray casting, its own camera model) with a
+"""The horizon of a ground view (localization.profile.horizon), read from views the independent
+geometry renderer drew (localization.bench.georender: 3-D ray casting, its own camera model) with a
 known pitch and roll."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import math
 import numpy as np
 from shapely.geometry import box
 
-from localization.georender import Camera as GeoCamera, Scene, Solid, render, tree_crown
-from localization.horizon import estimate_tilt, horizon_bounds
-from localization.landmarks import load_landmark_classes, panorama_table
-from localization.profile import Camera, semantic_map
+from localization.bench.georender import Camera as GeoCamera, Scene, Solid, render, tree_crown
+from localization.common.landmarks import load_landmark_classes, panorama_table
+from localization.common.views import Camera, semantic_map
+from localization.profile.horizon import estimate_tilt, horizon_bounds
 from osmseg.classes import load_class_table
 
 TABLE = load_class_table("classes13.toml")

@@ -1,4 +1,4 @@
-"""Matching landmark graphs (localization.match, .refine, .result), its pictures and the ``osmseg localize`` command.
+"""Matching landmark graphs (localization.paper.match, .refine, .result), its pictures and the ``osmseg localize`` command.
 
 Scenes are built here, small and seeded: hand-checkable cliques (the dissertation's Figure
 3.1), and landmark layouts whose answer is known by construction (an isolated plaza, blocks
@@ -18,11 +18,11 @@ from click.testing import CliRunner
 from conftest import write_dataset_manifest
 from PIL import Image
 
-from localization.cli import localize_command
-from localization.figures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
-from localization.graph import cliques_fast
-from localization.landmarks import Landmarks
-from localization.match import (
+from localization.cli.commands import localize_command
+from localization.common.figures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
+from localization.common.landmarks import Landmarks
+from localization.paper.graph import cliques_fast
+from localization.paper.match import (
     DEFAULT_P,
     class_adjacency,
     extend_cliques,
@@ -34,7 +34,7 @@ from localization.match import (
     rank,
     relevant_cliques,
 )
-from localization.refine import feature_edge_mask, inherit, localize_hierarchical
+from localization.paper.refine import feature_edge_mask, inherit, localize_hierarchical
 from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError
 
@@ -563,8 +563,8 @@ def test_cli_segments_an_rgb_image_with_a_checkpoint(tmp_path) -> None:
 
 def test_too_many_landmarks_is_a_clear_error_not_a_crash() -> None:
     """Landmarks of a noisy mask at --min-size 1 can number tens of thousands: refuse, with advice."""
-    from localization.match import MAX_CLIQUE_PAIRS
-    from localization.refine import MAX_FEATURE_LANDMARKS
+    from localization.paper.match import MAX_CLIQUE_PAIRS
+    from localization.paper.refine import MAX_FEATURE_LANDMARKS
 
     rng = np.random.default_rng(0)
     k = int((2 * MAX_CLIQUE_PAIRS) ** 0.5) + 2  # one window holding them all: k (k - 1) / 2 pairs, over the limit

@@ -1,4 +1,4 @@
-"""Annotated pairs (localization.pairs): the paper's evaluation on landmark files, through the CLI.
+"""Annotated pairs (localization.bench.pairs): the paper's evaluation on landmark files, through the CLI.
 
 The pairs are written here as the authors lay them out (aerial/NAME.txt, ground/NAME.txt,
 ``x y Class`` or ``x,y,Class`` lines in the paper's class names: their files use both). The scene has one place that shows every
@@ -15,9 +15,9 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
-from localization.cli import localize_bench_command
-from localization.match import localize
-from localization.pairs import PairsConfig, load_pairs, run_pairs
+from localization.bench.pairs import PairsConfig, load_pairs, run_pairs
+from localization.cli.commands import localize_bench_command
+from localization.paper.match import localize
 from osmseg.errors import DatasetError
 
 AERIAL = (400, 400)

@@ -1,4 +1,4 @@
-"""The profile method (localization.profile, localization.search): known-answer scenes, heading, photos, confidence.
+"""The profile method (localization.profile.profiles, localization.profile.search): known-answer scenes, heading, photos, confidence.
 
 Every scene is a constructed classes13 mask (the seeded town of test_loc_render) and every
 query a panorama rendered from it at a known place, so the answer is known: the position to a
@@ -19,13 +19,14 @@ from click.testing import CliRunner
 from PIL import Image
 from test_loc_render import CLASSES, GRASS, RES, ROAD, TABLE, B, town
 
-from localization.cli import localize_bench_command, localize_command
-from localization.compare import photo_view, roc_auc
-from localization.landmarks import landmarks_from_mask
+from localization.bench.compare import photo_view, roc_auc
+from localization.bench.render import RenderConfig, object_heights, render_panorama
+from localization.cli.commands import localize_bench_command, localize_command
+from localization.common.landmarks import landmarks_from_mask
+from localization.common.views import Camera, semantic_map
 from localization.pipeline import profile_index, profile_query, run_profile
-from localization.profile import MASK_MIN_CONFIDENCE, Camera, query_from_mask, ray_radii, semantic_map
-from localization.render import RenderConfig, object_heights, render_panorama
-from localization.search import ProfileConfig
+from localization.profile.profiles import MASK_MIN_CONFIDENCE, query_from_mask, ray_radii
+from localization.profile.search import ProfileConfig
 
 TRUTHS = [(137.0, 251.0), (262.0, 118.0), (318.0, 345.0)]  # on a road, on grass, on a road
 
@@ -264,7 +265,7 @@ def test_scores_do_not_depend_on_the_chunk_size(scene) -> None:
 def test_pruned_search_keeps_the_exhaustive_best(scene) -> None:
     """Heading unknown, the coarse grid is scored best bound first and stops early: the kept best must be
     exactly those of scoring every position (the bound is an upper bound of every rotation's score)."""
-    from localization.search import class_prior, grid_positions, score_positions
+    from localization.profile.search import class_prior, grid_positions, score_positions
 
     mask, index = scene
     q = _query(mask, TRUTHS[2], heading=222.0)
@@ -287,8 +288,8 @@ def test_several_heights_score_each_position_as_the_best_of_them_alone(scene, he
     """score_poses (the heights of --camera-height unknown, from class lookups and matrix products)
     gives each position the best of the scores each height's profile gets by itself from
     score_positions (one-hot profiles), and says which height that was."""
-    from localization.profile import query_poses
-    from localization.search import class_prior, grid_positions, score_poses, score_positions
+    from localization.profile.profiles import query_poses
+    from localization.profile.search import class_prior, grid_positions, score_poses, score_positions
 
     mask, index = scene
     q = _query(mask, TRUTHS[0], heading=75.0)
@@ -319,7 +320,7 @@ def test_answers_do_not_depend_on_the_thread_count(scene, heading, levels) -> No
 
 def test_a_building_point_hides_the_building_behind_it() -> None:
     """Landmark points: an opaque building point in front hides one of another class behind it."""
-    from localization.profile import first_hits
+    from localization.profile.profiles import first_hits
 
     bearing = np.radians(np.array([[0.0, 2.0, 90.0]]))           # north, just east of north, east
     dist = np.array([[10.0, 40.0, 40.0]])
@@ -333,8 +334,8 @@ def test_a_building_point_hides_the_building_behind_it() -> None:
 
 def test_landmark_points_behind_a_building_are_not_predicted() -> None:
     """Aerial points: a tree straight behind a building cannot be seen, one off to the side can."""
-    from localization.landmarks import Landmarks
-    from localization.profile import AerialLandmarkIndex
+    from localization.common.landmarks import Landmarks
+    from localization.profile.profiles import AerialLandmarkIndex
 
     classes = ("building", "road", "vegetation", "footway")
     lm = Landmarks(xy=np.array([[50.0, 40.0], [50.0, 10.0], [90.0, 50.0]]), cls=np.array([0, 2, 2]),

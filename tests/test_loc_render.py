@@ -1,4 +1,4 @@
-"""Rendered panoramas (localization.render) and the rendered-panorama benchmark (localization.evaluate).
+"""Rendered panoramas (localization.bench.render) and the rendered-panorama benchmark (localization.bench.rendered).
 
 Scenes are constructed masks in the classes13 ids, so each expected pixel follows from the
 camera geometry: a building of height h whose near face is d metres away tops out at
@@ -19,12 +19,7 @@ from click.testing import CliRunner
 from conftest import write_dataset_manifest
 from PIL import Image
 
-from localization.cli import localize_bench_command
-from localization.evaluate import BenchConfig, Scene, load_dataset_scenes, run_bench
-from localization.landmarks import landmarks_from_mask, load_landmark_classes
-from localization.match import localize
-from localization.pipeline import LocalizeConfig, aerial_graph, run
-from localization.render import (
+from localization.bench.render import (
     NoiseConfig,
     RenderConfig,
     apply_noise,
@@ -34,7 +29,12 @@ from localization.render import (
     render_panorama,
     render_view,
 )
-from localization.visible import landmark_cells, visible_landmarks
+from localization.bench.rendered import BenchConfig, Scene, load_dataset_scenes, run_bench
+from localization.bench.visible import landmark_cells, visible_landmarks
+from localization.cli.commands import localize_bench_command
+from localization.common.landmarks import landmarks_from_mask, load_landmark_classes
+from localization.paper.match import localize
+from localization.pipeline import LocalizeConfig, aerial_graph, run
 from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError
 
@@ -450,7 +450,7 @@ def test_aerial_landmarks_of_a_byte_mask_are_those_of_the_same_mask_in_int64() -
 
 def test_a_saved_panorama_is_a_query_the_localize_command_takes(tmp_path: Path) -> None:
     """What a user does next: the bench's saved panorama (sky and all) given to ``osmseg localize``."""
-    from localization.cli import localize_command
+    from localization.cli.commands import localize_command
 
     mask_file = tmp_path / "town.png"
     Image.fromarray(town(seed=4)).save(mask_file)

@@ -128,7 +128,7 @@ def normalise(pixels: np.ndarray, mean: torch.Tensor, std: torch.Tensor) -> torc
     """``(N, h, w, 3)`` uint8 -> ``(N, 3, h, w)`` float32 on ``mean``'s device, as in training.
 
     RGB scaled to 0..1, minus ``mean``, over ``std`` (both ``(1, 3, 1, 1)``, from the spec). The
-    one place inference and :mod:`localization.features` turn pixels into network input.
+    one place inference and :mod:`localization.paper.features` turn pixels into network input.
     """
     x = torch.from_numpy(np.ascontiguousarray(pixels)).to(mean.device).permute(0, 3, 1, 2).float() / 255.0
     return (x - mean) / std

@@ -1,6 +1,6 @@
 """The embedded demo: a recorded build of 4 Helsinki samples that needs no network and no key.
 
-:func:`demo_config` is the build ``osmseg demo`` replays (``localization.demo`` runs it, then
+:func:`demo_config` is the build ``osmseg demo`` replays (``localization.cli.demo`` runs it, then
 localizes and trains); :mod:`osmseg.demo.generate` records ``helsinki.yaml.gz`` from real OSM
 data and imagery rendered from it (:mod:`osmseg.demo.render`). Imports: osmseg core only.
 """

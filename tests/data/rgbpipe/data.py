@@ -5,7 +5,7 @@ the camera sees has a CamVid class) is turned into
 
 * an aerial "photo": each class in its own colour with seeded noise, and its labels, cut into
   an osmseg-layout training set (``images/`` + ``labels/`` + ``classes.toml``);
-* ground panoramas rendered at seeded viewpoints (:mod:`localization.render`), relabelled to
+* ground panoramas rendered at seeded viewpoints (:mod:`localization.bench.render`), relabelled to
   CamVid ids (``camvid.toml``: Sky 0, Building 1, Road 3, Pavement 4, Tree 5) and painted as
   photos the same way, in the CamVid layout (``train/``, ``trainannot/``, ``val/``, ``valannot/``).
 
@@ -24,7 +24,7 @@ from PIL import Image
 ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT))
 
-from localization.render import RenderConfig, render_panorama  # noqa: E402
+from localization.bench.render import RenderConfig, render_panorama  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 
 AERIAL = load_class_table("classes13.toml")

@@ -1,0 +1,125 @@
+"""Parsers of ``osmseg localize`` and ``localize-bench`` options that click's types do not cover.
+
+Each turns the text of an option into a value or raises a one-line
+:class:`~osmseg.errors.ConfigError` that says what to give. Imports: osmseg core and
+localization.profile.search.
+"""
+
+from __future__ import annotations
+
+import math
+
+from localization.profile.search import UNKNOWN_HEIGHTS
+from osmseg.errors import ConfigError
+
+__all__ = ["parse_pair", "parse_point", "parse_window", "parse_windows", "parse_camera_height", "parse_heading", "parse_heights"]
+
+
+def parse_point(value: str | None) -> tuple[float, float] | None:
+    """``"375,380"`` -> (375.0, 380.0).
+
+    >>> parse_point("375,380.5")
+    (375.0, 380.5)
+    """
+    if value is None:
+        return None
+    return parse_pair(value, f"--truth must be X,Y in aerial pixels, e.g. 375,380; got {value!r}",
+                      f"--truth must be finite numbers, got {value!r}")
+
+
+def parse_pair(value: str, usage: str, not_finite: str) -> tuple[float, float]:
+    """Two comma-separated finite numbers; ConfigError ``usage`` when they are not two numbers,
+    ``not_finite`` when one is infinite or NaN.
+
+    >>> parse_pair("26.9,60.5", "give LON,LAT", "finite, please")
+    (26.9, 60.5)
+    """
+    try:
+        a, b = (float(v) for v in value.split(","))
+    except ValueError:
+        raise ConfigError(usage) from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ConfigError(not_finite)
+    return a, b
+
+
+def parse_window(value: str) -> int | None:
+    """``--window``: pixels, or None for "auto".
+
+    >>> parse_window("auto"), parse_window("120")
+    (None, 120)
+    """
+    if value.strip().lower() == "auto":
+        return None
+    try:
+        w = int(value)
+    except ValueError:
+        raise ConfigError(f"--window must be a number of pixels or 'auto', got {value!r}") from None
+    if w < 1:
+        raise ConfigError(f"--window must be at least 1 pixel, got {w}")
+    return w
+
+
+def parse_windows(value: str) -> tuple[int, ...]:
+    """``--windows``: pixel sizes, coarse to fine.
+
+    >>> parse_windows("400,200,100")
+    (400, 200, 100)
+    """
+    try:
+        sizes = tuple(int(v) for v in value.split(","))
+    except ValueError:
+        raise ConfigError(f"--windows must be pixel sizes, coarse to fine, e.g. 400,200,100; got {value!r}") from None
+    if not sizes or min(sizes) < 1:
+        raise ConfigError(f"--windows must be positive pixel sizes, got {value!r}")
+    return sizes
+
+
+def parse_camera_height(value: str) -> tuple[float, tuple[float, ...]]:
+    """``--camera-height``: (metres, heights to try: none when known).
+
+    >>> parse_camera_height("1.7"), parse_camera_height("unknown")
+    ((1.7, ()), (2.0, (1.5, 1.75, 2.0, 2.25, 2.5)))
+    """
+    if value.strip().lower() == "unknown":
+        return 2.0, UNKNOWN_HEIGHTS
+    try:
+        height = float(value)
+    except ValueError:
+        raise ConfigError(f"--camera-height must be metres above the ground or 'unknown', got {value!r}") from None
+    if not (math.isfinite(height) and height > 0):
+        raise ConfigError(f"--camera-height must be a positive number of metres, got {value!r}")
+    return height, ()
+
+
+def parse_heading(value: str) -> float | None:
+    """``--heading``: degrees, or None for "unknown".
+
+    >>> parse_heading("unknown"), parse_heading("90")
+    (None, 90.0)
+    """
+    if value.strip().lower() == "unknown":
+        return None
+    try:
+        heading = float(value)
+    except ValueError:
+        raise ConfigError(f"--heading must be degrees clockwise from north or 'unknown', got {value!r}") from None
+    if not math.isfinite(heading):
+        raise ConfigError(f"--heading must be a finite number of degrees, got {value!r}")
+    return heading % 360.0
+
+
+def parse_heights(values: tuple[str, ...]) -> dict[str, float]:
+    """``("building=12", "tree=5")`` -> the default heights updated with these."""
+    from localization.bench.render import DEFAULT_HEIGHTS
+
+    heights = dict(DEFAULT_HEIGHTS)
+    for item in values:
+        name, eq, metres = item.partition("=")
+        try:
+            heights[name.strip()] = float(metres)
+        except ValueError:
+            raise ConfigError(f"--class-height {item!r}: write CLASS=METRES, e.g. building=12") from None
+        if not eq or not name.strip():
+            raise ConfigError(f"--class-height {item!r}: write CLASS=METRES, e.g. building=12")
+    return heights

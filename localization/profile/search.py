@@ -1,0 +1,560 @@
+"""The ``profile`` method: score a dense grid of aerial positions by their angular profile, coarse to fine.
+
+For every position ``p`` of a grid over the aerial image, the aerial side predicts the profile
+``P_p`` (:mod:`localization.profile.profiles`: per landmark class, ground distance and azimuth, what a
+camera at ``p`` would see first) and the score is the share of the query's profile mass that
+the prediction agrees with::
+
+    S(p, s) = sum_{c,k,a} Q[c, k, a] P_p[c, k, a + s]  /  sum_{c,k,a} Q[c, k, a] V_p[k, a + s]
+
+``V_p`` marks the cells the aerial image can predict (a ray that leaves the image predicts
+nothing, so positions near the border are not punished for it). With the heading known the
+query is built in compass azimuths and ``s = 0``; with the heading unknown ``S(p, s)`` is a
+circular cross-correlation over ``s``, one FFT per profile row, and the best ``s`` is the
+heading (to a fraction of a bin by a parabola through the peak). A photo of limited field of
+view is a query whose profile is empty outside it: the same formula, nothing else changes.
+
+Search: positions every ``coarse_m`` metres, then around the ``keep`` best ones a 3 x 3 grid a
+third as wide, ``levels`` times (4 m -> 1.3 m -> 0.44 m by default). Work and memory grow with
+the number of grid positions (the image area), in chunks of ``chunk`` positions scored on
+``threads`` threads (numpy releases the GIL in its gathers, reductions and FFTs), and the
+aerial side is never held at more than one chunk's profiles per thread. Each chunk's scores
+depend on that chunk alone, so the answer is the same at any chunk size and thread count.
+
+**Is it here at all?** The best score ``S*`` is compared with the agreement a position drawn
+at random would have: ``S0 = sum_{c,k} q[c, k] pbar[c, k]`` with ``pbar`` the mean aerial
+profile over the coarse grid and all azimuths. ``kappa = (S* - S0) / (1 - S0)`` (Cohen's kappa
+of the best match) is 0 for a query that fits no better than chance, and the answer is "not in
+this image" below ``min_kappa``.
+
+**Is it here, or somewhere that looks the same?** A look-alike place fits as well as the
+right one, so kappa is high for wrong answers too. The **best distinct alternative** is the
+best place at least ``distinct_m`` (50 m) from the answer (the best coarse positions that far
+away, refined as the answer was), and the **confidence** is the share of the answer's lead
+over chance that no such place reaches::
+
+    confidence = (S* - S_alt) / (S* - S0)
+
+0 when another place fits as well, larger the more the answer stands out (kappa where no place
+lies ``distinct_m`` away). Below ``min_confidence`` the answer is "not sure": the result keeps
+it, with the alternative. docs/localization.md gives how well it ranks wrong answers below
+right ones, per kind of query, and how the default threshold was chosen.
+
+Imports: numpy, osmseg core, localization.profile.profiles and localization.common.result.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+from typing import Any, Protocol, TypeVar, cast
+
+import numpy as np
+
+from localization.common.result import Localization, unanswered
+from localization.profile.profiles import QueryProfile
+from osmseg.errors import ConfigError
+
+__all__ = ["UNKNOWN_HEIGHTS", "ProfileConfig", "AerialIndex", "Scoring", "grid_positions", "score_positions", "score_poses", "localize_profile"]
+
+
+#: the camera heights tried when the height is not known (m): a hand-held camera to a car-mounted one
+UNKNOWN_HEIGHTS = (1.5, 1.75, 2.0, 2.25, 2.5)
+
+
+@dataclass(frozen=True)
+class ProfileConfig:
+    """Settings of the ``profile`` method (see the module docstring)."""
+
+    bins: int | None = None        # azimuth bins [72 (5 deg) for a query mask; for landmark points half the
+                                   # bearing kernel, 90 (4 deg) at 8 deg]
+    radii: int = 16                # ground distances, log-spaced from min_range_m to max_range_m
+    min_range_m: float = 3.0
+    max_range_m: float = 60.0
+    coarse_m: float | None = None  # coarse grid spacing [the aerial side's: 4 m for a mask, 1.25 m for points]
+    keep: int = 40                 # positions refined at each level
+    levels: int | None = None      # refinements, each a third of the previous spacing [2 for a mask, 1 for points]
+    heading_deg: float | None = 0.0  # compass azimuth of the query's centre column; None: unknown (searched)
+    top_k: int = 5
+    min_confidence: float | None = None  # confidence below this: "not sure" [the aerial side's: 0.04 for a mask,
+                                         # none for landmark points (docs/localization.md: how chosen)]
+    min_kappa: float | None = None  # kappa below this: "not in this image" [the aerial side's: 0.6 for a mask,
+                                    # 0.3 for landmark points]
+    chunk: int = 1024              # positions scored at once (memory)
+    samples: int = 24              # aerial ray samples between 0.6 m and the farthest radius
+    sigma_deg: float = 8.0         # aerial landmark points: bearing kernel
+    distance_sd: float = 1.0       # aerial landmark points: log-distance kernel (sd of ln d)
+    d0_m: float = 200.0            # aerial landmark points: weight 1 / (1 + d / d0), 0 behind a building
+    weighted: bool | None = None   # weigh each class and radius by -log of how often the aerial image shows it
+                                   # [a mask: yes; points: no, their soft kernels have no such frequencies]
+    min_prior: float = 0.01
+    threads: int = 0               # chunks scored at once on threads; 0: one per core (the answer is the same)
+    distinct_m: float = 50.0       # the best distinct alternative lies at least this far from the answer
+    camera_heights: tuple[float, ...] = ()  # camera heights (m) to try when it is not known [the camera's own]
+    tilt_deg: float = 0.0          # the camera may be tilted this much in pitch and roll: its tilt is read from
+                                   # where the query's sky ends and its ground begins (localization.profile.horizon) [0: level]
+
+    def __post_init__(self) -> None:
+        if ((self.bins is not None and self.bins < 8) or self.radii < 1 or self.keep < 1 or (self.levels is not None and self.levels < 0)
+                or self.top_k < 1 or self.chunk < 1 or self.threads < 0):
+            raise ConfigError("profile method: bins >= 8, radii >= 1, keep >= 1, levels >= 0, top_k >= 1")
+        if not (0 < self.min_range_m < self.max_range_m and (self.coarse_m is None or self.coarse_m > 0)):
+            raise ConfigError("profile method: ranges must satisfy 0 < min < max and the grid spacing be > 0")
+        if self.heading_deg is not None and not math.isfinite(self.heading_deg):
+            raise ConfigError(f"heading must be a number of degrees or unknown, got {self.heading_deg}")
+        if not 0 <= self.tilt_deg <= 10:
+            raise ConfigError(f"camera tilt must be 0-10 degrees, got {self.tilt_deg:g}")
+        if any(not (0 < h < 100) for h in self.camera_heights):
+            raise ConfigError(f"camera heights must be positive metres, got {self.camera_heights}")
+
+
+class AerialIndex(Protocol):
+    """What the search needs of the aerial side: its shape, resolution, classes and predicted profiles."""
+
+    resolution_m: float
+    classes: tuple[str, ...]
+    grid_m: float       # the coarse grid spacing that suits it
+    levels: int         # and the refinements
+    weighted: bool      # whether class-frequency weights suit it
+    min_confidence: float  # the "not sure" threshold that suits it (confidence: see the module docstring)
+    min_kappa: float       # the "not in this image" threshold that suits it
+
+    @property
+    def shape(self) -> tuple[int, int]: ...
+
+    def profiles(self, xy: np.ndarray, radii_m: np.ndarray, bins: int,
+                 need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def grid_positions(shape: tuple[int, int], spacing_px: float) -> np.ndarray:
+    """Cell centres of a grid of ``spacing_px`` over an image of ``shape`` (rows, cols), as (x, y).
+
+    >>> grid_positions((10, 20), 10).tolist()
+    [[4.5, 4.5], [14.5, 4.5]]
+    """
+    h, w = shape
+    xs = np.arange(spacing_px / 2 - 0.5, w - 0.5, spacing_px)
+    ys = np.arange(spacing_px / 2 - 0.5, h - 0.5, spacing_px)
+    gx, gy = np.meshgrid(xs, ys)
+    return np.stack([gx.ravel(), gy.ravel()], axis=1)
+
+
+def score_positions(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config: ProfileConfig,
+                    prior: np.ndarray, weights: np.ndarray | None = None,
+                    keep: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Best score and its azimuth shift (in bins) at each position ``xy`` (N, 2).
+
+    A cell the aerial image cannot predict (its ray left the image) is credited with the
+    agreement chance gives it, ``prior`` (C, R + 1) (:func:`class_prior`): a position near the
+    border neither gains nor loses for what lies outside.
+
+    ``keep`` (heading unknown, mask index): only the ``keep`` best positions are needed, so
+    positions are scored in decreasing order of a rotation-free upper bound of their score
+    (:func:`_bounds`) and the search stops once no remaining bound beats the ``keep``-th best
+    score: the same ``keep`` best, exactly; the others get ``-inf``.
+    """
+    q = query.q.astype(np.float32)
+    if weights is not None:
+        q = q * weights[:, :, None].astype(np.float32)
+    total = max(float(q.sum()), 1e-9)
+    u = np.einsum("cra,cr->ra", q, prior.astype(np.float32))         # chance agreement per cell (R + 1, A)
+    n = len(xy)
+    best, shift = np.zeros(n), np.zeros(n)
+    known = query.heading_deg is not None
+    if not known:
+        qf = np.conj(np.fft.rfft(q, axis=-1))
+        uf = np.conj(np.fft.rfft(u, axis=-1))
+    need = q.sum(axis=2) > 0
+    if keep is not None and not known and hasattr(index, "labels") and not float(q[:, -1, :].sum()) and n > keep:
+        return _pruned(index, query, xy, config, q, u, total, qf, uf, keep, need)
+    gather = known and hasattr(index, "labels") and not float(q[:, -1, :].sum())
+    if gather:  # one-hot profiles never built: look each predicted class up in the query
+        n_r = len(query.radii_m)
+        table = np.concatenate([q[:, :n_r, :], np.zeros((1, n_r, query.bins), np.float32)])  # class -1: row C
+        cells = np.arange(n_r * query.bins).reshape(n_r, query.bins)
+        u_seen = u[:n_r]
+
+    def one(part: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        if gather:
+            lab, valid = index.labels(part, query.radii_m, query.bins)  # type: ignore[attr-defined]
+            lab = np.where(lab < 0, len(table) - 1, lab).astype(np.int64)
+            num = table.reshape(len(table), -1)[lab.reshape(len(part), -1), cells.ravel()[None, :]].sum(axis=1)
+            return (num + float(u.sum()) - (valid * u_seen[None]).sum(axis=(1, 2)) - float(u[n_r:].sum())) / total, None
+        P, V = index.profiles(part, query.radii_m, query.bins, need)
+        if known:
+            return (np.einsum("ncra,cra->n", P, q) + float(u.sum()) - np.einsum("nra,ra->n", V, u)) / total, None
+        return _rotations(P, V, qf, uf, u, total, query.bins)
+
+    for start, (b, s) in zip(range(0, n, config.chunk), _map(one, [xy[i:i + config.chunk] for i in range(0, n, config.chunk)],
+                                                             config.threads)):
+        best[start:start + len(b)] = b
+        if s is not None:
+            shift[start:start + len(b)] = s
+    return best, shift
+
+
+def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config: ProfileConfig,
+                prior: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`score_positions` of the best of ``query.variants`` (camera heights) at each position:
+    ``(score, shift, variant index)``. The aerial profiles of a chunk are built once for all of them."""
+    variants = query.variants
+    qs = np.stack([v.q for v in variants]).astype(np.float32)                     # (H, C, R + 1, A)
+    if weights is not None:
+        qs = qs * weights[None, :, :, None].astype(np.float32)
+    totals = np.maximum(qs.sum(axis=(1, 2, 3)), 1e-9)                              # (H,)
+    u = np.einsum("hcra,cr->hra", qs, prior.astype(np.float32))                   # (H, R + 1, A)
+    known = query.heading_deg is not None
+    need = qs.sum(axis=(0, 3)) > 0
+    if not known:
+        qf, uf = np.conj(np.fft.rfft(qs, axis=-1)), np.conj(np.fft.rfft(u, axis=-1))
+    # a mask's rays name the class seen in each cell: look it up in the queries, no one-hot profiles
+    # (slot R is empty for a query mask, and so is its chance credit)
+    lookup = hasattr(index, "labels") and not float(qs[:, :, -1, :].sum())
+    n_r, bins = len(query.radii_m), query.bins
+    rows_c, rows_r = np.nonzero(need[:, :n_r])
+    by_class = [(c, np.ascontiguousarray(qs[:, c, :n_r, :].reshape(len(qs), -1).T))   # (R * A, H) per class
+                for c in range(qs.shape[1]) if need[c, :n_r].any()]
+    base = u.sum(axis=(1, 2))
+
+    def looked_up(part: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        lab, valid = index.labels(part, query.radii_m, bins)  # type: ignore[attr-defined]
+        if known:
+            seen_as = lab.reshape(len(part), -1)
+            num = np.zeros((len(part), len(qs)), np.float32)                                # (N, H)
+            for c, table in by_class:  # the cells that see class c, times every height's query there
+                num += (seen_as == c).astype(np.float32) @ table
+            s = (num + base[None] - np.einsum("nra,hra->nh", valid.astype(np.float32), u[:, :n_r])) / totals[None]
+            pose = s.argmax(axis=1)
+            return s[np.arange(len(s)), pose], np.zeros(len(s)), pose
+        onehot = (lab[:, rows_r, :] == rows_c[None, :, None].astype(lab.dtype)).astype(np.float32)   # (N, K, A)
+        agree = np.einsum("nkf,hkf->nhf", np.fft.rfft(onehot, axis=-1), qf[:, rows_c, rows_r])
+        seen = np.einsum("nrf,hrf->nhf", np.fft.rfft(valid.astype(np.float32), axis=-1), uf[:, :n_r])
+        s = (np.fft.irfft(agree - seen, n=bins, axis=-1) + base[None, :, None]) / totals[None, :, None]
+        pose = s.max(axis=2).argmax(axis=1)
+        best, shift = _peak(s[np.arange(len(s)), pose])
+        return best, shift, pose
+
+    def one(part: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if lookup:
+            return looked_up(part)
+        P, V = index.profiles(part, query.radii_m, query.bins, need)
+        if known:
+            s = (np.einsum("ncra,hcra->nh", P, qs) + u.sum(axis=(1, 2))[None]
+                 - np.einsum("nra,hra->nh", V, u)) / totals[None]
+            pose = s.argmax(axis=1)
+            return s[np.arange(len(s)), pose], np.zeros(len(s)), pose
+        agree = np.fft.irfft(np.einsum("ncrf,hcrf->nhf", np.fft.rfft(P, axis=-1), qf), n=query.bins, axis=-1)
+        seen = np.fft.irfft(np.einsum("nrf,hrf->nhf", np.fft.rfft(V, axis=-1), uf), n=query.bins, axis=-1)
+        s = (agree + u.sum(axis=(1, 2))[None, :, None] - seen) / totals[None, :, None]   # (N, H, A)
+        pose = s.max(axis=2).argmax(axis=1)
+        best, shift = _peak(s[np.arange(len(s)), pose])
+        return best, shift, pose
+
+    chunk = max(1, config.chunk // max(1, len(variants) // 8))  # (N, H, A) stays near one chunk's profiles
+    parts = _map(one, [xy[i:i + chunk] for i in range(0, len(xy), chunk)], config.threads)
+    if not parts:
+        return np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int64)
+    return (np.concatenate([b for b, _, _ in parts]), np.concatenate([s for _, s, _ in parts]),
+            np.concatenate([p for _, _, p in parts]))
+
+
+def _rotations(P: np.ndarray, V: np.ndarray, qf: np.ndarray, uf: np.ndarray, u: np.ndarray, total: float,
+               bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Best score over all azimuth shifts, and the shift (sub-bin), by circular cross-correlation."""
+    agree = np.fft.irfft(np.einsum("ncrf,crf->nf", np.fft.rfft(P, axis=-1), qf), n=bins, axis=-1)
+    seen = np.fft.irfft(np.einsum("nrf,rf->nf", np.fft.rfft(V, axis=-1), uf), n=bins, axis=-1)
+    return _peak((agree + float(u.sum()) - seen) / total)
+
+
+def _peak(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's best score over the shifts, and its shift refined to a fraction of a bin."""
+    k = s.argmax(axis=1)
+    return s[np.arange(len(s)), k], k + _parabola(s, k)
+
+
+def _bounds(lab: np.ndarray, valid: np.ndarray, q: np.ndarray, u: np.ndarray, total: float) -> np.ndarray:
+    """An upper bound of each position's score over every rotation, from its class counts per radius.
+
+    At any shift, class ``c`` at radius ``k`` agrees on at most ``min(sum_a q, n_c * max_a q)``
+    (``n_c`` cells of the position show ``c``; each query cell weighs at most its maximum), and
+    the chance credit of the cells the image cannot predict is at most
+    ``min(sum_a u, n_invalid * max_a u)``.
+    """
+    n_r = lab.shape[1]
+    q_sum, q_max = q[:, :n_r].sum(axis=2), q[:, :n_r].max(axis=2)        # (C, R)
+    bound = np.zeros(len(lab))
+    for c in range(q.shape[0]):
+        if q_sum[c].any():
+            count = (lab == c).sum(axis=2)                                  # (N, R)
+            bound += np.minimum(q_sum[c][None], count * q_max[c][None]).sum(axis=1)
+    invalid = (~valid).sum(axis=2)
+    bound += np.minimum(u[:n_r].sum(axis=1)[None], invalid * u[:n_r].max(axis=1)[None]).sum(axis=1)
+    return bound / total
+
+
+def _pruned(index: Any, query: QueryProfile, xy: np.ndarray, config: ProfileConfig, q: np.ndarray, u: np.ndarray,
+            total: float, qf: np.ndarray, uf: np.ndarray, keep: int, need: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`score_positions` for the ``keep`` best of many positions, best bounds first (see there)."""
+    n = len(xy)
+    starts = range(0, n, config.chunk)
+
+    def bounds_of(part: np.ndarray) -> np.ndarray:
+        lab, valid = index.labels(part, query.radii_m, query.bins)
+        return _bounds(lab, valid, q, u, total)
+
+    bound = np.concatenate(_map(bounds_of, [xy[i:i + config.chunk] for i in starts], config.threads))
+    order = np.argsort(-bound, kind="stable")
+    best, shift = np.full(n, -np.inf), np.zeros(n)
+
+    # one-hot rows only where the query has mass (slot R has none on this path, so neither has u)
+    n_r = len(query.radii_m)
+    rows_c, rows_r = np.nonzero(need[:, :n_r])
+    q_rows = qf[rows_c, rows_r]                                                   # (K, F)
+    u_rows = np.flatnonzero(u[:n_r].any(axis=1))
+
+    def rotations_of(part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lab, valid = index.labels(xy[part], query.radii_m, query.bins)
+        onehot = (lab[:, rows_r, :] == rows_c[None, :, None].astype(lab.dtype)).astype(np.float32)
+        agree = np.einsum("nkf,kf->nf", np.fft.rfft(onehot, axis=-1), q_rows)
+        seen = np.einsum("nrf,rf->nf", np.fft.rfft(valid[:, u_rows, :].astype(np.float32), axis=-1), uf[u_rows])
+        return _peak((np.fft.irfft(agree - seen, n=query.bins, axis=-1) + float(u.sum())) / total)
+
+    # a batch of chunks at a time, one per thread; then accepted chunk by chunk exactly as one
+    # thread would: a chunk that starts below the keep-th best so far ends the search (within
+    # float32 rounding of the FFT scores), and it and the rest of its batch stay -inf
+    scored, batch, done = 0, _threads(config.threads), False
+    for first in range(0, n, config.chunk * batch):
+        parts = [order[i:i + config.chunk] for i in range(first, min(first + config.chunk * batch, n), config.chunk)]
+        for part, (b, s) in zip(parts, _map(rotations_of, parts, config.threads)):
+            if scored >= keep:
+                kth = np.partition(best[order[:scored]], scored - keep)[scored - keep]
+                if bound[part[0]] < kth - 1e-5:
+                    done = True
+                    break  # no later position can beat the keep-th best
+            best[part], shift[part] = b, s
+            scored += len(part)
+        if done:
+            break
+    return best, shift
+
+
+def class_prior(index: AerialIndex, query: QueryProfile, xy: np.ndarray, n: int = 512) -> np.ndarray:
+    """How often each class is predicted at each radius (C, R + 1), over ``n`` evenly picked positions of ``xy``."""
+    pick = xy[np.linspace(0, len(xy) - 1, min(n, len(xy))).astype(np.int64)]
+    P, V = index.profiles(pick, query.radii_m, query.bins)
+    return cast("np.ndarray", P.sum(axis=(0, 3)) / np.maximum(V.sum(axis=(0, 2)), 1.0)[None, :])
+
+
+def _threads(threads: int) -> int:
+    """How many threads ``threads`` means (0: one per core)."""
+    return threads if threads > 0 else max(1, os.cpu_count() or 1)
+
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def _map(fn: Callable[[T], R], items: list[T], threads: int) -> list[R]:
+    """``[fn(x) for x in items]`` on ``threads`` threads (numpy's gathers, reductions and FFTs let go of
+    the GIL), in order: the result does not depend on the thread count."""
+    n = min(_threads(threads), len(items))
+    if n <= 1:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(n) as pool:
+        return list(pool.map(fn, items))
+
+
+def _parabola(s: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Sub-bin offset of each row's peak at ``k`` from a parabola through its neighbours (circular)."""
+    a = s.shape[1]
+    rows = np.arange(len(s))
+    y0, y1, y2 = s[rows, (k - 1) % a], s[rows, k], s[rows, (k + 1) % a]
+    den = y0 - 2 * y1 + y2
+    return np.where(np.abs(den) > 1e-12, np.clip(0.5 * (y0 - y2) / np.where(den == 0, 1, den), -0.5, 0.5), 0.0)
+
+
+def _level(query: QueryProfile) -> bool:
+    """Whether ``query`` was read as a level camera's (its pose's pitch and roll 0, or no pose)."""
+    return query.pose is None or query.pose[1:] == (0.0, 0.0)
+
+
+def _nms(xy: np.ndarray, order: np.ndarray, radius: float, k: int) -> list[int]:
+    """The first ``k`` of ``order`` that are at least ``radius`` from every one kept before them.
+
+    Kept positions are filed in cells ``radius`` wide, so each is compared only with those of
+    the 3 x 3 cells around it (the same answer as comparing with all of them).
+
+    >>> _nms(np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0], [3.5, 0.0]]), np.arange(4), 2.0, 3)
+    [0, 2]
+    """
+    kept: list[int] = []
+    cells: dict[tuple[int, int], list[int]] = {}
+    for i in order:
+        x, y = float(xy[i, 0]), float(xy[i, 1])
+        cx, cy = math.floor(x / radius), math.floor(y / radius)
+        if all(math.hypot(x - xy[j, 0], y - xy[j, 1]) >= radius
+               for dx in (-1, 0, 1) for dy in (-1, 0, 1) for j in cells.get((cx + dx, cy + dy), ())):
+            kept.append(int(i))
+            cells.setdefault((cx, cy), []).append(int(i))
+            if len(kept) == k:
+                break
+    return kept
+
+
+def _around(xy: np.ndarray, spacing: float, shape: tuple[int, int]) -> np.ndarray:
+    """A 3 x 3 grid of ``spacing`` around each of ``xy``, without duplicates, inside an image of ``shape``."""
+    h, w = shape
+    offsets = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], dtype=np.float64) * spacing
+    cand = np.unique(np.round((xy[:, None, :] + offsets[None]).reshape(-1, 2), 6), axis=0)
+    return cand[(cand[:, 0] >= -0.5) & (cand[:, 0] < w - 0.5) & (cand[:, 1] >= -0.5) & (cand[:, 1] < h - 0.5)]
+
+
+@dataclass(frozen=True)
+class Scoring:
+    """What every level of one query's search shares: the aerial side, the query, its settings,
+    the class frequencies it is compared with and weighed by, the coarse grid spacing (m) and the
+    number of refinements. :meth:`of` makes it as :func:`localize_profile` does, so a benchmark
+    scores any positions exactly as the search would (benchmarks/bench_ceiling.py)."""
+
+    index: AerialIndex
+    query: QueryProfile
+    config: ProfileConfig
+    mean: np.ndarray
+    weights: np.ndarray | None
+    levels: int
+    coarse_m: float
+
+    @classmethod
+    def of(cls, index: AerialIndex, query: QueryProfile, config: ProfileConfig,
+           prior: np.ndarray | None = None) -> Scoring:
+        """The settings' or else the aerial side's grid, refinements and weighting; the class
+        frequencies ``prior``, or else this image's over the coarse grid (:func:`class_prior`)."""
+        coarse_m = config.coarse_m if config.coarse_m is not None else index.grid_m
+        weighted = config.weighted if config.weighted is not None else index.weighted
+        mean = (class_prior(index, query, grid_positions(index.shape, coarse_m / index.resolution_m))
+                if prior is None else prior)
+        return cls(index, query, config, mean, -np.log(np.clip(mean, config.min_prior, 1.0)) if weighted else None,
+                   config.levels if config.levels is not None else index.levels, coarse_m)
+
+    @property
+    def finest_px(self) -> float:
+        """The spacing (pixels) of the finest level's positions."""
+        return float(self.coarse_m / 3 ** self.levels / self.index.resolution_m)
+
+    def score(self, xy: np.ndarray, keep: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(score, shift, pose)`` at positions ``xy``: the best camera pose at each when the query has several."""
+        if self.query.variants:  # each position scored with the camera pose that fits it best
+            return score_poses(self.index, self.query, xy, self.config, self.mean, self.weights)
+        score, shift = score_positions(self.index, self.query, xy, self.config, self.mean, self.weights, keep=keep)
+        return score, shift, np.zeros(len(xy), dtype=np.int64)
+
+    def refine(self, xy: np.ndarray, score: np.ndarray, shift: np.ndarray, pose: np.ndarray, keep: int,
+               spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Around the ``keep`` best of ``xy``, a 3 x 3 grid a third as wide, ``levels`` times."""
+        for _ in range(self.levels):
+            top = np.argsort(-score, kind="stable")[:keep]
+            spacing /= 3.0
+            xy = _around(xy[top], spacing, self.index.shape)
+            if self.query.variants:
+                score, shift, pose = self.score(xy)
+            else:
+                score, shift, _ = self.score(xy)
+        return xy, score, shift, pose
+
+
+def _heading_at(query: QueryProfile, shifts: np.ndarray | None, i: int) -> float:
+    """The heading (degrees) at place ``i``: the given one, or its best azimuth shift (in bins)."""
+    if query.heading_deg is not None or shifts is None:
+        return round(float(query.heading_deg or 0.0), 3) % 360.0
+    return round(float(shifts[i] * 360.0 / query.bins) % 360.0, 3) % 360.0
+
+
+def _alternative(s: Scoring, coarse: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], answer: np.ndarray,
+                 coarse_m: float, spacing: float) -> tuple[tuple[float, float, float] | None, float | None]:
+    """The best distinct alternative ``((x, y, score), heading)``: the best place at least ``distinct_m``
+    from ``answer``, found among the 5 best spaced coarse positions that far away and refined as the
+    answer was; ``(None, None)`` when no place lies that far."""
+    coarse_xy, coarse_score, coarse_shift, coarse_poses = coarse
+    resolution = s.index.resolution_m
+    far = np.hypot(*(coarse_xy - answer).T) * resolution >= s.config.distinct_m
+    if not (far.any() and np.isfinite(coarse_score[far]).any()):
+        return None, None
+    rivals = np.flatnonzero(far)[_nms(coarse_xy[far], np.argsort(-coarse_score[far], kind="stable"),
+                                      coarse_m / resolution, 5)]
+    rivals = rivals[np.isfinite(coarse_score[rivals])]
+    r_xy, r_score, r_shift, _ = s.refine(coarse_xy[rivals], coarse_score[rivals], coarse_shift[rivals],
+                                         coarse_poses[rivals], len(rivals), spacing)
+    r_far = np.hypot(*(r_xy - answer).T) * resolution >= s.config.distinct_m
+    if not r_far.any():
+        return None, None
+    i = int(np.flatnonzero(r_far)[np.argmax(r_score[r_far])])
+    return (float(r_xy[i, 0]), float(r_xy[i, 1]), float(r_score[i])), _heading_at(s.query, r_shift, i)
+
+
+def _gated(result: Localization, kappa: float, confidence: float, config: ProfileConfig, index: AerialIndex,
+           answer: np.ndarray) -> Localization:
+    """``result`` left unanswered when its ``kappa`` says "not in this image" or its ``confidence`` "not
+    sure" (both unrounded: the result holds them rounded)."""
+    min_kappa = config.min_kappa if config.min_kappa is not None else index.min_kappa
+    if kappa < min_kappa:
+        return replace(result, unanswered=True, map_xy=None,
+                       reason=f"not in this image: kappa {kappa:.3f} is below {min_kappa:g}")
+    threshold = config.min_confidence if config.min_confidence is not None else index.min_confidence
+    if confidence < threshold:
+        where = ""
+        if result.alternative is not None:
+            away = math.hypot(result.alternative[0] - answer[0], result.alternative[1] - answer[1]) * index.resolution_m
+            where = f" (another place {away:.0f} m away fits almost as well)"
+        return replace(result, unanswered=True, map_xy=None,
+                       reason=f"not sure: confidence {confidence:.3f} is below {threshold:g}{where}")
+    return result
+
+
+def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileConfig,
+                     prior: np.ndarray | None = None) -> Localization:
+    """Where ``query`` was taken in the aerial ``index``: the ``profile`` method's answer.
+
+    The result is a :class:`~localization.common.result.Localization` whose candidates are the
+    positions of the finest level, ``likelihoods`` and ``posteriors`` their scores, ``top_k``
+    distinct places (at least one coarse cell apart), ``heading_deg`` the estimated (or given)
+    heading and ``confidence`` the kappa of the best match. ``prior``: the class frequencies
+    (:func:`class_prior`) to weigh and to compare with, when they should be another area's than
+    this image's (a region searched in blocks scores every block against the region's).
+    """
+    if tuple(index.classes) != tuple(query.classes):
+        raise ConfigError(f"aerial classes {index.classes} and query classes {query.classes} differ: use landmark "
+                          "dictionaries with the same landmark classes")
+    if query.mass <= 0:
+        return unanswered("the query shows no landmark class on the ground rows or at any azimuth", method="profile")
+    s = Scoring.of(index, query, config, prior)
+    coarse_m, mean = s.coarse_m, s.mean
+    spacing = coarse_m / index.resolution_m
+    xy = grid_positions(index.shape, spacing)
+    score, shift, poses = s.score(xy, keep=config.keep)
+    coarse = (xy, score, shift, poses)
+    xy, score, shift, poses = s.refine(xy, score, shift, poses, config.keep, spacing)
+    order = np.lexsort((xy[:, 0], xy[:, 1], -score))
+    best = int(order[0])
+    pose_query = query.variants[int(poses[best])] if query.variants else query
+    alternative, alternative_heading = _alternative(s, coarse, xy[best], coarse_m, spacing)
+    qw = pose_query.q.sum(axis=2) * (s.weights if s.weights is not None else 1.0)
+    chance = float((qw * mean).sum() / max(qw.sum(), 1e-9))
+    kappa = (float(score[best]) - chance) / max(1e-9, 1.0 - chance)
+    lead = float(score[best]) - chance
+    confidence = (kappa if alternative is None
+                  else min(1.0, max(0.0, (float(score[best]) - alternative[2]) / lead)) if lead > 0 else 0.0)
+    picked = _nms(xy, order, coarse_m / index.resolution_m, config.top_k)
+    top_k = tuple((float(xy[i, 0]), float(xy[i, 1]), float(score[i])) for i in picked)
+    ties = int(np.isclose(score, score[best], rtol=1e-9, atol=1e-12).sum())
+    result = Localization(candidates=xy, likelihoods=score, posteriors=score, order=order.astype(np.int64),
+                          top_k=top_k, map_xy=(top_k[0][0], top_k[0][1]), ties=ties, unanswered=False,
+                          method="profile", heading_deg=_heading_at(query, shift, best),
+                          confidence=round(confidence, 4), kappa=round(kappa, 4), chance=round(chance, 4),
+                          alternative=alternative,
+                          camera_pose=pose_query.pose if query.variants or not _level(query) else None,
+                          headings=tuple(_heading_at(query, shift, i) for i in picked),
+                          alternative_heading=alternative_heading)
+    return _gated(result, kappa, confidence, config, index, xy[best])

@@ -1,0 +1,11 @@
+"""A region from OpenStreetMap alone: ``osmseg localize --osm FILE --bbox W,S,E,N``.
+
+:mod:`~localization.region.search` draws the region in overlapping blocks with the builder's
+rasteriser and searches each with the profile method against the region's class frequencies;
+:mod:`~localization.region.cache` keeps the drawn blocks; :mod:`~localization.region.files`
+reads the query, splits the search into ``--shard K/N`` parts, merges them and writes the
+GeoJSON.
+
+Imports: osmseg core, :mod:`localization.common`, :mod:`localization.profile` and
+:mod:`localization.pipeline`; never the benchmarks or the command line.
+"""

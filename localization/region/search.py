@@ -1,0 +1,380 @@
+"""Where in a whole region was a ground view taken? The profile method over OpenStreetMap alone.
+
+An analyst holds a photo and a district, not an aerial image centred on the answer. The
+district's OpenStreetMap is drawn by the builder's own reader and rasteriser
+(:func:`osmseg.osm.features.read_features`, :func:`osmseg.rasterize.rasterize`) into
+overlapping **blocks** of ``size`` x ``size`` Web Mercator tiles at ``zoom`` (no imagery
+needed), every block is searched by the profile method (:mod:`localization.profile.search`), and the
+candidates are ranked across blocks in degrees:
+
+* Blocks step by ``size - 2`` tiles, so neighbours share a two-tile band. A block keeps only
+  the candidates in its **core** (all but its outer ring of tiles), where every position sees
+  at least one tile of map around it (about 75 m at zoom 18 at 60° N, more than the profile
+  method's 60 m range): each place is answered by exactly one block, with its whole
+  surroundings drawn.
+* Every block is scored against the same class frequencies, those of up to 16 blocks spread
+  over the region (:func:`prior_blocks`), so scores compare across blocks.
+* The answers are the candidates best first (the profile score: the share of the query's
+  profile the map agrees with), each with its kappa (against chance) and its **confidence**:
+  the share of its lead over chance that no place at least ``distinct_m`` away reaches, as
+  within one image (:mod:`localization.profile.search`). Beside the best answer, the **best distinct
+  alternative** and the score margin between them: a look-alike place has a small margin and
+  the answer a confidence near 0.
+* A region is split between processes or machines by ``--shard K/N``: shard K searches the
+  blocks ``b`` with ``b % N == K - 1`` (:func:`search_part`) and :func:`merge_parts` ranks
+  what all shards found. A block's candidates depend on that block alone, so the answer is the
+  same for any number of shards.
+
+Everything is a function of the region, the query and the settings: no random choice.
+Imports: osmseg core, localization.profile.profiles, .pipeline, .landmarks, .region_cache, .search.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mercantile
+import numpy as np
+
+from localization.common.landmarks import LandmarkClasses
+from localization.common.views import Camera, SemanticMap, semantic_map
+from localization.pipeline import profile_index, profile_query, run_profile
+from localization.profile.profiles import MASK_MIN_CONFIDENCE
+from localization.profile.search import ProfileConfig, class_prior, grid_positions
+from localization.region.cache import BlockMasks
+from osmseg.classes import ClassTable
+from osmseg.errors import ConfigError
+from osmseg.grid import SampleGrid, ground_resolution, pixel_lonlat
+from osmseg.progress import Progress, track
+from osmseg.shard import Shard
+
+__all__ = ["RegionConfig", "Answer", "RegionResult", "RegionPart", "region_blocks", "prior_blocks", "search_part",
+           "merge_parts", "search_region", "distance_m", "pixel_lonlat"]
+
+
+@dataclass(frozen=True)
+class RegionConfig:
+    """The region (``bbox`` west, south, east, north in degrees) and how it is searched."""
+
+    bbox: tuple[float, float, float, float]
+    zoom: int = 18
+    size: int = 5                 # tiles per block side (odd, >= 3)
+    top_k: int = 5                # answers reported
+    distinct_m: float = 50.0      # the best distinct alternative is at least this far from the answer
+    per_block: int = 200          # candidates each block passes on (spaced by the profile method's grid)
+
+    def __post_init__(self) -> None:
+        w, s, e, n = self.bbox
+        if not (-180 <= w < e <= 180 and -85.05 <= s < n <= 85.05):
+            raise ConfigError(f"--bbox must be west,south,east,north in degrees with west < east and south < north, "
+                              f"got {','.join(f'{v:g}' for v in self.bbox)}")
+        if self.size < 3 or self.size % 2 == 0:
+            raise ConfigError(f"block size must be an odd number of tiles >= 3, got {self.size}")
+        if not 14 <= self.zoom <= 21:
+            raise ConfigError(f"zoom must be 14-21 (ground pixels of 10 m to 7 cm), got {self.zoom}")
+
+
+@dataclass(frozen=True)
+class Answer:
+    """A place the query may have been taken: degrees, the profile score, the block's confidence."""
+
+    lon: float
+    lat: float
+    score: float
+    confidence: float | None
+    heading_deg: float | None
+    kappa: float | None = None
+    chance: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"lon": round(self.lon, 7), "lat": round(self.lat, 7), "score": round(self.score, 5),
+                "confidence": None if self.confidence is None else round(self.confidence, 4),
+                "kappa": None if self.kappa is None else round(self.kappa, 4),
+                "heading_deg": None if self.heading_deg is None else round(self.heading_deg, 2)}
+
+
+@dataclass(frozen=True)
+class RegionResult:
+    """The answers best first, the best distinct alternative and the margin between them."""
+
+    answers: tuple[Answer, ...]
+    alternative: Answer | None
+    blocks: int
+    config: RegionConfig
+    overview: np.ndarray | None = None     # the region's drawn classes, every OVERVIEW_STEP-th pixel of the cores
+    overview_bounds: tuple[float, float, float, float] | None = None  # its west, south, east, north in degrees
+
+    @property
+    def best(self) -> Answer | None:
+        return self.answers[0] if self.answers else None
+
+    @property
+    def margin(self) -> float | None:
+        """Score of the answer minus that of the best distinct alternative."""
+        if self.best is None or self.alternative is None:
+            return None
+        return self.best.score - self.alternative.score
+
+    def to_geojson(self) -> dict[str, Any]:
+        """A FeatureCollection: the answers (rank 1 first), then the alternative."""
+        features = [_point(a, {"rank": i + 1, "role": "answer" if i == 0 else "candidate"})
+                    for i, a in enumerate(self.answers)]
+        if self.alternative is not None:
+            features.append(_point(self.alternative, {"role": "best distinct alternative",
+                                                      "distance_m": round(distance_m(self.best, self.alternative), 1)
+                                                      if self.best else None}))
+        margin = self.margin
+        return {"type": "FeatureCollection", "features": features,
+                "properties": {"bbox": list(self.config.bbox), "zoom": self.config.zoom, "blocks": self.blocks,
+                               "distinct_m": self.config.distinct_m,
+                               "sure": None if self.best is None or self.best.confidence is None
+                               else self.best.confidence >= MASK_MIN_CONFIDENCE,
+                               "margin": None if margin is None else round(margin, 5)}}
+
+
+def _point(a: Answer, extra: dict[str, Any]) -> dict[str, Any]:
+    return {"type": "Feature", "geometry": {"type": "Point", "coordinates": [round(a.lon, 7), round(a.lat, 7)]},
+            "properties": {**a.to_dict(), **extra}}
+
+
+def distance_m(a: Answer | tuple[float, float], b: Answer | tuple[float, float]) -> float:
+    """Metres between two places (equirectangular: exact enough within a district).
+
+    >>> round(distance_m((0.0, 0.0), (0.001, 0.0)), 1)
+    111.3
+    """
+    lon1, lat1 = (a.lon, a.lat) if isinstance(a, Answer) else a
+    lon2, lat2 = (b.lon, b.lat) if isinstance(b, Answer) else b
+    k = math.cos(math.radians((lat1 + lat2) / 2))
+    return math.hypot((lon2 - lon1) * k, lat2 - lat1) * 111_319.49
+
+
+def region_blocks(config: RegionConfig) -> list[tuple[SampleGrid, frozenset[tuple[int, int]]]]:
+    """The blocks that cover ``config.bbox``, each with the tiles of its core (see the module docstring).
+
+    >>> blocks = region_blocks(RegionConfig((26.94, 60.53, 26.95, 60.535), zoom=18))
+    >>> len(blocks), len(blocks[0][0].tiles), len(blocks[0][1])
+    (9, 25, 9)
+    >>> inside = {(t.x, t.y) for t in mercantile.tiles(26.94, 60.53, 26.95, 60.535, 18)}
+    >>> cores = [c for _, core in blocks for c in core]
+    >>> inside <= set(cores), len(cores) == len(set(cores))
+    (True, True)
+    """
+    w, s, e, n = config.bbox
+    nw, se = mercantile.tile(w, n, config.zoom), mercantile.tile(e, s, config.zoom)
+    step, size = config.size - 2, config.size
+    out = []
+    for y0 in range(nw.y - 1, se.y, step):  # cores tile [nw, se] without a gap
+        for x0 in range(nw.x - 1, se.x, step):
+            tiles = tuple(mercantile.Tile(x0 + dx, y0 + dy, config.zoom) for dy in range(size) for dx in range(size))
+            b = mercantile.bounds(tiles[len(tiles) // 2])
+            lon, lat = (b.west + b.east) / 2, (b.south + b.north) / 2
+            grid = SampleGrid(lon=lon, lat=lat, zoom=config.zoom, tiles=tiles, size=size)
+            core = frozenset((x0 + dx, y0 + dy) for dy in range(1, size - 1) for dx in range(1, size - 1))
+            out.append((grid, core))
+    return out
+
+
+#: At most this many blocks, spread evenly over the region, give its class frequencies.
+PRIOR_BLOCKS = 16
+
+
+def prior_blocks(n: int) -> list[int]:
+    """The blocks whose class frequencies stand for the region's (the same for every shard).
+
+    >>> prior_blocks(5), prior_blocks(40)[:4], len(prior_blocks(40))
+    ([0, 1, 2, 3, 4], [0, 3, 5, 8], 16)
+    """
+    return sorted({int(round(v)) for v in np.linspace(0, n - 1, min(n, PRIOR_BLOCKS))})
+
+
+@dataclass
+class RegionPart:
+    """What one shard found in its blocks: the coarse candidates of every block (with its
+    number), the refined candidates of its best blocks, and each block's overview patch."""
+
+    shard: Shard
+    blocks: int
+    coarse: list[tuple[Answer, int]]
+    refined: dict[int, list[Answer]]
+    patches: dict[int, np.ndarray]
+
+
+def search_part(query: SemanticMap, camera: Camera, masks: BlockMasks, table: ClassTable, classes: LandmarkClasses,
+                config: RegionConfig, profile: ProfileConfig = ProfileConfig(), shard: Shard = Shard(1, 1),
+                progress: Progress | None = None) -> RegionPart:
+    """Search the blocks ``shard`` owns (block ``b`` with ``b % N == K - 1``) for ``query``.
+
+    Two passes. The first scores every block on the profile method's coarse grid alone (no
+    refinement), which leaves candidates spread over the whole block, so that places far
+    apart all compete: this is where the best distinct alternative comes from. The second
+    searches again, coarse to fine, the blocks that hold this shard's best ``top_k`` coarse
+    places. Every block is scored against the same class frequencies (those of
+    :func:`prior_blocks`), so scores compare across blocks and shards, and a block's candidates
+    depend on that block alone: :func:`merge_parts` of any number of shards gives the answer
+    of one.
+    """
+    blocks = region_blocks(config)
+    coarse = dataclasses.replace(profile, top_k=config.per_block, min_confidence=-1.0, min_kappa=-1.0, levels=0)
+    fine = dataclasses.replace(profile, top_k=config.per_block, min_confidence=-1.0, min_kappa=-1.0)
+    q = profile_query(query, camera, fine)
+    sample = prior_blocks(len(blocks))
+    priors = []
+    for b in track(sample, progress, "region's class frequencies", unit="block"):
+        index = _index(masks.mask(b), blocks[b][0], table, classes, coarse)
+        priors.append(class_prior(index, q, grid_positions(index.shape, index.grid_m / index.resolution_m)))
+    prior = np.mean(priors, axis=0)
+    mine = [b for b in range(len(blocks)) if shard.owns(b)]
+    found: list[tuple[Answer, int]] = []
+    patches = {}
+    for b in track(mine, progress, "searching blocks", unit="block"):
+        grid, core = blocks[b]
+        mask = masks.mask(b)
+        patches[b] = _core_patch(grid, core, mask)
+        found += [(a, b) for a in _in_core(run_profile(coarse, _index(mask, grid, table, classes, coarse), q,
+                                                       prior=prior), grid, core, config.zoom)]
+    found.sort(key=_rank)
+    refined: dict[int, list[Answer]] = {}
+    for b in dict.fromkeys(b for _, b in found[:config.top_k]):  # the blocks of the best places, best first
+        grid, core = blocks[b]
+        refined[b] = _in_core(run_profile(fine, _index(masks.mask(b), grid, table, classes, coarse), q, prior=prior),
+                              grid, core, config.zoom)
+    return RegionPart(shard, len(blocks), found, refined, patches)
+
+
+def _rank(item: tuple[Answer, int] | Answer) -> tuple[float, float, float]:
+    a = item[0] if isinstance(item, tuple) else item
+    return (-a.score, a.lat, a.lon)
+
+
+def merge_parts(parts: Sequence[RegionPart], config: RegionConfig) -> RegionResult:
+    """The answers of the region from every shard's part (see :func:`search_part`)."""
+    shards = {p.shard.index for p in parts}
+    counts = {p.shard.count for p in parts}
+    if len(counts) != 1 or shards != set(range(1, next(iter(counts)) + 1)):
+        raise ConfigError(f"a region's answer needs every shard's part: have {sorted(shards)} of {sorted(counts)}")
+    blocks = region_blocks(config)
+    found = sorted((ab for p in parts for ab in p.coarse), key=_rank)
+    by_block = {b: answers for p in parts for b, answers in p.refined.items()}
+    refined = sorted((a for b in dict.fromkeys(b for _, b in found[:config.top_k]) for a in by_block[b]), key=_rank)
+    answers = _spaced(refined, config.top_k, min_m=1.0)
+    # the alternative is refined as the answer was when one of the refined places is far enough
+    # (the best blocks and each one's own alternative), else the best coarse place far enough
+    alternative = next((a for a in refined if answers and distance_m(answers[0], a) >= config.distinct_m), None)
+    everything = sorted([*refined, *(a for a, _ in found)], key=_rank)
+    if alternative is None:
+        alternative = next((a for a in everything if answers and distance_m(answers[0], a) >= config.distinct_m), None)
+    answers = [_standing_out(a, alternative if i == 0 else None, everything, config.distinct_m)
+               for i, a in enumerate(answers)]
+    if alternative is not None:
+        alternative = _standing_out(alternative, None, everything, config.distinct_m)
+    overview = _Overview(blocks)
+    for p in parts:
+        for b, patch in p.patches.items():
+            overview.paste(blocks[b][0], patch)
+    return RegionResult(tuple(answers), alternative, len(blocks), config, overview.pixels, overview.bounds)
+
+
+def _standing_out(a: Answer, rival: Answer | None, everything: Sequence[Answer], distinct_m: float) -> Answer:
+    """``a`` with its confidence: the share of its lead over chance that ``rival`` (else the best
+    place ``distinct_m`` or more away) does not reach (as :mod:`localization.profile.search` in one image)."""
+    rival = rival or next((r for r in everything if distance_m(a, r) >= distinct_m), None)
+    if rival is None or a.chance is None:
+        return a
+    lead = a.score - a.chance
+    return dataclasses.replace(a, confidence=min(1.0, max(0.0, (a.score - rival.score) / lead)) if lead > 0 else 0.0)
+
+
+def search_region(query: SemanticMap, camera: Camera, osm: Sequence[Path | str], table: ClassTable,
+                  classes: LandmarkClasses, config: RegionConfig, profile: ProfileConfig = ProfileConfig(),
+                  progress: Progress | None = None, cache_dir: Path | None = None) -> RegionResult:
+    """Search every block of the region for ``query`` (its semantic map, seen by ``camera``) in
+    one process: :func:`search_part` of the one shard, merged. ``cache_dir``: see
+    :class:`~localization.region.cache.BlockMasks`."""
+    masks = BlockMasks(osm, table, [g for g, _ in region_blocks(config)], cache_dir)
+    return merge_parts([search_part(query, camera, masks, table, classes, config, profile, Shard(1, 1), progress)],
+                       config)
+
+
+#: the overview keeps every OVERVIEW_STEP-th pixel of each block's core (256 px tiles -> 32 px)
+OVERVIEW_STEP = 8
+
+
+class _Overview:
+    """A small mosaic of the blocks' cores (every :data:`OVERVIEW_STEP`-th pixel) for the map picture."""
+
+    def __init__(self, blocks: Sequence[tuple[SampleGrid, frozenset[tuple[int, int]]]]) -> None:
+        cores = [t for _, core in blocks for t in core]
+        self.x0, self.y0 = min(x for x, _ in cores), min(y for _, y in cores)
+        self.x1, self.y1 = max(x for x, _ in cores), max(y for _, y in cores)
+        self.zoom = blocks[0][0].zoom
+        side = 256 // OVERVIEW_STEP
+        self.pixels = np.zeros(((self.y1 - self.y0 + 1) * side, (self.x1 - self.x0 + 1) * side), np.uint8)
+        self.side = side
+
+    def paste(self, grid: SampleGrid, patch: np.ndarray) -> None:
+        """Paste a block's :func:`_core_patch` (its core tiles, every OVERVIEW_STEP-th pixel)."""
+        first = grid.tiles[0]
+        x0, y0 = first.x + 1, first.y + 1
+        for y in range(patch.shape[0] // self.side):
+            for x in range(patch.shape[1] // self.side):
+                R, C = (y0 + y - self.y0) * self.side, (x0 + x - self.x0) * self.side
+                self.pixels[R:R + self.side, C:C + self.side] = patch[y * self.side:(y + 1) * self.side,
+                                                                      x * self.side:(x + 1) * self.side]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        nw = mercantile.bounds(self.x0, self.y0, self.zoom)
+        se = mercantile.bounds(self.x1, self.y1, self.zoom)
+        return nw.west, se.south, se.east, nw.north
+
+
+def _core_patch(grid: SampleGrid, core: frozenset[tuple[int, int]], mask: np.ndarray) -> np.ndarray:
+    """The core of a block's mask (all but its outer ring of tiles), every OVERVIEW_STEP-th pixel."""
+    tile = 256
+    n = grid.size - 2
+    return np.ascontiguousarray(mask[tile:tile * (n + 1), tile:tile * (n + 1)][OVERVIEW_STEP // 2::OVERVIEW_STEP,
+                                                                            OVERVIEW_STEP // 2::OVERVIEW_STEP])
+
+
+def _index(mask: np.ndarray, grid: SampleGrid, table: ClassTable, classes: LandmarkClasses,
+           config: ProfileConfig) -> Any:
+    """The profile method's aerial side of one block's mask."""
+    return profile_index(semantic_map(mask, table, classes), ground_resolution(grid.lat, grid.zoom), config)
+
+
+def _in_core(loc: Any, grid: SampleGrid, core: frozenset[tuple[int, int]], zoom: int) -> list[Answer]:
+    """A block's candidates (``loc``: a profile-method :class:`~localization.common.result.Localization`)
+    that lie in its core, each with its kappa against the block's chance agreement; the best
+    distinct alternative the block found is one of them (refined as the answer was)."""
+    if loc.unanswered and not loc.top_k:
+        return []
+    chance = loc.chance if loc.chance is not None else 0.0
+    out = []
+    b = grid.xy_bounds
+    places = [(*place, heading) for place, heading in zip(loc.top_k, loc.headings)]
+    if loc.alternative is not None:
+        places.append((*loc.alternative, loc.alternative_heading))
+    for x, y, score, heading in places:  # each place with the heading the query fits best there
+        lon, lat = pixel_lonlat((b.left, b.bottom, b.right, b.top), (grid.height, grid.width), (x, y))
+        tile = mercantile.tile(lon, lat, zoom)
+        if (tile.x, tile.y) in core:
+            kappa = (score - chance) / (1 - chance) if chance < 1 else 0.0
+            out.append(Answer(lon, lat, score, None, heading, kappa, chance))
+    return out
+
+
+def _spaced(found: Sequence[Answer], k: int, min_m: float) -> list[Answer]:
+    """The first ``k`` answers no two of which are within ``min_m`` (two blocks' copies of one place)."""
+    out: list[Answer] = []
+    for a in found:
+        if all(distance_m(a, b) >= min_m for b in out):
+            out.append(a)
+            if len(out) == k:
+                break
+    return out
