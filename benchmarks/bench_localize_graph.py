@@ -40,6 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from localization.common.landmarks import Landmarks, landmarks_from_mask, load_landmark_classes  # noqa: E402
+from localization.paper.config import PaperConfig  # noqa: E402
 from localization.paper.graph import Cliques, cliques_fast, cliques_reference, window_size_auto  # noqa: E402
 from localization.paper.match import localize  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
@@ -194,7 +195,7 @@ def end_to_end(extracted: dict[str, tuple[Landmarks, float]], repeat: int) -> No
         if name.startswith("panorama"):
             continue
         t_fast, fast = timed(lambda: localize(aerial, pano), repeat)
-        t_ref, ref = timed(lambda: localize(aerial, pano, fast=False), 1)
+        t_ref, ref = timed(lambda: localize(aerial, pano, PaperConfig(fast=False)), 1)
         if (fast.map_xy, fast.ties, len(fast.candidates)) != (ref.map_xy, ref.ties, len(ref.candidates)):
             raise SystemExit(f"{name}: localize differs between fast and reference cliques")
         FIGURES[name]["localize"] = {"candidates": len(fast.candidates), "fast_s": t_fast,

@@ -42,6 +42,7 @@ from localization.bench.render import RenderConfig, render_panorama  # noqa: E40
 from localization.common.landmarks import landmarks_from_mask, load_landmark_classes  # noqa: E402
 from localization.common.views import Camera, semantic_map  # noqa: E402
 from localization.paper import cells, graph, windows  # noqa: E402
+from localization.paper.config import PaperConfig  # noqa: E402
 from localization.paper.match import localize  # noqa: E402
 from localization.pipeline import profile_index, profile_query, run_profile  # noqa: E402
 from localization.profile.search import ProfileConfig  # noqa: E402
@@ -129,7 +130,7 @@ def graphs(repeat: int) -> None:
         t_old, m_old, old = measured(lambda: bitset_cliques(lm, w), 1)
         assert (new.members == old.members).all() and (new.centers == old.centers).all(), "cliques differ"
         _, query = query_at(mask, (size / 2 + 7, size / 2 + 3))
-        t_loc, m_loc, _ = measured(lambda: localize(lm, query, window=w), repeat)
+        t_loc, m_loc, _ = measured(lambda: localize(lm, query, PaperConfig(window=w)), repeat)
         FIGURES["graphs"][str(size)] = {"landmarks": len(lm), "cliques": len(new), "banded_s": t_new, "banded_mb": m_new,
                                         "bitset_s": t_old, "bitset_mb": m_old, "localize_s": t_loc,
                                         "localize_mb": m_loc}

@@ -116,12 +116,13 @@ def candidate_analysis(ws: Workspace, paper: dict[str, Any]) -> tuple[int, float
 
 def clique_counts_differ(ws: Workspace) -> str:
     """The pairs whose aerial graph has another number of cliques with the authors' conventions."""
-    from localization.pipeline import LocalizeConfig, aerial_graph
+    from localization.paper.config import PaperConfig
+    from localization.paper.match import aerial_graph
 
     names = []
     for pair in loaded_pairs(ws):
-        ours = aerial_graph(pair.aerial, LocalizeConfig(conventions="osmseg")).cliques
-        theirs = aerial_graph(pair.aerial, LocalizeConfig(conventions="authors")).cliques
+        ours = aerial_graph(pair.aerial, PaperConfig(conventions="osmseg")).cliques
+        theirs = aerial_graph(pair.aerial, PaperConfig(conventions="authors")).cliques
         if (0 if ours is None else len(ours)) != (0 if theirs is None else len(theirs)):
             names.append(pair.name)
     return f"{len(names)} give a different clique count ({', '.join(names)})" if names else \

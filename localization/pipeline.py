@@ -25,10 +25,11 @@ import numpy as np
 from localization.common.inputs import Side, SideOptions, load_side, with_photo
 from localization.common.landmarks import Landmarks
 from localization.common.views import Camera, SemanticMap, check_view_shape
+from localization.paper.config import PaperConfig
 from localization.paper.features import FeatureEdges
-from localization.paper.graph import CONVENTIONS, Cliques, adjacency, cliques_fast, cliques_reference, window_size_auto
-from localization.paper.match import DEFAULT_P, Localization, localize, match_cliques, unanswered
-from localization.paper.refine import HIERARCHY, localize_hierarchical
+from localization.paper.graph import adjacency
+from localization.paper.match import AerialGraph, Localization, localize
+from localization.paper.refine import localize_hierarchical
 from localization.profile.horizon import estimate_tilt
 from localization.profile.profiles import (
     AerialLandmarkIndex,
@@ -45,7 +46,7 @@ from osmseg.output.atomic import atomic_write_text
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["DEFAULT_METHOD", "METHODS", "AerialGraph", "LocalizeConfig", "LocalizeFiles", "LocalizeReport", "aerial_graph",
+__all__ = ["DEFAULT_METHOD", "METHODS", "LocalizeConfig", "LocalizeFiles", "LocalizeReport",
            "localize_files", "profile_index", "profile_query", "run", "run_profile"]
 
 #: ``paper``: landmark-graph matching (Verde et al. 2020); ``profile``: angular profiles on a dense grid.
@@ -56,25 +57,17 @@ DEFAULT_METHOD = "profile"
 
 @dataclass(frozen=True)
 class LocalizeConfig:
-    """How to localize: the settings of :func:`run` (the paper's defaults).
+    """How to localize: which method, and its settings (the papers' defaults).
 
-    ``window`` None is the automatic window (mean + 5 sd of nearest-neighbour distances);
-    ``query_window`` None is the panorama's height (else the aerial window); ``hierarchical``
-    uses ``windows`` coarse to fine (eq. 3.8) instead of one window; ``features`` removes edges
-    between look-alike landmarks (§5.3.2).
+    ``paper`` holds the landmark-graph method's windows, candidate extension, hierarchy and
+    conventions (:class:`~localization.paper.config.PaperConfig`), ``features`` its edges
+    removed between look-alike landmarks (§5.3.2); ``profile`` the profile method's settings,
+    which also needs the query's field of view and camera height.
     """
 
-    window: int | None = None
-    query_window: int | None = None
-    p: float = DEFAULT_P
-    stride: int = 1
-    top_k: int = 5
-    fast: bool = True  # the exact event sweep; False: the paper's plain sliding window
-    hierarchical: bool = False
-    windows: tuple[int, ...] = HIERARCHY
-    features: FeatureEdges | None = None
     method: str = DEFAULT_METHOD    # or "paper" (Verde et al. 2020); the profile method needs the resolution
-    conventions: str = "osmseg"     # the paper method's: osmseg, or the authors' MATLAB demo (localization.paper.graph)
+    paper: PaperConfig = field(default_factory=PaperConfig)
+    features: FeatureEdges | None = None
     profile: ProfileConfig = field(default_factory=ProfileConfig)  # the profile method's settings
     fov_deg: float = 360.0          # the query's horizontal field of view (profile method)
     camera_height_m: float = 2.0    # the query camera's height above the ground (profile method)
@@ -82,65 +75,23 @@ class LocalizeConfig:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ConfigError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if self.conventions not in CONVENTIONS:
-            raise ConfigError(f"conventions must be one of {', '.join(CONVENTIONS)}, got {self.conventions!r}")
-        if self.conventions == "authors" and (self.hierarchical or self.features is not None):
+        if self.paper.conventions == "authors" and self.features is not None:
             raise ConfigError("the authors' conventions are those of their demo: one window, no feature edges")
-        for name, value in (("window", self.window), ("query_window", self.query_window)):
-            if value is not None and value < 1:
-                raise ConfigError(f"{name} must be at least 1 pixel, got {value}")
-        if not self.windows or min(self.windows) < 1:
-            raise ConfigError(f"windows must be positive pixel sizes, coarse to fine, got {list(self.windows)}")
-
-
-@dataclass(frozen=True)
-class AerialGraph:
-    """An aerial image's landmarks with their cliques at one window: built once, matched many times."""
-
-    landmarks: Landmarks
-    window: int
-    cliques: Cliques | None  # None when the image has no landmark
-
-
-def aerial_graph(lm: Landmarks, config: LocalizeConfig = LocalizeConfig()) -> AerialGraph:
-    """The graph of ``lm`` at ``config.window``, or the automatic one (no graph without landmarks)."""
-    if len(lm.xy) == 0:
-        return AerialGraph(lm, 0, None)
-    w = int(config.window) if config.window is not None else window_size_auto(lm)
-    build = cliques_fast if config.fast else cliques_reference
-    return AerialGraph(lm, w, build(lm, w, config.stride, config.conventions))
 
 
 def run(config: LocalizeConfig, aerial: Landmarks | AerialGraph, query: Landmarks, *,
         aerial_drop: np.ndarray | None = None, query_drop: np.ndarray | None = None) -> Localization:
-    """Localize ``query`` (a panorama's or an aerial crop's landmarks) in ``aerial``.
+    """Localize ``query`` (a panorama's or an aerial crop's landmarks) in ``aerial`` by the paper's method.
 
-    ``aerial_drop``/``query_drop`` are ``(K, K)`` landmark pairs whose edges are removed
-    (:meth:`FeatureEdges.drop`). An unanswered :class:`Localization` (not an exception) says
-    why when nothing can be matched.
+    ``aerial`` is the aerial image's landmarks, or their graph built once for many queries
+    (:func:`~localization.paper.match.aerial_graph`). ``aerial_drop``/``query_drop`` are
+    ``(K, K)`` landmark pairs whose edges are removed (:meth:`FeatureEdges.drop`). An
+    unanswered :class:`Localization` (not an exception) says why when nothing can be matched.
     """
-    lm = aerial.landmarks if isinstance(aerial, AerialGraph) else aerial
-    if config.hierarchical:
-        return localize_hierarchical(lm, query, config.windows, query_window=config.query_window, p=config.p,
-                                     stride=config.stride, top_k=config.top_k, fast=config.fast,
-                                     aerial_drop=aerial_drop, query_drop=query_drop)
-    if not isinstance(aerial, AerialGraph):
-        return localize(lm, query, window=config.window, query_window=config.query_window, p=config.p,
-                        stride=config.stride, top_k=config.top_k, fast=config.fast,
-                        aerial_drop=aerial_drop, query_drop=query_drop, conventions=config.conventions)
-    graph = aerial
-    if graph.cliques is None:
-        return unanswered("the aerial image has no landmarks", p=config.p)
-    if len(query.xy) == 0:
-        return unanswered("the query has no landmarks", p=config.p)
-    qw = config.query_window or (query.height if query.panorama else graph.window)
-    build = cliques_fast if config.fast else cliques_reference
-    result = match_cliques(lm, graph.cliques, query, build(query, qw, config.stride, config.conventions), p=config.p,
-                           top_k=config.top_k, window=graph.window, query_window=qw,
-                           aerial_drop=aerial_drop, query_drop=query_drop, conventions=config.conventions)
-    logger.debug("localize: window %d, query window %d, %d cliques, %d candidates, ties %d",
-                 graph.window, qw, result.n_cliques, len(result.candidates), result.ties)
-    return result
+    if config.paper.hierarchical:
+        lm = aerial.landmarks if isinstance(aerial, AerialGraph) else aerial
+        return localize_hierarchical(lm, query, config.paper, aerial_drop=aerial_drop, query_drop=query_drop)
+    return localize(aerial, query, config.paper, aerial_drop=aerial_drop, query_drop=query_drop)
 
 
 def profile_index(aerial: SemanticMap | Landmarks, resolution_m: float | None,
@@ -250,8 +201,9 @@ def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path
     aerial = with_photo(aerial, request.aerial_image, "aerial")
     ground = with_photo(ground, request.ground_image, "ground")
     a, truth = aerial.landmarks, request.truth
-    if config.window is not None and not config.hierarchical and config.window >= max(a.width, a.height):
-        raise ConfigError(f"--window {config.window} is not smaller than the aerial image ({a.width}x{a.height}): "
+    window = config.paper.window
+    if window is not None and not config.paper.hierarchical and window >= max(a.width, a.height):
+        raise ConfigError(f"--window {window} is not smaller than the aerial image ({a.width}x{a.height}): "
                           f"every landmark would be in one window; give less than {max(a.width, a.height)}, or auto")
     if truth is not None and not (0 <= truth[0] < a.width and 0 <= truth[1] < a.height):
         raise ConfigError(f"--truth {truth[0]:g},{truth[1]:g} is outside the aerial image ({a.width}x{a.height})")
@@ -287,14 +239,13 @@ def _paper_result(request: LocalizeFiles, config: LocalizeConfig, aerial: Side, 
             "aerial": (aerial.photo, a, request.feature_checkpoint or request.aerial_options.checkpoint),
             "ground": (ground.photo, ground.landmarks, request.feature_checkpoint or request.ground_options.checkpoint)})
     result = run(config, a, ground.landmarks, aerial_drop=drops.get("aerial"), query_drop=drops.get("ground"))
-    if (config.window is None and not config.hierarchical and not result.unanswered
+    if (config.paper.window is None and not config.paper.hierarchical and not result.unanswered
             and result.window >= max(a.width, a.height)):
         logger.warning("the automatic window (%d px) covers the whole aerial image, so there is one candidate: "
                        "give a smaller --window", result.window)
     if config.features is not None:
         graphs = {"aerial": (a, result.window), "ground": (ground.landmarks, result.query_window)}
-        result = replace(result, feature_edges=config.features.summary(drops, graphs, fast=config.fast,
-                                                                         stride=config.stride))
+        result = replace(result, feature_edges=config.features.summary(drops, graphs, config.paper.cliques))
     return result
 
 
@@ -350,7 +301,6 @@ def _pictures(out_dir: Path, report: LocalizeReport, config: LocalizeConfig, res
     except ImportError:
         raise ConfigError("pictures need matplotlib: pip install matplotlib (or leave out --out)") from None
     result, aerial, ground = report.result, report.aerial, report.ground
-    build = cliques_fast if config.fast else cliques_reference
     truth = (report.summary["truth"]["x"], report.summary["truth"]["y"]) if "truth" in report.summary else None
     paths = [figures.localization_png(out_dir / "localization.png", result, aerial.landmarks,
                                        image=aerial.picture(), truth=truth, resolution=resolution)]
@@ -360,7 +310,7 @@ def _pictures(out_dir: Path, report: LocalizeReport, config: LocalizeConfig, res
         return paths
     for name, side, w in (("aerial", aerial, result.window), ("ground", ground, result.query_window)):
         if w:
-            graph = adjacency(build(side.landmarks, w, config.stride))
+            graph = adjacency(config.paper.cliques(side.landmarks, w))
             title = f"{name}: {len(side.landmarks)} landmarks, window {w} px"
             paths.append(figures.graph_png(out_dir / f"{name}_graph.png", side.landmarks, graph,
                                             image=side.picture(), title=title))

@@ -15,6 +15,7 @@ import pytest
 
 from localization.common.landmarks import Landmarks
 from localization.common.result import rank
+from localization.paper.config import PaperConfig
 from localization.paper.graph import cliques_fast, cliques_reference
 from localization.paper.match import localize
 
@@ -97,8 +98,8 @@ def test_a_worked_example_answers_at_the_first_window() -> None:
     aerial = Landmarks(xy, np.array([0, 1, 0, 1]), ("building", "road"), 60, 60)
     query = Landmarks(np.array([[5.0, 10], [20, 12]]), np.array([0, 1]), ("building", "road"), 120, 24,
                       panorama=True)
-    ours = localize(aerial, query, window=10)
-    authors = localize(aerial, query, window=10, conventions="authors")
+    ours = localize(aerial, query, PaperConfig(window=10))
+    authors = localize(aerial, query, PaperConfig(window=10, conventions="authors"))
     members, corners = matlab_covgraph(xy, 60, 60, 10)
     relevant = [i for i, m in enumerate(members) if (m[[0, 2]].any() and m[[1, 3]].any())]
     # both houses-with-a-road tie; maxk takes the first relevant clique in unique()'s order,

@@ -21,6 +21,7 @@ from PIL import Image
 from localization.cli.commands import localize_command
 from localization.common.figures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
 from localization.common.landmarks import Landmarks
+from localization.paper.config import PaperConfig
 from localization.paper.graph import cliques_fast
 from localization.paper.match import (
     DEFAULT_P,
@@ -122,11 +123,11 @@ def test_feature_edge_removal_reaches_the_localization() -> None:
     query = panorama(aerial, centres["park"], 60)
     rng = np.random.default_rng(0)
     same = np.zeros((len(aerial), 4))  # every aerial landmark looks the same: no edge is left
-    gone = localize(aerial, query, window=60, aerial_drop=feature_edge_mask(same, 0.5))
+    gone = localize(aerial, query, PaperConfig(window=60), aerial_drop=feature_edge_mask(same, 0.5))
     assert gone.unanswered and "no candidate's graph has an edge" in gone.reason
     apart = rng.normal(size=(len(aerial), 4)) * 100  # all look different: nothing changes
-    kept = localize(aerial, query, window=60, aerial_drop=feature_edge_mask(apart, 0.5))
-    np.testing.assert_allclose(kept.posteriors, localize(aerial, query, window=60).posteriors)
+    kept = localize(aerial, query, PaperConfig(window=60), aerial_drop=feature_edge_mask(apart, 0.5))
+    np.testing.assert_allclose(kept.posteriors, localize(aerial, query, PaperConfig(window=60)).posteriors)
 
 
 # --------------------------------------------------------------------------- likelihood and posterior
@@ -231,7 +232,7 @@ def plaza_scene(seed: int, center: tuple[int, int], w: int, isolated: bool) -> L
 def test_isolated_plaza_is_found_exactly_and_its_ties_are_reported() -> None:
     w, p0 = 60, (250, 140)
     aerial = plaza_scene(1, p0, w, isolated=True)
-    result = localize(aerial, crop(aerial, p0, w), window=w, query_window=w)
+    result = localize(aerial, crop(aerial, p0, w), PaperConfig(window=w, query_window=w))
     assert not result.unanswered
     assert result.map_xy == pytest.approx(p0)
     # every relevant sub-clique of the plaza extends to the whole plaza: all tie at likelihood 1,
@@ -248,7 +249,7 @@ def test_plaza_in_clutter_is_found_exactly_with_p_one() -> None:
     # graph is exactly the query's.
     w, p0 = 60, (170, 220)
     aerial = plaza_scene(2, p0, w, isolated=False)
-    result = localize(aerial, crop(aerial, p0, w), window=w, query_window=w, p=1.0)
+    result = localize(aerial, crop(aerial, p0, w), PaperConfig(window=w, query_window=w, p=1.0))
     assert result.map_xy == pytest.approx(p0)
     assert result.likelihoods[result.order[0]] == pytest.approx(1.0)
     assert len(result.candidates) > 20  # the clutter has candidates too, but they match worse
@@ -272,7 +273,7 @@ def test_panorama_query_lands_in_the_right_block(name: str) -> None:
     aerial, centres = blocks_scene()
     truth = (centres[name][0] + 4, centres[name][1] - 3)  # off-centre viewpoint inside the block
     query = panorama(aerial, truth, radius=60)
-    result = localize(aerial, query, window=60)
+    result = localize(aerial, query, PaperConfig(window=60))
     assert not result.unanswered
     error, _ = result.error(truth)
     assert error is not None and error <= 35  # inside the block (half-diagonal of a 60-px window: 42)
@@ -296,10 +297,10 @@ def twins_scene() -> Landmarks:
 def test_hierarchy_tells_twins_apart_by_their_surroundings() -> None:
     aerial, truth = twins_scene(), (360, 360)
     query = crop(aerial, truth, 160)  # sees the block and its row of buildings
-    fine = localize(aerial, query, window=60)
+    fine = localize(aerial, query, PaperConfig(window=60))
     assert fine.ties == 2  # the 60-px windows see identical blocks ...
     assert fine.error(truth)[0] > 200  # ... and raster order picks the wrong twin
-    result = localize_hierarchical(aerial, query, windows=(160, 60))
+    result = localize_hierarchical(aerial, query, PaperConfig(windows=(160, 60)))
     assert [lv.window for lv in result.levels] == [160, 60]
     assert result.window == 60 and result.ties == 1
     assert result.error(truth)[0] < 30
@@ -314,7 +315,7 @@ def test_vectorised_matching_equals_the_plain_formulas() -> None:
     query = panorama(aerial, (150, 150), 70)
     w = 60
     cliques, qcliques = cliques_fast(aerial, w), cliques_fast(query, query.height)
-    result = match_cliques(aerial, cliques, query, qcliques, p=DEFAULT_P)
+    result = match_cliques(aerial, cliques, query, qcliques, PaperConfig(p=DEFAULT_P))
     query_w = class_adjacency(qcliques.members, query)
     extended = extend_cliques(cliques.members, result.relevant, DEFAULT_P)
     plain = [likelihood(query_w, class_adjacency(cliques.members[e], aerial)) for e in extended]
@@ -326,7 +327,7 @@ def test_vectorised_matching_equals_the_plain_formulas() -> None:
 def test_reference_cliques_give_the_same_localization() -> None:
     aerial, centres = blocks_scene()
     query = panorama(aerial, centres["park"], 60)
-    fast, slow = localize(aerial, query, window=60), localize(aerial, query, window=60, fast=False)
+    fast, slow = localize(aerial, query, PaperConfig(window=60)), localize(aerial, query, PaperConfig(window=60, fast=False))
     np.testing.assert_allclose(fast.posteriors, slow.posteriors)
     assert fast.top_k == slow.top_k
 
@@ -339,7 +340,7 @@ def test_unanswered_when_no_aerial_clique_holds_the_query_classes() -> None:
     aerial = aerial.select(aerial.cls != F)
     query = crop(random_scene(3), (150, 150), 80)
     assert F in query.cls
-    result = localize(aerial, query, window=60)
+    result = localize(aerial, query, PaperConfig(window=60))
     assert result.unanswered and "footway" in result.reason
     assert result.map_xy is None and result.ties == 0 and result.top_k == ()
     assert json.loads(json.dumps(result.to_dict()))["unanswered"] is True
@@ -351,12 +352,12 @@ def test_unanswered_for_empty_inputs_and_a_single_landmark() -> None:
     assert localize(empty, aerial).unanswered
     assert "query has no landmarks" in localize(aerial, empty).reason
     one = aerial.select([0])
-    assert "no edge" in localize(aerial, one, window=50).reason
+    assert "no edge" in localize(aerial, one, PaperConfig(window=50)).reason
 
 
 def test_window_larger_than_the_image_gives_one_candidate() -> None:
     aerial = random_scene(6, size=200)
-    result = localize(aerial, crop(aerial, (100, 100), 80), window=500, query_window=80)
+    result = localize(aerial, crop(aerial, (100, 100), 80), PaperConfig(window=500, query_window=80))
     assert len(result.candidates) == 1 and result.posteriors.tolist() == [1.0]
 
 
@@ -364,14 +365,14 @@ def test_bad_settings_are_config_errors() -> None:
     aerial = random_scene(7)
     for kwargs in ({"p": 0.0}, {"p": 1.5}, {"top_k": 0}, {"stride": 0}, {"window": 0}):
         with pytest.raises(ConfigError):
-            localize(aerial, aerial, **kwargs)
+            localize(aerial, aerial, PaperConfig(**kwargs))
     with pytest.raises(ConfigError):
-        localize_hierarchical(aerial, aerial, windows=())
+        localize_hierarchical(aerial, aerial, PaperConfig(windows=()))
 
 
 def test_result_to_dict_is_json() -> None:
     aerial, centres = blocks_scene()
-    result = localize_hierarchical(aerial, panorama(aerial, centres["market"], 60), windows=(120, 60), top_k=3)
+    result = localize_hierarchical(aerial, panorama(aerial, centres["market"], 60), PaperConfig(windows=(120, 60), top_k=3))
     data = json.loads(json.dumps(result.to_dict()))
     assert len(data["top_k"]) == 3 and data["top_k"][0]["rank"] == 1
     assert (data["map"]["x"], data["map"]["y"]) == result.map_xy
@@ -390,7 +391,7 @@ def _colour_pixels(png: bytes, colour: str, tol: int = 40) -> int:
 def test_localization_picture_shows_candidates_top_k_and_truth(tmp_path) -> None:
     aerial, centres = blocks_scene()
     truth = centres["park"]
-    result = localize(aerial, panorama(aerial, truth, 60), window=60)
+    result = localize(aerial, panorama(aerial, truth, 60), PaperConfig(window=60))
     path = localization_png(tmp_path / "loc.png", result, aerial, truth=truth, resolution=0.5)
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
@@ -571,6 +572,6 @@ def test_too_many_landmarks_is_a_clear_error_not_a_crash() -> None:
     many = Landmarks(rng.uniform(0, 100, (k, 2)), rng.integers(0, 2, k), ("building", "road"), 100, 100)
     few = Landmarks(np.array([[10.0, 10], [20, 20]]), np.array([0, 1]), ("building", "road"), 100, 100)
     with pytest.raises(ConfigError, match="too many to match.*--min-size"):
-        localize(many, few, window=200)
+        localize(many, few, PaperConfig(window=200))
     with pytest.raises(ConfigError, match="too many for feature edges"):
         feature_edge_mask(np.zeros((MAX_FEATURE_LANDMARKS + 1, 2)), 0.5)

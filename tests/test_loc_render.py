@@ -33,8 +33,9 @@ from localization.bench.rendered import BenchConfig, Scene, load_dataset_scenes,
 from localization.bench.visible import landmark_cells, visible_landmarks
 from localization.cli.commands import localize_bench_command
 from localization.common.landmarks import landmarks_from_mask, load_landmark_classes
-from localization.paper.match import localize
-from localization.pipeline import LocalizeConfig, aerial_graph, run
+from localization.paper.config import PaperConfig
+from localization.paper.match import aerial_graph, localize
+from localization.pipeline import LocalizeConfig, run
 from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError
 
@@ -287,7 +288,7 @@ def test_bench_end_to_end_on_a_constructed_town(tmp_path: Path) -> None:
     view = render_view(scene.mask, TABLE, RES, tuple(rec["truth"]), CLASSES)
     aerial = landmarks_from_mask(scene.mask, TABLE, CLASSES)
     direct = localize(aerial, view.landmarks)
-    cached = run(LocalizeConfig(p=config.p, top_k=config.top_k), aerial_graph(aerial), view.landmarks)
+    cached = run(LocalizeConfig(paper=PaperConfig(p=config.p, top_k=config.top_k)), aerial_graph(aerial), view.landmarks)
     assert direct.map_xy == cached.map_xy and rec["map"] == (None if direct.map_xy is None else list(direct.map_xy))
     again = run_bench([scene], config, tmp_path / "again", plots=False)
     def strip(value):  # everything but the timings

@@ -32,7 +32,8 @@ from localization.bench.scores import error_fields, heading_error
 from localization.common.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask
 from localization.common.result import Localization
 from localization.common.views import Camera, SemanticMap, semantic_map
-from localization.pipeline import DEFAULT_METHOD, AerialGraph, LocalizeConfig, run, run_profile
+from localization.paper.match import AerialGraph
+from localization.pipeline import DEFAULT_METHOD, LocalizeConfig, run, run_profile
 from localization.profile.search import AerialIndex, ProfileConfig
 
 __all__ = ["Query", "confidence_of", "headline", "photo_columns", "photo_view", "run_method", "roc_auc", "method_summary"]

@@ -48,7 +48,9 @@ from localization.common.landmark_files import read_landmarks
 from localization.common.landmarks import LandmarkClasses, Landmarks, load_landmark_classes
 from localization.common.result import DEFAULT_P
 from localization.common.views import Camera, check_view_shape
-from localization.pipeline import METHODS, LocalizeConfig, aerial_graph, profile_index, run, run_profile
+from localization.paper.config import PaperConfig
+from localization.paper.match import aerial_graph
+from localization.pipeline import METHODS, LocalizeConfig, profile_index, run, run_profile
 from localization.profile.search import ProfileConfig
 from osmseg import __version__
 from osmseg.errors import ConfigError, DatasetError
@@ -221,18 +223,19 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
     records: list[dict[str, Any]] = []
     t_start = time.perf_counter()
     for index, pair in enumerate(track(pairs, progress, "pairs", unit="pair")):
-        graphs = aerial_graphs(pair.aerial, subsets, config.window, config.conventions)
+        graphs = aerial_graphs(pair.aerial, subsets, PaperConfig(window=config.window, conventions=config.conventions))
         scored: dict[str, Any] = {}
         seconds = 0.0
         if "paper" in config.methods:
-            scored, seconds = localize_subsets(graphs, pair.ground, pair.truth, scale, config.p, config.top_k,
-                                               conventions=config.conventions)
+            scored, seconds = localize_subsets(graphs, pair.ground, pair.truth, scale, PaperConfig(
+                p=config.p, top_k=config.top_k, conventions=config.conventions))
         methods: dict[str, dict[str, Any]] = {}
         if "paper" in config.methods:
-            paper = LocalizeConfig(p=config.p, top_k=config.top_k, conventions=config.conventions)
+            paper = LocalizeConfig(method="paper", paper=PaperConfig(p=config.p, top_k=config.top_k,
+                                                                    conventions=config.conventions))
             other = pairs[(index + 1) % len(pairs)] if len(pairs) > 1 else None
             negative = (run(paper, aerial_graph(other.aerial.of_classes(subsets[0]),
-                                                LocalizeConfig(window=config.window, conventions=config.conventions)),
+                                                PaperConfig(window=config.window, conventions=config.conventions)),
                             pair.ground.of_classes(subsets[0])) if other is not None else None)
             methods["paper"] = {**{k: v for k, v in scored.items() if k != "by_subset"}, "localize_s": round(seconds, 4),
                                 "heading_error_deg": None,

@@ -61,9 +61,10 @@ from localization.bench.visible import landmark_cells, visible_landmarks
 from localization.common.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
 from localization.common.result import Localization
 from localization.common.views import semantic_map
+from localization.paper.config import PaperConfig
 from localization.paper.graph import cliques_fast
-from localization.paper.match import DEFAULT_P
-from localization.pipeline import METHODS, AerialGraph, LocalizeConfig, aerial_graph, profile_index, run
+from localization.paper.match import DEFAULT_P, AerialGraph, aerial_graph
+from localization.pipeline import METHODS, LocalizeConfig, profile_index, run
 from localization.profile.profiles import MASK_MIN_CONFIDENCE
 from localization.profile.search import AerialIndex, ProfileConfig
 from osmseg import __version__
@@ -278,24 +279,21 @@ def class_subsets(names: Sequence[str]) -> list[tuple[str, ...]]:
 # --------------------------------------------------------------------------- the run
 
 
-def aerial_graphs(lm: Landmarks, subsets: Sequence[tuple[str, ...]], window: int | None,
-                  conventions: str = "osmseg") -> dict[tuple[str, ...], Any]:
+def aerial_graphs(lm: Landmarks, subsets: Sequence[tuple[str, ...]], config: PaperConfig
+                  ) -> dict[tuple[str, ...], AerialGraph]:
     """The aerial landmarks' graph for every class subset, each with its own automatic window."""
-    config = LocalizeConfig(window=window, conventions=conventions)
     return {s: aerial_graph(lm.of_classes(s), config) for s in subsets}
 
 
-def localize_subsets(graphs: dict[tuple[str, ...], Any], query: Landmarks, truth: tuple[float, float], scale: float,
-                     p: float, top_k: int, query_window: int | None = None,
-                     conventions: str = "osmseg") -> tuple[dict[str, Any], float]:
+def localize_subsets(graphs: dict[tuple[str, ...], AerialGraph], query: Landmarks, truth: tuple[float, float],
+                     scale: float, config: PaperConfig) -> tuple[dict[str, Any], float]:
     """Score the query against every subset's graph: the full set's record (with ``by_subset``) and its time (s)."""
     subsets = list(graphs)
     by_subset: dict[str, dict[str, Any]] = {}
     seconds = 0.0
     for s in subsets:
         t0 = time.perf_counter()
-        loc = run(LocalizeConfig(p=p, top_k=top_k, query_window=query_window, conventions=conventions), graphs[s],
-                  query.of_classes(s))
+        loc = run(LocalizeConfig(method="paper", paper=config), graphs[s], query.of_classes(s))
         if s == subsets[0]:
             seconds = time.perf_counter() - t0
         by_subset["+".join(s)] = score(loc, truth, scale)
@@ -343,7 +341,7 @@ class _Bench:
                                            min_size=config.min_size, stride=config.stride)
                 cells = np.zeros((0, 0), dtype=np.int64)
             self.aerial.append((full, cells))
-            self.graphs.append(aerial_graphs(full, self.subsets, config.window))
+            self.graphs.append(aerial_graphs(full, self.subsets, PaperConfig(window=config.window)))
         self.other = ({si: (si + 1) % len(scenes) for si in range(len(scenes))}
                       if config.negatives and len(scenes) > 1 else {})
 
@@ -400,8 +398,8 @@ class _Bench:
             save_panorama_png(out_dir / "panoramas" / f"{index:04d}_{scene.name}.png", view.panorama)
         centre, uniform = chance_errors(scene.mask.shape, truth, scene.resolution_m)
         photo = config.fov_deg < 360
-        paper_config = LocalizeConfig(p=config.p, top_k=config.top_k,
-                                      query_window=query.camera.height if photo else None)
+        paper_config = LocalizeConfig(method="paper", paper=PaperConfig(
+            p=config.p, top_k=config.top_k, query_window=query.camera.height if photo else None))
         full, other = self.subsets[0], self.other
         by_method: dict[str, dict[str, Any]] = {}
         answers: dict[str, Localization] = {}
@@ -416,8 +414,8 @@ class _Bench:
             draw_view(out_dir / "views" / f"{index:04d}_{scene.name}", scene, view, self.graphs[si][full],
                       answers[first], config)
         if first == "paper":
-            scored, t_loc = localize_subsets(self.graphs[si], view.landmarks, truth, scene.resolution_m, config.p,
-                                             config.top_k, query_window=paper_config.query_window)
+            scored, t_loc = localize_subsets(self.graphs[si], view.landmarks, truth, scene.resolution_m,
+                                             paper_config.paper)
         else:
             scored, t_loc = {**by_method[first], "candidate_guess": None, "candidates": 0}, by_method[first]["localize_s"]
         return {

@@ -172,6 +172,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                      region: RegionArgs) -> None:
     """Find where the GROUND panorama was taken in the AERIAL image (landmark graphs, or angular profiles),
     or anywhere in a region's OpenStreetMap (--osm FILE --bbox W,S,E,N)."""
+    from localization.paper.config import PaperConfig
     from localization.paper.features import FeatureEdges
     from localization.pipeline import LocalizeConfig, LocalizeFiles, localize_files
     from localization.profile.search import ProfileConfig
@@ -204,9 +205,9 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
     for name, options in only.items():
         if method != name and (stray := _given(ctx, options)):
             raise _misplaced(stray, f"--method {name}", f"--method {name}")
-    config = LocalizeConfig(window=window, query_window=ground_window, p=p, stride=stride, top_k=top_k,
-                            fast=not reference, hierarchical=hierarchical, windows=windows, features=features,
-                            method=method, conventions=conventions, fov_deg=fov_deg, camera_height_m=camera_height,
+    paper = PaperConfig(window=window, query_window=ground_window, p=p, stride=stride, top_k=top_k,
+                        fast=not reference, hierarchical=hierarchical, windows=windows, conventions=conventions)
+    config = LocalizeConfig(method=method, paper=paper, features=features, fov_deg=fov_deg, camera_height_m=camera_height,
                             profile=ProfileConfig(heading_deg=parse_heading(heading_text), top_k=top_k,
                                                   min_confidence=min_confidence, min_kappa=min_kappa,
                                                   camera_heights=heights, tilt_deg=tilt_deg))

@@ -12,7 +12,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -20,6 +20,10 @@ from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.images import is_tiff, read_raster, read_rgb
 from osmseg.output.manifest import MANIFEST_NAME, read_manifest
+
+if TYPE_CHECKING:
+    from localization.common.landmarks import Landmarks
+    from localization.common.views import SemanticMap
 
 logger = logging.getLogger(__name__)
 
@@ -37,12 +41,12 @@ class Side:
     features (--feature-threshold) are computed from; None for a mask or landmark file alone.
     """
 
-    landmarks: Any  # localization.common.landmarks.Landmarks
+    landmarks: Landmarks
     background: np.ndarray | None
     resolution: float | None
     paint: Callable[[], np.ndarray] | None = None
     photo: np.ndarray | None = None
-    semantic: Any = None  # localization.common.views.SemanticMap of a mask side (the profile method's input)
+    semantic: SemanticMap | None = None  # a mask side's classes (the profile method's input)
 
     def picture(self) -> np.ndarray | None:
         """The RGB image to draw under the landmarks, if any."""

@@ -19,7 +19,7 @@ that run the network; without it they raise a one-line :class:`~osmseg.errors.Co
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
@@ -28,7 +28,7 @@ import numpy as np
 from scipy import sparse
 
 from localization.common.landmarks import Landmarks
-from localization.paper.graph import Cliques, adjacency, cliques_fast, cliques_reference
+from localization.paper.graph import Cliques, adjacency
 from localization.paper.refine import feature_edge_mask
 from osmseg.errors import ConfigError
 from osmseg.images import as_rgb
@@ -220,18 +220,19 @@ class FeatureEdges:
         return {name: None if photo is None else self.mask(photo, lm, model, device)
                 for name, (photo, lm, model) in sides.items()}
 
-    def summary(self, drops: Mapping[str, np.ndarray | None], graphs: Mapping[str, tuple[Landmarks, int]], *,
-                fast: bool = True, stride: int = 1) -> dict[str, Any]:
+    def summary(self, drops: Mapping[str, np.ndarray | None], graphs: Mapping[str, tuple[Landmarks, int]],
+                cliques: Callable[[Landmarks, int], Cliques]) -> dict[str, Any]:
         """The :meth:`settings` and, per side, :func:`dropped_edges` (None: no features, every edge kept).
 
         ``graphs`` gives each side's landmarks and the window its graph was built with (the
-        answer's; 0 when none was built: only the pairs are counted then).
+        answer's; 0 when none was built: only the pairs are counted then); ``cliques`` builds a
+        graph as the answer's were (:meth:`~localization.paper.config.PaperConfig.cliques`).
         """
-        build = cliques_fast if fast else cliques_reference
+        build = cliques
         out = self.settings()
         for name, drop in drops.items():
             lm, window = graphs[name]
-            out[name] = None if drop is None else dropped_edges(drop, build(lm, window, stride) if window else None)
+            out[name] = None if drop is None else dropped_edges(drop, build(lm, window) if window else None)
         return out
 
 

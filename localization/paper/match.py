@@ -50,13 +50,14 @@ from scipy import sparse
 
 from localization.common.landmarks import Landmarks
 from localization.common.result import DEFAULT_P, Localization, answered, rank, unanswered
-from localization.paper.graph import Cliques, cliques_fast, cliques_reference, window_size_auto
+from localization.paper.config import PaperConfig
+from localization.paper.graph import Cliques, window_size_auto
 from osmseg.errors import ConfigError
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "DEFAULT_P", "Localization", "class_adjacency", "extend_cliques", "inverted_index", "likelihood", "localize",
+    "DEFAULT_P", "AerialGraph", "Localization", "aerial_graph", "class_adjacency", "extend_cliques", "inverted_index", "likelihood", "localize",
     "match_cliques", "posteriors", "rank", "relevant_cliques", "unanswered",
 ]
 
@@ -328,28 +329,20 @@ def posteriors(likelihoods: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- localize
 
 
-def _check(p: float, top_k: int, stride: int) -> None:
-    if not 0 < p <= 1:
-        raise ConfigError(f"p must be in (0, 1], got {p}")
-    if top_k < 1:
-        raise ConfigError(f"top_k must be at least 1, got {top_k}")
-    if stride < 1:
-        raise ConfigError(f"stride must be at least 1 pixel, got {stride}")
-
-
-def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, query_cliques: Cliques, *,
-                  p: float = DEFAULT_P, top_k: int = 5, window: int = 0, query_window: int = 0,
-                  aerial_drop: np.ndarray | None = None, query_drop: np.ndarray | None = None,
-                  conventions: str = "osmseg") -> Localization:
+def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, query_cliques: Cliques,
+                  config: PaperConfig = PaperConfig(), *, aerial_drop: np.ndarray | None = None,
+                  query_drop: np.ndarray | None = None) -> Localization:
     """Steps 1-6 of the module docstring on graphs already built (no window choice here).
 
     ``conventions="authors"``: ties go to the first candidate in the cliques' order, as the
     authors' ``maxk`` (with cliques built with the same conventions: lexicographic order).
 
-    ``window`` and ``query_window`` are only recorded in the result (default: the cliques' own).
-    ``aerial_drop``/``query_drop`` remove edges from the graphs (:func:`~localization.paper.refine.feature_edge_mask`).
+    ``config`` gives ``p``, ``top_k`` and the conventions; the windows recorded in the result are
+    the cliques' own. ``aerial_drop``/``query_drop`` remove edges from the graphs
+    (:func:`~localization.paper.refine.feature_edge_mask`).
     """
-    settings = {"window": window or aerial_cliques.window, "query_window": query_window or query_cliques.window,
+    p, top_k, conventions = config.p, config.top_k, config.conventions
+    settings = {"window": aerial_cliques.window, "query_window": query_cliques.window,
                 "p": p, "n_cliques": int(len(aerial_cliques.members))}
     names = shared_classes(aerial, query)
     query_w = class_adjacency(query_cliques.members, query, names, query_drop)
@@ -377,46 +370,52 @@ def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, 
                     by_index=conventions == "authors", **settings)
 
 
-def localize(aerial: Landmarks, query: Landmarks, *, window: int | None = None, query_window: int | None = None,
-             p: float = DEFAULT_P, stride: int = 1, top_k: int = 5, fast: bool = True,
-             aerial_drop: np.ndarray | None = None, query_drop: np.ndarray | None = None,
-             conventions: str = "osmseg") -> Localization:
-    """Localize ``query`` (a panorama's or an aerial crop's landmarks) in ``aerial``.
+@dataclass(frozen=True)
+class AerialGraph:
+    """An aerial image's landmarks with their cliques at one window: built once, matched many times."""
+
+    landmarks: Landmarks
+    window: int
+    cliques: Cliques | None  # None when the image has no landmark
+
+
+def aerial_graph(lm: Landmarks, config: PaperConfig = PaperConfig()) -> AerialGraph:
+    """The graph of ``lm`` at ``config.window``, or the automatic one (no graph without landmarks)."""
+    if len(lm.xy) == 0:
+        return AerialGraph(lm, 0, None)
+    w = int(config.window) if config.window is not None else window_size_auto(lm)
+    return AerialGraph(lm, w, config.cliques(lm, w))
+
+
+def localize(aerial: Landmarks | AerialGraph, query: Landmarks, config: PaperConfig = PaperConfig(), *,
+             aerial_drop: np.ndarray | None = None, query_drop: np.ndarray | None = None) -> Localization:
+    """Localize ``query`` (a panorama's or an aerial crop's landmarks) in ``aerial``, at one window.
 
     Args:
-        aerial: landmarks of the aerial image.
+        aerial: landmarks of the aerial image, or their :class:`AerialGraph` built once for
+            many queries (its window then overrides ``config.window``).
         query: landmarks of the ground panorama (``panorama=True``) or of an aerial crop.
-        window: aerial covisibility window in pixels; None = :func:`window_size_auto`.
-        query_window: the query's window; None = the image height for a panorama (the paper's
-            square window as tall as the image), else the aerial window (a crop has the
-            aerial's scale).
-        p: covisibility parameter of the candidate extension.
-        stride: window stride in pixels (1 = every position, as the paper).
-        top_k: how many best candidates ``top_k`` holds.
-        fast: exact event-sweep cliques (:func:`cliques_fast`) instead of the plain sliding window.
+        config: the windows, ``p``, stride, ``top_k``, clique builder and conventions
+            (:class:`~localization.paper.config.PaperConfig`; ``hierarchical`` is
+            :func:`~localization.paper.refine.localize_hierarchical`'s).
         aerial_drop, query_drop: ``(K, K)`` landmark pairs whose edges are removed (§5.3.2,
             :func:`~localization.paper.refine.feature_edge_mask`); None keeps every edge.
-        conventions: ``osmseg`` or ``authors`` (their MATLAB demo's windows, positions and
-            tie-break: :func:`~localization.paper.graph.cliques_fast`, :func:`match_cliques`).
 
     Returns an unanswered :class:`Localization` (not an exception) when either image has no
     landmark, the query graph has no edge, no aerial clique holds all the query's classes, or
     no candidate correlates at all with the query.
     """
-    _check(p, top_k, stride)
-    for name, value in (("window", window), ("query_window", query_window)):
-        if value is not None and value < 1:
-            raise ConfigError(f"{name} must be at least 1 pixel, got {value}")
-    if len(aerial.xy) == 0:
-        return unanswered("the aerial image has no landmarks", p=p)
+    lm = aerial.landmarks if isinstance(aerial, AerialGraph) else aerial
+    if len(lm.xy) == 0:
+        return unanswered("the aerial image has no landmarks", p=config.p)
     if len(query.xy) == 0:
-        return unanswered("the query has no landmarks", p=p)
-    w = int(window) if window is not None else window_size_auto(aerial)
-    qw = int(query_window) if query_window is not None else (query.height if query.panorama else w)
-    build = cliques_fast if fast else cliques_reference
-    result = match_cliques(aerial, build(aerial, w, stride, conventions), query, build(query, qw, stride, conventions),
-                           p=p, top_k=top_k, window=w, query_window=qw, aerial_drop=aerial_drop, query_drop=query_drop,
-                           conventions=conventions)
+        return unanswered("the query has no landmarks", p=config.p)
+    graph = aerial if isinstance(aerial, AerialGraph) else aerial_graph(lm, config)
+    if graph.cliques is None:
+        return unanswered("the aerial image has no landmarks", p=config.p)
+    qw = config.query_window_for(query, graph.window)
+    result = match_cliques(lm, graph.cliques, query, config.cliques(query, qw), config,
+                           aerial_drop=aerial_drop, query_drop=query_drop)
     logger.debug("localize: window %d, query window %d, %d cliques, %d candidates, ties %d",
-                 w, qw, result.n_cliques, len(result.candidates), result.ties)
+                 graph.window, qw, result.n_cliques, len(result.candidates), result.ties)
     return result

@@ -1,7 +1,7 @@
 """The dissertation's refinements of the matching: a window hierarchy, and edges removed by features.
 
 * :func:`localize_hierarchical` -- eq. 3.8 of T. Resek's dissertation: localize with the
-  aerial windows 400 -> 200 -> 100 px (:data:`HIERARCHY`) in turn and multiply each fine
+  aerial windows 400 -> 200 -> 100 px (:data:`~localization.paper.config.HIERARCHY`) in turn and multiply each fine
   candidate's posterior by the best one it inherits from the coarser level (:func:`inherit`).
 * :func:`feature_edge_mask` -- §5.3.2: graph edges between landmarks whose image features
   (a network's encoder, optionally reduced by PCA or UMAP) are closer than a threshold ``T``
@@ -12,25 +12,23 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from dataclasses import replace
 from typing import cast
 
 import numpy as np
 
 from localization.common.landmarks import Landmarks
 from localization.common.result import answered
-from localization.paper.match import DEFAULT_P, Localization, localize
+from localization.paper.config import PaperConfig
+from localization.paper.match import Localization, localize
 from osmseg.errors import ConfigError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["HIERARCHY", "MAX_FEATURE_LANDMARKS", "feature_edge_mask", "inherit", "localize_hierarchical"]
+__all__ = ["MAX_FEATURE_LANDMARKS", "feature_edge_mask", "inherit", "localize_hierarchical"]
 
 #: Landmarks above which the K x K feature distances (8 bytes each) are refused: 10,000 is 800 MB.
 MAX_FEATURE_LANDMARKS = 10_000
-
-#: The dissertation's hierarchy of aerial windows, coarse to fine (pixels).
-HIERARCHY = (400, 200, 100)
 
 
 def inherit(fine: np.ndarray, coarse: np.ndarray, coarse_scores: np.ndarray, coarse_window: int) -> np.ndarray:
@@ -48,10 +46,9 @@ def inherit(fine: np.ndarray, coarse: np.ndarray, coarse_scores: np.ndarray, coa
     return cast("np.ndarray", np.where(inside, coarse_scores[None, :], 0.0).max(axis=1))
 
 
-def localize_hierarchical(aerial: Landmarks, query: Landmarks, windows: Sequence[int] = HIERARCHY, *,
-                          query_window: int | None = None, p: float = DEFAULT_P, stride: int = 1, top_k: int = 5,
-                          fast: bool = True, aerial_drop: np.ndarray | None = None,
-                          query_drop: np.ndarray | None = None) -> Localization:
+def localize_hierarchical(aerial: Landmarks, query: Landmarks, config: PaperConfig = PaperConfig(), *,
+                          aerial_drop: np.ndarray | None = None, query_drop: np.ndarray | None = None
+                          ) -> Localization:
     """Eq. 3.8: localize with each aerial window in turn (coarse to fine) and multiply probabilities.
 
     Level 0 scores are its posteriors. A candidate of level ``l`` scores its own posterior
@@ -61,13 +58,10 @@ def localize_hierarchical(aerial: Landmarks, query: Landmarks, windows: Sequence
     windows may be too small to hold every query class); the result is that level's
     candidates with the combined scores, and ``levels`` keeps every level's own result.
     """
-    if not windows or any(int(w) < 1 for w in windows):
-        raise ConfigError(f"windows must be positive pixel sizes, coarse to fine, got {list(windows)}")
     levels: list[Localization] = []
     best: Localization | None = None
-    for w in windows:
-        level = localize(aerial, query, window=int(w), query_window=query_window, p=p, stride=stride,
-                         top_k=top_k, fast=fast, aerial_drop=aerial_drop, query_drop=query_drop)
+    for w in config.windows:
+        level = localize(aerial, query, replace(config, window=int(w)), aerial_drop=aerial_drop, query_drop=query_drop)
         levels.append(level)
         if level.unanswered:
             break
@@ -78,9 +72,9 @@ def localize_hierarchical(aerial: Landmarks, query: Landmarks, windows: Sequence
         if not scores.any():
             logger.info("hierarchical: no %d px candidate inside a %d px one; stopping", w, best.window)
             break
-        best = answered(level.candidates, level.likelihoods, scores, top_k, relevant=level.relevant,
+        best = answered(level.candidates, level.likelihoods, scores, config.top_k, relevant=level.relevant,
                         clique_likelihoods=level.clique_likelihoods,
-                        window=level.window, query_window=level.query_window, p=p, n_cliques=level.n_cliques)
+                        window=level.window, query_window=level.query_window, p=config.p, n_cliques=level.n_cliques)
     if best is None:
         return Localization(**{**levels[0].__dict__, "levels": tuple(levels)})
     return Localization(**{**best.__dict__, "levels": tuple(levels)})
