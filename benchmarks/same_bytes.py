@@ -30,6 +30,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import tomllib
+
 ROOT = Path(__file__).resolve().parents[1]
 #: keys of a JSON document that measure time, not behaviour
 TIME_KEYS = ("timing",)
@@ -99,9 +101,29 @@ def same(a: Path, b: Path) -> bool:
     return False
 
 
+def tree_metadata(tree: Path, into: Path) -> Path:
+    """A folder holding an ``osmseg`` dist-info with ``tree``'s own version and entry points.
+
+    The installed metadata names the command modules of the checkout it was installed from;
+    once a command moves (``localization.cli`` became a package), the other tree's commands
+    would not load. Put first on ``PYTHONPATH``, this dist-info is the one ``importlib.metadata``
+    finds (it keeps the first distribution of a name on the path).
+    """
+    project = tomllib.loads((tree / "pyproject.toml").read_text())["project"]
+    info = into / f"osmseg-{project['version']}.dist-info"
+    info.mkdir(parents=True, exist_ok=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: osmseg\nVersion: {project['version']}\n")
+    groups = {"console_scripts": project.get("scripts", {}), **project.get("entry-points", {})}
+    (info / "entry_points.txt").write_text("".join(
+        f"[{group}]\n" + "".join(f"{name} = {target}\n" for name, target in entries.items()) + "\n"
+        for group, entries in groups.items()))
+    return into
+
+
 def run_demo(tree: Path, out: Path, epochs: int) -> str:
-    """``osmseg demo`` with ``tree``'s code into ``out``; returns the folder its ``osmseg`` came from."""
-    env = {**os.environ, "PYTHONPATH": str(tree)}
+    """``osmseg demo`` with ``tree``'s code and entry points into ``out``; returns the folder its ``osmseg`` came from."""
+    meta = tree_metadata(tree, out.parent / f"meta-{abs(hash(str(tree)))}")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(meta), str(tree)])}
     probe = subprocess.run([sys.executable, "-c", "import osmseg, training, localization as l; "
                             "print(l.__file__)"], cwd=tree, env=env, check=True, capture_output=True, text=True)
     used = Path(probe.stdout.strip()).parents[1]
@@ -109,6 +131,7 @@ def run_demo(tree: Path, out: Path, epochs: int) -> str:
         raise SystemExit(f"the run for {tree} imported {used}: the editable install shadows PYTHONPATH")
     subprocess.run([sys.executable, "-m", "osmseg", "-q", "demo", "--out", str(out), "--epochs", str(epochs)],
                    cwd=tree, env=env, check=True)
+    shutil.rmtree(meta, ignore_errors=True)
     return str(used)
 
 
