@@ -70,7 +70,8 @@ ROOT = Path(__file__).resolve().parents[1]
 R = TypeVar("R")
 sys.path.insert(0, str(ROOT))
 
-from osmseg.buildconfig import BuildConfig, available_cores  # noqa: E402
+from osmseg.build.config import BuildConfig, available_cores  # noqa: E402
+from osmseg.build.slots import attempt_grid  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 from osmseg.grid import pad_bbox  # noqa: E402
 from osmseg.imagery.remap import source_pixels, warp_bilinear  # noqa: E402
@@ -79,7 +80,6 @@ from osmseg.osm.localfile import LocalFileSource  # noqa: E402
 from osmseg.output.geotiff import encode_cog, write_class_metadata  # noqa: E402
 from osmseg.output.writer import COMPRESS_LEVEL, PHOTO_COMPRESS_LEVEL, encode_jpeg, encode_png  # noqa: E402
 from osmseg.places import Area  # noqa: E402
-from osmseg.slots import attempt_grid  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 HELSINKI = SHARED / "helsinki-osm" / "helsinki.osm.pbf"

@@ -237,10 +237,10 @@ def build_speed(ws: Workspace) -> dict[str, Figure]:
 
 @figure_set("contrast", "cheap", needs="shared data")
 def contrast(ws: Workspace) -> dict[str, Figure]:
-    """grey-level standard deviation of the real aerial images in ../shared/data (osmseg.rejection.grey_std)"""
+    """grey-level standard deviation of the real aerial images in ../shared/data (osmseg.build.filters.grey_std)"""
     import rasterio
 
-    from osmseg.rejection import FilterConfig, grey_std
+    from osmseg.build.filters import FilterConfig, grey_std
 
     def stds(path: Path, side: int = 1280, step: int = 256) -> list[float]:
         with rasterio.open(path) as src:

@@ -213,9 +213,9 @@ def test_a_folder_with_no_accepted_sample_is_taken_over_by_the_corrected_command
 def test_a_build_stops_when_another_command_takes_its_folder_over(tmp_path: Path) -> None:
     """Two commands with other options on one folder (say, shards started with a typo): the one
     that lost the folder stops at its next record instead of mixing its samples in."""
+    from osmseg.build.records import Attempt
+    from osmseg.build.state import BuildState
     from osmseg.errors import DatasetError
-    from osmseg.records import Attempt
-    from osmseg.state import BuildState
 
     rejected = Attempt.rejected({"center": {"lon": 0, "lat": 0}, "reason": "unlabeled", "detail": "all unlabeled"})
     first, second = BuildState(tmp_path), BuildState(tmp_path)

@@ -14,6 +14,7 @@ import pytest
 import rasterio
 from PIL import Image
 
+from osmseg.build.filters import FilterConfig
 from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.grid import SampleGrid, sample_grid
@@ -34,9 +35,8 @@ from osmseg.output import (
     write_overview,
     write_sample,
 )
-from osmseg.output.manifest import FORMAT, FORMAT_VERSION, class_totals
+from osmseg.output.manifest import FORMAT, FORMAT_VERSION, Rejection, class_totals
 from osmseg.output.overview import MARGIN, legend_height
-from osmseg.rejection import FilterConfig, Rejection
 
 TABLE = load_class_table("classes13.toml")
 GRID = sample_grid(13.4050, 52.5200, zoom=18)
@@ -458,7 +458,7 @@ def test_a_sigterm_just_after_a_temporary_file_is_created_still_removes_it(
     (in the command's process, then in a build worker's, whose SIGTERM handler is its own)."""
     import signal
 
-    from osmseg import workers
+    from osmseg.build import workers
     from osmseg.output import atomic
     from osmseg.processes import Terminated, terminate_by_exception
 

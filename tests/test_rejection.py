@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from conftest import shared_path
 
+from osmseg.build.filters import FilterConfig, check_imagery, check_labels, check_sample, grey_std
 from osmseg.errors import ConfigError
-from osmseg.rejection import REASONS, FilterConfig, Rejection, check_imagery, check_labels, check_sample, grey_std
+from osmseg.output.manifest import REASONS, Rejection
 
 DEFAULT = FilterConfig()
 

@@ -26,7 +26,7 @@ from rasterio.warp import transform_bounds
 from osmseg.errors import DatasetError
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.output.manifest import manifest_path, read_manifest
-from osmseg.sampling import overlap_groups
+from osmseg.overlap import overlap_groups
 
 
 def make_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3,
@@ -34,7 +34,7 @@ def make_splits(names: Sequence[str], seed: int, test_fraction: float = 1 / 3,
     """Split sample names into ``train``, ``val`` and ``test`` (each sorted), keeping groups together.
 
     ``groups`` (name -> group id; names not in it are alone) are samples that overlap on the
-    ground (:func:`osmseg.sampling.overlap_groups`): a group always lands in one split, so no
+    ground (:func:`osmseg.overlap.overlap_groups`): a group always lands in one split, so no
     pixel of a test image was seen in training. ``round(n * test_fraction)`` images are the test
     target and ``round(m * val_fraction)`` of the remaining ``m`` the validation target
     (rounding half up; at least one each when there are enough images, ``n >= 3`` for a test

@@ -1,6 +1,6 @@
 """``osmseg build``: make a segmentation dataset from OpenStreetMap and aerial imagery.
 
-The options are parsed into a :class:`~osmseg.build.BuildConfig` by :func:`build_config`, and
+The options are parsed into a :class:`~osmseg.build.builder.BuildConfig` by :func:`build_config`, and
 the command recorded in the manifest is generated back from the same option table by
 :func:`recorded_command` (flags spelled as click knows them), so the two cannot drift.
 """
@@ -16,14 +16,14 @@ from typing import Any
 
 import click
 
-from osmseg.build import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
+from osmseg.build.builder import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
+from osmseg.build.filters import FilterConfig
 from osmseg.cli.common import command_line_of, default_cache_dir, output_options, progress_bars, report_errors
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT, missing_bing_key
 from osmseg.output import command_line
 from osmseg.places import Area, find_preset, parse_bbox
 from osmseg.redact import redact
-from osmseg.rejection import FilterConfig
 
 
 def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: str | None, radius_km: float | None) -> Area:

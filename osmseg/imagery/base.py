@@ -8,7 +8,8 @@ from; every one returns an :class:`Imagery` on exactly the sample's Web Mercator
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -52,3 +53,30 @@ class ImageryProvider(Protocol):
     def describe(self) -> dict[str, Any]:
         """JSON-able description (no keys) for the manifest and the datasheet."""
         ...
+
+
+@runtime_checkable
+class ZoomRange(Protocol):
+    """An imagery source that knows which zooms it serves (a named tile layer)."""
+
+    def check_zoom(self, zoom: int) -> None:
+        """ConfigError when ``zoom`` is outside the source's range, saying which zooms it has."""
+        ...
+
+
+@runtime_checkable
+class CoveringImagery(Protocol):
+    """An imagery source that can say, before a build writes anything, whether it has pixels over
+    the sampling area (a raster or a tile folder of another place)."""
+
+    def check_covers(self, west: float, south: float, east: float, north: float, zoom: int | None = None) -> None:
+        """ConfigError when the source has no pixels over the box (lon/lat degrees)."""
+        ...
+
+
+@runtime_checkable
+class LocalRaster(Protocol):
+    """An imagery source read from a raster file of a known ground resolution (a GeoTIFF)."""
+
+    path: Path
+    resolution_m: float | None  # metres per pixel on the ground, None when the CRS does not tell

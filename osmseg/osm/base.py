@@ -13,9 +13,10 @@ cross the sample edge are complete too.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 from osmseg.grid import LngLatBBox
 
@@ -48,4 +49,28 @@ class OsmSource(Protocol):
 
     def describe(self) -> dict[str, Any]:
         """JSON-able description for the manifest."""
+        ...
+
+
+@runtime_checkable
+class CoveringSource(Protocol):
+    """An OSM source that can say, before a build writes anything, whether it holds any data over
+    the sampling area (a local file of another place would give every sample an empty mask)."""
+
+    def check_covers(self, west: float, south: float, east: float, north: float) -> None:
+        """ConfigError when the source holds nothing over the box (lon/lat degrees)."""
+        ...
+
+
+@runtime_checkable
+class RegionSource(Protocol):
+    """An OSM source read from one large local file: it cuts a region file for a build's area once,
+    then the extracts of many sample boxes in a few passes (:mod:`osmseg.osm.cut`)."""
+
+    def prepare(self, bboxes: Sequence[LngLatBBox]) -> Path:
+        """Cut (or find, when cut already) the region file that holds everything ``bboxes`` need."""
+        ...
+
+    def cut(self, bboxes: Iterable[LngLatBBox], batch: int = ...) -> list[OsmExtract]:
+        """The extracts of many boxes at once: for each box, what ``fetch`` would write."""
         ...

@@ -17,6 +17,7 @@ import re
 import shlex
 from collections import Counter
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
 
@@ -27,7 +28,6 @@ from osmseg.folderlock import STATE_DIR, FolderLock
 from osmseg.grid import SampleGrid
 from osmseg.output.atomic import atomic_path, sha256_file
 from osmseg.redact import redact
-from osmseg.rejection import REASONS, Rejection
 
 MANIFEST_NAME = "manifest.json"
 FORMAT = "osmseg-dataset"
@@ -50,6 +50,24 @@ SAMPLE_KEYS = (
     "name", "center", "bbox_wgs84", "bounds_3857", "zoom", "ground_resolution_m", "tiles",
     "imagery", "osm", "class_histogram", "files",
 )
+
+#: Why the builder rejects a sample, in the order its filters check (:mod:`osmseg.build.filters`):
+#: the manifest lists the rejected attempts by these reasons.
+REASONS: tuple[str, ...] = ("unlabeled", "single_class", "placeholder_imagery", "missing_imagery", "low_contrast")
+
+
+@dataclass(frozen=True)
+class Rejection:
+    """Why a sample was rejected: a machine ``reason`` (one of :data:`REASONS`) and a human ``detail``."""
+
+    reason: str
+    detail: str
+
+    def to_dict(self) -> dict[str, str]:
+        """JSON-able form for the manifest's list of rejected attempts."""
+        return {"reason": self.reason, "detail": self.detail}
+
+
 
 _SECRET_OPTION = re.compile(r"(?i)^--?[\w-]*(key|token|secret|password)[\w-]*$")
 

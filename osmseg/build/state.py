@@ -19,10 +19,10 @@ import json
 from pathlib import Path
 from typing import Any, cast
 
+from osmseg.build.records import Attempt, SlotOutcome
 from osmseg.errors import DatasetError
 from osmseg.folderlock import STATE_DIR, FolderLock
 from osmseg.output.atomic import atomic_write_text
-from osmseg.records import Attempt, SlotOutcome
 
 #: The build state's folders of records and pictures (besides ``osm/`` and temporary ones).
 STATE_SUBDIRS = ("attempts", "slots", "failures", "thumbnails", "holders")

@@ -1,6 +1,6 @@
 """Build a dataset's slots on several processes: every core busy, the bytes of one process.
 
-A slot's outcome depends only on the seed, the slot number and the data (:mod:`osmseg.state`),
+A slot's outcome depends only on the seed, the slot number and the data (:mod:`osmseg.build.state`),
 never on which process builds it or when, so :class:`SlotRunner` hands slots to worker
 processes in slot order and the dataset is byte-identical whatever ``--workers`` is; a build
 interrupted at any moment resumes from its state folder like a single-process one, and
@@ -13,7 +13,7 @@ How the workers are made and kept in line:
   read a PBF would inherit libosmium's thread pool without its threads, and hang. The fork
   server imports osmseg once; each worker then starts in milliseconds. ``osmseg build``
   starts the server before it imports the builder (:mod:`osmseg.cli.launch`).
-* **One pipeline per worker**, opened once (:func:`osmseg.slots.open_pipeline`): its own HTTP
+* **One pipeline per worker**, opened once (:func:`osmseg.build.slots.open_pipeline`): its own HTTP
   client, imagery provider (a local GeoTIFF stays open) and OSM source, on the region file the
   parent cut before starting them.
 * **Polite HTTP across workers**: the workers' clients share their per-host limits and
@@ -56,15 +56,16 @@ from typing import Any
 
 import cv2
 
-from osmseg.buildconfig import BuildConfig
+from osmseg.build.config import BuildConfig
+from osmseg.build.records import SlotOutcome
+from osmseg.build.slots import BuildContext, http_config, open_pipeline, run_slot
+from osmseg.build.state import BuildState
 from osmseg.errors import DatasetError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
+from osmseg.osm.base import RegionSource
 from osmseg.output.overview import OVERVIEW_SAMPLES
 from osmseg.processes import interrupts_deferred, stop_unless_deferred, worker_context
-from osmseg.records import SlotOutcome
-from osmseg.slots import Pipeline, http_config, open_pipeline, run_slot
-from osmseg.state import BuildState
 
 __all__ = ["FirstSamples", "SlotRunner", "WorkerSetup"]
 
@@ -98,9 +99,7 @@ class _Worker:
     """The state of one worker process: its pipeline and the build state it records into, or
     why it could not open them (raised by its first task, so it reaches the build as it is)."""
 
-    pipe: Pipeline
-    state: BuildState
-    config: BuildConfig
+    build: BuildContext
     failure: BaseException | None = None
 
 
@@ -164,9 +163,8 @@ def _start_worker(setup: WorkerSetup) -> None:
         client = HttpClient(http_config(setup.config, setup.gate_dir))
         multiprocessing.util.Finalize(client, client.close, exitpriority=10)  # atexit does not run in workers
         pipe = open_pipeline(setup.config, client, setup.env)
-        prepare = getattr(pipe.osm, "prepare", None)
-        if setup.regions and callable(prepare):
-            prepare(list(setup.regions))  # the parent cut it: this only finds the region file
+        if setup.regions and isinstance(pipe.osm, RegionSource):
+            pipe.osm.prepare(list(setup.regions))  # the parent cut it: this only finds the region file
         state = BuildState(setup.config.out_dir)
         state.join(setup.config.identity())  # the folder stays held while a worker may still write
     except Exception as exc:  # an initializer's error would only say "a worker process died"
@@ -174,7 +172,7 @@ def _start_worker(setup: WorkerSetup) -> None:
         return
     finally:
         signal.signal(signal.SIGTERM, _on_terminate)  # from here on a slot may be writing: unwind it
-    _WORKER.pipe, _WORKER.state, _WORKER.config = pipe, state, setup.config
+    _WORKER.build = BuildContext(setup.config, pipe, state)
 
 
 class _Stop(SystemExit):
@@ -202,7 +200,7 @@ def _build_slot(slot: int, keep_thumbnails: bool) -> SlotOutcome:
     if _WORKER.failure is not None:
         raise _WORKER.failure
     try:
-        return run_slot(_WORKER.config, _WORKER.pipe, _WORKER.state, slot, keep_thumbnails)
+        return run_slot(_WORKER.build, slot, keep_thumbnails)
     except _Stop:
         os._exit(1)
 
@@ -270,14 +268,14 @@ class SlotRunner:
 
     Use as a context manager; :meth:`run` yields each slot's outcome as it finishes::
 
-        with SlotRunner(config, pipe, state, env, workers=4, regions=()) as runner:
+        with SlotRunner(BuildContext(config, pipe, state), env, workers=4, regions=()) as runner:
             for outcome in runner.run(todo, first_samples):
                 ...
     """
 
-    def __init__(self, config: BuildConfig, pipe: Pipeline, state: BuildState, env: dict[str, str],
-                 workers: int, regions: tuple[LngLatBBox, ...]) -> None:
-        self.config, self.pipe, self.state, self.env = config, pipe, state, env
+    def __init__(self, build: BuildContext, env: dict[str, str], workers: int,
+                 regions: tuple[LngLatBBox, ...]) -> None:
+        self.build, self.env = build, env
         self.workers = max(1, int(workers))
         self.regions = regions
         self._stack = ExitStack()
@@ -307,7 +305,7 @@ class SlotRunner:
         queue = context.Queue()
         self._logs = _LogForwarder(queue)
         gate_dir = Path(self._stack.enter_context(tempfile.TemporaryDirectory(prefix="osmseg-hosts-")))
-        setup = WorkerSetup(config=self.config, env=self.env, regions=self.regions, gate_dir=gate_dir,
+        setup = WorkerSetup(config=self.build.config, env=self.env, regions=self.regions, gate_dir=gate_dir,
                             log_queue=queue, log_level=logging.getLogger().getEffectiveLevel(), parent=os.getpid())
         self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=context, initializer=_start_worker,
                                          initargs=(setup,))
@@ -317,7 +315,7 @@ class SlotRunner:
         slots keep thumbnails for the overview, and learns of each accepted sample."""
         if self._pool is None:
             for slot in slots:
-                outcome = run_slot(self.config, self.pipe, self.state, slot, first.may_show(slot))
+                outcome = run_slot(self.build, slot, first.may_show(slot))
                 if outcome.status == "accepted":
                     first.accepted(slot)
                 yield outcome

@@ -1,8 +1,8 @@
 """What decides a build, as frozen values: :class:`BuildConfig`, :class:`Shard` and the sampling box.
 
-Kept apart from :mod:`osmseg.build` so that the code run for one slot (:mod:`osmseg.slots`),
-the worker processes (:mod:`osmseg.workers`) and the build itself share one definition
-without importing each other. Imports: osmseg core below it (places, grid, rejection, redact,
+Kept apart from :mod:`osmseg.build.builder` so that the code run for one slot (:mod:`osmseg.build.slots`),
+the worker processes (:mod:`osmseg.build.workers`) and the build itself share one definition
+without importing each other. Imports: osmseg core below it (places, grid, filters, redact,
 sampling, processes, errors).
 """
 
@@ -13,11 +13,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
+from osmseg.build.filters import FilterConfig
 from osmseg.grid import TILE_SIZE, LngLatBBox, ground_resolution, pad_bbox
 from osmseg.places import Area, normalise_name
 from osmseg.processes import available_cores
 from osmseg.redact import redact
-from osmseg.rejection import FilterConfig
 from osmseg.shard import Shard
 
 __all__ = ["DEFAULT_ZOOM", "BuildConfig", "Shard", "available_cores", "sampling_box"]
@@ -57,7 +57,7 @@ class BuildConfig:
     http_timeout: float = 30.0  # seconds to connect, and between bytes read
     cassette: Path | None = None  # --record/--replay FILE
     cassette_mode: str = "replay"
-    no_overlap: bool = False  # --no-overlap: every attempt gets its own tile block (osmseg.sampling)
+    no_overlap: bool = False  # --no-overlap: every attempt gets its own tile block (osmseg.build.sampling)
     workers: int = 0  # --workers N: processes building samples; 0 = every available core
     tile_size: int | None = None  # --tile-size: px of a tile server's tiles (None: as the provider says)
 

@@ -6,10 +6,10 @@ The pipeline for one attempt (see :func:`run_attempt`):
                              \\--osm-------> OSM file --features--> polygons --rasterize--> labels
     (RGB, labels) --filters--> accepted: images/, segmented/, labels/, geo/   |  rejected: reason
 
-:func:`run_slot` tries a slot's centres until one is accepted (see :mod:`osmseg.state` for
+:func:`run_slot` tries a slot's centres until one is accepted (see :mod:`osmseg.build.state` for
 why slots make a build resumable and shardable). Everything here depends only on the
-:class:`~osmseg.buildconfig.BuildConfig`, the slot number and the data, never on which
-process runs it or in what order: that is what lets :mod:`osmseg.workers` spread slots over
+:class:`~osmseg.build.config.BuildConfig`, the slot number and the data, never on which
+process runs it or in what order: that is what lets :mod:`osmseg.build.workers` spread slots over
 processes and still write the bytes of a single-process build. Imports: osmseg core below it.
 """
 
@@ -22,7 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from osmseg.buildconfig import BuildConfig, sampling_box
+from osmseg.build.config import BuildConfig, sampling_box
+from osmseg.build.filters import FilterConfig, check_imagery, check_labels
+from osmseg.build.records import Attempt, SlotOutcome
+from osmseg.build.sampling import block_attempt_centre
+from osmseg.build.state import BuildState
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import RetriesExhausted
 from osmseg.grid import (
@@ -35,23 +39,19 @@ from osmseg.grid import (
     zoom_for_resolution,
 )
 from osmseg.imagery import make_provider
-from osmseg.imagery.base import ImageryProvider
+from osmseg.imagery.base import CoveringImagery, ImageryProvider, LocalRaster, ZoomRange
 from osmseg.images import read_rgb
 from osmseg.net.http import DEFAULT_HOST_LIMITS, HttpClient, HttpConfig
-from osmseg.osm.base import OsmSource
+from osmseg.osm.base import CoveringSource, OsmSource
 from osmseg.osm.features import read_features
 from osmseg.osm.sources import make_osm_source
 from osmseg.output import rejection_entry, sample_entry, write_sample
 from osmseg.output.overview import write_thumbnails
 from osmseg.rasterize import rasterize, to_table
-from osmseg.records import Attempt, SlotOutcome
-from osmseg.rejection import FilterConfig, check_imagery, check_labels
-from osmseg.sampling import block_attempt_centre
-from osmseg.state import BuildState
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["HOST_LIMITS", "Pipeline", "attempt_centre", "attempt_rng", "http_config", "open_pipeline",
+__all__ = ["HOST_LIMITS", "BuildContext", "Pipeline", "attempt_centre", "attempt_rng", "http_config", "open_pipeline",
            "osm_regions", "run_attempt", "run_slot", "warn_upsampling"]
 
 #: Per-host request limits: the OSM API and Overpass ask for at most 2 concurrent connections.
@@ -103,25 +103,33 @@ class Pipeline:
     rules: ClassTable  # the table whose tag rules are rasterised (the base of a mapped table)
 
 
+@dataclass(frozen=True)
+class BuildContext:
+    """What every slot of one build is built with in one process: the settings, the sources and
+    tables (:class:`Pipeline`), and the build state the outcomes are recorded into. The three
+    travel together from the build (or a worker's start) to each slot."""
+
+    config: BuildConfig
+    pipe: Pipeline
+    state: BuildState
+
+
 def open_pipeline(config: BuildConfig, client: HttpClient, env: dict[str, str]) -> Pipeline:
     """Create the imagery provider, OSM source and class tables a config names."""
     table = load_class_table(config.classes)
     rules = table.base or table
     workdir = (config.cache_dir or config.out_dir / ".osmseg-build") / "osm"
     imagery = make_provider(config.imagery, client, env, tile_size=config.tile_size)
-    check_zoom = getattr(imagery, "check_zoom", None)
-    if callable(check_zoom):  # a provider that knows its zoom range says so before anything is written
-        check_zoom(config.zoom)
+    if isinstance(imagery, ZoomRange):  # a provider that knows its zoom range says so before anything is written
+        imagery.check_zoom(config.zoom)
     osm = make_osm_source(config.osm, client, workdir, rules)
     # then whether the local sources hold anything over the area at all (a raster, a tile folder,
     # an OSM file of another place): every sample would be rejected, so it is said before the build
     area = sampling_box(config)
-    check_covers = getattr(imagery, "check_covers", None)
-    if callable(check_covers) and rejects_no_imagery(config.filters):
-        check_covers(*area, zoom=config.zoom)
-    check_osm = getattr(osm, "check_covers", None)
-    if callable(check_osm):
-        check_osm(*area)
+    if isinstance(imagery, CoveringImagery) and rejects_no_imagery(config.filters):
+        imagery.check_covers(*area, zoom=config.zoom)
+    if isinstance(osm, CoveringSource):
+        osm.check_covers(*area)
     return Pipeline(imagery=imagery, osm=osm, table=table, rules=rules)
 
 
@@ -140,14 +148,14 @@ def warn_upsampling(config: BuildConfig, imagery: ImageryProvider) -> None:
     raster's (``resolution_m``): each raster pixel would be stretched over several sample pixels,
     blurred, with no detail gained. The threshold is the one ``osmseg predict`` warns at
     (:data:`~osmseg.grid.RESOLUTION_MISMATCH`); the message names the zoom that matches the raster."""
-    source_m = getattr(imagery, "resolution_m", None)
-    if source_m is None:
+    if not isinstance(imagery, LocalRaster) or imagery.resolution_m is None:
         return
+    source_m = imagery.resolution_m
     sample_m = ground_resolution(config.area.lat, config.zoom)
     factor = resolution_mismatch(source_m, sample_m)
     if factor is None or source_m < sample_m:  # a coarser zoom averages the raster: nothing is invented
         return
-    where = getattr(imagery, "path", imagery.name)
+    where = imagery.path
     logger.warning("%s has %.3g m pixels, but --zoom %d makes %.3g m sample pixels: the imagery is upsampled "
                    "%.1fx (blurred, no detail gained); --zoom %d matches the raster", where, source_m, config.zoom,
                    sample_m, factor, zoom_for_resolution(config.area.lat, source_m))
@@ -219,14 +227,14 @@ def _image_file(written: dict[str, Any]) -> str:
     return str(next(rel for rel in written["files"] if rel.startswith("images/")))
 
 
-def run_slot(config: BuildConfig, pipe: Pipeline, state: BuildState, slot: int,
-             keep_thumbnails: bool = False) -> SlotOutcome:
+def run_slot(ctx: BuildContext, slot: int, keep_thumbnails: bool = False) -> SlotOutcome:
     """Try centres for one slot until one is accepted or ``max_tries`` runs out.
 
     ``keep_thumbnails``: the slot may be among the first the overview sheet shows, so an
     accepted sample leaves its thumbnails in the build state (the sheet is then drawn without
     decoding any image again).
     """
+    config, pipe, state = ctx.config, ctx.pipe, ctx.state
     rejections: list[dict[str, Any]] = []
     outcome = SlotOutcome(slot, "gave_up")  # unless an attempt is accepted
     thumbnails = state.thumbnails if keep_thumbnails else None

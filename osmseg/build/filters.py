@@ -41,9 +41,7 @@ from typing import Any
 import numpy as np
 
 from osmseg.errors import ConfigError
-
-#: The rejection reasons, in the order they are checked.
-REASONS: tuple[str, ...] = ("unlabeled", "single_class", "placeholder_imagery", "missing_imagery", "low_contrast")
+from osmseg.output.manifest import Rejection
 
 
 @dataclass(frozen=True)
@@ -100,18 +98,6 @@ class FilterConfig:
         if unknown:
             raise ConfigError(f"unknown filter settings {unknown}; known: {sorted(known)}")
         return cls(**data)
-
-
-@dataclass(frozen=True)
-class Rejection:
-    """Why a sample was rejected: a machine ``reason`` (one of :data:`REASONS`) and a human ``detail``."""
-
-    reason: str
-    detail: str
-
-    def to_dict(self) -> dict[str, str]:
-        """JSON-able form for the manifest's list of rejected attempts."""
-        return {"reason": self.reason, "detail": self.detail}
 
 
 def _pct(fraction: float) -> str:

@@ -27,7 +27,9 @@ from typing import IO, Any, overload
 import numpy as np
 
 from osmseg import __version__
-from osmseg.buildconfig import BuildConfig
+from osmseg.build.config import BuildConfig
+from osmseg.build.records import SlotOutcome
+from osmseg.build.state import BuildState
 from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from osmseg.output import (
@@ -42,10 +44,8 @@ from osmseg.output import (
 )
 from osmseg.output.manifest import FORMAT, FORMAT_VERSION, config_entry
 from osmseg.output.stac import write_stac
+from osmseg.overlap import overlap_groups
 from osmseg.processes import owner
-from osmseg.records import SlotOutcome
-from osmseg.sampling import overlap_groups
-from osmseg.state import BuildState
 
 __all__ = ["ENTRIES_PREFIX", "RejectionEntries", "SampleEntries", "SlotRecords", "finalize"]
 

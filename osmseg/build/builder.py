@@ -2,10 +2,10 @@
 
 :func:`build` checks the sources and the output folder, cuts the OSM data every sample needs
 from a local file in one pass, then builds the slots that are not finished yet
-(:func:`osmseg.slots.run_slot`: one attempt after another until a sample is accepted) in this
-process or on worker processes (:mod:`osmseg.workers`), and finally writes the dataset-level
+(:func:`osmseg.build.slots.run_slot`: one attempt after another until a sample is accepted) in this
+process or on worker processes (:mod:`osmseg.build.workers`), and finally writes the dataset-level
 files from the finished slots (:func:`finalize`): ``manifest.json``, ``DATASHEET.md``,
-``ATTRIBUTION.md``, the STAC catalog, pictures and, if asked, a zip. See :mod:`osmseg.state` for
+``ATTRIBUTION.md``, the STAC catalog, pictures and, if asked, a zip. See :mod:`osmseg.build.state` for
 why slots make a build resumable, shardable and independent of the number of workers.
 """
 
@@ -20,23 +20,32 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from osmseg.buildconfig import DEFAULT_ZOOM, BuildConfig, Shard, sampling_box
+from osmseg.build.config import DEFAULT_ZOOM, BuildConfig, Shard, sampling_box
+from osmseg.build.finalize import ENTRIES_PREFIX, finalize
+from osmseg.build.records import SlotOutcome
+from osmseg.build.sampling import check_room
+from osmseg.build.slots import (
+    BuildContext,
+    Pipeline,
+    attempt_grid,
+    http_config,
+    open_pipeline,
+    osm_regions,
+    warn_upsampling,
+)
+from osmseg.build.state import STATE_SUBDIRS, BuildState
+from osmseg.build.workers import FirstSamples, SlotRunner
 from osmseg.errors import ConfigError
-from osmseg.finalize import ENTRIES_PREFIX, finalize
 from osmseg.folderlock import STATE_DIR
 from osmseg.grid import LngLatBBox, ground_resolution, pad_bbox
 from osmseg.net.http import HttpClient
+from osmseg.osm.base import RegionSource
 from osmseg.output.atomic import sweep_temp_files as sweep_temp
 from osmseg.output.manifest import SAMPLE_DIRS
 from osmseg.output.stac import ITEMS_DIR, STAC_DIR
 from osmseg.output.writer import IMAGE_FORMATS
 from osmseg.processes import start_fork_server, sweep_owned
 from osmseg.progress import Progress, report
-from osmseg.records import SlotOutcome
-from osmseg.sampling import check_room
-from osmseg.slots import Pipeline, attempt_grid, http_config, open_pipeline, osm_regions, warn_upsampling
-from osmseg.state import STATE_SUBDIRS, BuildState
-from osmseg.workers import FirstSamples, SlotRunner
 
 logger = logging.getLogger(__name__)
 
@@ -154,17 +163,18 @@ def build(
         config.out_dir.mkdir(parents=True, exist_ok=True)
         state = BuildState(config.out_dir)
         try:
-            _build_slots(config, pipe, state, env, progress, command_line, summary)
+            _build_slots(BuildContext(config, pipe, state), env, progress, command_line, summary)
         finally:
             state.release()
     summary.seconds = time.monotonic() - start
     return summary
 
 
-def _build_slots(config: BuildConfig, pipe: Pipeline, state: BuildState, env: dict[str, str],
-                 progress: Progress | None, command_line: str, summary: BuildSummary) -> None:
+def _build_slots(build: BuildContext, env: dict[str, str], progress: Progress | None, command_line: str,
+                 summary: BuildSummary) -> None:
     """The body of :func:`build` while it holds the output folder: build the unfinished slots of
     this shard, then, when every slot of the build has its outcome, the dataset-level files."""
+    config, pipe, state = build.config, build.pipe, build.state
     state.claim(config.identity(), command_line)  # refuses a folder another build holds now
     sweep_work_area(config.out_dir)  # only now: what is left is a killed process's, or a sharer's live files
     mine = config.my_slots()
@@ -181,7 +191,7 @@ def _build_slots(config: BuildConfig, pipe: Pipeline, state: BuildState, env: di
     regions = prepare_osm(config, pipe, mine, todo)
     finished = len(mine) - len(todo)
     report(progress, "build", finished, len(mine), "sample")
-    with SlotRunner(config, pipe, state, env, config.worker_count(len(todo)), regions) as runner:
+    with SlotRunner(build, env, config.worker_count(len(todo)), regions) as runner:
         for count, outcome in enumerate(runner.run(todo, first), start=finished + 1):
             _count(summary, outcome)
             counts = {"failed": len(summary.failed)} if summary.failed else {}
@@ -205,15 +215,12 @@ def prepare_osm(config: BuildConfig, pipe: Pipeline, mine: list[int], todo: list
     the unfinished slots ``todo``, in passes over the file whose number does not grow with the
     samples. Returns the region boxes (worker processes find the region by them). Other
     sources: nothing to do."""
-    prepare = getattr(pipe.osm, "prepare", None)
-    if not todo or not callable(prepare):
+    if not todo or not isinstance(pipe.osm, RegionSource):
         return ()
     regions = osm_regions(config, mine)
-    prepare(list(regions))
-    cut = getattr(pipe.osm, "cut", None)
-    if callable(cut):
-        grids = [g for g in (attempt_grid(config, s, 0) for s in todo) if g is not None]
-        cut([pad_bbox(g.bbox, config.osm_padding_m) for g in grids])
+    pipe.osm.prepare(list(regions))
+    grids = [g for g in (attempt_grid(config, s, 0) for s in todo) if g is not None]
+    pipe.osm.cut([pad_bbox(g.bbox, config.osm_padding_m) for g in grids])
     return regions
 
 
