@@ -50,7 +50,7 @@ import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
-from typing import Any, Protocol, TypeVar, cast
+from typing import Any, Protocol, TypeVar, cast, runtime_checkable
 
 import numpy as np
 
@@ -129,6 +129,14 @@ class AerialIndex(Protocol):
                  need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]: ...
 
 
+@runtime_checkable
+class RayIndex(AerialIndex, Protocol):
+    """An aerial side whose rays name the class seen in each cell (a mask's, :class:`AerialMaskIndex`):
+    the search then looks each predicted class up in the query instead of building one-hot profiles."""
+
+    def labels(self, xy: np.ndarray, radii_m: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
 def grid_positions(shape: tuple[int, int], spacing_px: float) -> np.ndarray:
     """Cell centres of a grid of ``spacing_px`` over an image of ``shape`` (rows, cols), as (x, y).
 
@@ -168,9 +176,9 @@ def score_positions(index: AerialIndex, query: QueryProfile, xy: np.ndarray, con
         qf = np.conj(np.fft.rfft(q, axis=-1))
         uf = np.conj(np.fft.rfft(u, axis=-1))
     need = q.sum(axis=2) > 0
-    if keep is not None and not known and hasattr(index, "labels") and not float(q[:, -1, :].sum()) and n > keep:
+    if keep is not None and not known and isinstance(index, RayIndex) and not float(q[:, -1, :].sum()) and n > keep:
         return _pruned(index, query, xy, config, q, u, total, qf, uf, keep, need)
-    gather = known and hasattr(index, "labels") and not float(q[:, -1, :].sum())
+    gather = known and isinstance(index, RayIndex) and not float(q[:, -1, :].sum())
     if gather:  # one-hot profiles never built: look each predicted class up in the query
         n_r = len(query.radii_m)
         table = np.concatenate([q[:, :n_r, :], np.zeros((1, n_r, query.bins), np.float32)])  # class -1: row C
@@ -212,7 +220,7 @@ def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config:
         qf, uf = np.conj(np.fft.rfft(qs, axis=-1)), np.conj(np.fft.rfft(u, axis=-1))
     # a mask's rays name the class seen in each cell: look it up in the queries, no one-hot profiles
     # (slot R is empty for a query mask, and so is its chance credit)
-    lookup = hasattr(index, "labels") and not float(qs[:, :, -1, :].sum())
+    lookup = isinstance(index, RayIndex) and not float(qs[:, :, -1, :].sum())
     n_r, bins = len(query.radii_m), query.bins
     rows_c, rows_r = np.nonzero(need[:, :n_r])
     by_class = [(c, np.ascontiguousarray(qs[:, c, :n_r, :].reshape(len(qs), -1).T))   # (R * A, H) per class
