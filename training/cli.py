@@ -121,10 +121,10 @@ def train_command(ctx: click.Context, /, dataset: Path, out_dir: Path, config_fi
     config = make_config(dataset, out_dir, find_config_file(config_file) if config_file else None, overrides)
     with progress_bars(ctx.obj.get("progress", False)) as progress:
         summary = run(config, progress=progress)
-    if summary.get("rank", 0) != 0:  # under torchrun only rank 0 reports, as only it writes
+    if summary.rank != 0:  # under torchrun only rank 0 reports, as only it writes
         return
-    if summary.get("best") is not None and ctx.obj["verbosity"] >= 0:
-        b = summary["best"]
+    if summary.best is not None and ctx.obj["verbosity"] >= 0:
+        b = summary.best
         click.echo(f"best epoch {b['epoch']}: val mIoU {ratio(b['val_miou'])}, val pixel accuracy "
                    f"{ratio(b['val_pixel_accuracy'])}; checkpoints in {out_dir}/ (best.pt, last.pt)", err=True)
     click.echo(json.dumps({"best": str(out_dir / "best.pt"), "last": str(out_dir / "last.pt"),

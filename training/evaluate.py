@@ -32,7 +32,7 @@ from training.checkpoint import load_checkpoint, model_from_checkpoint
 from training.data import SampleFiles, dataset_class_table, discover_dataset
 from training.figures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
 from training.infer import InferenceOptions
-from training.metrics import ConfusionMatrix, format_table, load_class_mapping
+from training.metrics import ConfusionMatrix, EvalMetrics, Metrics, format_table, load_class_mapping
 from training.predict import predict_image, target_resolution
 from training.spec import ModelSpec
 from training.train import dataset_fingerprint, has_class_table, model_classes
@@ -80,7 +80,7 @@ def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequen
 
 def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[SampleFiles], opts: EvalOptions,
                     label_lut: np.ndarray | None = None, progress: Progress | None = None,
-                    ) -> tuple[dict[str, Any], list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], dict[str, Any]]:
+                    ) -> tuple[Metrics, list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], dict[str, Any]]:
     """Metrics over ``files``, the first panels' arrays, and the table they were computed in.
 
     ``label_lut`` maps the labels' ids to the model's (a 13-class dataset for AirSegNet6).
@@ -116,7 +116,7 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
 
 
 def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: EvalOptions,
-             pairs: Sequence[tuple[Path, Path]] = (), progress: Progress | None = None) -> dict[str, Any]:
+             pairs: Sequence[tuple[Path, Path]] = (), progress: Progress | None = None) -> EvalMetrics:
     """Evaluate a checkpoint and write metrics and pictures into ``out_dir`` (``progress``: a
     step per image evaluated)."""
     checkpoint = load_checkpoint(checkpoint_path)
@@ -127,10 +127,10 @@ def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: E
     label_lut = None
     if opts.mapping is None and dataset is not None and has_class_table(dataset):  # else: the model's ids
         _, label_lut = model_classes(spec.name, dataset_class_table(dataset))
-    metrics, panels, table = evaluate_images(model, spec, files, opts, label_lut, progress)
-    metrics["evaluated"] = {"checkpoint": str(checkpoint_path), "images": which, "mode": opts.mode,
-                            "join": opts.join, "tta": opts.tta, "mapping": opts.mapping,
-                            "resolution_m": target_resolution(opts.resolution_m, spec)}
+    scores, panels, table = evaluate_images(model, spec, files, opts, label_lut, progress)
+    metrics: EvalMetrics = {**scores, "evaluated": {
+        "checkpoint": str(checkpoint_path), "images": which, "mode": opts.mode, "join": opts.join, "tta": opts.tta,
+        "mapping": opts.mapping, "resolution_m": target_resolution(opts.resolution_m, spec)}}
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out_dir / "metrics.json", (json.dumps(metrics, indent=2, sort_keys=True) + "\n").encode())
     atomic_write_bytes(out_dir / "metrics.txt", (format_table(metrics) + "\n").encode())

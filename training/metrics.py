@@ -34,7 +34,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 import torch
@@ -45,6 +45,7 @@ from osmseg.errors import ConfigError, DatasetError
 from osmseg.units import number
 
 __all__ = [
+    "ClassMetrics", "EvalMetrics", "Metrics",
     "ConfusionMatrix",
     "metrics_from_matrix",
     "format_table",
@@ -153,7 +154,7 @@ class ConfusionMatrix:
             return np.zeros((self.num_classes, self.num_classes), dtype=np.int64)
         return self.mat.detach().cpu().numpy().astype(np.int64)
 
-    def compute(self, class_names: Sequence[str] | None = None) -> dict[str, Any]:
+    def compute(self, class_names: Sequence[str] | None = None) -> Metrics:
         """The metrics of :func:`metrics_from_matrix` for the counts so far (JSON-able).
 
         ``class_names`` (indexed by id) overrides the names given to the constructor.
@@ -162,8 +163,45 @@ class ConfusionMatrix:
         return metrics_from_matrix(self.matrix(), names, ignore_index=self.ignore_index)
 
 
+class ClassMetrics(TypedDict, total=False):
+    """One class's scores in :class:`Metrics` (``ignored`` only on the ignored class)."""
+
+    id: int
+    ignored: bool
+    iou: float | None
+    precision: float | None
+    recall: float | None
+    f1: float | None
+    support: int
+    predicted: int
+
+
+class Metrics(TypedDict):
+    """The scores of a confusion matrix (:func:`metrics_from_matrix`): what metrics.json holds.
+
+    Ratios are None where undefined (0/0; the IoU of a class absent from the ground truth).
+    """
+
+    pixel_accuracy: float | None
+    mean_accuracy: float | None
+    miou: float | None
+    fwiou: float | None
+    num_pixels: int
+    classes_present: int
+    ignore_index: int | None
+    class_names: list[str]
+    per_class: dict[str, ClassMetrics]
+    confusion_matrix: list[list[int]]
+
+
+class EvalMetrics(Metrics):
+    """``osmseg eval``'s metrics.json: the :class:`Metrics` and what was evaluated, and how."""
+
+    evaluated: dict[str, Any]
+
+
 def metrics_from_matrix(matrix: np.ndarray | Sequence[Sequence[int]], class_names: Sequence[str] | None = None,
-                        ignore_index: int | None = None) -> dict[str, Any]:
+                        ignore_index: int | None = None) -> Metrics:
     """All metrics of a confusion matrix (rows: ground truth, cols: prediction), JSON-able.
 
     Returns ``pixel_accuracy``, ``mean_accuracy`` (mean recall over classes present in the
@@ -190,7 +228,7 @@ def metrics_from_matrix(matrix: np.ndarray | Sequence[Sequence[int]], class_name
     support = mat.sum(axis=1)
     predicted = mat.sum(axis=0)
     total = int(mat.sum())
-    per_class: dict[str, dict[str, Any]] = {}
+    per_class: dict[str, ClassMetrics] = {}
     ious: list[float | None] = []
     recalls: list[float | None] = []
     for i, name in enumerate(names):

@@ -24,9 +24,9 @@ import signal
 import time
 from collections.abc import Callable, Iterable
 from contextlib import ExitStack
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, cast
 
 import numpy as np
 import torch
@@ -54,7 +54,7 @@ from training.data import (
 )
 from training.distributed import Dist, barrier, cleanup, setup
 from training.engine import StepOptions, evaluate, train_one_epoch
-from training.metrics import ConfusionMatrix
+from training.metrics import ConfusionMatrix, Metrics
 from training.model import PRESETS, build_model, model_spec, unlabeled_as_background
 from training.recipe import RECIPES, Recipe, lr_factor, steps_per_epoch
 from training.sampling import RandomCrops, crop_sampler
@@ -74,6 +74,37 @@ def dataset_fingerprint(root: Path) -> str | None:
     """sha256 of the dataset's manifest.json (recorded in checkpoints), None without one."""
     manifest = root / "manifest.json"
     return hashlib.sha256(manifest.read_bytes()).hexdigest() if manifest.is_file() else None
+
+
+class EpochRow(TypedDict):
+    """One epoch of a run: a row of its log.csv (losses None when no batch had a labelled pixel)."""
+
+    epoch: int
+    lr: float
+    train_loss: float | None
+    val_loss: float | None
+    val_miou: float | None
+    val_pixel_accuracy: float | None
+    seconds: float
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What :func:`run` did: the run folder, every epoch's row (a resumed run's earlier ones too),
+    the best epoch by validation mIoU, and this process's rank (only rank 0 writes and reports)."""
+
+    out_dir: Path
+    history: tuple[EpochRow, ...]
+    best: EpochRow | None
+    rank: int = 0
+
+    @property
+    def epochs(self) -> int:
+        return len(self.history)
+
+    @property
+    def last(self) -> EpochRow | None:
+        return self.history[-1] if self.history else None
 
 
 def rounded(loss: float | None, digits: int = 6) -> float | None:
@@ -306,7 +337,7 @@ def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist,
     return splits
 
 
-def run(config: TrainConfig, progress: Progress | None = None) -> dict[str, Any]:
+def run(config: TrainConfig, progress: Progress | None = None) -> TrainResult:
     """Train (or resume) the run ``config`` describes; returns a summary of the best epoch.
 
     ``progress`` gets steps from rank 0 only: epochs (task ``train``), and each epoch's
@@ -414,7 +445,7 @@ def validated(model: nn.Module, criterion: nn.Module, val_loader: DataLoader[Any
                     progress=shown, task=f"epoch {epoch + 1} validate")
 
 
-def save_epoch(files_out: RunFiles, state: dict[str, Any], history: list[dict[str, Any]], metrics: dict[str, Any],
+def save_epoch(files_out: RunFiles, state: dict[str, Any], history: list[dict[str, Any]], metrics: Metrics,
                best: float) -> float:
     """An epoch's files: best.pt when its mIoU beats ``best``, log.csv, then last.pt; returns the new best."""
     if metrics["miou"] is not None and metrics["miou"] > best:
@@ -427,7 +458,7 @@ def save_epoch(files_out: RunFiles, state: dict[str, Any], history: list[dict[st
     return best
 
 
-def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress | None = None) -> dict[str, Any]:
+def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress | None = None) -> TrainResult:
     torch.manual_seed(config.seed)  # the same initial weights in every process
     dataset_table = training_class_table(config.dataset, config.classes, config.model)
     model_table, label_lut = model_classes(config.model, dataset_table)
@@ -500,6 +531,6 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
                         rounded(train_loss, 4), rounded(val_loss, 4), metrics["miou"])
         barrier()
     files_out.close()
-    best_row = max((h for h in history if h.get("val_miou") is not None), key=lambda h: h["val_miou"], default=None)
-    return {"out_dir": str(config.out_dir), "epochs": len(history), "best": best_row,
-            "last": history[-1] if history else None, "history": history, "rank": d.rank}
+    rows = tuple(cast("EpochRow", h) for h in history)
+    best_row = max((h for h in rows if h["val_miou"] is not None), key=lambda h: h["val_miou"] or 0.0, default=None)
+    return TrainResult(out_dir=config.out_dir, history=rows, best=best_row, rank=d.rank)

@@ -21,7 +21,7 @@ Imports: numpy, osmseg core, localization (landmarks, pipeline, profile, search,
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -183,7 +183,7 @@ def method_summary(records: Sequence[dict[str, Any]], method: str,
     return out
 
 
-def headline(results: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+def headline(results: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
     """The method a benchmark's summary leads with, and its summary: the default method
     (``profile``) when it ran, else the first one run. ``results["summary"]`` stays the first
     method's (the records' fields and the class subsets are its), so a run of ``--method

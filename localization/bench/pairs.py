@@ -37,6 +37,7 @@ from localization.bench.compare import RIGHT_WRONG, confidence_of, method_summar
 from localization.bench.rendered import aerial_graphs, localize_subsets, subsets_of, write_results
 from localization.bench.scores import (
     RECALL_RADII_M,
+    BenchResults,
     baselines,
     by_num_classes,
     chance_errors,
@@ -211,7 +212,7 @@ def _mean_time(records: Sequence[dict[str, Any]]) -> float:
 
 
 def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, progress: Progress | None = None,
-              plots: bool = True, source: str = "") -> dict[str, Any]:
+              plots: bool = True, source: str = "") -> BenchResults:
     """Localize every pair's panorama with every class subset; write results.json (+ plots)."""
     if not pairs:
         raise DatasetError("no annotated pairs to evaluate")
@@ -259,7 +260,7 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
     total = time.perf_counter() - t_start
     settings = asdict(config)
     settings["methods"] = list(config.methods)
-    results = {
+    results: BenchResults = {
         "format": "osmseg-localize-bench", "format_version": 3, "tool": f"osmseg {__version__}",
         "kind": "annotated pairs", "queries": "annotated pairs", "unit": "m" if config.resolution_m else "px",
         "settings": settings, "source": source,

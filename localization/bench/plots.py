@@ -8,13 +8,14 @@ radii are the keys of ``summary["recall_at"]``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
 
 from localization.bench.compare import headline
+from localization.bench.scores import BenchResults
 from osmseg.errors import ConfigError
 from osmseg.units import quantity, ratio
 
@@ -40,7 +41,7 @@ def _cdf(ax: Any, values: Sequence[float], n: int, **style: Any) -> None:
 METHOD_NAMES = {"paper": "landmark graphs (MAP)", "profile": "angular profiles"}
 
 
-def errors_title(results: dict[str, Any]) -> str:
+def errors_title(results: Mapping[str, Any]) -> str:
     """errors.png's title: the default method's median and recall when it ran, as the terminal
     summary leads with (:func:`localization.bench.compare.headline`), at :mod:`osmseg.units`' precision."""
     unit = results.get("unit", "m")
@@ -53,7 +54,7 @@ def errors_title(results: dict[str, Any]) -> str:
             f"recall@{middle} {unit} {ratio(lead['recall_at'][middle])}")
 
 
-def plot_errors(results: dict[str, Any], path: Path) -> Path:
+def plot_errors(results: BenchResults, path: Path) -> Path:
     """CDF of each method's error (all classes), with the top-5 mean distance and two blind guesses;
     the title gives the default method's median and recall (:func:`localization.bench.compare.headline`)."""
     figures = _figures()
@@ -92,7 +93,7 @@ def plot_errors(results: dict[str, Any], path: Path) -> Path:
         return cast(Path, figures.save_png(fig, path))
 
 
-def plot_classes(results: dict[str, Any], path: Path) -> Path:
+def plot_classes(results: BenchResults, path: Path) -> Path:
     """Error and recall against the number of landmark classes used (the dissertation's Figure 5.2)."""
     figures = _figures()
     unit = results.get("unit", "m")
@@ -123,7 +124,7 @@ def plot_classes(results: dict[str, Any], path: Path) -> Path:
         return cast(Path, figures.save_png(fig, path))
 
 
-def plot_confidence(results: dict[str, Any], path: Path) -> Path | None:
+def plot_confidence(results: BenchResults, path: Path) -> Path | None:
     """Each method's confidence on matching and on non-matching pairs (histograms, ROC AUC in the title).
 
     None (nothing drawn) when the run has no non-matching pair (one scene, ``--no-negatives``).

@@ -56,7 +56,16 @@ from localization.bench.render import (
     render_view,
     save_panorama_png,
 )
-from localization.bench.scores import _mean, baselines, by_num_classes, chance_errors, score, summarize
+from localization.bench.scores import (
+    BenchResults,
+    RenderedResults,
+    _mean,
+    baselines,
+    by_num_classes,
+    chance_errors,
+    score,
+    summarize,
+)
 from localization.bench.visible import landmark_cells, visible_landmarks
 from localization.common.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
 from localization.common.result import Localization
@@ -301,7 +310,7 @@ def localize_subsets(graphs: dict[tuple[str, ...], AerialGraph], query: Landmark
     return {**full, "by_subset": by_subset}, seconds
 
 
-def write_results(results: dict[str, Any], out_dir: Path, plots: bool) -> None:
+def write_results(results: BenchResults, out_dir: Path, plots: bool) -> None:
     """results.json, and errors.png + classes.png when ``plots``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out_dir / "results.json", json.dumps(results, indent=2, sort_keys=True) + "\n")
@@ -430,7 +439,7 @@ class _Bench:
 
 
 def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, progress: Progress | None = None,
-              plots: bool = True, source: str = "") -> dict[str, Any]:
+              plots: bool = True, source: str = "") -> RenderedResults:
     """Run the benchmark over ``scenes`` (viewpoints spread round-robin) and write results.json + plots.
 
     Each view is rendered once and localized by every method of ``config.methods``; with
@@ -479,7 +488,7 @@ def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, 
 
 def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], AerialGraph]],
              subsets: list[tuple[str, ...]], records: list[dict[str, Any]], config: BenchConfig,
-             classes: LandmarkClasses, source: str, total_s: float) -> dict[str, Any]:
+             classes: LandmarkClasses, source: str, total_s: float) -> RenderedResults:
     """The results.json document (errors in metres)."""
     return {
         "format": "osmseg-localize-bench", "format_version": 3, "tool": f"osmseg {__version__}",

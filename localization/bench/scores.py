@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
 from localization.common.result import Localization
 
-__all__ = ["RECALL_RADII_M", "summarize", "error_fields", "score", "heading_error", "chance_errors", "by_num_classes",
+__all__ = ["BenchResults", "RECALL_RADII_M", "RenderedResults", "summarize", "error_fields", "score", "heading_error", "chance_errors", "by_num_classes",
            "baselines"]
 
 RECALL_RADII_M = (10, 25, 50)
@@ -29,6 +29,35 @@ def _mean(values: Sequence[float]) -> float | None:
 
 def _median(values: Sequence[float]) -> float | None:
     return round(float(np.median(values)), 4) if len(values) else None
+
+
+class BenchResults(TypedDict):
+    """A localize-bench's results.json, either protocol: what was measured, how, each method's
+    summary side by side, and every query's record (docs/localization.md)."""
+
+    format: str
+    format_version: int
+    tool: str
+    kind: str                       # "rendered panoramas" or "annotated pairs"
+    queries: str
+    unit: str                       # "m", or "px" for pairs of unknown resolution
+    settings: dict[str, Any]
+    source: str
+    landmark_classes: dict[str, Any]
+    classes: list[str]
+    summary: dict[str, Any]         # the first method's, over the full class set (:func:`summarize`)
+    baselines: dict[str, float | None]
+    by_num_classes: dict[str, Any]
+    methods: dict[str, dict[str, Any]]
+    timing: dict[str, float | None]
+    viewpoints: list[dict[str, Any]]
+
+
+class RenderedResults(BenchResults):
+    """The rendered-views protocol's results.json: also the seed and the aerial scenes."""
+
+    seed: int
+    scenes: list[dict[str, Any]]
 
 
 def summarize(records: Sequence[dict[str, Any]], radii: Sequence[float] = RECALL_RADII_M) -> dict[str, Any]:

@@ -5,14 +5,17 @@ Imports: osmseg.units and localization.bench.compare (never localization.cli.com
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from localization.bench.scores import BenchResults
 
 from osmseg.units import number, pixels, quantity, ratio
 
 __all__ = ["format_summary", "method_table"]
 
 
-def format_summary(results: dict[str, Any]) -> str:
+def format_summary(results: BenchResults) -> str:
     """A few lines for the terminal: the default method's result when it ran (else the first
     method's: :func:`localization.bench.compare.headline`), the blind baselines, the first method's
     class-subset trend when it was computed (the paper method's), and every method side by side.

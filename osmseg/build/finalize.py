@@ -42,7 +42,7 @@ from osmseg.output import (
     write_manifest,
     write_overview,
 )
-from osmseg.output.manifest import FORMAT, FORMAT_VERSION, config_entry
+from osmseg.output.manifest import FORMAT, FORMAT_VERSION, Summary, config_entry
 from osmseg.output.stac import write_stac
 from osmseg.overlap import overlap_groups
 from osmseg.processes import owner
@@ -175,7 +175,7 @@ def finalize(
     imagery_info: dict[str, Any],
     osm_info: dict[str, Any],
     command_line: str,
-) -> dict[str, Any]:
+) -> Summary:
     """Write manifest, datasheet, attribution, STAC, pictures (and zip) from the finished slots.
 
     Returns the manifest's ``summary``. Every slot of the build must have its outcome recorded.
@@ -185,18 +185,19 @@ def finalize(
 
 
 def _write_dataset_files(config: BuildConfig, table: ClassTable, state: BuildState, records: SlotRecords,
-                         imagery_info: dict[str, Any], osm_info: dict[str, Any], command_line: str) -> dict[str, Any]:
+                         imagery_info: dict[str, Any], osm_info: dict[str, Any], command_line: str) -> Summary:
     samples, rejected = SampleEntries(records), RejectionEntries(records)
     area = config.area
-    summary = summary_entry(samples, rejected, requested=config.samples, max_attempts=config.samples * config.max_tries)
+    counts = summary_entry(samples, rejected, requested=config.samples, max_attempts=config.samples * config.max_tries)
     # slots draw independently (that is what makes shards exact), so two may land on one grid, or
     # overlap: groups of overlapping samples are recorded, and training keeps a group in one split
-    summary.update(
-        duplicate_samples=records.duplicate_samples,
-        overlapping_samples=records.overlapping_samples,
-        overlap_groups=records.overlap_group_count,
-        osm_unplaced=records.osm_unplaced,
-    )
+    summary: Summary = {
+        **counts,
+        "duplicate_samples": records.duplicate_samples,
+        "overlapping_samples": records.overlapping_samples,
+        "overlap_groups": records.overlap_group_count,
+        "osm_unplaced": records.osm_unplaced,
+    }
     manifest: dict[str, Any] = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,

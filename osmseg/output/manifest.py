@@ -19,7 +19,7 @@ from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, TypedDict, cast
 
 import mercantile
 
@@ -156,13 +156,35 @@ def rejection_entry(lon: float, lat: float, rejection: Rejection, attempt: int |
     return entry
 
 
+class Counts(TypedDict):
+    """What a build asked for and got: the first keys of the manifest's ``summary``."""
+
+    requested: int
+    accepted: int
+    rejected: int
+    attempts: int
+    max_attempts: int
+    rejected_by_reason: dict[str, int]
+    complete: bool
+
+
+class Summary(Counts):
+    """The manifest's ``summary`` (docs/dataset-format.md): the :class:`Counts`, and how the
+    samples fall relative to each other and to OSM."""
+
+    duplicate_samples: int      # samples on the very tiles of another
+    overlapping_samples: int    # samples sharing pixels with another
+    overlap_groups: int         # groups of samples that overlap; a lone sample is a group
+    osm_unplaced: int           # OSM objects of a class that could not be drawn (no node located)
+
+
 def summary_entry(
     samples: Sequence[dict[str, Any]],
     rejected: Sequence[dict[str, Any]],
     *,
     requested: int,
     max_attempts: int,
-) -> dict[str, Any]:
+) -> Counts:
     """Counts for the manifest's ``summary``: accepted, rejected (total and by reason), attempts.
 
     >>> summary_entry([{}], [{"reason": "unlabeled"}] * 2, requested=3, max_attempts=10)["rejected_by_reason"]
