@@ -44,7 +44,7 @@ from localization.common.views import Camera, semantic_map  # noqa: E402
 from localization.paper import cells, graph, windows  # noqa: E402
 from localization.paper.config import PaperConfig  # noqa: E402
 from localization.paper.match import localize  # noqa: E402
-from localization.pipeline import profile_index, profile_query, run_profile  # noqa: E402
+from localization.profile.method import profile_index, profile_query, run_profile  # noqa: E402
 from localization.profile.search import ProfileConfig  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 

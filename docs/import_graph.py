@@ -1,17 +1,24 @@
-"""Print osmseg's dependency graph: imports between the three packages, and import cycles.
+"""Print osmseg's dependency graph and the figures of how easy it is to enter, package by package.
 
     python docs/import_graph.py            # this checkout
     git worktree add /tmp/old <commit> && python docs/import_graph.py /tmp/old   # another one
 
-Counts every import statement, at module level or inside a function (grimp, the library
-under import-linter, which ``make test`` runs to enforce the layers in pyproject.toml).
+Imports between the three packages and between the wings (sub-packages) of each, import
+cycles, and per package: modules, import floors (the longest chain of imports inside it),
+private names (``_name``) imported from another module (and from another wing), how often
+``Any`` and ``dict[str, Any]`` appear, and the longest function. Counts every import
+statement, at module level or inside a function (grimp, the library under import-linter,
+which ``make test`` runs to enforce the contracts in pyproject.toml).
 """
 
 from __future__ import annotations
 
+import ast
 import collections
+import re
 import sys
 from pathlib import Path
+from typing import cast
 
 import grimp
 
@@ -61,6 +68,76 @@ def cycles(graph: grimp.ImportGraph) -> list[list[str]]:
     return found
 
 
+def floors(graph: grimp.ImportGraph, package: str) -> int:
+    """How many floors the package's modules stand on: the longest chain of imports inside it.
+
+    A module that imports nothing of its package is on floor 1; one that does, one floor above
+    the highest it imports (modules of one import cycle share a floor).
+    """
+    inside = sorted(m for m in graph.modules if m == package or m.startswith(package + "."))
+    members = set(inside)
+    component = {m: m for m in inside}
+    for group in cycles(graph):
+        for m in group:
+            if m in component:
+                component[m] = group[0]
+    level: dict[str, int] = {}
+
+    def floor(m: str, seen: frozenset[str] = frozenset()) -> int:
+        key = component[m]
+        if key in level:
+            return level[key]
+        below = [i for i in graph.find_modules_directly_imported_by(m) if i in members and component[i] != key
+                 and not _is_package_of(i, m)]
+        level[key] = 1 + max((floor(i) for i in below), default=0)
+        return level[key]
+
+    sys.setrecursionlimit(10000)
+    return max((floor(m) for m in inside), default=0)
+
+
+def _is_package_of(package: str, module: str) -> bool:
+    """``package`` is an ``__init__`` above ``module`` (importing a sibling through it adds no floor)."""
+    return module.startswith(package + ".")
+
+
+def source_figures(root: Path, package: str) -> dict[str, object]:
+    """Counted from the source text: ``Any``, private names imported from another module, the longest function."""
+    any_count = dict_any = 0
+    private: list[str] = []
+    longest = (0, "")
+    for path in sorted((root / package).rglob("*.py")):
+        text = path.read_text()
+        any_count += len(re.findall(r"\bAny\b", text)) - len(re.findall(r"^from typing import.*\bAny\b", text, re.M))
+        dict_any += text.count("dict[str, Any]")
+        tree = ast.parse(text)
+        name = ".".join(path.relative_to(root).with_suffix("").parts).removesuffix(".__init__")
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] in PACKAGES \
+                    and node.module != name:
+                private += [f"{name} <- {node.module}.{a.name}" for a in node.names
+                            if a.name.startswith("_") and not a.name.startswith("__")]
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                n = (node.end_lineno or node.lineno) - node.lineno + 1
+                if n > longest[0]:
+                    longest = (n, f"{path.relative_to(root)}:{node.lineno} {node.name}")
+    return {"any": any_count, "dict_any": dict_any, "private": private, "longest": longest}
+
+
+def wings(graph: grimp.ImportGraph, package: str) -> collections.Counter[tuple[str, str]]:
+    """Imports between the sub-packages (and top modules) of ``package``: importer -> imported, modules importing."""
+    edges: collections.Counter[tuple[str, str]] = collections.Counter()
+    for module in graph.modules:
+        if not module.startswith(package + "."):
+            continue
+        for imported in graph.find_modules_directly_imported_by(module):
+            if imported.startswith(package + "."):
+                a, b = module.split(".")[1], imported.split(".")[1]
+                if a != b:
+                    edges[(a, b)] += 1
+    return edges
+
+
 def main(root: Path) -> None:
     sys.path.insert(0, str(root))
     graph = grimp.build_graph(*PACKAGES, cache_dir=None)
@@ -79,6 +156,28 @@ def main(root: Path) -> None:
     print(f"module import cycles: {len(found)}")
     for component in found:
         print("  " + " <-> ".join(component))
+    for package in PACKAGES:
+        figures = source_figures(root, package)
+        modules = [m for m in graph.modules if m == package or m.startswith(package + ".")]
+        private = cast("list[str]", figures["private"])
+        across = [line for line in private if _wing(line.split(" <- ")[0]) != _wing(line.split(" <- ")[1])]
+        lines, where = cast("tuple[int, str]", figures["longest"])
+        print(f"{package}: {len(modules)} modules on {floors(graph, package)} import floors; private names imported "
+              f"from another module {len(private)} (from another wing {len(across)}); Any {figures['any']} "
+              f"(dict[str, Any] {figures['dict_any']}); longest function {lines} lines ({where})")
+        for line in across:
+            print(f"  private across wings: {line}")
+        between = wings(graph, package)
+        if any("." in m[len(package) + 1:] for m in modules):  # a package with wings
+            print(f"  imports between {package}'s wings (importer -> imported: modules importing):")
+            for (a, b), n in sorted(between.items()):
+                print(f"    {a:12} -> {b:12} {n:3}")
+
+
+def _wing(name: str) -> str:
+    """The wing a module or name belongs to: its package's sub-package, or the module itself at the top."""
+    parts = name.split(".")
+    return ".".join(parts[:2])
 
 
 if __name__ == "__main__":

@@ -1,15 +1,18 @@
-"""Localize one query in one aerial image: the library entry point every caller goes through.
+"""Localize one query in one aerial image: where the two methods meet, and ``osmseg localize``'s library call.
 
-:func:`run` takes a :class:`LocalizeConfig` (windows, candidate extension, hierarchy, feature
-edges), the aerial side (its landmarks, or an :class:`AerialGraph` built once for many
-queries) and the query's landmarks, and returns the :class:`~localization.common.result.Localization`.
-``osmseg localize`` (:func:`localize_files`, which also reads both sides and writes
-``result.json`` and pictures), the rendered-panorama benchmark (:mod:`localization.bench.rendered`)
-and the annotated-pairs protocol (:mod:`localization.bench.pairs`) all call it, so a change to how
-a pair is localized is made here once.
+A :class:`LocalizeConfig` names the method and carries each method's own settings down
+(:class:`~localization.paper.config.PaperConfig`, :class:`~localization.profile.search.ProfileConfig`).
+:func:`run` localizes a query's landmarks by the paper's method
+(:func:`~localization.paper.match.localize`, or the window hierarchy), in an aerial image's
+landmarks or its :class:`~localization.paper.match.AerialGraph` built once for many queries;
+the profile method's entry points are :mod:`localization.profile.method`'s.
+:func:`localize_files` is ``osmseg localize``: it reads both sides, runs the method the config
+names, and writes ``result.json`` and pictures. The benchmarks (:mod:`localization.bench`)
+call the same functions, so a change to how a pair is localized is made once.
 
-Imports: osmseg core, and localization (training only through :mod:`localization.common.inputs`
-and :mod:`localization.paper.features`, when an RGB side is segmented or features are asked for).
+Imports: osmseg core, and localization's common wing and both methods (training only through
+:mod:`localization.common.inputs` and :mod:`localization.paper.features`, when an RGB side is
+segmented or features are asked for).
 """
 
 from __future__ import annotations
@@ -24,35 +27,23 @@ import numpy as np
 
 from localization.common.inputs import Side, SideOptions, load_side, with_photo
 from localization.common.landmarks import Landmarks
-from localization.common.views import Camera, SemanticMap, check_view_shape
+from localization.common.result import DEFAULT_METHOD, METHODS
+from localization.common.views import Camera, check_view_shape
 from localization.paper.config import PaperConfig
 from localization.paper.features import FeatureEdges
 from localization.paper.graph import adjacency
 from localization.paper.match import AerialGraph, Localization, localize
 from localization.paper.refine import localize_hierarchical
-from localization.profile.horizon import estimate_tilt
-from localization.profile.profiles import (
-    AerialLandmarkIndex,
-    AerialMaskIndex,
-    QueryProfile,
-    query_from_landmarks,
-    query_from_mask,
-    query_poses,
-    ray_radii,
-)
-from localization.profile.search import AerialIndex, ProfileConfig, localize_profile
+from localization.profile.method import profile_index, run_profile
+from localization.profile.search import ProfileConfig
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_text
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["DEFAULT_METHOD", "METHODS", "LocalizeConfig", "LocalizeFiles", "LocalizeReport",
-           "localize_files", "profile_index", "profile_query", "run", "run_profile"]
+           "localize_files", "run"]
 
-#: ``paper``: landmark-graph matching (Verde et al. 2020); ``profile``: angular profiles on a dense grid.
-METHODS = ("paper", "profile")
-#: the method ``osmseg localize`` runs unless told otherwise; summaries lead with it when it ran
-DEFAULT_METHOD = "profile"
 
 
 @dataclass(frozen=True)
@@ -94,45 +85,10 @@ def run(config: LocalizeConfig, aerial: Landmarks | AerialGraph, query: Landmark
     return localize(aerial, query, config.paper, aerial_drop=aerial_drop, query_drop=query_drop)
 
 
-def profile_index(aerial: SemanticMap | Landmarks, resolution_m: float | None,
-                  config: ProfileConfig = ProfileConfig()) -> AerialIndex:
-    """The aerial side of the profile method: from a mask (ray casting) or landmark points (kernels)."""
-    if not resolution_m:
-        raise ConfigError("the profile method measures distances in metres: give the aerial resolution "
-                          "(--resolution, m/px), or a GeoTIFF or dataset mask that records it, or use --method paper")
-    if isinstance(aerial, SemanticMap):
-        return AerialMaskIndex(aerial, resolution_m, config.samples)
-    return AerialLandmarkIndex(aerial, resolution_m, sigma_deg=config.sigma_deg, distance_sd=config.distance_sd,
-                               d0_m=config.d0_m)
 
 
-def profile_query(query: SemanticMap | Landmarks, camera: Camera, config: ProfileConfig = ProfileConfig()
-                  ) -> QueryProfile:
-    """The query side of the profile method, in compass azimuths (heading given) or its own frame (unknown)."""
-    radii = ray_radii(camera, config.radii, config.min_range_m, config.max_range_m)
-    if isinstance(query, SemanticMap):
-        if config.tilt_deg > 0:  # the horizon read from the view: where its sky ends and its ground begins
-            tilt = estimate_tilt(query, camera, config.tilt_deg)
-            camera = replace(camera, pitch_deg=tilt.pitch_deg, roll_deg=tilt.roll_deg)
-        if config.camera_heights:
-            return query_poses(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg,
-                               heights=config.camera_heights)
-        return query_from_mask(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg)
-    bins = config.bins or max(8, int(round(360.0 / (config.sigma_deg / 2))))
-    return query_from_landmarks(query, camera, bins=bins, radii=radii, heading_deg=config.heading_deg)
 
 
-def run_profile(config: ProfileConfig, aerial: AerialIndex, query: SemanticMap | Landmarks | QueryProfile,
-                camera: Camera | None = None, prior: np.ndarray | None = None) -> Localization:
-    """Localize ``query`` (its mask or landmarks seen by ``camera``, or a ready profile) with the profile method."""
-    if not isinstance(query, QueryProfile):
-        if camera is None:
-            raise ConfigError("the profile method needs the query camera (image size and field of view)")
-        query = profile_query(query, camera, config)
-    result = localize_profile(aerial, query, config, prior)
-    logger.debug("localize (profile): heading %s, confidence %s, %d positions at the finest level",
-                 result.heading_deg, result.confidence, len(result.candidates))
-    return result
 
 
 # --------------------------------------------------------------------------- a pair of files

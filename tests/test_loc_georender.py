@@ -479,7 +479,7 @@ def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> N
     from localization.common.landmarks import load_landmark_classes
     from localization.common.result import Localization
     from localization.common.views import Camera as QueryCamera, semantic_map
-    from localization.pipeline import profile_index, run_profile
+    from localization.profile.method import profile_index, run_profile
     from localization.profile.search import UNKNOWN_HEIGHTS, ProfileConfig
     from osmseg.classes import load_class_table
 

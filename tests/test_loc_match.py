@@ -22,6 +22,7 @@ from localization.cli.commands import localize_command
 from localization.common.figures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
 from localization.common.landmarks import Landmarks
 from localization.paper.config import PaperConfig
+from localization.paper.edges import feature_edge_mask
 from localization.paper.graph import cliques_fast
 from localization.paper.match import (
     DEFAULT_P,
@@ -35,7 +36,7 @@ from localization.paper.match import (
     rank,
     relevant_cliques,
 )
-from localization.paper.refine import feature_edge_mask, inherit, localize_hierarchical
+from localization.paper.refine import inherit, localize_hierarchical
 from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError
 
@@ -564,8 +565,8 @@ def test_cli_segments_an_rgb_image_with_a_checkpoint(tmp_path) -> None:
 
 def test_too_many_landmarks_is_a_clear_error_not_a_crash() -> None:
     """Landmarks of a noisy mask at --min-size 1 can number tens of thousands: refuse, with advice."""
+    from localization.paper.edges import MAX_FEATURE_LANDMARKS
     from localization.paper.match import MAX_CLIQUE_PAIRS
-    from localization.paper.refine import MAX_FEATURE_LANDMARKS
 
     rng = np.random.default_rng(0)
     k = int((2 * MAX_CLIQUE_PAIRS) ** 0.5) + 2  # one window holding them all: k (k - 1) / 2 pairs, over the limit

@@ -24,7 +24,7 @@ from localization.bench.render import RenderConfig, object_heights, render_panor
 from localization.cli.commands import localize_bench_command, localize_command
 from localization.common.landmarks import landmarks_from_mask
 from localization.common.views import Camera, semantic_map
-from localization.pipeline import profile_index, profile_query, run_profile
+from localization.profile.method import profile_index, profile_query, run_profile
 from localization.profile.profiles import MASK_MIN_CONFIDENCE, query_from_mask, ray_radii
 from localization.profile.search import ProfileConfig
 

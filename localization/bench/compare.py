@@ -20,23 +20,27 @@ Imports: numpy, osmseg core, localization (landmarks, pipeline, profile, search,
 
 from __future__ import annotations
 
+import itertools
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from localization.bench.render import Panorama
-from localization.bench.scores import error_fields, heading_error
+from localization.bench.scores import error_fields, heading_error, score
 from localization.common.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask
 from localization.common.result import Localization
 from localization.common.views import Camera, SemanticMap, semantic_map
-from localization.paper.match import AerialGraph
-from localization.pipeline import DEFAULT_METHOD, LocalizeConfig, run, run_profile
+from localization.paper.config import PaperConfig
+from localization.paper.match import AerialGraph, aerial_graph
+from localization.pipeline import LocalizeConfig, run
+from localization.profile.method import run_profile
 from localization.profile.search import AerialIndex, ProfileConfig
 
-__all__ = ["Query", "confidence_of", "headline", "photo_columns", "photo_view", "run_method", "roc_auc", "method_summary"]
+__all__ = ["Query", "aerial_graphs", "class_subsets", "confidence_of", "localize_subsets", "photo_columns", "photo_view",
+           "run_method", "roc_auc", "method_summary", "subsets_of"]
 
 
 @dataclass(frozen=True)
@@ -183,21 +187,43 @@ def method_summary(records: Sequence[dict[str, Any]], method: str,
     return out
 
 
-def headline(results: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
-    """The method a benchmark's summary leads with, and its summary: the default method
-    (``profile``) when it ran, else the first one run. ``results["summary"]`` stays the first
-    method's (the records' fields and the class subsets are its), so a run of ``--method
-    paper,profile`` still headlines with the method a user of ``osmseg localize`` gets.
 
-    >>> headline({"summary": {"n": 1}, "methods": {"paper": {"n": 2}, "profile": {"n": 3}}})
-    ('profile', {'n': 3})
-    >>> headline({"summary": {"n": 1}, "methods": {}})
-    ('', {'n': 1})
+
+def class_subsets(names: Sequence[str]) -> list[tuple[str, ...]]:
+    """Every subset of two or more classes, smallest first (the order of ``names`` kept).
+
+    >>> [("+".join(s)) for s in class_subsets(("building", "road", "tree"))]
+    ['building+road', 'building+tree', 'road+tree', 'building+road+tree']
     """
-    methods = results.get("methods") or {}
-    if DEFAULT_METHOD in methods:
-        return DEFAULT_METHOD, methods[DEFAULT_METHOD]
-    if methods:
-        name = next(iter(methods))
-        return name, methods[name]
-    return "", results["summary"]
+    return [c for k in range(2, len(names) + 1) for c in itertools.combinations(names, k)]
+
+
+
+def aerial_graphs(lm: Landmarks, subsets: Sequence[tuple[str, ...]], config: PaperConfig
+                  ) -> dict[tuple[str, ...], AerialGraph]:
+    """The aerial landmarks' graph for every class subset, each with its own automatic window."""
+    return {s: aerial_graph(lm.of_classes(s), config) for s in subsets}
+
+
+
+def localize_subsets(graphs: dict[tuple[str, ...], AerialGraph], query: Landmarks, truth: tuple[float, float],
+                     scale: float, config: PaperConfig) -> tuple[dict[str, Any], float]:
+    """Score the query against every subset's graph: the full set's record (with ``by_subset``) and its time (s)."""
+    subsets = list(graphs)
+    by_subset: dict[str, dict[str, Any]] = {}
+    seconds = 0.0
+    for s in subsets:
+        t0 = time.perf_counter()
+        loc = run(LocalizeConfig(method="paper", paper=config), graphs[s], query.of_classes(s))
+        if s == subsets[0]:
+            seconds = time.perf_counter() - t0
+        by_subset["+".join(s)] = score(loc, truth, scale)
+    full = by_subset.pop("+".join(subsets[0]))
+    return {**full, "by_subset": by_subset}, seconds
+
+
+
+def subsets_of(classes: LandmarkClasses, all_subsets: bool) -> list[tuple[str, ...]]:
+    """The full class set first, then (when asked) every smaller subset of two or more classes."""
+    full = tuple(classes.names)
+    return [full] + ([s for s in class_subsets(full) if len(s) < len(full)] if all_subsets else [])

@@ -33,8 +33,15 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, cast
 
-from localization.bench.compare import RIGHT_WRONG, confidence_of, method_summary
-from localization.bench.rendered import aerial_graphs, localize_subsets, subsets_of, write_results
+from localization.bench.compare import (
+    RIGHT_WRONG,
+    aerial_graphs,
+    confidence_of,
+    localize_subsets,
+    method_summary,
+    subsets_of,
+)
+from localization.bench.plots import write_results
 from localization.bench.scores import (
     RECALL_RADII_M,
     BenchResults,
@@ -51,7 +58,8 @@ from localization.common.result import DEFAULT_P
 from localization.common.views import Camera, check_view_shape
 from localization.paper.config import PaperConfig
 from localization.paper.match import aerial_graph
-from localization.pipeline import METHODS, LocalizeConfig, profile_index, run, run_profile
+from localization.pipeline import METHODS, LocalizeConfig, run
+from localization.profile.method import profile_index, run_profile
 from localization.profile.search import ProfileConfig
 from osmseg import __version__
 from osmseg.errors import ConfigError, DatasetError

@@ -8,15 +8,16 @@ radii are the keys of ``summary["recall_at"]``.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
 
-from localization.bench.compare import headline
-from localization.bench.scores import BenchResults
+from localization.bench.scores import BenchResults, headline
 from osmseg.errors import ConfigError
+from osmseg.output.atomic import atomic_write_text
 from osmseg.units import quantity, ratio
 
 __all__ = ["METHOD_NAMES", "errors_title", "plot_errors", "plot_classes", "plot_confidence"]
@@ -43,7 +44,7 @@ METHOD_NAMES = {"paper": "landmark graphs (MAP)", "profile": "angular profiles"}
 
 def errors_title(results: Mapping[str, Any]) -> str:
     """errors.png's title: the default method's median and recall when it ran, as the terminal
-    summary leads with (:func:`localization.bench.compare.headline`), at :mod:`osmseg.units`' precision."""
+    summary leads with (:func:`localization.bench.scores.headline`), at :mod:`osmseg.units`' precision."""
     unit = results.get("unit", "m")
     name, lead = headline(results)
     radii = list(lead["recall_at"])
@@ -56,7 +57,7 @@ def errors_title(results: Mapping[str, Any]) -> str:
 
 def plot_errors(results: BenchResults, path: Path) -> Path:
     """CDF of each method's error (all classes), with the top-5 mean distance and two blind guesses;
-    the title gives the default method's median and recall (:func:`localization.bench.compare.headline`)."""
+    the title gives the default method's median and recall (:func:`localization.bench.scores.headline`)."""
     figures = _figures()
     unit = results.get("unit", "m")
     recs, s = results["viewpoints"], results["summary"]
@@ -149,3 +150,13 @@ def plot_confidence(results: BenchResults, path: Path) -> Path | None:
             ax.legend(fontsize=8)
         fig.suptitle("Does the confidence tell a match from a non-match?")
         return cast("Path | None", figures.save_png(fig, path))
+
+
+def write_results(results: BenchResults, out_dir: Path, plots: bool) -> None:
+    """results.json, and errors.png + classes.png when ``plots``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out_dir / "results.json", json.dumps(results, indent=2, sort_keys=True) + "\n")
+    if plots:
+        plot_errors(results, out_dir / "errors.png")
+        plot_classes(results, out_dir / "classes.png")
+        plot_confidence(results, out_dir / "confidence.png")

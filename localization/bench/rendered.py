@@ -32,8 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
-import itertools
-import json
 import logging
 import math
 import time
@@ -44,10 +42,19 @@ from typing import Any, cast
 
 import numpy as np
 
-from localization.bench.compare import Query, method_summary, photo_columns, photo_view, run_method
+from localization.bench.compare import (
+    Query,
+    aerial_graphs,
+    localize_subsets,
+    method_summary,
+    photo_columns,
+    photo_view,
+    run_method,
+    subsets_of,
+)
 from localization.bench.geobench import geometry_view, geotiff_bounds_3857, scene_for_mask
 from localization.bench.georender_osm import OsmScene
-from localization.bench.plots import plot_classes, plot_confidence, plot_errors
+from localization.bench.plots import write_results
 from localization.bench.render import (
     NoiseConfig,
     RenderConfig,
@@ -57,13 +64,11 @@ from localization.bench.render import (
     save_panorama_png,
 )
 from localization.bench.scores import (
-    BenchResults,
     RenderedResults,
     _mean,
     baselines,
     by_num_classes,
     chance_errors,
-    score,
     summarize,
 )
 from localization.bench.visible import landmark_cells, visible_landmarks
@@ -72,21 +77,20 @@ from localization.common.result import Localization
 from localization.common.views import semantic_map
 from localization.paper.config import PaperConfig
 from localization.paper.graph import cliques_fast
-from localization.paper.match import DEFAULT_P, AerialGraph, aerial_graph
-from localization.pipeline import METHODS, LocalizeConfig, profile_index, run
+from localization.paper.match import DEFAULT_P, AerialGraph
+from localization.pipeline import METHODS, LocalizeConfig
+from localization.profile.method import profile_index
 from localization.profile.profiles import MASK_MIN_CONFIDENCE
 from localization.profile.search import AerialIndex, ProfileConfig
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.output.atomic import atomic_write_text
 from osmseg.output.manifest import manifest_path, read_manifest
 from osmseg.progress import Progress, track
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Scene", "BenchConfig", "load_dataset_scenes", "load_mask_scene", "place_viewpoints", "class_subsets",
-           "subsets_of", "aerial_graphs", "localize_subsets", "run_bench", "write_results"]
+__all__ = ["Scene", "BenchConfig", "load_dataset_scenes", "load_mask_scene", "place_viewpoints", "run_bench"]
 
 #: Classes nobody stands on, besides those with a height (buildings, trees).
 NOT_STANDABLE = ("unlabeled", "water")
@@ -276,54 +280,17 @@ def place_viewpoints(mask: np.ndarray, ids: Sequence[int], n: int, margin_px: in
     return np.stack([xs[pick], ys[pick]], axis=1)
 
 
-def class_subsets(names: Sequence[str]) -> list[tuple[str, ...]]:
-    """Every subset of two or more classes, smallest first (the order of ``names`` kept).
-
-    >>> [("+".join(s)) for s in class_subsets(("building", "road", "tree"))]
-    ['building+road', 'building+tree', 'road+tree', 'building+road+tree']
-    """
-    return [c for k in range(2, len(names) + 1) for c in itertools.combinations(names, k)]
 
 
 # --------------------------------------------------------------------------- the run
 
 
-def aerial_graphs(lm: Landmarks, subsets: Sequence[tuple[str, ...]], config: PaperConfig
-                  ) -> dict[tuple[str, ...], AerialGraph]:
-    """The aerial landmarks' graph for every class subset, each with its own automatic window."""
-    return {s: aerial_graph(lm.of_classes(s), config) for s in subsets}
 
 
-def localize_subsets(graphs: dict[tuple[str, ...], AerialGraph], query: Landmarks, truth: tuple[float, float],
-                     scale: float, config: PaperConfig) -> tuple[dict[str, Any], float]:
-    """Score the query against every subset's graph: the full set's record (with ``by_subset``) and its time (s)."""
-    subsets = list(graphs)
-    by_subset: dict[str, dict[str, Any]] = {}
-    seconds = 0.0
-    for s in subsets:
-        t0 = time.perf_counter()
-        loc = run(LocalizeConfig(method="paper", paper=config), graphs[s], query.of_classes(s))
-        if s == subsets[0]:
-            seconds = time.perf_counter() - t0
-        by_subset["+".join(s)] = score(loc, truth, scale)
-    full = by_subset.pop("+".join(subsets[0]))
-    return {**full, "by_subset": by_subset}, seconds
 
 
-def write_results(results: BenchResults, out_dir: Path, plots: bool) -> None:
-    """results.json, and errors.png + classes.png when ``plots``."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out_dir / "results.json", json.dumps(results, indent=2, sort_keys=True) + "\n")
-    if plots:
-        plot_errors(results, out_dir / "errors.png")
-        plot_classes(results, out_dir / "classes.png")
-        plot_confidence(results, out_dir / "confidence.png")
 
 
-def subsets_of(classes: LandmarkClasses, all_subsets: bool) -> list[tuple[str, ...]]:
-    """The full class set first, then (when asked) every smaller subset of two or more classes."""
-    full = tuple(classes.names)
-    return [full] + ([s for s in class_subsets(full) if len(s) < len(full)] if all_subsets else [])
 
 
 class _Bench:

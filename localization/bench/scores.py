@@ -10,12 +10,12 @@ Imports: numpy and localization.common.result.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, TypedDict
 
 import numpy as np
 
-from localization.common.result import Localization
+from localization.common.result import DEFAULT_METHOD, Localization
 
 __all__ = ["BenchResults", "RECALL_RADII_M", "RenderedResults", "summarize", "error_fields", "score", "heading_error", "chance_errors", "by_num_classes",
            "baselines"]
@@ -165,3 +165,23 @@ def baselines(records: Sequence[dict[str, Any]]) -> dict[str, float | None]:
     return {"centre_guess_mean": _mean([r["centre_guess"] for r in records]),
             "random_guess_mean": _mean([r["random_guess"] for r in records]),
             "random_candidate_mean": _mean(picks), "random_candidate_median": _median(picks)}
+
+
+def headline(results: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
+    """The method a benchmark's summary leads with, and its summary: the default method
+    (``profile``) when it ran, else the first one run. ``results["summary"]`` stays the first
+    method's (the records' fields and the class subsets are its), so a run of ``--method
+    paper,profile`` still headlines with the method a user of ``osmseg localize`` gets.
+
+    >>> headline({"summary": {"n": 1}, "methods": {"paper": {"n": 2}, "profile": {"n": 3}}})
+    ('profile', {'n': 3})
+    >>> headline({"summary": {"n": 1}, "methods": {}})
+    ('', {'n': 1})
+    """
+    methods = results.get("methods") or {}
+    if DEFAULT_METHOD in methods:
+        return DEFAULT_METHOD, methods[DEFAULT_METHOD]
+    if methods:
+        name = next(iter(methods))
+        return name, methods[name]
+    return "", results["summary"]

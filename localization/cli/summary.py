@@ -17,10 +17,10 @@ __all__ = ["format_summary", "method_table"]
 
 def format_summary(results: BenchResults) -> str:
     """A few lines for the terminal: the default method's result when it ran (else the first
-    method's: :func:`localization.bench.compare.headline`), the blind baselines, the first method's
+    method's: :func:`localization.bench.scores.headline`), the blind baselines, the first method's
     class-subset trend when it was computed (the paper method's), and every method side by side.
     Figures at the one precision of :mod:`osmseg.units`."""
-    from localization.bench.compare import headline
+    from localization.bench.scores import headline
 
     u = results.get("unit", "m")
     b = results["baselines"]

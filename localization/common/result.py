@@ -13,8 +13,12 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DEFAULT_P", "TIE_ATOL", "TIE_RTOL", "Localization", "answered", "rank", "unanswered"]
+__all__ = ["DEFAULT_METHOD", "DEFAULT_P", "METHODS", "TIE_ATOL", "TIE_RTOL", "Localization", "answered", "rank", "unanswered"]
 
+#: ``paper``: landmark-graph matching (Verde et al. 2020); ``profile``: angular profiles on a dense grid.
+METHODS = ("paper", "profile")
+#: the method ``osmseg localize`` runs unless told otherwise; summaries lead with it when it ran
+DEFAULT_METHOD = "profile"
 #: The covisibility parameter p of the candidate extension (the paper's value).
 DEFAULT_P = 0.5
 #: Scores within this relative (or absolute) distance of the best one count as tied with it.

@@ -5,7 +5,7 @@ closer than a threshold: two landmarks that look alike (two parts of one buildin
 little about the place together. :func:`landmark_features` gives each landmark a trained
 SegNet's *encoder* output at its position; :class:`FeatureEdges` turns those into the
 ``(K, K)`` mask :func:`~localization.paper.match.localize` takes as ``aerial_drop``/``query_drop``
-(by :func:`~localization.paper.refine.feature_edge_mask`) and counts what it removed.
+(by :func:`~localization.paper.edges.feature_edge_mask`) and counts what it removed.
 
 The image is **resized** to the nearest multiple of the stage's cell (32 px for the deepest
 stage) and encoded in one pass, not tiled: the scale changes by at most half a cell per side
@@ -28,8 +28,8 @@ import numpy as np
 from scipy import sparse
 
 from localization.common.landmarks import Landmarks
+from localization.paper.edges import feature_edge_mask
 from localization.paper.graph import Cliques, adjacency
-from localization.paper.refine import feature_edge_mask
 from osmseg.errors import ConfigError
 from osmseg.images import as_rgb
 
@@ -168,7 +168,7 @@ class FeatureEdges:
     """§5.3.2 settings: landmark pairs whose features are closer than ``threshold`` lose their edge.
 
     ``metric`` and ``reduce``/``components`` are those of
-    :func:`~localization.paper.refine.feature_edge_mask` (``reduce="none"``: the raw features);
+    :func:`~localization.paper.edges.feature_edge_mask` (``reduce="none"``: the raw features);
     ``stage`` is the encoder stage sampled (:func:`landmark_features`).
 
     >>> FeatureEdges(0.1, metric="cosine", reduce="pca").settings()

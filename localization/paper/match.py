@@ -189,7 +189,7 @@ class _EdgeTable:
               drop: np.ndarray | None = None) -> _EdgeTable:
         """``drop``: optional ``(K, K)`` bool, landmark pairs whose edge is removed.
 
-        See :func:`localization.paper.refine.feature_edge_mask`.
+        See :func:`localization.paper.edges.feature_edge_mask`.
         """
         if drop is not None and np.shape(drop) != (c.shape[1], c.shape[1]):
             raise ConfigError(f"an edge mask must be ({c.shape[1]}, {c.shape[1]}) for {c.shape[1]} landmarks, "
@@ -254,7 +254,7 @@ def class_adjacency(members: np.ndarray, lm: Landmarks, classes: Sequence[str] |
     edges between classes ``a`` and ``b`` (``W[a, a]``: within ``a``) over the number of edges,
     so the lower triangle including the diagonal sums to 1. Rows and columns follow
     ``classes`` (default ``lm.classes``). No edge (fewer than two landmarks): all zeros.
-    ``drop`` removes the edges of chosen landmark pairs (:func:`~localization.paper.refine.feature_edge_mask`).
+    ``drop`` removes the edges of chosen landmark pairs (:func:`~localization.paper.edges.feature_edge_mask`).
 
     >>> from localization.common.landmarks import Landmarks
     >>> lm = Landmarks(xy=np.zeros((3, 2)), cls=np.array([0, 1, 1]), classes=("a", "b"), width=9, height=9)
@@ -339,7 +339,7 @@ def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, 
 
     ``config`` gives ``p``, ``top_k`` and the conventions; the windows recorded in the result are
     the cliques' own. ``aerial_drop``/``query_drop`` remove edges from the graphs
-    (:func:`~localization.paper.refine.feature_edge_mask`).
+    (:func:`~localization.paper.edges.feature_edge_mask`).
     """
     p, top_k, conventions = config.p, config.top_k, config.conventions
     settings = {"window": aerial_cliques.window, "query_window": query_cliques.window,
@@ -399,7 +399,7 @@ def localize(aerial: Landmarks | AerialGraph, query: Landmarks, config: PaperCon
             (:class:`~localization.paper.config.PaperConfig`; ``hierarchical`` is
             :func:`~localization.paper.refine.localize_hierarchical`'s).
         aerial_drop, query_drop: ``(K, K)`` landmark pairs whose edges are removed (§5.3.2,
-            :func:`~localization.paper.refine.feature_edge_mask`); None keeps every edge.
+            :func:`~localization.paper.edges.feature_edge_mask`); None keeps every edge.
 
     Returns an unanswered :class:`Localization` (not an exception) when either image has no
     landmark, the query graph has no edge, no aerial clique holds all the query's classes, or

@@ -43,7 +43,7 @@ import numpy as np
 
 from localization.common.landmarks import LandmarkClasses
 from localization.common.views import Camera, SemanticMap, semantic_map
-from localization.pipeline import profile_index, profile_query, run_profile
+from localization.profile.method import profile_index, profile_query, run_profile
 from localization.profile.profiles import MASK_MIN_CONFIDENCE
 from localization.profile.search import ProfileConfig, class_prior, grid_positions
 from localization.region.cache import BlockMasks
