@@ -21,8 +21,8 @@ SIZES = ("--aerial-size", "750x750", "--ground-size", "1232x224")
 
 
 def pairs_run(ws: Workspace, out: str, *extra: str) -> tuple[tuple[str, ...], str, dict[str, Any]]:
-    args = ("localize-bench", ws.pairs_folder(), "--out", out, *SIZES, *extra)
-    printed, r = ws.bench(*args[1:])
+    args = ("localize-pairs", ws.pairs_folder(), "--out", out, *SIZES, *extra)
+    printed, r = ws.bench(*args[1:], command="localize-pairs")
     return args, printed, r
 
 

@@ -128,10 +128,10 @@ class Workspace:
         self.run(*DEMO_BUILD)
         return "demo/dataset"
 
-    def bench(self, *args: str) -> tuple[str, dict[str, Any]]:
-        """``osmseg localize-bench ARGS``: what it printed (its summary on stderr, then the path of
-        results.json on stdout) and results.json."""
-        out, err = self.run("localize-bench", *args)
+    def bench(self, *args: str, command: str = "localize-bench") -> tuple[str, dict[str, Any]]:
+        """``osmseg localize-bench ARGS`` (or ``localize-pairs``): what it printed (its summary on stderr,
+        then the path of results.json on stdout) and results.json."""
+        out, err = self.run(command, *args)
         folder = args[args.index("--out") + 1]
         return err + out, json.loads((self.root / folder / "results.json").read_text(encoding="utf-8"))
 

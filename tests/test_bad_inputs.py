@@ -4,7 +4,7 @@ Issue 18, item 6:
 
 * a class table giving two classes one colour (the colour masks become ambiguous): refused;
 * an image that cannot be a 360° panorama (a 224x1232 portrait) given as one to ``osmseg
-  localize``, ``localize-bench`` pairs or rendered panoramas: refused, photos (``--fov``) still work;
+  localize``, ``localize-pairs`` or ``localize-bench``'s rendered panoramas: refused, photos (``--fov``) still work;
 * ``osmseg build --zoom`` finer than a local GeoTIFF's pixels: warned once, with the zoom that matches;
 * a build that keeps fewer samples than asked: one "incomplete" line (exit 0: see :func:`test_a_build_that_keeps_fewer_samples_than_asked_says_so`);
 * an OSM file, a tile folder or a remote source with nothing over the area: said so, before the
@@ -144,7 +144,7 @@ def test_localize_bench_refuses_portrait_panoramas(tmp_path: Path, scene: dict[s
                        ("ground", "100 100 Building\n150 120 Road\n200 600 Tree\n")):
         (pairs / side).mkdir(parents=True)
         (pairs / side / "a.txt").write_text(text)
-    result = run("localize-bench", str(pairs), "--out", str(tmp_path / "out"), "--aerial-size", "750x750",
+    result = run("localize-pairs", str(pairs), "--out", str(tmp_path / "out"), "--aerial-size", "750x750",
                  "--ground-size", "224x1232", "--method", "paper")
     assert result.exit_code == 2 and "224x1232 pixels, which cannot be a 360° panorama" in error_line(result)
     rendered = run("localize-bench", str(scene["aerial"]), "--resolution", "0.3", "--out", str(tmp_path / "r"),

@@ -53,7 +53,7 @@ DEMO_ENV = {"BING_MAPS_KEY": "demo-key-not-secret"}
 
 
 def test_every_command_is_a_plugin_or_core_command_that_loaded() -> None:
-    assert {"build", "verify", "train", "predict", "eval", "localize", "localize-bench", "demo"} <= set(COMMANDS)
+    assert {"build", "verify", "train", "predict", "eval", "localize", "localize-bench", "localize-pairs", "demo"} <= set(COMMANDS)
 
 
 @pytest.mark.parametrize("name", COMMANDS)

@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from PIL import Image
 
 from localization.bench.pairs import PairsConfig, load_pairs, run_pairs
-from localization.cli.commands import localize_bench_command
+from localization.cli.bench import localize_bench_command, localize_pairs_command
 from localization.paper.match import localize
 from osmseg.errors import DatasetError
 
@@ -111,12 +111,12 @@ def test_run_pairs_finds_the_only_place_that_shows_every_class(tmp_path: Path) -
 def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     root = write_pairs(tmp_path / "pairs")
     runner = CliRunner()
-    res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "a"), "--no-plots",
+    res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "a"), "--no-plots",
                                                  "--method", "paper"], obj={"verbosity": 0})
     assert res.exit_code == 0, res.output
     assert res.stdout.strip() == str(tmp_path / "a" / "results.json")
     assert "2 annotated pairs" in res.stderr and "@100 px" in res.stderr
-    res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "b"), "--no-plots",
+    res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "b"), "--no-plots",
                                                  "--resolution", "0.25", "--no-subsets", "--method", "paper"],
                         obj={"verbosity": -1})
     assert res.exit_code == 0, res.output
@@ -124,11 +124,11 @@ def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     b = json.loads((tmp_path / "b" / "results.json").read_text())
     assert b["unit"] == "m" and list(b["by_num_classes"]) == ["4"]
     # the default compares the profile method (it needs the resolution) with the paper method
-    res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "c"), "--no-plots"],
+    res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "c"), "--no-plots"],
                         obj={"verbosity": 0})
     assert res.exit_code == 2 and "--resolution" in res.stderr and "--method paper" in res.stderr
     assert not (tmp_path / "c").exists()
-    res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "d"), "--no-plots",
+    res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "d"), "--no-plots",
                                                  "--resolution", "0.25", "--no-subsets"], obj={"verbosity": 0})
     assert res.exit_code == 0, res.output
     d = json.loads((tmp_path / "d" / "results.json").read_text())
@@ -137,7 +137,7 @@ def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     assert d["summary"]["median_error"] == d["methods"]["profile"]["median_error"]
     assert d["baselines"]["random_candidate_mean"] is None and list(d["by_num_classes"]) == ["4"]
     assert all(v["localize_s"] == v["methods"]["profile"]["localize_s"] for v in d["viewpoints"])
-    res = runner.invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "e"), "--resolution", "0.25",
+    res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "e"), "--resolution", "0.25",
                                                  "--method", "profile", "--window", "50"], obj={"verbosity": 0})
     assert res.exit_code == 2 and "--window applies to the paper method: add paper to --method" in res.stderr
     assert b["summary"]["mean_error"] == pytest.approx(0.25 * a["summary"]["mean_error"], abs=1e-3)
@@ -149,7 +149,7 @@ def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     ("nothing paired", "both aerial/ and ground/"),
     ("bad size", "WIDTHxHEIGHT"),
     ("outside", "outside the 400x400 image"),
-    ("render option", "--viewpoints, --confusion apply only to rendered panoramas"),
+    ("render option", "No such option '--viewpoints'"),
     ("truth outside", "is outside its 400x400 aerial image"),
 ])
 def test_cli_bad_pairs_give_one_line(tmp_path: Path, case: str, words: str) -> None:
@@ -176,7 +176,7 @@ def test_cli_bad_pairs_give_one_line(tmp_path: Path, case: str, words: str) -> N
     else:
         write_pairs(root)
         (root / "aerial" / "p1.txt").write_text("450 10 Building\n")
-    res = CliRunner().invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "o"), "--method", "paper",
+    res = CliRunner().invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "o"), "--method", "paper",
                                                       *args], obj={"verbosity": 0})
     assert res.exit_code in (1, 2) and words in res.stderr, res.output
     errors = [line for line in res.stderr.splitlines() if line.startswith("Error:")]
@@ -187,3 +187,19 @@ def test_cli_bad_pairs_give_one_line(tmp_path: Path, case: str, words: str) -> N
 def test_load_pairs_rejects_a_folder_without_the_layout(tmp_path: Path) -> None:
     with pytest.raises(DatasetError, match="aerial/ and ground/"):
         load_pairs(tmp_path)
+
+
+def test_each_protocol_has_its_own_command_and_each_points_to_the_other(tmp_path: Path) -> None:
+    """localize-bench renders views of a dataset or mask; localize-pairs scores annotated pairs.
+    Given the other's folder, each says which command to run, in one line, and writes nothing."""
+    root = write_pairs(tmp_path / "pairs")
+    res = CliRunner().invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "a"), "--method", "paper"],
+                             obj={"verbosity": 0})
+    assert res.exit_code == 2 and f"osmseg localize-pairs {root} --out {tmp_path / 'a'}" in res.stderr, res.output
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    res = CliRunner().invoke(localize_pairs_command, [str(plain), "--out", str(tmp_path / "b")], obj={"verbosity": 0})
+    assert res.exit_code == 2 and f"osmseg localize-bench {plain}" in res.stderr, res.output
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    res = CliRunner().invoke(localize_pairs_command, ["--help"])
+    assert "--viewpoints" not in res.output and "--aerial-size" in res.output  # only its own options

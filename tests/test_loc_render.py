@@ -31,7 +31,7 @@ from localization.bench.render import (
 )
 from localization.bench.rendered import BenchConfig, Scene, load_dataset_scenes, run_bench
 from localization.bench.visible import landmark_cells, visible_landmarks
-from localization.cli.commands import localize_bench_command
+from localization.cli.bench import localize_bench_command
 from localization.common.landmarks import landmarks_from_mask, load_landmark_classes
 from localization.paper.config import PaperConfig
 from localization.paper.match import aerial_graph, localize
@@ -357,7 +357,7 @@ def test_cli_bad_input_is_one_line(tmp_path: Path) -> None:
     assert res.exit_code == 2 and "CLASS=METRES" in res.stderr
     res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--aerial-size", "9x9",
                                                  "--out", str(tmp_path / "o")], obj={"verbosity": 0})
-    assert res.exit_code == 2 and "--aerial-size apply only to annotated pairs" in res.stderr
+    assert res.exit_code == 2 and "No such option '--aerial-size'" in res.stderr  # a pairs option: localize-pairs's
     res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--visible-min-px", "5",
                                                  "--out", str(tmp_path / "o")], obj={"verbosity": 0})
     assert res.exit_code == 2 and "--query-landmarks visible only" in res.stderr

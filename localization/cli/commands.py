@@ -1,10 +1,8 @@
-"""The localization package's commands: ``osmseg localize`` and ``osmseg localize-bench``.
+"""``osmseg localize``: where in the aerial image was the ground view taken (the benchmarks: :mod:`localization.cli.bench`).
 
 Registered on the ``osmseg`` group as plugins (entry points ``osmseg.commands``), so the core
 package never imports this one. Imports: osmseg core, training (through
 :mod:`localization.common.inputs`, for segmenting RGB inputs) and localization.
-
-``osmseg localize``: where in the aerial image was the ground panorama taken?
 
 Each side (``--aerial``, ``--ground``) is a label mask (PNG/TIFF of class ids), a landmark file
 (``x y Class`` lines, ``.csv`` or ``.npy``), or an RGB image with ``--*-checkpoint`` to segment
@@ -34,17 +32,17 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from localization.cli.options import (
+    given,
+    misplaced,
     parse_camera_height,
     parse_heading,
-    parse_heights,
     parse_point,
     parse_window,
     parse_windows,
 )
 from localization.cli.region import RegionArgs, region_options, run_region
-from localization.cli.summary import format_summary
 from localization.common.inputs import SideOptions
-from osmseg.cli.common import output_options, parse_size, progress_bars, renamed_option, report_errors, typed_options
+from osmseg.cli.common import output_options, parse_size, report_errors
 from osmseg.errors import ConfigError
 from osmseg.units import degrees, metres, number, pixels, ratio
 
@@ -180,7 +178,7 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
     verbosity = (ctx.obj or {}).get("verbosity", 0)
     camera_height, heights = parse_camera_height(camera_height_text)
     if region.given or aerial_path is None:  # a region of OSM, no aerial image
-        stray = _given(ctx, ("aerial_path", "aerial_size", "aerial_checkpoint", "aerial_image", "resolution",
+        stray = given(ctx, ("aerial_path", "aerial_size", "aerial_checkpoint", "aerial_image", "resolution",
                              "window_text", "ground_window", "p", "stride", "hierarchical", "windows_text",
                              "reference", "feature_threshold", "conventions", "min_confidence", "min_kappa",
                              "panorama"))
@@ -189,11 +187,11 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
                    ProfileConfig(heading_deg=parse_heading(heading_text), camera_heights=heights, tilt_deg=tilt_deg),
                    fov_deg, camera_height, top_k, truth_text, out_dir, as_json, verbosity, stray)
         return
-    if stray := _given(ctx, ("zoom", "cache_dir")):
+    if stray := given(ctx, ("zoom", "cache_dir")):
         raise ConfigError(f"{', '.join(stray)} is for a region (--osm FILE --bbox W,S,E,N): add them, or leave "
                           "it out")
     window, windows, truth = parse_window(window_text), parse_windows(windows_text), parse_point(truth_text)
-    if feature_threshold is None and (stray := _given(ctx, ("feature_checkpoint", "feature_metric", "feature_reduce",
+    if feature_threshold is None and (stray := given(ctx, ("feature_checkpoint", "feature_metric", "feature_reduce",
                                                             "feature_components"))):
         raise ConfigError(f"{', '.join(stray)} set how --feature-threshold removes edges: add --feature-threshold "
                           "T, or leave them out")
@@ -203,8 +201,8 @@ def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, a
             "paper": ("window_text", "ground_window", "p", "stride", "hierarchical", "windows_text", "reference",
                       "feature_threshold", "conventions")}
     for name, options in only.items():
-        if method != name and (stray := _given(ctx, options)):
-            raise _misplaced(stray, f"--method {name}", f"--method {name}")
+        if method != name and (stray := given(ctx, options)):
+            raise misplaced(stray, f"--method {name}", f"--method {name}")
     paper = PaperConfig(window=window, query_window=ground_window, p=p, stride=stride, top_k=top_k,
                         fast=not reference, hierarchical=hierarchical, windows=windows, conventions=conventions)
     config = LocalizeConfig(method=method, paper=paper, features=features, fov_deg=fov_deg, camera_height_m=camera_height,
@@ -265,187 +263,3 @@ def _say(report: LocalizeReport, *, as_json: bool, quiet: bool, hierarchical: bo
                        + (f" ({metres(report.error_m)})" if report.error_m is not None else ""), err=True)
         if report.written:
             click.echo(f"written: {', '.join(f.name for f in report.written)} in {out_dir}/", err=True)
-
-
-def _misplaced(stray: list[str], owner: str, fix: str) -> ConfigError:
-    """The one-line error for options that belong to another method than the one run.
-
-    >>> str(_misplaced(["--window"], "the paper method", "paper to --method"))
-    '--window applies to the paper method: add paper to --method, or leave it out'
-    """
-    verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
-    return ConfigError(f"{', '.join(stray)} {verb} to {owner}: add {fix}, or leave {them} out")
-
-
-#: Options that only make sense for one kind of SOURCE (a mistake to give for the other).
-RENDER_ONLY = ("viewpoints", "seed", "table", "mode", "min_size", "stride", "margin", "stand_on", "width", "height",
-               "max_range", "class_height", "confusion", "miss_small", "miss_prob", "offset",
-               "query_landmarks", "visible_min_px", "save_panoramas", "pictures", "fov_deg",
-               "height_spread", "negatives", "renderer", "osm")
-PAIRS_ONLY = ("aerial_size", "ground_size", "conventions")
-
-
-def _given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
-    """The options among ``names`` that were typed on the command line, as ``--option-names``."""
-    by_name = {p.name: p for p in ctx.command.params}
-    typed = typed_options(ctx)
-    return [max(by_name[n].opts, key=len) for n in names if n in typed]
-
-
-@click.command("localize-bench")
-@output_options
-@click.argument("source", type=click.Path(exists=True, path_type=Path))
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Folder for results.json, errors.png and classes.png.")
-@click.option("--viewpoints", type=click.IntRange(min=1), default=20, show_default=True,
-              help="Rendered panoramas to localize, placed round-robin over the masks (-n is build's --samples).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seeds viewpoints and noise.")
-@click.option("--table", default="classes13.toml", show_default=True,
-              help="Class table of a mask file (a dataset folder brings its own).")
-@click.option("--resolution", type=float, show_default="a dataset's own",
-              help="Ground resolution of a mask file in m/px.")
-@click.option("--landmarks", "landmark_dict", show_default="the one for the class table; camvid for annotated pairs",
-              help="Landmark class dictionary (data_manifests/landmarks-*.toml).")
-@click.option("--mode", type=click.Choice(["centroid", "grid", "component"]), default="centroid", show_default=True,
-              help="Landmarks as component centroids, grid points or whole components.")
-@click.option("--min-size", type=int, default=50, show_default=True, help="Smallest landmark component (pixels).")
-@click.option("--grid-stride", "stride", type=click.IntRange(min=1), default=50, show_default=True,
-              help="Grid step for --mode grid (pixels), as osmseg localize's --grid-stride.")
-@click.option("--window", type=int, show_default="mu + 5 sigma of nearest-neighbour distances",
-              help="Aerial covisibility window (pixels).")
-@click.option("--p", "p", type=float, default=0.5, show_default=True, help="Covisibility parameter of candidates.")
-@click.option("--top-k", type=int, default=5, show_default=True)
-@click.option("--margin", type=float, default=20.0, show_default=True,
-              help="Viewpoints stay this many metres from the mask border.")
-@click.option("--stand-on", multiple=True, show_default="every flat class but unlabeled and water",
-              help="Classes viewpoints may stand on (repeatable).")
-@click.option("--subsets/--no-subsets", default=True, show_default=True,
-              help="Also localize with every subset of 2, 3... landmark classes.")
-@click.option("--width", type=int, default=1232, show_default=True, help="Panorama width (pixels, 360 degrees).")
-@click.option("--height", type=int, default=224, show_default=True, help="Panorama height (pixels).")
-@click.option("--camera-height", type=float, default=2.0, show_default=True, help="Metres above the ground.")
-@click.option("--max-range", type=float, default=100.0, show_default=True, help="How far the camera sees (m).")
-@click.option("--class-height", multiple=True, metavar="CLASS=METRES", show_default="building=10, tree=6, others 0",
-              help="Height of a class that occludes (repeatable).")
-@click.option("--confusion", type=float, default=0.0, show_default=True,
-              help="Noise: fraction of panorama landmarks relabelled as another landmark class.")
-@click.option("--miss-small", type=int, default=0, show_default=True,
-              help="Noise: panorama landmarks under this many pixels are missed.")
-@click.option("--miss-prob", type=float, default=0.0, show_default=True,
-              help="Noise: every other panorama landmark is missed with this probability.")
-@click.option("--offset", type=float, default=0.0, show_default=True,
-              help="Noise: render from this many metres away from the true viewpoint.")
-@click.option("--query-landmarks", type=click.Choice(["mask", "visible"]), default="mask", show_default=True,
-              help="Panorama landmarks from its rendered mask, or the aerial landmarks the camera sees "
-              "(perfect correspondence, as a person annotating both views: measures the matching alone).")
-@click.option("--visible-min-px", type=click.IntRange(min=1), default=20, show_default=True,
-              help="With --query-landmarks visible: panorama pixels an aerial landmark needs to count as seen.")
-@click.option("--save-panoramas", type=int, default=0, show_default=True,
-              help="Write the first K rendered panoramas as PNG under OUT/panoramas/.")
-@click.option("--pictures", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Draw the first K localizations under OUT/views/: the mask with candidates, top-k and truth, "
-              "and the panorama with its landmark graph.")
-@click.option("--plots/--no-plots", default=True, show_default=True, help="Draw errors.png and classes.png.")
-@click.option("--aerial-size", help="Annotated pairs: WIDTHxHEIGHT of the aerial images when no image lies beside "
-              "the landmark files, e.g. 750x750.")
-@click.option("--ground-size", help="Annotated pairs: WIDTHxHEIGHT of the panoramas, e.g. 1232x224.")
-@click.option("--conventions", type=click.Choice(["osmseg", "authors"]), default="osmseg", show_default=True,
-              help="Annotated pairs, paper method: osmseg's conventions or the authors' MATLAB demo's "
-                   "(see osmseg localize --help); the truth then defaults to (W/2, H/2) as their [375 375].")
-@click.option("--method", "methods_text", default="profile,paper", show_default=True,
-              help="Methods to compare, comma-separated, side by side in one run: profile, paper. The first fills "
-                   "the summary; the class-subset figure is the paper method's when it comes first.")
-@click.option("--heading", type=click.Choice(["known", "unknown"]), default="known", show_default=True,
-              help="known: north-aligned panoramas; unknown: each view turned to a seeded random heading the "
-                   "methods are not told (the profile method searches it and its error is reported).")
-@click.option("--fov", "fov_deg", type=click.FloatRange(10, 360), default=360.0, show_default=True,
-              help="Horizontal field of view of each view: 360 for panoramas, 60-120 for photos.")
-@click.option("--height-spread", type=click.FloatRange(0, 1, max_open=True), default=0.0, show_default=True,
-              help="Each building and tree gets its class height times U(1-s, 1+s), seeded: heights the methods "
-                   "do not know.")
-@click.option("--negatives/--no-negatives", default=True, show_default=True,
-              help="Also localize each view in another scene: how well each method's confidence separates "
-                   "matching from non-matching pairs (ROC AUC).")
-@click.option("--renderer", type=click.Choice(["mask", "geometry"]), default="mask", show_default=True,
-              help="mask: panoramas ray-cast over the aerial mask, one height per class (the model the profile "
-                   "method scores with) | geometry: ray-cast over the OSM geometry of --osm in 3-D, heights from "
-                   "the tags, see-through tree crowns (shares no code with the methods).")
-@click.option("--osm", "osm", multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="With --renderer geometry: the OSM file(s) (.osm, .osm.pbf) the masks were built from.")
-@renamed_option("-n", "viewpoints", type=click.IntRange(min=1), note=" here (-n is build's --samples)")
-@click.pass_context
-@report_errors
-def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, viewpoints: int, seed: int, table: str,
-                           resolution: float | None, landmark_dict: str | None, mode: str, min_size: int, stride: int,
-                           window: int | None, p: float, top_k: int, margin: float, stand_on: tuple[str, ...],
-                           subsets: bool, width: int, height: int, camera_height: float, max_range: float,
-                           class_height: tuple[str, ...], confusion: float, miss_small: int, miss_prob: float,
-                           offset: float, query_landmarks: str, visible_min_px: int, save_panoramas: int,
-                           pictures: int, plots: bool, aerial_size: str | None,
-                           ground_size: str | None, methods_text: str, heading: str, fov_deg: float,
-                           height_spread: float, negatives: bool, conventions: str, renderer: str,
-                           osm: tuple[Path, ...]) -> None:
-    """Render panoramas at seeded viewpoints of SOURCE and localize them in it.
-
-    SOURCE is a dataset folder made by `osmseg build` (its labels/ and manifest.json), or one
-    label mask file (PNG/GeoTIFF of class ids) with --table and --resolution. Or SOURCE is a
-    folder of annotated pairs, the paper's own evaluation: aerial/NAME.txt and ground/NAME.txt
-    landmark files (x y Class), images beside them or --aerial-size/--ground-size, the truth
-    in truth.csv (name,x,y) or the aerial centre; then nothing is rendered, the landmark
-    dictionary defaults to camvid (Building, Pavement, Road, Tree) and errors are in pixels
-    unless --resolution gives the aerial m/px. Prints the path of results.json on stdout and a
-    summary on stderr.
-    """
-    from localization.bench.pairs import PairsConfig, is_pairs_folder, load_pairs, run_pairs
-    from localization.bench.render import NoiseConfig, RenderConfig
-    from localization.bench.rendered import BenchConfig, load_dataset_scenes, load_mask_scene, run_bench
-
-    verbosity = ctx.obj["verbosity"] if ctx.obj else 0
-    bars = bool(ctx.obj.get("progress", False)) if ctx.obj else False
-    methods = tuple(m.strip() for m in methods_text.split(",") if m.strip())
-    if "paper" not in methods and (stray := _given(ctx, ("window", "p", "conventions", "subsets"))):
-        raise _misplaced(stray, "the paper method", "paper to --method")
-    pairs = source.is_dir() and is_pairs_folder(source)
-    misplaced = _given(ctx, RENDER_ONLY if pairs else PAIRS_ONLY)
-    if misplaced:
-        what = "rendered panoramas (a dataset or a mask file)" if pairs else "annotated pairs (aerial/ + ground/)"
-        raise ConfigError(f"{', '.join(misplaced)} apply only to {what}; {source} is "
-                          f"{'a folder of annotated pairs' if pairs else 'not one'}: leave them out")
-    if pairs:
-        pairs_config = PairsConfig(landmarks=landmark_dict or "camvid", window=window, p=p, top_k=top_k,
-                                   subsets=subsets, resolution_m=resolution, aerial_size=parse_size(aerial_size, "--aerial-size"),
-                                   ground_size=parse_size(ground_size, "--ground-size"), methods=methods,
-                                   heading=heading, camera_height_m=camera_height, conventions=conventions)
-        with progress_bars(bars) as progress:
-            results = run_pairs(load_pairs(source, pairs_config), pairs_config, out_dir, progress=progress,
-                                plots=plots, source=str(source))
-        if verbosity >= 0:
-            click.echo(format_summary(results), err=True)
-        click.echo(str(out_dir / "results.json"))
-        return
-
-    config = BenchConfig(
-        viewpoints=viewpoints, seed=seed, landmarks=landmark_dict, mode=mode, min_size=min_size, stride=stride,
-        window=window, p=p, top_k=top_k, margin_m=margin, stand_on=tuple(stand_on) or None, subsets=subsets,
-        render=RenderConfig(width=width, height=height, camera_height_m=camera_height, max_range_m=max_range,
-                            heights=parse_heights(class_height), height_spread=height_spread, height_seed=seed),
-        noise=NoiseConfig(confusion=confusion, miss_small_px=miss_small, miss_prob=miss_prob, offset_m=offset),
-        save_panoramas=save_panoramas, pictures=pictures, query_landmarks=query_landmarks, visible_min_px=visible_min_px,
-        methods=methods, heading=heading, fov_deg=fov_deg, negatives=negatives, renderer=renderer,
-        osm=tuple(str(o) for o in osm),
-    )
-    if query_landmarks != "visible" and _given(ctx, ("visible_min_px",)):
-        raise ConfigError("--visible-min-px applies with --query-landmarks visible only: add it or leave it out")
-    if source.is_dir():
-        if resolution is not None or _given(ctx, ("table",)):
-            raise ConfigError("--resolution and --table are for a mask file; a dataset folder records its own")
-        scenes = load_dataset_scenes(source)
-    else:
-        if resolution is None:
-            raise ConfigError(f"{source} is a mask file: give its ground resolution with --resolution (m/px)")
-        scenes = [load_mask_scene(source, table, resolution)]
-    with progress_bars(bars) as progress:
-        results = run_bench(scenes, config, out_dir, progress=progress, plots=plots, source=str(source))
-    if verbosity >= 0:
-        click.echo(format_summary(results), err=True)
-    click.echo(str(out_dir / "results.json"))

@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import math
 
+import click
+
 from localization.profile.search import UNKNOWN_HEIGHTS
+from osmseg.cli.common import typed_options
 from osmseg.errors import ConfigError
 
-__all__ = ["parse_pair", "parse_point", "parse_window", "parse_windows", "parse_camera_height", "parse_heading", "parse_heights"]
+__all__ = ["given", "misplaced", "parse_pair", "parse_point", "parse_window", "parse_windows", "parse_camera_height", "parse_heading", "parse_heights"]
 
 
 def parse_point(value: str | None) -> tuple[float, float] | None:
@@ -123,3 +126,20 @@ def parse_heights(values: tuple[str, ...]) -> dict[str, float]:
         if not eq or not name.strip():
             raise ConfigError(f"--class-height {item!r}: write CLASS=METRES, e.g. building=12")
     return heights
+
+
+def misplaced(stray: list[str], owner: str, fix: str) -> ConfigError:
+    """The one-line error for options that belong to another method than the one run.
+
+    >>> str(misplaced(["--window"], "the paper method", "paper to --method"))
+    '--window applies to the paper method: add paper to --method, or leave it out'
+    """
+    verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
+    return ConfigError(f"{', '.join(stray)} {verb} to {owner}: add {fix}, or leave {them} out")
+
+
+def given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
+    """The options among ``names`` that were typed on the command line, as ``--option-names``."""
+    by_name = {p.name: p for p in ctx.command.params}
+    typed = typed_options(ctx)
+    return [max(by_name[n].opts, key=len) for n in names if n in typed]
