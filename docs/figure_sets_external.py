@@ -28,7 +28,7 @@ def pairs_run(ws: Workspace, out: str, *extra: str) -> tuple[tuple[str, ...], st
 
 @figure_set("pairs", "expensive", needs="pairs")
 def pairs(ws: Workspace) -> dict[str, Figure]:
-    """localize-bench on the authors' 15 annotated CVUSA pairs: both methods, heading known and unknown, their conventions"""
+    """localize-pairs on the authors' 15 annotated CVUSA pairs: both methods, heading known and unknown, their conventions"""
     paper_args, printed, paper = pairs_run(ws, "pairs/", "--method", "paper")
     _, _, known = pairs_run(ws, "pairs-known/", "--resolution", "0.25", "--method", "paper,profile")
     _, _, unknown = pairs_run(ws, "pairs-unknown/", "--resolution", "0.25", "--method", "paper,profile",

@@ -309,12 +309,19 @@ def test_the_recorded_command_reads_back_as_the_same_build(args: list[str], tmp_
     every option of ``osmseg build`` either appears in it or is declared as not changing content."""
     import shlex
 
-    from osmseg.cli.build import NOT_CONTENT, build_command, build_config, content_options, recorded_command
+    from osmseg.cli.build import (
+        NOT_CONTENT,
+        BuildOptions,
+        build_command,
+        build_config,
+        content_options,
+        recorded_command,
+    )
     from osmseg.output import command_line
 
     def parse(argv: list[str]):
         ctx = build_command.make_context("build", [*argv, "--out", str(tmp_path / "out")])
-        return build_config(**ctx.params)
+        return build_config(BuildOptions(**ctx.params))
 
     config = parse(args)
     line = command_line(recorded_command(config))

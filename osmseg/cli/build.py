@@ -1,8 +1,11 @@
 """``osmseg build``: make a segmentation dataset from OpenStreetMap and aerial imagery.
 
-The options are parsed into a :class:`~osmseg.build.builder.BuildConfig` by :func:`build_config`, and
-the command recorded in the manifest is generated back from the same option table by
-:func:`recorded_command` (flags spelled as click knows them), so the two cannot drift.
+The options land in :class:`BuildOptions`, the one table of what each option is: the
+:class:`~osmseg.build.config.BuildConfig` is made from it (:func:`build_config`), the command
+recorded in the manifest reads each content option back from the config through it
+(:func:`content_options`, :func:`recorded_command`, flags spelled as click knows them), and
+the options that never change what is built are its plain fields (:data:`NOT_CONTENT`), so
+none of the three can drift from the others.
 """
 
 from __future__ import annotations
@@ -10,7 +13,8 @@ from __future__ import annotations
 import errno
 import math
 import os
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -146,13 +150,7 @@ def no_sample_error(summary: BuildSummary, config: BuildConfig) -> DatasetError:
 @click.option("--replay", type=click.Path(dir_okay=False, exists=True, path_type=Path), help="Serve all HTTP from a recorded cassette.")
 @click.pass_context
 @report_errors
-def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: float | None, radius_km: float | None,
-                  bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, tile_size: str | None,
-                  osm: str, classes: str,
-                  image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float, max_missing_imagery: float,
-                  max_placeholder_tiles: int,
-                  max_tries: int, no_overlap: bool, out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool,
-                  workers: int, shard: str | None, make_zip: bool, record: Path | None, replay: Path | None) -> None:
+def build_command(ctx: click.Context, /, **params: Any) -> None:
     """Build a segmentation dataset: aerial images + OSM label masks + manifest.
 
     \b
@@ -162,9 +160,11 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
       osmseg build --lat 0.35 --lon 32.59 --zoom 21 --imagery 'xyz:file:///data/tiles/{z}/{x}/{y}.png' \\
                    --osm buildings.osm.pbf --out data/kampala
     """
-    config = build_config(**ctx.params)  # usage errors (area, shard, cassette) before anything else is said
+    options = BuildOptions(**params)
+    config = build_config(options)  # usage errors (area, shard, cassette) before anything else is said
+    imagery = options.imagery
     env = dict(os.environ)
-    if replay and not env.get(BING_KEY_ENV):
+    if options.replay and not env.get(BING_KEY_ENV):
         env[BING_KEY_ENV] = "replayed-without-key"  # recorded requests are matched without their key
     if (imagery or "bing").strip().lower().split(":")[0] == "bing" and not env.get(BING_KEY_ENV):
         # Bing Maps Basic keys no longer exist: say so, and give a command that works as it is
@@ -173,58 +173,97 @@ def build_command(ctx: click.Context, city: str | None, lat: float | None, lon: 
     run_build(config, ctx.obj["verbosity"], ctx.obj.get("progress", False), env=env)
 
 
-def build_config(*, city: str | None, lat: float | None, lon: float | None, radius_km: float | None,
-                 bbox: str | None, samples: int, seed: int, zoom: int, imagery: str | None, osm: str, classes: str,
-                 image_format: str, max_unlabeled: float, min_classes: int, min_contrast: float,
-                 max_missing_imagery: float, max_placeholder_tiles: int, max_tries: int, no_overlap: bool,
-                 out_dir: Path, cache_dir: Path | None, http_timeout: float, offline: bool, shard: str | None,
-                 make_zip: bool, record: Path | None, replay: Path | None, workers: int = 0,
-                 tile_size: str | None = None) -> BuildConfig:
-    """The :class:`BuildConfig` that ``osmseg build``'s options (by parameter name) describe."""
-    if record and replay:
+def _content(read: Callable[[BuildConfig], object]) -> Any:
+    """A field of :class:`BuildOptions` that changes what is built: ``read`` gives its value back
+    from a config, for the recorded command (None or False: the option is left out)."""
+    return field(metadata={"recorded": read})
+
+
+def _area_is(kind: str) -> Callable[[BuildConfig], bool]:
+    """Whether a config's area was given as a ``city``, a ``bbox`` or a centre (``point``)."""
+    def given(config: BuildConfig) -> bool:
+        a = config.area
+        return {"city": a.kind != "custom", "bbox": a.kind == "custom" and a.bbox is not None,
+                "point": a.kind == "custom" and a.bbox is None}[kind]
+    return given
+
+
+_CITY, _BBOX, _POINT = _area_is("city"), _area_is("bbox"), _area_is("point")
+
+
+@dataclass(frozen=True)
+class BuildOptions:
+    """``osmseg build``'s options by parameter name: the one table the config, the recorded command
+    and the list of options that never change what is built all come from.
+
+    A field made with :func:`_content` changes the dataset and says how its value reads back from
+    a :class:`BuildConfig` (the manifest's command, :func:`recorded_command`); a plain field
+    (where the output goes, how it is fetched, how many processes) does not, so every shard,
+    every resumed run and the same dataset built elsewhere record one command.
+    """
+
+    city: str | None = _content(lambda c: c.area.name if _CITY(c) else None)
+    lat: float | None = _content(lambda c: c.area.lat if _POINT(c) else None)
+    lon: float | None = _content(lambda c: c.area.lon if _POINT(c) else None)
+    radius_km: float | None = _content(lambda c: None if _BBOX(c) else c.area.radius_km)
+    bbox: str | None = _content(lambda c: ",".join(repr(v) for v in c.area.bbox) if _BBOX(c) and c.area.bbox else None)
+    samples: int = _content(lambda c: c.samples)
+    seed: int = _content(lambda c: c.seed)
+    zoom: int = _content(lambda c: c.zoom)
+    imagery: str | None = _content(lambda c: redact(c.imagery))
+    tile_size: str | None = _content(lambda c: c.tile_size)
+    osm: str = _content(lambda c: redact(c.osm))
+    classes: str = _content(lambda c: c.classes)
+    image_format: str = _content(lambda c: c.image_format)
+    max_unlabeled: float = _content(lambda c: c.filters.max_unlabeled)
+    min_classes: int = _content(lambda c: c.filters.min_classes)
+    min_contrast: float = _content(lambda c: c.filters.min_contrast)
+    max_missing_imagery: float = _content(lambda c: c.filters.max_invalid_imagery)
+    max_placeholder_tiles: int = _content(lambda c: c.filters.max_placeholder_tiles)
+    max_tries: int = _content(lambda c: c.max_tries)
+    no_overlap: bool = _content(lambda c: c.no_overlap)
+    out_dir: Path = Path()
+    cache_dir: Path | None = None
+    http_timeout: float = 30.0
+    offline: bool = False
+    workers: int = 0
+    shard: str | None = None
+    make_zip: bool = False
+    record: Path | None = None
+    replay: Path | None = None
+
+
+def build_config(options: BuildOptions) -> BuildConfig:
+    """The :class:`BuildConfig` that ``osmseg build``'s options describe."""
+    o = options
+    if o.record and o.replay:
         raise ConfigError("--record and --replay exclude each other")
-    if record and workers > 1:
+    if o.record and o.workers > 1:
         raise ConfigError("--record writes one cassette from one process: give --workers 1 (or leave --workers out)")
-    filters = FilterConfig(max_unlabeled=max_unlabeled, min_classes=min_classes, min_contrast=min_contrast,
-                           max_invalid_imagery=max_missing_imagery, max_placeholder_tiles=max_placeholder_tiles)
+    filters = FilterConfig(max_unlabeled=o.max_unlabeled, min_classes=o.min_classes, min_contrast=o.min_contrast,
+                           max_invalid_imagery=o.max_missing_imagery, max_placeholder_tiles=o.max_placeholder_tiles)
     config = BuildConfig(
-        out_dir=out_dir, area=resolve_area(city, lat, lon, bbox, radius_km), imagery=imagery or "bing", osm=osm,
-        samples=samples, seed=seed, zoom=zoom, classes=classes, image_format=image_format, filters=filters,
-        max_tries=max_tries, cache_dir=cache_dir or default_cache_dir(), offline=offline, http_timeout=http_timeout,
-        shard=Shard.parse(shard) if shard else None, zip=make_zip, no_overlap=no_overlap, workers=workers,
-        tile_size=int(tile_size) if tile_size else None,
+        out_dir=o.out_dir, area=resolve_area(o.city, o.lat, o.lon, o.bbox, o.radius_km), imagery=o.imagery or "bing",
+        osm=o.osm, samples=o.samples, seed=o.seed, zoom=o.zoom, classes=o.classes, image_format=o.image_format,
+        filters=filters, max_tries=o.max_tries, cache_dir=o.cache_dir or default_cache_dir(), offline=o.offline,
+        http_timeout=o.http_timeout, shard=Shard.parse(o.shard) if o.shard else None, zip=o.make_zip,
+        no_overlap=o.no_overlap, workers=o.workers, tile_size=int(o.tile_size) if o.tile_size else None,
     )
-    if record or replay:
-        config = replace(config, cassette=record or replay, cassette_mode="record" if record else "replay")
+    if o.record or o.replay:
+        config = replace(config, cassette=o.record or o.replay, cassette_mode="record" if o.record else "replay")
     return config
 
 
-#: ``osmseg build`` options that never change what is built, left out of the recorded command:
-#: every shard and every resumed run, and the same dataset built in another folder, record one line.
-NOT_CONTENT = frozenset({"out_dir", "cache_dir", "http_timeout", "offline", "workers", "shard", "make_zip", "record",
-                         "replay", "verbose", "quiet", "progress"})
+#: ``osmseg build`` options that never change what is built, left out of the recorded command (the
+#: plain fields of :class:`BuildOptions`, and the output options every command takes).
+NOT_CONTENT = frozenset({f.name for f in fields(BuildOptions) if "recorded" not in f.metadata}
+                        | {"verbose", "quiet", "progress"})
 
 
 def content_options(config: BuildConfig) -> dict[str, Any]:
-    """The value of every content option of ``osmseg build`` that gives ``config`` (the
-    inverse of :func:`build_config`; None or False: the option is left out)."""
-    a, f = config.area, config.filters
-    if a.kind != "custom":
-        where: dict[str, Any] = {"city": a.name, "radius_km": a.radius_km}
-    elif a.bbox is not None:
-        where = {"bbox": ",".join(repr(v) for v in a.bbox)}
-    else:
-        where = {"lat": a.lat, "lon": a.lon, "radius_km": a.radius_km}
-    return {
-        "city": None, "lat": None, "lon": None, "radius_km": None, "bbox": None, **where,
-        "samples": config.samples, "seed": config.seed, "zoom": config.zoom,
-        "imagery": redact(config.imagery), "tile_size": config.tile_size, "osm": redact(config.osm),
-        "classes": config.classes,
-        "image_format": config.image_format, "max_unlabeled": f.max_unlabeled, "min_classes": f.min_classes,
-        "min_contrast": f.min_contrast, "max_missing_imagery": f.max_invalid_imagery,
-        "max_placeholder_tiles": f.max_placeholder_tiles, "max_tries": config.max_tries,
-        "no_overlap": config.no_overlap,
-    }
+    """The value of every content option of ``osmseg build`` that gives ``config`` (the inverse of
+    :func:`build_config`; None or False: the option is left out)."""
+    return {f.name: f.metadata["recorded"](config) for f in fields(BuildOptions) if "recorded" in f.metadata}
 
 
 def _number(value: float, exact: bool) -> str:
