@@ -43,9 +43,10 @@ from localization.bench.compare import photo_view  # noqa: E402
 from localization.bench.render import Panorama  # noqa: E402
 from localization.common.landmarks import load_landmark_classes, panorama_table  # noqa: E402
 from localization.common.views import semantic_map  # noqa: E402
+from localization.profile.locate import Scoring, localize_profile  # noqa: E402
 from localization.profile.method import profile_query  # noqa: E402
 from localization.profile.profiles import AerialMaskIndex  # noqa: E402
-from localization.profile.search import ProfileConfig, Scoring, localize_profile  # noqa: E402
+from localization.profile.search import ProfileConfig  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 from osmseg.images import read_label  # noqa: E402
 

@@ -3,7 +3,7 @@
 :func:`profile_index` builds the aerial side from a mask (ray casting) or landmark points
 (kernels), :func:`profile_query` the query's profile from its mask or landmarks as its camera
 sees them (reading a tilted camera's horizon first when asked), and :func:`run_profile`
-searches one against the other (:func:`~localization.profile.search.localize_profile`). The
+searches one against the other (:func:`~localization.profile.locate.localize_profile`). The
 pipeline, the region search and the benchmarks call these.
 
 Imports: osmseg core, localization.common, and the profile wing's own modules.
@@ -20,6 +20,7 @@ from localization.common.landmarks import Landmarks
 from localization.common.result import Localization
 from localization.common.views import Camera, SemanticMap
 from localization.profile.horizon import estimate_tilt
+from localization.profile.locate import localize_profile
 from localization.profile.profiles import (
     AerialLandmarkIndex,
     AerialMaskIndex,
@@ -29,7 +30,7 @@ from localization.profile.profiles import (
     query_poses,
     ray_radii,
 )
-from localization.profile.search import AerialIndex, ProfileConfig, localize_profile
+from localization.profile.search import AerialIndex, ProfileConfig
 from osmseg.errors import ConfigError
 
 logger = logging.getLogger(__name__)

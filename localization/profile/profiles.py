@@ -153,7 +153,7 @@ def query_poses(sem: SemanticMap, camera: Camera, *, bins: int, radii: tuple[np.
     The result's ``q`` is the mean of the heights' profiles, whose score at a position is the
     mean of theirs (the score is linear in ``q``). Its ``variants`` are the heights' own
     profiles, of which the search keeps the best at each position
-    (:func:`localization.profile.search.localize_profile`).
+    (:func:`localization.profile.locate.localize_profile`).
     """
     variants = tuple(query_from_mask(sem, dataclasses.replace(camera, camera_height_m=h), bins=bins, radii=radii,
                                      heading_deg=heading_deg) for h in heights)
