@@ -13,11 +13,9 @@ on (seed, epoch, index), so a resumed CPU run ends with the same weights as one 
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import functools
 import hashlib
-import io
 import logging
 import math
 import signal
@@ -37,7 +35,6 @@ from torch.utils.data import DataLoader, DistributedSampler
 
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.output.atomic import atomic_write_bytes
 from osmseg.progress import Progress, report
 from training.checkpoint import InitWeights, load_checkpoint, read_init, save_checkpoint
 from training.config import TrainConfig
@@ -57,6 +54,7 @@ from training.engine import StepOptions, evaluate, train_one_epoch
 from training.metrics import ConfusionMatrix, Metrics
 from training.model import PRESETS, build_model, model_spec, unlabeled_as_background
 from training.recipe import RECIPES, Recipe, lr_factor, steps_per_epoch
+from training.runfiles import RunFiles
 from training.sampling import RandomCrops, crop_sampler
 from training.spec import ModelSpec
 from training.splits import choose_splits, class_pixels, read_splits, sample_groups, split_warning, write_splits
@@ -67,7 +65,6 @@ logger = logging.getLogger(__name__)
 RESUMABLE_CHANGES = {"loader_workers", "device", "tensorboard", "out_dir", "dataset"}
 #: settings added since runs began to record their recipe: what the runs made before them used
 SETTINGS_ADDED = {"balanced_crops": 0.0, "arch": "segnet"}
-LOG_FIELDS = ("epoch", "lr", "train_loss", "val_loss", "val_miou", "val_pixel_accuracy", "seconds")
 
 
 def dataset_fingerprint(root: Path) -> str | None:
@@ -181,55 +178,6 @@ def _loader_worker_start(worker_id: int) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
-class RunFiles:
-    """The files of a training run's output folder; only rank 0 writes them."""
-
-    def __init__(self, out_dir: Path, d: Dist, tensorboard: bool) -> None:
-        self.out = out_dir
-        self.d = d
-        self.writer = None
-        if d.is_main and tensorboard:
-            try:
-                from torch.utils.tensorboard import SummaryWriter
-
-                self.writer = SummaryWriter(str(out_dir / "tensorboard"))
-            except ImportError:  # tensorboard is optional
-                self.writer = None
-
-    @property
-    def last(self) -> Path:
-        return self.out / "last.pt"
-
-    @property
-    def best(self) -> Path:
-        return self.out / "best.pt"
-
-    def write_log(self, history: list[dict[str, Any]]) -> None:
-        """Rewrite log.csv from the whole history (so a resumed run's log has no gaps)."""
-        if not self.d.is_main:
-            return
-        buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=LOG_FIELDS, lineterminator="\n")
-        writer.writeheader()
-        for row in history:
-            writer.writerow({k: row.get(k) for k in LOG_FIELDS})
-        atomic_write_bytes(self.out / "log.csv", buf.getvalue().encode())
-        if self.writer is not None:
-            row = history[-1]
-            for key in ("train_loss", "val_loss", "val_miou", "val_pixel_accuracy", "lr"):
-                if row.get(key) is not None:
-                    self.writer.add_scalar(key, row[key], row["epoch"])
-            self.writer.flush()
-        try:
-            from training.figures import training_curves_png
-
-            training_curves_png(history, self.out / "curves.png")
-        except ImportError:  # matplotlib is part of the train extra; never fail a run over a picture
-            logger.warning("matplotlib missing: no curves.png")
-
-    def close(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
 
 
 def has_class_table(root: Path) -> bool:
