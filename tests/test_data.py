@@ -383,7 +383,7 @@ def demo_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from osmseg.cli.main import cli
 
     out = tmp_path_factory.mktemp("demo") / "demo"
-    result = CliRunner().invoke(cli, ["-q", "demo", "--out", str(out), "--no-train"])
+    result = CliRunner().invoke(cli, ["-q", "demo", "--out", str(out), "--no-train", "--no-localize"])
     assert result.exit_code == 0, result.output
     return out / "dataset"
 
