@@ -125,14 +125,27 @@ def source_figures(root: Path, package: str) -> dict[str, object]:
 
 
 def wings(graph: grimp.ImportGraph, package: str) -> collections.Counter[tuple[str, str]]:
-    """Imports between the sub-packages (and top modules) of ``package``: importer -> imported, modules importing."""
+    """Imports between the sub-packages of ``package``: importer -> imported, modules importing.
+
+    Its top-level modules count as one wing, ``(rooms)``, when it has more than a few (the
+    core's shared rooms: grid, classes, errors, ...); else each is its own (localization's
+    ``pipeline``).
+    """
+    top = {m.split(".")[1] for m in graph.modules if m.startswith(package + ".")}
+    packages = {name for name in top if any(m.startswith(f"{package}.{name}.") for m in graph.modules)}
+    rooms = len(top - packages) > 5
+
+    def wing(module: str) -> str:
+        name = module.split(".")[1]
+        return "(rooms)" if rooms and name not in packages else name
+
     edges: collections.Counter[tuple[str, str]] = collections.Counter()
     for module in graph.modules:
         if not module.startswith(package + "."):
             continue
         for imported in graph.find_modules_directly_imported_by(module):
             if imported.startswith(package + "."):
-                a, b = module.split(".")[1], imported.split(".")[1]
+                a, b = wing(module), wing(imported)
                 if a != b:
                     edges[(a, b)] += 1
     return edges
