@@ -21,8 +21,9 @@ test: $(VENV)/.installed
 	$(BIN)/lint-imports
 	$(BIN)/ruff check .
 	$(BIN)/mypy
-	# one test process per core, and the 20 slowest tests named at the end
-	$(BIN)/pytest -q -n auto --durations=20
+	# one test process per core, an idle one taking queued tests from a busy one (worksteal: the
+	# long end-to-end tests do not leave a core waiting at the end), and the 20 slowest named
+	$(BIN)/pytest -q -n auto --dist worksteal --durations=20
 
 test-slow: $(VENV)/.installed
 	$(BIN)/pytest -q -m slow
