@@ -135,7 +135,6 @@ def demo40(ws: Workspace) -> dict[str, Figure]:
     }
 
 
-
 # --------------------------------------------------------------------------- helpers for tables and prose
 
 

@@ -95,7 +95,7 @@ def loaded_pairs(ws: Workspace) -> list[Any]:
 def candidate_analysis(ws: Workspace, paper: dict[str, Any]) -> tuple[int, float]:
     """How often the candidate nearest the truth is ranked first, and the median error of the mean
     of all candidate positions (what the selection alone gives), by localization.paper.match.localize:
-    the paper method as localize-bench runs it (its MAP errors are checked against results.json)."""
+    the paper method as localize-pairs runs it (its MAP errors are checked against results.json)."""
     import numpy as np
 
     from localization.paper.match import localize
@@ -108,7 +108,7 @@ def candidate_analysis(ws: Workspace, paper: dict[str, Any]) -> tuple[int, float
         d = np.hypot(*(np.asarray(loc.candidates, dtype=float)[:, :2] - truth).T)
         map_error = float(np.hypot(*(np.asarray(loc.map_xy) - truth)))
         if abs(map_error - errors[pair.name]) > 1e-3:
-            raise AssertionError(f"{pair.name}: localize gives {map_error:.4f} px, localize-bench {errors[pair.name]}")
+            raise AssertionError(f"{pair.name}: localize gives {map_error:.4f} px, localize-pairs {errors[pair.name]}")
         first += int(np.argmin(d) == loc.order[0])
         means.append(float(np.hypot(*(np.asarray(loc.candidates, dtype=float)[:, :2].mean(axis=0) - truth))))
     return first, statistics.median(means)

@@ -83,7 +83,7 @@ def floors(graph: grimp.ImportGraph, package: str) -> int:
                 component[m] = group[0]
     level: dict[str, int] = {}
 
-    def floor(m: str, seen: frozenset[str] = frozenset()) -> int:
+    def floor(m: str) -> int:
         key = component[m]
         if key in level:
             return level[key]

@@ -9,7 +9,7 @@ seen first at each azimuth and ground distance with what the aerial image predic
 position of a dense grid. The package is built in wings, one folder each, layered:
 
 ==========================  ===============================================================
-:mod:`localization.cli`     ``osmseg localize``, ``localize-bench``, ``demo`` (top)
+:mod:`localization.cli`     ``osmseg localize``, ``localize-bench``, ``localize-pairs``, ``demo``
 :mod:`localization.bench`   the benchmarks: rendered views and annotated pairs, both renderers
 :mod:`localization.region`  a region from OpenStreetMap alone, in blocks and shards
 :mod:`localization.pipeline` the one entry point: :func:`~localization.pipeline.run` localizes
@@ -21,7 +21,8 @@ position of a dense grid. The package is built in wings, one folder each, layere
 ==========================  ===============================================================
 
 Each wing imports only the wings below it (``lint-imports`` checks it: the layers contract in
-``pyproject.toml``), and a name starting with ``_`` is used only inside its own wing.
+``pyproject.toml``), and a name starting with ``_`` is used only inside its own wing
+(``tests/test_code_shape.py`` checks it).
 Coordinates are pixels throughout: ``x`` is the column, ``y`` the row. numpy and scipy do the
 work; only :mod:`localization.paper.features` runs a network, with torch (the ``train`` extra).
 Imports: osmseg core and training (the top layer: nothing imports localization).

@@ -45,7 +45,6 @@ __all__ = ["DEFAULT_METHOD", "METHODS", "LocalizeConfig", "LocalizeFiles", "Loca
            "localize_files", "run"]
 
 
-
 @dataclass(frozen=True)
 class LocalizeConfig:
     """How to localize: which method, and its settings (the papers' defaults).
@@ -83,12 +82,6 @@ def run(config: LocalizeConfig, aerial: Landmarks | AerialGraph, query: Landmark
         lm = aerial.landmarks if isinstance(aerial, AerialGraph) else aerial
         return localize_hierarchical(lm, query, config.paper, aerial_drop=aerial_drop, query_drop=query_drop)
     return localize(aerial, query, config.paper, aerial_drop=aerial_drop, query_drop=query_drop)
-
-
-
-
-
-
 
 
 # --------------------------------------------------------------------------- a pair of files

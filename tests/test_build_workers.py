@@ -149,7 +149,6 @@ def test_a_build_stopped_with_workers_leaves_no_worker_and_resumes_to_the_same_b
     assert tree_bytes(out) == one_worker
 
 
-
 def _cmdline(pid: int) -> bytes:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes()

@@ -34,3 +34,17 @@ def test_every_room_of_the_core_but_the_cli_and_the_demo_is_kept_from_the_builde
     rooms |= {f"osmseg.{p.name}" for p in core.iterdir() if (p / "__init__.py").exists()}
     assert rooms - {"osmseg.build", "osmseg.cli", "osmseg.demo"} <= set(kept["source_modules"])
     assert {"training", "localization"} <= set(kept["source_modules"])
+
+
+def test_no_private_name_is_imported_across_localizations_wings() -> None:
+    """A name starting with ``_`` is used only inside its wing (localization's __init__ promises it)."""
+    across = []
+    for path in sorted((REPO_ROOT / "localization").rglob("*.py")):
+        importer = ".".join(path.relative_to(REPO_ROOT).with_suffix("").parts)
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("localization."):
+                wing = node.module.split(".")[1]
+                if wing != importer.split(".")[1]:
+                    across += [f"{importer} <- {node.module}.{a.name}" for a in node.names
+                               if a.name.startswith("_") and not a.name.startswith("__")]
+    assert not across, "make these public or keep them in their wing: " + "; ".join(across)

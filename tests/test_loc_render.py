@@ -137,7 +137,6 @@ def test_road_is_visible_up_to_the_first_occluder() -> None:
     assert np.all(blocked[: road_rows.min()][blocked[: road_rows.min()] != SKY] == B)  # road behind it: hidden
 
 
-
 def test_wrap_around_at_azimuth_zero_and_heading() -> None:
     mask = field()
     mask[240:261, 190:211] = B  # due south, 20 m away

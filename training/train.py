@@ -178,8 +178,6 @@ def _loader_worker_start(worker_id: int) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
-
-
 def has_class_table(root: Path) -> bool:
     """Whether dataset ``root`` says what its label ids mean (manifest.json or classes.toml)."""
     return (Path(root) / "manifest.json").is_file() or (Path(root) / "classes.toml").is_file()
@@ -480,5 +478,6 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
         barrier()
     files_out.close()
     rows = tuple(cast("EpochRow", h) for h in history)
-    best_row = max((h for h in rows if h["val_miou"] is not None), key=lambda h: h["val_miou"] or 0.0, default=None)
+    best_row = max((h for h in rows if h.get("val_miou") is not None), key=lambda h: h.get("val_miou") or 0.0,
+                   default=None)
     return TrainResult(out_dir=config.out_dir, history=rows, best=best_row, rank=d.rank)

@@ -15,7 +15,8 @@
   above wrong ones (more than 50 m off: a look-alike place), with the share of answers a
   threshold accepts and how many of those are wrong.
 
-Imports: numpy, osmseg core, localization (landmarks, pipeline, profile, search, render).
+Imports: numpy, osmseg core, localization.common, both methods (paper, profile), localization.pipeline and the
+bench wing's render and scores.
 """
 
 from __future__ import annotations
@@ -187,8 +188,6 @@ def method_summary(records: Sequence[dict[str, Any]], method: str,
     return out
 
 
-
-
 def class_subsets(names: Sequence[str]) -> list[tuple[str, ...]]:
     """Every subset of two or more classes, smallest first (the order of ``names`` kept).
 
@@ -198,12 +197,10 @@ def class_subsets(names: Sequence[str]) -> list[tuple[str, ...]]:
     return [c for k in range(2, len(names) + 1) for c in itertools.combinations(names, k)]
 
 
-
 def aerial_graphs(lm: Landmarks, subsets: Sequence[tuple[str, ...]], config: PaperConfig
                   ) -> dict[tuple[str, ...], AerialGraph]:
     """The aerial landmarks' graph for every class subset, each with its own automatic window."""
     return {s: aerial_graph(lm.of_classes(s), config) for s in subsets}
-
 
 
 def localize_subsets(graphs: dict[tuple[str, ...], AerialGraph], query: Landmarks, truth: tuple[float, float],
@@ -220,7 +217,6 @@ def localize_subsets(graphs: dict[tuple[str, ...], AerialGraph], query: Landmark
         by_subset["+".join(s)] = score(loc, truth, scale)
     full = by_subset.pop("+".join(subsets[0]))
     return {**full, "by_subset": by_subset}, seconds
-
 
 
 def subsets_of(classes: LandmarkClasses, all_subsets: bool) -> list[tuple[str, ...]]:

@@ -280,17 +280,7 @@ def place_viewpoints(mask: np.ndarray, ids: Sequence[int], n: int, margin_px: in
     return np.stack([xs[pick], ys[pick]], axis=1)
 
 
-
-
 # --------------------------------------------------------------------------- the run
-
-
-
-
-
-
-
-
 
 
 class _Bench:

@@ -32,7 +32,7 @@ def _median(values: Sequence[float]) -> float | None:
 
 
 class BenchResults(TypedDict):
-    """A localize-bench's results.json, either protocol: what was measured, how, each method's
+    """The results.json of localize-bench or localize-pairs: what was measured, how, each method's
     summary side by side, and every query's record (docs/localization.md)."""
 
     format: str

@@ -1,6 +1,6 @@
-"""What ``osmseg localize-bench`` prints on the terminal: a few lines and the methods side by side.
+"""What ``osmseg localize-bench`` and ``localize-pairs`` print on the terminal: a few lines and the methods side by side.
 
-Imports: osmseg.units and localization.bench.compare (never localization.cli.commands).
+Imports: osmseg.units and localization.bench.scores (never the commands).
 """
 
 from __future__ import annotations

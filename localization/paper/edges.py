@@ -24,7 +24,6 @@ __all__ = ["MAX_FEATURE_LANDMARKS", "feature_edge_mask"]
 MAX_FEATURE_LANDMARKS = 10_000
 
 
-
 def feature_edge_mask(features: np.ndarray, threshold: float, *, metric: str = "euclidean",
                       reduce: str | None = None, components: int = 8, seed: int = 0) -> np.ndarray:
     """§5.3.2: landmark pairs whose image features are closer than ``threshold`` lose their edge.

@@ -228,11 +228,10 @@ class FeatureEdges:
         answer's; 0 when none was built: only the pairs are counted then); ``cliques`` builds a
         graph as the answer's were (:meth:`~localization.paper.config.PaperConfig.cliques`).
         """
-        build = cliques
         out = self.settings()
         for name, drop in drops.items():
             lm, window = graphs[name]
-            out[name] = None if drop is None else dropped_edges(drop, build(lm, window) if window else None)
+            out[name] = None if drop is None else dropped_edges(drop, cliques(lm, window) if window else None)
         return out
 
 

@@ -305,4 +305,3 @@ def _point_cliques(lm: Landmarks, g: _Geometry) -> Cliques:
     out = Cliques(members, centers, g.w, g.s)
     return _authors_order(out, g.first_centers(corners[:, 0], corners[:, 1])) if g.origin else out
 
-

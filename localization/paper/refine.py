@@ -24,7 +24,6 @@ logger = logging.getLogger(__name__)
 __all__ = ["inherit", "localize_hierarchical"]
 
 
-
 def inherit(fine: np.ndarray, coarse: np.ndarray, coarse_scores: np.ndarray, coarse_window: int) -> np.ndarray:
     """For each fine centre, the best score among coarse candidates whose window contains it.
 
@@ -72,5 +71,4 @@ def localize_hierarchical(aerial: Landmarks, query: Landmarks, config: PaperConf
     if best is None:
         return Localization(**{**levels[0].__dict__, "levels": tuple(levels)})
     return Localization(**{**best.__dict__, "levels": tuple(levels)})
-
 

@@ -19,7 +19,7 @@ A view without a sky class is bounded from below only (every ground pixel lies u
 horizon); the smallest tilt that keeps it so is taken, which is less precise. Measured on the
 geometry renderer's views of the Kotka extract (``benchmarks/bench_region.py``): docs/localization.md.
 
-Imports: numpy, localization.profile.profiles.
+Imports: numpy, localization.common.views.
 """
 
 from __future__ import annotations

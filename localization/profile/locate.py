@@ -38,7 +38,6 @@ def _level(query: QueryProfile) -> bool:
     return query.pose is None or query.pose[1:] == (0.0, 0.0)
 
 
-
 def _nms(xy: np.ndarray, order: np.ndarray, radius: float, k: int) -> list[int]:
     """The first ``k`` of ``order`` that are at least ``radius`` from every one kept before them.
 
@@ -60,7 +59,6 @@ def _nms(xy: np.ndarray, order: np.ndarray, radius: float, k: int) -> list[int]:
             if len(kept) == k:
                 break
     return kept
-
 
 
 def _around(xy: np.ndarray, spacing: float, shape: tuple[int, int]) -> np.ndarray:
@@ -124,13 +122,11 @@ class Scoring:
         return xy, score, shift, pose
 
 
-
 def _heading_at(query: QueryProfile, shifts: np.ndarray | None, i: int) -> float:
     """The heading (degrees) at place ``i``: the given one, or its best azimuth shift (in bins)."""
     if query.heading_deg is not None or shifts is None:
         return round(float(query.heading_deg or 0.0), 3) % 360.0
     return round(float(shifts[i] * 360.0 / query.bins) % 360.0, 3) % 360.0
-
 
 
 def _alternative(s: Scoring, coarse: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], answer: np.ndarray,
@@ -155,7 +151,6 @@ def _alternative(s: Scoring, coarse: tuple[np.ndarray, np.ndarray, np.ndarray, n
     return (float(r_xy[i, 0]), float(r_xy[i, 1]), float(r_score[i])), _heading_at(s.query, r_shift, i)
 
 
-
 def _gated(result: Localization, kappa: float, confidence: float, config: ProfileConfig, index: AerialIndex,
            answer: np.ndarray) -> Localization:
     """``result`` left unanswered when its ``kappa`` says "not in this image" or its ``confidence`` "not
@@ -173,7 +168,6 @@ def _gated(result: Localization, kappa: float, confidence: float, config: Profil
         return replace(result, unanswered=True, map_xy=None,
                        reason=f"not sure: confidence {confidence:.3f} is below {threshold:g}{where}")
     return result
-
 
 
 def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileConfig,

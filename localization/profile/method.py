@@ -50,7 +50,6 @@ def profile_index(aerial: SemanticMap | Landmarks, resolution_m: float | None,
                                d0_m=config.d0_m)
 
 
-
 def profile_query(query: SemanticMap | Landmarks, camera: Camera, config: ProfileConfig = ProfileConfig()
                   ) -> QueryProfile:
     """The query side of the profile method, in compass azimuths (heading given) or its own frame (unknown)."""
@@ -65,7 +64,6 @@ def profile_query(query: SemanticMap | Landmarks, camera: Camera, config: Profil
         return query_from_mask(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg)
     bins = config.bins or max(8, int(round(360.0 / (config.sigma_deg / 2))))
     return query_from_landmarks(query, camera, bins=bins, radii=radii, heading_deg=config.heading_deg)
-
 
 
 def run_profile(config: ProfileConfig, aerial: AerialIndex, query: SemanticMap | Landmarks | QueryProfile,

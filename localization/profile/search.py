@@ -41,7 +41,7 @@ lies ``distinct_m`` away). Below ``min_confidence`` the answer is "not sure": th
 it, with the alternative. docs/localization.md gives how well it ranks wrong answers below
 right ones, per kind of query, and how the default threshold was chosen.
 
-Imports: numpy, osmseg core, localization.profile.profiles and localization.common.result.
+Imports: numpy, osmseg core, localization.profile.profiles.
 """
 
 from __future__ import annotations
@@ -383,19 +383,4 @@ def _parabola(s: np.ndarray, k: np.ndarray) -> np.ndarray:
     y0, y1, y2 = s[rows, (k - 1) % a], s[rows, k], s[rows, (k + 1) % a]
     den = y0 - 2 * y1 + y2
     return np.where(np.abs(den) > 1e-12, np.clip(0.5 * (y0 - y2) / np.where(den == 0, 1, den), -0.5, 0.5), 0.0)
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 

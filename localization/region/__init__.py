@@ -6,6 +6,7 @@ rasteriser and searches each with the profile method against the region's class 
 reads the query, splits the search into ``--shard K/N`` parts, merges them and writes the
 GeoJSON.
 
-Imports: osmseg core, :mod:`localization.common`, :mod:`localization.profile` and
-:mod:`localization.pipeline`; never the benchmarks or the command line.
+Imports: osmseg core, :mod:`localization.common` and :mod:`localization.profile` (the layers
+contract would let it use :mod:`localization.pipeline` too); never the benchmarks or the
+command line.
 """

@@ -9,7 +9,8 @@ or other settings never mix, and a corrected command starts beside a failed one'
 instead of refusing the folder. A shard whose part is already there (a rerun, a requeued
 array task) does not search again.
 
-Imports: osmseg core, localization.region.search, .region_cache, .inputs, .landmarks, .profile, .figures.
+Imports: osmseg core, localization.common (inputs, landmarks, views, figures), localization.profile.search
+and the region wing's own modules (search, cache).
 """
 
 from __future__ import annotations

@@ -26,7 +26,8 @@ candidates are ranked across blocks in degrees:
   same for any number of shards.
 
 Everything is a function of the region, the query and the settings: no random choice.
-Imports: osmseg core, localization.profile.profiles, .pipeline, .landmarks, .region_cache, .search.
+Imports: osmseg core, localization.common (landmarks, views), the profile wing (method, profiles, search) and
+localization.region.cache.
 """
 
 from __future__ import annotations

@@ -10,5 +10,6 @@ of workers, and writes the dataset-level files (:mod:`~osmseg.build.finalize`).
 
 Imports: the osmseg core below it (grid, classes, places, osm, imagery, net, output,
 processes, ...). Only the command line (:mod:`osmseg.cli`) and the demo (:mod:`osmseg.demo`)
-import it: training and localization read what it wrote, never run it (``lint-imports``).
+import it (``lint-imports``): training and localization read what it wrote, and localization's
+``osmseg demo`` command runs a build only through :func:`osmseg.cli.build.run_build`.
 """

@@ -170,11 +170,11 @@ def build(
     return summary
 
 
-def _build_slots(build: BuildContext, env: dict[str, str], progress: Progress | None, command_line: str,
+def _build_slots(ctx: BuildContext, env: dict[str, str], progress: Progress | None, command_line: str,
                  summary: BuildSummary) -> None:
     """The body of :func:`build` while it holds the output folder: build the unfinished slots of
     this shard, then, when every slot of the build has its outcome, the dataset-level files."""
-    config, pipe, state = build.config, build.pipe, build.state
+    config, pipe, state = ctx.config, ctx.pipe, ctx.state
     state.claim(config.identity(), command_line)  # refuses a folder another build holds now
     sweep_work_area(config.out_dir)  # only now: what is left is a killed process's, or a sharer's live files
     mine = config.my_slots()
@@ -191,7 +191,7 @@ def _build_slots(build: BuildContext, env: dict[str, str], progress: Progress | 
     regions = prepare_osm(config, pipe, mine, todo)
     finished = len(mine) - len(todo)
     report(progress, "build", finished, len(mine), "sample")
-    with SlotRunner(build, env, config.worker_count(len(todo)), regions) as runner:
+    with SlotRunner(ctx, env, config.worker_count(len(todo)), regions) as runner:
         for count, outcome in enumerate(runner.run(todo, first), start=finished + 1):
             _count(summary, outcome)
             counts = {"failed": len(summary.failed)} if summary.failed else {}

@@ -28,7 +28,6 @@ from osmseg.output.atomic import atomic_write_text
 STATE_SUBDIRS = ("attempts", "slots", "failures", "thumbnails", "holders")
 
 
-
 def atomic_write_json(path: Path, obj: Any) -> None:
     """Atomically write ``obj`` as stable (sorted, indented) JSON."""
     atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True, ensure_ascii=False) + "\n")

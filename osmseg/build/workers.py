@@ -99,7 +99,7 @@ class _Worker:
     """The state of one worker process: its pipeline and the build state it records into, or
     why it could not open them (raised by its first task, so it reaches the build as it is)."""
 
-    build: BuildContext
+    ctx: BuildContext
     failure: BaseException | None = None
 
 
@@ -172,7 +172,7 @@ def _start_worker(setup: WorkerSetup) -> None:
         return
     finally:
         signal.signal(signal.SIGTERM, _on_terminate)  # from here on a slot may be writing: unwind it
-    _WORKER.build = BuildContext(setup.config, pipe, state)
+    _WORKER.ctx = BuildContext(setup.config, pipe, state)
 
 
 class _Stop(SystemExit):
@@ -200,7 +200,7 @@ def _build_slot(slot: int, keep_thumbnails: bool) -> SlotOutcome:
     if _WORKER.failure is not None:
         raise _WORKER.failure
     try:
-        return run_slot(_WORKER.build, slot, keep_thumbnails)
+        return run_slot(_WORKER.ctx, slot, keep_thumbnails)
     except _Stop:
         os._exit(1)
 
@@ -273,9 +273,9 @@ class SlotRunner:
                 ...
     """
 
-    def __init__(self, build: BuildContext, env: dict[str, str], workers: int,
+    def __init__(self, ctx: BuildContext, env: dict[str, str], workers: int,
                  regions: tuple[LngLatBBox, ...]) -> None:
-        self.build, self.env = build, env
+        self.ctx, self.env = ctx, env
         self.workers = max(1, int(workers))
         self.regions = regions
         self._stack = ExitStack()
@@ -305,7 +305,7 @@ class SlotRunner:
         queue = context.Queue()
         self._logs = _LogForwarder(queue)
         gate_dir = Path(self._stack.enter_context(tempfile.TemporaryDirectory(prefix="osmseg-hosts-")))
-        setup = WorkerSetup(config=self.build.config, env=self.env, regions=self.regions, gate_dir=gate_dir,
+        setup = WorkerSetup(config=self.ctx.config, env=self.env, regions=self.regions, gate_dir=gate_dir,
                             log_queue=queue, log_level=logging.getLogger().getEffectiveLevel(), parent=os.getpid())
         self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=context, initializer=_start_worker,
                                          initargs=(setup,))
@@ -315,7 +315,7 @@ class SlotRunner:
         slots keep thumbnails for the overview, and learns of each accepted sample."""
         if self._pool is None:
             for slot in slots:
-                outcome = run_slot(self.build, slot, first.may_show(slot))
+                outcome = run_slot(self.ctx, slot, first.may_show(slot))
                 if outcome.status == "accepted":
                     first.accepted(slot)
                 yield outcome

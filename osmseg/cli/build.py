@@ -173,10 +173,10 @@ def build_command(ctx: click.Context, /, **params: Any) -> None:
     run_build(config, ctx.obj["verbosity"], ctx.obj.get("progress", False), env=env)
 
 
-def _content(read: Callable[[BuildConfig], object]) -> Any:
-    """A field of :class:`BuildOptions` that changes what is built: ``read`` gives its value back
-    from a config, for the recorded command (None or False: the option is left out)."""
-    return field(metadata={"recorded": read})
+def _content(read: Callable[[BuildConfig], object]) -> dict[str, Callable[[BuildConfig], object]]:
+    """The metadata of a field of :class:`BuildOptions` that changes what is built: ``read`` gives
+    its value back from a config, for the recorded command (None or False: the option is left out)."""
+    return {"recorded": read}
 
 
 def _area_is(kind: str) -> Callable[[BuildConfig], bool]:
@@ -196,41 +196,42 @@ class BuildOptions:
     """``osmseg build``'s options by parameter name: the one table the config, the recorded command
     and the list of options that never change what is built all come from.
 
-    A field made with :func:`_content` changes the dataset and says how its value reads back from
-    a :class:`BuildConfig` (the manifest's command, :func:`recorded_command`); a plain field
+    A field whose metadata is :func:`_content`'s changes the dataset and says how its value reads
+    back from a :class:`BuildConfig` (the manifest's command, :func:`recorded_command`); a plain field
     (where the output goes, how it is fetched, how many processes) does not, so every shard,
     every resumed run and the same dataset built elsewhere record one command.
     """
 
-    city: str | None = _content(lambda c: c.area.name if _CITY(c) else None)
-    lat: float | None = _content(lambda c: c.area.lat if _POINT(c) else None)
-    lon: float | None = _content(lambda c: c.area.lon if _POINT(c) else None)
-    radius_km: float | None = _content(lambda c: None if _BBOX(c) else c.area.radius_km)
-    bbox: str | None = _content(lambda c: ",".join(repr(v) for v in c.area.bbox) if _BBOX(c) and c.area.bbox else None)
-    samples: int = _content(lambda c: c.samples)
-    seed: int = _content(lambda c: c.seed)
-    zoom: int = _content(lambda c: c.zoom)
-    imagery: str | None = _content(lambda c: redact(c.imagery))
-    tile_size: str | None = _content(lambda c: c.tile_size)
-    osm: str = _content(lambda c: redact(c.osm))
-    classes: str = _content(lambda c: c.classes)
-    image_format: str = _content(lambda c: c.image_format)
-    max_unlabeled: float = _content(lambda c: c.filters.max_unlabeled)
-    min_classes: int = _content(lambda c: c.filters.min_classes)
-    min_contrast: float = _content(lambda c: c.filters.min_contrast)
-    max_missing_imagery: float = _content(lambda c: c.filters.max_invalid_imagery)
-    max_placeholder_tiles: int = _content(lambda c: c.filters.max_placeholder_tiles)
-    max_tries: int = _content(lambda c: c.max_tries)
-    no_overlap: bool = _content(lambda c: c.no_overlap)
-    out_dir: Path = Path()
-    cache_dir: Path | None = None
-    http_timeout: float = 30.0
-    offline: bool = False
-    workers: int = 0
-    shard: str | None = None
-    make_zip: bool = False
-    record: Path | None = None
-    replay: Path | None = None
+    city: str | None = field(metadata=_content(lambda c: c.area.name if _CITY(c) else None))
+    lat: float | None = field(metadata=_content(lambda c: c.area.lat if _POINT(c) else None))
+    lon: float | None = field(metadata=_content(lambda c: c.area.lon if _POINT(c) else None))
+    radius_km: float | None = field(metadata=_content(lambda c: None if _BBOX(c) else c.area.radius_km))
+    bbox: str | None = field(metadata=_content(
+        lambda c: ",".join(repr(v) for v in c.area.bbox) if _BBOX(c) and c.area.bbox else None))
+    samples: int = field(metadata=_content(lambda c: c.samples))
+    seed: int = field(metadata=_content(lambda c: c.seed))
+    zoom: int = field(metadata=_content(lambda c: c.zoom))
+    imagery: str | None = field(metadata=_content(lambda c: redact(c.imagery)))
+    tile_size: str | None = field(metadata=_content(lambda c: c.tile_size))
+    osm: str = field(metadata=_content(lambda c: redact(c.osm)))
+    classes: str = field(metadata=_content(lambda c: c.classes))
+    image_format: str = field(metadata=_content(lambda c: c.image_format))
+    max_unlabeled: float = field(metadata=_content(lambda c: c.filters.max_unlabeled))
+    min_classes: int = field(metadata=_content(lambda c: c.filters.min_classes))
+    min_contrast: float = field(metadata=_content(lambda c: c.filters.min_contrast))
+    max_missing_imagery: float = field(metadata=_content(lambda c: c.filters.max_invalid_imagery))
+    max_placeholder_tiles: int = field(metadata=_content(lambda c: c.filters.max_placeholder_tiles))
+    max_tries: int = field(metadata=_content(lambda c: c.max_tries))
+    no_overlap: bool = field(metadata=_content(lambda c: c.no_overlap))
+    out_dir: Path
+    cache_dir: Path | None
+    http_timeout: float
+    offline: bool
+    workers: int
+    shard: str | None
+    make_zip: bool
+    record: Path | None
+    replay: Path | None
 
 
 def build_config(options: BuildOptions) -> BuildConfig:

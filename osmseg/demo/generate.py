@@ -146,7 +146,6 @@ class Emulator(requests.adapters.HTTPAdapter):
                     writer.add(obj)
         return xml.read_bytes()
 
-
     def relation_full(self, rid: int) -> bytes:
         """The API's ``relation/ID/full`` answer: the relation, its member ways and their nodes."""
         way_ids = {m.ref for r in osmium.FileProcessor(str(self.pbf), osmium.osm.RELATION)

@@ -68,7 +68,6 @@ class Rejection:
         return {"reason": self.reason, "detail": self.detail}
 
 
-
 _SECRET_OPTION = re.compile(r"(?i)^--?[\w-]*(key|token|secret|password)[\w-]*$")
 
 
