@@ -26,6 +26,7 @@ from localization.paper.edges import feature_edge_mask
 from localization.paper.graph import cliques_fast
 from localization.paper.match import (
     DEFAULT_P,
+    aerial_graph,
     class_adjacency,
     extend_cliques,
     inverted_index,
@@ -323,6 +324,22 @@ def test_vectorised_matching_equals_the_plain_formulas() -> None:
     np.testing.assert_allclose(result.likelihoods, plain, atol=1e-12)
     np.testing.assert_allclose(result.posteriors, posteriors(np.array(plain)), atol=1e-12)
     np.testing.assert_allclose(result.candidates, cliques.centers[result.relevant])
+
+
+def test_a_graph_built_once_answers_many_queries_as_a_fresh_one_does() -> None:
+    """An AerialGraph keeps each class set's candidates (a benchmark's views of one scene): every
+    answer is the one a graph built for that query alone gives, to the bit."""
+    aerial, centres = blocks_scene()
+    config = PaperConfig(window=60)
+    graph = aerial_graph(aerial, config)
+    queries = [panorama(aerial, (cx + dx, cy), 60) for cx, cy in centres.values() for dx in (-4, 3)]
+    queries += [queries[0].of_classes(("building", "road"))]  # another class set: its own entry
+    for query in queries + queries[::-1]:  # the second time round, every class set is kept
+        kept, fresh = localize(graph, query, config), localize(aerial_graph(aerial, config), query, config)
+        assert kept.map_xy == fresh.map_xy and kept.ties == fresh.ties and kept.top_k == fresh.top_k
+        assert np.array_equal(kept.posteriors, fresh.posteriors)
+        assert np.array_equal(kept.likelihoods, fresh.likelihoods)
+    assert len(graph.memo) == len({(tuple(sorted(set(q.cls.tolist()))), q.classes) for q in queries})
 
 
 def test_reference_cliques_give_the_same_localization() -> None:

@@ -42,7 +42,7 @@ from __future__ import annotations
 import functools
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import cast
 
 import numpy as np
@@ -57,8 +57,9 @@ from osmseg.errors import ConfigError
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "DEFAULT_P", "AerialGraph", "Localization", "aerial_graph", "class_adjacency", "extend_cliques", "inverted_index", "likelihood", "localize",
-    "match_cliques", "posteriors", "rank", "relevant_cliques", "unanswered",
+    "DEFAULT_P", "AerialGraph", "Candidates", "Localization", "aerial_graph", "candidates", "class_adjacency",
+    "extend_cliques", "inverted_index", "likelihood", "localize", "match_cliques", "posteriors", "rank",
+    "relevant_cliques", "unanswered",
 ]
 
 #: Relevant cliques whose overlaps are computed at once (bounds memory to CHUNK x M floats).
@@ -329,9 +330,40 @@ def posteriors(likelihoods: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- localize
 
 
+@dataclass(frozen=True)
+class Candidates:
+    """What matching needs of an aerial graph that depends only on the query's classes, not its edges.
+
+    Built once per aerial graph and class set (:attr:`AerialGraph.memo`): a benchmark matches
+    many views of one scene that see the same classes, and only the last step (eq. 3.3 against
+    the query's matrix) differs between them.
+    """
+
+    relevant: np.ndarray                  # the relevant cliques (step 1); empty: nothing to match
+    extended: tuple[np.ndarray, ...]      # each chunk of candidates' normalised class adjacency (steps 2-3)
+    own: np.ndarray | None                # each relevant clique's alone, before extension (the tie-breaker)
+
+
+def candidates(aerial: Landmarks, aerial_cliques: Cliques, names: tuple[str, ...], query_classes: np.ndarray,
+               p: float, aerial_drop: np.ndarray | None = None) -> Candidates:
+    """Steps 1-3 of the module docstring for a query whose landmarks are of ``query_classes`` (indices into ``names``)."""
+    aerial_idx = class_indices(aerial, names)
+    c = _sparse(aerial_cliques.members)
+    relevant = relevant_cliques(inverted_index(c, aerial_idx, len(names)), query_classes.tolist())
+    if relevant.size == 0:
+        return Candidates(relevant, (), None)
+    table = _EdgeTable.build(c, aerial_idx, len(names), aerial_drop)
+    extended = tuple(_normalise(table.counts(_extension(c, relevant[i:i + CHUNK], p)))
+                     for i in range(0, len(relevant), CHUNK))
+    own = sparse.csr_matrix((np.ones(len(relevant)), (np.arange(len(relevant)), relevant)),
+                            shape=(len(relevant), c.shape[0]))
+    return Candidates(relevant, extended, _normalise(table.counts(own)))
+
+
 def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, query_cliques: Cliques,
                   config: PaperConfig = PaperConfig(), *, aerial_drop: np.ndarray | None = None,
-                  query_drop: np.ndarray | None = None) -> Localization:
+                  query_drop: np.ndarray | None = None,
+                  memo: dict[tuple[object, ...], Candidates] | None = None) -> Localization:
     """Steps 1-6 of the module docstring on graphs already built (no window choice here).
 
     ``conventions="authors"``: ties go to the first candidate in the cliques' order, as the
@@ -339,7 +371,8 @@ def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, 
 
     ``config`` gives ``p``, ``top_k`` and the conventions; the windows recorded in the result are
     the cliques' own. ``aerial_drop``/``query_drop`` remove edges from the graphs
-    (:func:`~localization.paper.edges.feature_edge_mask`).
+    (:func:`~localization.paper.edges.feature_edge_mask`). ``memo`` keeps the aerial side's
+    :class:`Candidates` of these cliques between calls (unused with an ``aerial_drop``).
     """
     p, top_k, conventions = config.p, config.top_k, config.conventions
     settings = {"window": aerial_cliques.window, "query_window": query_cliques.window,
@@ -350,23 +383,21 @@ def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, 
         return unanswered("the query's landmarks form no edge (a single landmark, or none covisible): "
                           "nothing to match", **settings)
     query_classes = np.unique(class_indices(query, names))
-    aerial_idx = class_indices(aerial, names)
-    c = _sparse(aerial_cliques.members)
-    relevant = relevant_cliques(inverted_index(c, aerial_idx, len(names)), query_classes.tolist())
-    if relevant.size == 0:
+    key = (names, tuple(query_classes.tolist()), p)
+    found = memo.get(key) if memo is not None and aerial_drop is None else None
+    cand = found or candidates(aerial, aerial_cliques, names, query_classes, p, aerial_drop)
+    if memo is not None and aerial_drop is None:
+        memo[key] = cand
+    if cand.own is None:
         seen = ", ".join(names[c] for c in query_classes)
         return unanswered(f"no aerial clique holds every class seen in the query ({seen})", **settings)
     query_vec = query_w[np.tril_indices(len(names))]
-    table = _EdgeTable.build(c, aerial_idx, len(names), aerial_drop)
-    lik = np.concatenate([_ncc(query_vec, _normalise(table.counts(_extension(c, relevant[i:i + CHUNK], p))))
-                          for i in range(0, len(relevant), CHUNK)])
+    lik = np.concatenate([_ncc(query_vec, chunk) for chunk in cand.extended])
     if not lik.any():
         return unanswered("no candidate's graph has an edge between classes the query's edges join", **settings)
-    own = sparse.csr_matrix((np.ones(len(relevant)), (np.arange(len(relevant)), relevant)),
-                            shape=(len(relevant), c.shape[0]))
-    clique_lik = _ncc(query_vec, _normalise(table.counts(own)))  # tie-breaker: the clique before extension
-    centers = np.asarray(aerial_cliques.centers, dtype=np.float64)[relevant]
-    return answered(centers, lik, posteriors(lik), top_k, clique_likelihoods=clique_lik, relevant=relevant,
+    clique_lik = _ncc(query_vec, cand.own)  # tie-breaker: the clique before extension
+    centers = np.asarray(aerial_cliques.centers, dtype=np.float64)[cand.relevant]
+    return answered(centers, lik, posteriors(lik), top_k, clique_likelihoods=clique_lik, relevant=cand.relevant,
                     by_index=conventions == "authors", **settings)
 
 
@@ -377,6 +408,8 @@ class AerialGraph:
     landmarks: Landmarks
     window: int
     cliques: Cliques | None  # None when the image has no landmark
+    #: each class set's :class:`Candidates`, kept as queries are matched (a cache: same answers)
+    memo: dict[tuple[object, ...], Candidates] = field(default_factory=dict, compare=False, repr=False)
 
 
 def aerial_graph(lm: Landmarks, config: PaperConfig = PaperConfig()) -> AerialGraph:
@@ -415,7 +448,7 @@ def localize(aerial: Landmarks | AerialGraph, query: Landmarks, config: PaperCon
         return unanswered("the aerial image has no landmarks", p=config.p)
     qw = config.query_window_for(query, graph.window)
     result = match_cliques(lm, graph.cliques, query, config.cliques(query, qw), config,
-                           aerial_drop=aerial_drop, query_drop=query_drop)
+                           aerial_drop=aerial_drop, query_drop=query_drop, memo=graph.memo)
     logger.debug("localize: window %d, query window %d, %d cliques, %d candidates, ties %d",
                  graph.window, qw, result.n_cliques, len(result.candidates), result.ties)
     return result
