@@ -191,10 +191,12 @@ def services(module_services: Services, clean: Clean) -> Services:
 
 
 def build_args(server: ScriptedServer, out: Path, cache: Path, *extra: str, samples: int = 2) -> list[str]:
+    """A two-sample build from ``server``; retries 0.01 s apart (which requests are made is what these tests
+    check; the client's waits, 0.5 s doubling by default, are tests/test_http.py's)."""
     imagery = "xyz:" + server.url("/tiles/") + "{z}/{x}/{y}.png?key={env:TILE_KEY}"
     return ["build", "--lat", str(LAT), "--lon", str(LON), "--radius-km", "0.08", "--samples", str(samples),
             "--seed", "1", "--imagery", imagery, "--osm", "api:" + server.url("/api/0.6"),
-            "--out", str(out), "--cache-dir", str(cache), *extra]
+            "--out", str(out), "--cache-dir", str(cache), "--retry-delay", "0.01", *extra]
 
 
 def run_cli(*args: str) -> Result:
@@ -312,13 +314,13 @@ def test_osm_xml_that_stays_malformed_fails_that_sample_only_and_a_rerun_finishe
     services.fault(MAP, lambda n: Reply(200, BROKEN_XML, {"Content-Type": "text/xml"}) if n > 1 else None)
     out, cache = tmp_path / "ds", tmp_path / "cache"
     # one process, so that "the second map call" is slot 1's (two workers may ask in either order)
-    args = build_args(services.server, out, cache, "--workers", "1")
+    args = build_args(services.server, out, cache, "--workers", "1", "--retries", "2")
 
     failed = run_cli(*args)
 
     message = assert_one_error_line(failed, "OSM API", "map?bbox=", "not valid OSM data", "1 of 2 samples")
     assert "run the same command again" in message  # says what to do
-    assert services.seen[MAP] == 1 + 6  # the good first answer, then the broken one and its 5 retries
+    assert services.seen[MAP] == 1 + 3  # the good first answer, then the broken one and its --retries 2
     assert assert_nothing_half_written(out) == [clean.manifest["samples"][0]["name"]]
     assert not (out / "manifest.json").exists()
     reasons = [json.loads(p.read_text()) for p in (out / ".osmseg-build" / "failures").glob("*.json")]

@@ -55,6 +55,8 @@ class BuildConfig:
     zip: bool = False
     name_prefix: str | None = None
     http_timeout: float = 30.0  # seconds to connect, and between bytes read
+    http_retries: int = 5  # --retries: further attempts of a request that failed in a way worth retrying
+    http_retry_delay: float = 0.5  # --retry-delay: seconds before the first retry; doubles with each
     cassette: Path | None = None  # --record/--replay FILE
     cassette_mode: str = "replay"
     no_overlap: bool = False  # --no-overlap: every attempt gets its own tile block (osmseg.build.sampling)

@@ -84,12 +84,13 @@ def attempt_grid(config: BuildConfig, slot: int, attempt: int) -> SampleGrid | N
 
 
 def http_config(config: BuildConfig, gate_dir: Path | None = None) -> HttpConfig:
-    """How a build's HTTP clients talk: its cache, timeout, cassette, per-host limits; ``gate_dir``
+    """How a build's HTTP clients talk: its cache, timeout, retries, cassette, per-host limits; ``gate_dir``
     makes the limits and Retry-After pauses shared by every process using that folder."""
     # a recording must see every request, so it bypasses the cache
     recording = config.cassette is not None and config.cassette_mode == "record"
     return HttpConfig(cache_dir=None if recording else config.cache_dir, offline=config.offline,
-                      host_limits=HOST_LIMITS, timeout=config.http_timeout, cassette=config.cassette,
+                      host_limits=HOST_LIMITS, timeout=config.http_timeout, retries=config.http_retries,
+                      backoff=config.http_retry_delay, cassette=config.cassette,
                       cassette_mode=config.cassette_mode, gate_dir=gate_dir)
 
 

@@ -141,6 +141,10 @@ def no_sample_error(summary: BuildSummary, config: BuildConfig) -> DatasetError:
               show_default="$OSMSEG_CACHE_DIR, else $XDG_CACHE_HOME/osmseg, else ~/.cache/osmseg", help="HTTP/OSM cache.")
 @click.option("--timeout", "http_timeout", type=click.FloatRange(min=0.1), default=30.0, show_default=True,
               help="Seconds to wait for a server to connect or send more bytes before retrying.")
+@click.option("--retries", "http_retries", type=click.IntRange(min=0), default=5, show_default=True,
+              help="Further attempts of a request that timed out, was cut off, or got 429/5xx or an unusable body.")
+@click.option("--retry-delay", "http_retry_delay", type=click.FloatRange(min=0), default=0.5, show_default=True,
+              help="Seconds before the first retry, doubling with each (a server's Retry-After comes first).")
 @click.option("--offline", is_flag=True, help="Use only the cache; fail on anything not cached.")
 @click.option("--workers", type=click.IntRange(min=0), default=0, show_default="0: every core this process may use",
               help="Processes building samples at once; the dataset's bytes are the same for any number.")
@@ -226,6 +230,8 @@ class BuildOptions:
     out_dir: Path
     cache_dir: Path | None
     http_timeout: float
+    http_retries: int
+    http_retry_delay: float
     offline: bool
     workers: int
     shard: str | None
@@ -247,7 +253,8 @@ def build_config(options: BuildOptions) -> BuildConfig:
         out_dir=o.out_dir, area=resolve_area(o.city, o.lat, o.lon, o.bbox, o.radius_km), imagery=o.imagery or "bing",
         osm=o.osm, samples=o.samples, seed=o.seed, zoom=o.zoom, classes=o.classes, image_format=o.image_format,
         filters=filters, max_tries=o.max_tries, cache_dir=o.cache_dir or default_cache_dir(), offline=o.offline,
-        http_timeout=o.http_timeout, shard=Shard.parse(o.shard) if o.shard else None, zip=o.make_zip,
+        http_timeout=o.http_timeout, http_retries=o.http_retries, http_retry_delay=o.http_retry_delay,
+        shard=Shard.parse(o.shard) if o.shard else None, zip=o.make_zip,
         no_overlap=o.no_overlap, workers=o.workers, tile_size=int(o.tile_size) if o.tile_size else None,
     )
     if o.record or o.replay:
