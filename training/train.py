@@ -19,11 +19,13 @@ import hashlib
 import logging
 import math
 import signal
+import sys
 import time
 from collections.abc import Callable, Iterable
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from types import TracebackType
 from typing import Any, TypedDict, cast
 
 import numpy as np
@@ -174,8 +176,24 @@ def _loader_worker_start(worker_id: int) -> None:
     group (``timeout``, Slurm, ``kill -- -PGID``) would otherwise kill it mid-batch, and torch
     would then report the dead worker with a traceback while the training process unwinds and
     says it was terminated. The training process stops its workers itself; a worker still ends
-    when the training process is gone (torch watches its parent)."""
+    when the training process is gone (torch watches its parent).
+
+    And a training process stopped while it takes a batch's tensors over (their file descriptors
+    go through a handshake with a thread of the worker, multiprocessing's resource sharer) drops
+    that handshake: the thread reports the dropped connection through ``sys.excepthook`` with a
+    traceback under the training process's one line. Here such reports are dropped; any other
+    error still reaches the previous hook (a batch's own errors travel to the training process).
+    """
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    sys.excepthook = _without_dropped_handovers(sys.excepthook)
+
+
+def _without_dropped_handovers(previous: Callable[..., Any]) -> Callable[..., Any]:
+    """``previous`` (an excepthook) that leaves out a connection the other side dropped."""
+    def hook(kind: type[BaseException], value: BaseException, tb: TracebackType | None) -> None:
+        if not issubclass(kind, (EOFError, ConnectionError)):
+            previous(kind, value, tb)
+    return hook
 
 
 def has_class_table(root: Path) -> bool:
