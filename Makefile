@@ -25,8 +25,10 @@ test: $(VENV)/.installed
 	# long end-to-end tests do not leave a core waiting at the end), and the 20 slowest named
 	$(BIN)/pytest -q -n auto --dist worksteal --durations=20
 
+# the long end-to-end cases make test leaves out (CI runs both): learning to a bar, two trainings for
+# RGB localization, the docs' cheap figures measured again, benchmarks on real data
 test-slow: $(VENV)/.installed
-	$(BIN)/pytest -q -m slow
+	$(BIN)/pytest -q -m slow -n auto --dist worksteal --durations=20
 
 bench: $(VENV)/.installed
 	$(BIN)/python benchmarks/bench_build.py

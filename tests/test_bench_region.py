@@ -13,6 +13,7 @@ import sys
 
 import mercantile
 import numpy as np
+import pytest
 from conftest import REPO_ROOT, shared_path
 
 sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
@@ -45,6 +46,7 @@ def test_street_points_lie_on_highway_pixels_inside_the_region(tmp_path) -> None
         assert (mask[row - 1:row + 2, col - 1:col + 2] == road).any(), (lon, lat)
 
 
+@pytest.mark.slow  # make test-slow: benchmarks/bench_region.py on real OSM
 def test_a_short_run_finds_clean_views_in_a_region(tmp_path) -> None:
     import bench_region
 

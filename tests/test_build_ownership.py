@@ -111,7 +111,8 @@ def references(imagery_tif: Path, tmp_path_factory: pytest.TempPathFactory) -> d
     return found
 
 
-@pytest.mark.parametrize("attempt", [*range(3), *(pytest.param(i, marks=pytest.mark.slow) for i in range(3, 12))])
+# one start in make test, eleven more in make test-slow (a race: the more starts, the likelier it shows)
+@pytest.mark.parametrize("attempt", [0, *(pytest.param(i, marks=pytest.mark.slow) for i in range(1, 12))])
 def test_two_builds_with_other_options_started_in_the_same_millisecond_one_owns_the_folder(
         tmp_path: Path, imagery_tif: Path, references: dict[str, dict[str, bytes]], attempt: int) -> None:
     out, barrier = tmp_path / "ds", tmp_path / "barrier"

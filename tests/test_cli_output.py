@@ -92,6 +92,7 @@ def test_a_log_file_gets_no_progress_frames_a_terminal_does(tmp_path: Path, trai
     assert code == 0 and b"\r" in err, err[-500:]
 
 
+@pytest.mark.slow  # make test-slow: three commands in processes; --progress into a pipe: the log-file test
 def test_every_long_command_reports_its_steps_as_bars_when_asked(tmp_path: Path, trained: Path) -> None:
     """The library reports steps through a callback; the command draws them: --progress into a
     pipe shows each command's own bars (tasks and units), and the summary still follows."""

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 from PIL import Image
 
@@ -58,6 +59,7 @@ def test_version_and_help() -> None:
     assert all(cmd in result.output for cmd in ("build", "demo", "verify"))
 
 
+@pytest.mark.slow  # make test-slow: 23 s, training the demo model; make demo runs the same code
 def test_demo_trains_and_evaluates_after_the_build(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     result = CliRunner().invoke(cli, ["demo", "--out", str(out), "--epochs", "1", "--no-localize"])

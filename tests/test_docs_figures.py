@@ -37,6 +37,7 @@ def test_the_headline_figures_of_the_issue_are_markers() -> None:
         assert f"<!-- fig {key} -->" in readme, key
 
 
+@pytest.mark.slow  # make test-slow: the demo build and a 40-view bench in subprocesses
 def test_the_cheap_figures_are_what_the_docs_say(tmp_path: Path) -> None:
     cheap = [name for name, s in figures.SETS.items() if s.cost == "cheap"]
     measured = figures.measure(cheap, figures.Workspace(tmp_path), say=lambda line: None)

@@ -160,6 +160,7 @@ def test_each_place_found_carries_its_own_heading(scene) -> None:
     assert min(abs(apart - 90.0), abs(apart - 270.0)) <= 5.0, (loc.heading_deg, loc.alternative_heading)
 
 
+@pytest.mark.slow  # make test-slow: a profile search from points; masks take the same path in make test
 def test_landmark_lists_on_both_sides(scene) -> None:
     """The paper's input, points only: grid points of the aerial mask, grid points of the panorama."""
     mask, _ = scene

@@ -20,6 +20,9 @@ from click.testing import CliRunner
 from osmseg.cli.main import cli as osmseg_main
 
 pytest.importorskip("torch")
+#: make test-slow: two trainings (30 s); each step runs in make test on its own (segmenting an RGB
+#: image with a checkpoint in localize: test_loc_match; loading CamVid-layout data: test_data)
+pytestmark = pytest.mark.slow
 
 HERE = Path(__file__).resolve().parent
 CONFIGS = HERE / "data" / "train"
