@@ -31,7 +31,7 @@ from conftest import REPO_ROOT, TEST_DATA, TINYCITY, TINYCITY_CENTRE
 from PIL import Image
 from rasterio.windows import Window
 
-from osmseg.classes import load_class_table
+from osmseg.classes import ClassTable, load_class_table
 from osmseg.cli.main import cli
 from osmseg.datafiles import DATA_DIR
 
@@ -81,6 +81,11 @@ def test_the_shipped_class_tables_load_with_a_colour_per_class(name: str) -> Non
     table = load_class_table(name)
     colours = [c.color for c in (table.unlabeled, *table.classes)]
     assert len(set(colours)) == len(colours) == len(table.classes) + 1
+    # as a manifest or checkpoint records it and reads it back (camvid's unlabeled is void, 11)
+    again = ClassTable.from_dict(json.loads(json.dumps(table.to_dict())))
+    def ids(t: ClassTable) -> list[tuple[int, str, tuple[int, ...]]]:  # what the recorded form holds
+        return [(c.id, c.name, tuple(c.color)) for c in (t.unlabeled, *t.classes)]
+    assert ids(again) == ids(table)
 
 
 # --------------------------------------------------------------------------- b. panoramas
