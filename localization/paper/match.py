@@ -383,11 +383,13 @@ def match_cliques(aerial: Landmarks, aerial_cliques: Cliques, query: Landmarks, 
         return unanswered("the query's landmarks form no edge (a single landmark, or none covisible): "
                           "nothing to match", **settings)
     query_classes = np.unique(class_indices(query, names))
+    kept = memo if aerial_drop is None else None  # dropped edges change the candidates: never kept
     key = (names, tuple(query_classes.tolist()), p)
-    found = memo.get(key) if memo is not None and aerial_drop is None else None
-    cand = found or candidates(aerial, aerial_cliques, names, query_classes, p, aerial_drop)
-    if memo is not None and aerial_drop is None:
-        memo[key] = cand
+    cand = kept.get(key) if kept is not None else None
+    if cand is None:
+        cand = candidates(aerial, aerial_cliques, names, query_classes, p, aerial_drop)
+        if kept is not None:
+            kept[key] = cand
     if cand.own is None:
         seen = ", ".join(names[c] for c in query_classes)
         return unanswered(f"no aerial clique holds every class seen in the query ({seen})", **settings)
