@@ -38,6 +38,7 @@ from osmseg.build.workers import FirstSamples, SlotRunner
 from osmseg.errors import ConfigError
 from osmseg.folderlock import STATE_DIR
 from osmseg.grid import LngLatBBox, ground_resolution, pad_bbox
+from osmseg.imagery.base import ServedVerdicts
 from osmseg.net.http import HttpClient
 from osmseg.osm.base import RegionSource
 from osmseg.output.atomic import sweep_temp_files as sweep_temp
@@ -49,7 +50,7 @@ from osmseg.progress import Progress, report
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["DEFAULT_ZOOM", "BuildConfig", "BuildSummary", "Shard", "build", "check_config", "finalize",
+__all__ = ["DEFAULT_ZOOM", "NO_IMAGERY_REASONS", "BuildConfig", "BuildSummary", "Shard", "build", "check_config", "finalize",
            "sampling_box"]
 
 
@@ -76,6 +77,8 @@ class BuildSummary:
     asked: int = 0  # --samples
     osm_empty: int = 0  # rejected attempts whose OSM data held no object of any class
     max_tries: int = 0  # --max-tries
+    served_verdicts: bool = False  # the imagery's "no imagery here" comes from a server (asked again by a rerun)
+    rechecked: int = 0  # finished slots built again because a server's "no imagery here" had rejected an attempt
 
     def lines(self) -> list[str]:
         reasons = ", ".join(f"{n} {r}" for r, n in sorted(self.rejected.items())) or "none"
@@ -105,6 +108,9 @@ class BuildSummary:
                            "attempt its own): widen the area, or ask for fewer --samples")
             if self.gave_up - self.exhausted > 0:
                 out.append(f"{self.gave_up - self.exhausted} slots hit --max-tries without an accepted sample")
+        if self.rechecked:
+            out.append(f"{self.rechecked} sample{'s were' if self.rechecked != 1 else ' was'} built again: an attempt "
+                       "had been rejected for tiles the server said had no imagery, which every run asks again")
         if self.failed:
             out.append(f"{len(self.failed)} samples could not be fetched (services kept failing through every retry); "
                        "their reasons are in .osmseg-build/failures/")
@@ -131,6 +137,14 @@ class BuildSummary:
                           "area (--no-overlap)")
         why = " and ".join(causes) if causes and self.gave_up == missing else f"{missing} slots gave up"
         more = "a higher --max-tries, looser filters or a larger area" if tries or not self.exhausted else "a larger area"
+        absent = sum(self.rejected[r] for r in NO_IMAGERY_REASONS)
+        if tries and absent:
+            again = ("if the provider has imagery there, run the same command again later (a server's 'no imagery "
+                     "here' is asked again by every run); else " if self.served_verdicts else "")
+            return (f"incomplete: the dataset holds {self.dataset_accepted} of the {self.asked} samples asked for: "
+                    f"{why}, {absent} of them for tiles of one colour or empty (no imagery); {again}sample where "
+                    "--imagery has imagery (--bbox/--lat/--lon), give another --imagery, or allow a few such tiles "
+                    "(--max-placeholder-tiles, --max-missing-imagery)")
         return (f"incomplete: the dataset holds {self.dataset_accepted} of the {self.asked} samples asked for: {why} "
                 f"(reasons above and in manifest.json); the same command gives the same dataset again: for more, "
                 f"build into a new --out with {more}")
@@ -180,8 +194,15 @@ def _build_slots(ctx: BuildContext, env: dict[str, str], progress: Progress | No
     mine = config.my_slots()
     first = FirstSamples()
     todo: list[int] = []
+    recheck = asks_verdicts_again(config, pipe)
+    summary.served_verdicts = recheck or served_verdicts(pipe)
     for slot in mine:  # finished slots are counted, not kept: memory does not grow with the build
         outcome = state.slot(slot)
+        verdict = verdict_attempt(outcome) if outcome is not None and recheck else None
+        if verdict is not None:  # a server's "no imagery here" rejected an attempt: asked again from there
+            state.reopen(slot, verdict, config.max_tries)
+            summary.rechecked += 1
+            outcome = None
         if outcome is None:
             todo.append(slot)
             continue
@@ -206,6 +227,29 @@ def _build_slots(ctx: BuildContext, env: dict[str, str], progress: Progress | No
         summary.overlapping = whole["overlapping_samples"]
         summary.groups = whole["overlap_groups"]
         summary.finalized = True
+
+
+#: Rejection reasons that say the imagery source had nothing (at a sample's place, or a tile of it).
+NO_IMAGERY_REASONS = ("missing_imagery", "placeholder_imagery")
+
+
+def served_verdicts(pipe: Pipeline) -> bool:
+    """Whether the build's imagery says "no imagery here" from a server (:class:`ServedVerdicts`)."""
+    return isinstance(pipe.imagery, ServedVerdicts) and pipe.imagery.verdicts_served()
+
+
+def asks_verdicts_again(config: BuildConfig, pipe: Pipeline) -> bool:
+    """Whether this run asks a server's "no imagery here" again: online, imagery from a server. Offline
+    and under ``--replay`` the answers are the recorded ones, verdicts included."""
+    replaying = config.cassette is not None and config.cassette_mode == "replay"
+    return not config.offline and not replaying and served_verdicts(pipe)
+
+
+def verdict_attempt(outcome: SlotOutcome) -> int | None:
+    """The first attempt of a finished slot that a missing-imagery verdict rejected, or None."""
+    attempts = [int(r["attempt"]) for r in outcome.rejected
+                if r.get("reason") in NO_IMAGERY_REASONS and isinstance(r.get("attempt"), int)]
+    return min(attempts) if attempts else None
 
 
 def prepare_osm(config: BuildConfig, pipe: Pipeline, mine: list[int], todo: list[int]) -> tuple[LngLatBBox, ...]:

@@ -175,6 +175,17 @@ class BuildState:
         """Whether the slot has its final outcome (without reading it)."""
         return self._slot_path(slot).exists()
 
+    def reopen(self, slot: int, first: int, max_tries: int) -> None:
+        """Make a finished slot unfinished from attempt ``first`` on, so that it is built again from
+        there (its earlier attempts stand): used when a server's "no imagery here" rejected that
+        attempt, a verdict every run asks again. The slot's record goes first, then the attempts'
+        from the last back to ``first``: a process killed in between leaves an unfinished slot whose
+        remaining records are still true, and the next run goes on from them."""
+        self.check_owner()
+        self._slot_path(slot).unlink(missing_ok=True)
+        for attempt in reversed(range(first, max_tries)):
+            self._attempt_path(slot, attempt).unlink(missing_ok=True)
+
     def record_slot(self, outcome: SlotOutcome) -> None:
         self.check_owner()
         atomic_write_json(self._slot_path(outcome.slot), outcome.to_json())

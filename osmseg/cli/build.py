@@ -20,7 +20,7 @@ from typing import Any
 
 import click
 
-from osmseg.build.builder import DEFAULT_ZOOM, BuildConfig, BuildSummary, Shard, build
+from osmseg.build.builder import DEFAULT_ZOOM, NO_IMAGERY_REASONS, BuildConfig, BuildSummary, Shard, build
 from osmseg.build.filters import FilterConfig
 from osmseg.cli.common import command_line_of, default_cache_dir, output_options, progress_bars, report_errors
 from osmseg.errors import ConfigError, DatasetError
@@ -78,10 +78,6 @@ def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str
     if summary.finalized and summary.dataset_accepted == 0:
         raise no_sample_error(summary, config)
     return summary
-
-
-#: Rejection reasons that say the imagery source had nothing at a sample's place.
-NO_IMAGERY_REASONS = ("missing_imagery", "placeholder_imagery")
 
 
 def no_sample_error(summary: BuildSummary, config: BuildConfig) -> DatasetError:

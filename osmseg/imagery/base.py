@@ -75,6 +75,18 @@ class CoveringImagery(Protocol):
 
 
 @runtime_checkable
+class ServedVerdicts(Protocol):
+    """An imagery source whose "no imagery here" comes from a server (a tile server over HTTP): a
+    verdict that may have been a passing fault, so a sample rejected for it is built again by a
+    later run (:func:`osmseg.net.http.HttpClient.fetch`'s ``absent``). A tile folder or a raster
+    file says it for good, and is not one."""
+
+    def verdicts_served(self) -> bool:
+        """True when this source's "no imagery here" answers come from a server."""
+        ...
+
+
+@runtime_checkable
 class LocalRaster(Protocol):
     """An imagery source read from a raster file of a known ground resolution (a GeoTIFF)."""
 

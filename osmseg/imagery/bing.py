@@ -32,6 +32,7 @@ from osmseg.imagery.mosaic import (
     assemble,
     decode_tile,
     fetch_tiles,
+    is_absent,
     tile_lists,
     tile_name,
 )
@@ -219,13 +220,19 @@ class BingProvider:
             return decode_tile(response.content, what, int(self.metadata()["tile_size"]))
 
         # a 200 whose bytes are not an image is fetched again like a 5xx before it fails the sample
-        response, pixels = self._client.fetch(url, parse, ok_statuses=(404,), corrupt=(ImageryError,))
+        # and "no imagery here" (the no-tile header, one colour, empty) is asked again before it is believed
+        response, pixels = self._client.fetch(url, parse, ok_statuses=(404,), corrupt=(ImageryError,),
+                                              absent=is_absent)
         if pixels is None or pixels is NO_IMAGERY:
             logger.debug(
                 "Bing has no imagery for tile %s (HTTP %s)", tile_name(tile), response.status_code
             )
             return NO_IMAGERY
         return pixels
+
+    def verdicts_served(self) -> bool:
+        """Bing's "no imagery here" (its no-tile header, a tile of one colour) comes from its servers."""
+        return True
 
     def fetch(self, grid: SampleGrid) -> Imagery:
         """The sample's tiles merged into one image on ``grid``."""

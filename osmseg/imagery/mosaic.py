@@ -79,6 +79,22 @@ NO_IMAGERY = TilePixels(rgb=None, valid=None, placeholder=True)
 UNIFORM_TILE = TilePixels(rgb=None, valid=None, placeholder=True, uniform=True)
 
 
+def is_absent(pixels: TilePixels | None) -> bool:
+    """Whether a tile server's answer says "no imagery here": none at all (a 404, an empty body), a
+    placeholder or a tile of one colour, or a tile with no pixel of imagery (wholly transparent).
+    Over HTTP such an answer is a verdict, asked again before it is believed
+    (:meth:`osmseg.net.http.HttpClient.fetch`'s ``absent``).
+
+    >>> is_absent(None), is_absent(NO_IMAGERY), is_absent(UNIFORM_TILE)
+    (True, True, True)
+    >>> is_absent(TilePixels(np.zeros((2, 2, 3), np.uint8), np.zeros((2, 2), bool)))
+    True
+    >>> is_absent(TilePixels(np.zeros((2, 2, 3), np.uint8), np.eye(2, dtype=bool)))
+    False
+    """
+    return pixels is None or pixels.placeholder or pixels.valid is None or not pixels.valid.any()
+
+
 def tile_name(tile: mercantile.Tile) -> str:
     """``z/x/y`` of a tile, the way messages and manifests name it.
 

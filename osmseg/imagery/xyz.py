@@ -50,6 +50,7 @@ from osmseg.imagery.mosaic import (
     assemble,
     decode_tile,
     fetch_tiles,
+    is_absent,
     tile_lists,
     tile_name,
 )
@@ -361,9 +362,10 @@ class XYZProvider:
             try:
                 # a 200 whose bytes are not an image (an HTML error page, a PNG cut short by a
                 # proxy) is fetched again like a 5xx before it fails the sample
+                # and an answer of "no imagery here" is asked again before it is believed (is_absent)
                 response, pixels = self._client.fetch(
                     url, lambda r: decode_tile(r.content, what, self.tile_size) if r.content else NO_IMAGERY,
-                    ok_statuses=(204, 404), corrupt=(ImageryError,))
+                    ok_statuses=(204, 404), corrupt=(ImageryError,), absent=is_absent)
             except HTTPStatusError as exc:
                 raise type(exc)(self._scrub(str(exc)), exc.status) from None
             except NetworkError as exc:
@@ -373,6 +375,10 @@ class XYZProvider:
                 return NO_IMAGERY
             return pixels
         return decode_tile(data, what, self.tile_size)
+
+    def verdicts_served(self) -> bool:
+        """A tile server's "no imagery here" may be a passing fault; a tile folder's missing file is not."""
+        return not self.is_local
 
     def fetch(self, grid: SampleGrid) -> Imagery:
         """The sample's tiles merged into one image on ``grid``."""

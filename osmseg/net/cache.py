@@ -1,6 +1,6 @@
 """The HTTP client's on-disk cache: requests-cache's SQLite backend, made safe to share and to fail.
 
-Three things on top of requests-cache 1.x's ``SQLiteCache``:
+Four things on top of requests-cache 1.x's ``SQLiteCache``:
 
 * every database access behind one lock (its SQLite backend shares one connection between
   threads and serialises only writes);
@@ -8,7 +8,12 @@ Three things on top of requests-cache 1.x's ``SQLiteCache``:
 * errors reported: requests-cache rolls back a failed write (a full disk) and carries on, so a
   response is silently not cached and a later delete dies with ``UnboundLocalError``. Here a
   cache that cannot be read or written is one :class:`~osmseg.errors.CacheError` line that
-  names the file and what to do.
+  names the file and what to do;
+* a ``verdicts`` table beside ``responses``: answers that say "nothing here" (a tile of one
+  colour, an empty tile, a 404 for a tile), kept apart from imagery. The client never answers a
+  request from it while it can ask the server (a verdict may be a passing fault: it is asked
+  again by every later run), only under ``--offline``, so an offline rebuild sees what the build
+  it repeats saw. Answers that passed as imagery go to ``responses``, and replace any verdict.
 
 Imports: osmseg.errors and osmseg.redact only.
 """
@@ -69,7 +74,9 @@ class LockedSQLiteCache(SQLiteCache):
     def __init__(self, db_path: Path, **kwargs: Any) -> None:
         try:
             super().__init__(db_path, **kwargs)
-            for table in (self.responses, self.redirects):
+            self.verdicts = SQLiteDict(db_path, table_name="verdicts", lock=self.responses._lock,
+                                       serializer=self.responses.serializer, **kwargs)
+            for table in (self.responses, self.redirects, self.verdicts):
                 table.__class__ = _StrictSQLiteDict  # same state, writes that report their errors
         except (sqlite3.Error, OSError) as exc:
             raise _cache_error(db_path, exc) from None
@@ -106,10 +113,44 @@ class LockedSQLiteCache(SQLiteCache):
             self.responses[key] = cached
             for hop_response in response.history:
                 self.redirects[self.create_key(hop_response.request)] = key
+            _discard(self.verdicts, key)  # the server has imagery there after all
+
+    def get_verdict(self, key: str) -> CachedResponse | None:
+        """The "nothing here" answer kept for ``key`` (see the module doc), or None."""
+        with self._db_lock, self._reporting():
+            try:
+                found = self.verdicts[key]
+            except KeyError:
+                return None
+        return found if isinstance(found, CachedResponse) else None
+
+    def save_verdict(self, response: requests.Response) -> str:
+        """Keep ``response``, an answer that says "nothing here", in the verdicts table; its key."""
+        ignored = self._settings.ignored_parameters
+        cached = redact_response(CachedResponse.from_response(response), ignored)
+        cached.history = []  # where it was redirected from is not part of the verdict
+        with self._db_lock, self._reporting():
+            key = self.create_key(response.request)
+            self.verdicts[key] = cached
+            return key
+
+    def forget_verdict(self, key: str) -> None:
+        """Drop the verdict kept for ``key`` (the server has answered otherwise since)."""
+        with self._db_lock, self._reporting():
+            _discard(self.verdicts, key)
 
     def close(self) -> None:
         with self._db_lock:
+            self.verdicts.close()  # type: ignore[no-untyped-call]
             super().close()  # type: ignore[no-untyped-call]
+
+
+def _discard(table: SQLiteDict, key: str) -> None:
+    """Delete ``key`` from ``table`` when it is there."""
+    try:
+        table.__delitem__(key)  # type: ignore[no-untyped-call]
+    except KeyError:
+        pass
 
 
 def _cache_error(path: Path | str, exc: BaseException) -> CacheError:

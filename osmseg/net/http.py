@@ -12,6 +12,14 @@ Every remote call (Bing, XYZ tiles, the OSM API, Overpass) goes through :class:`
   and the check can leave it to be replayed forever.  A non-2xx answer is cached only if the caller listed it in
   ``ok_statuses``: the caller declared it valid (a tile server's 404 for "no tile here"), and
   an ``--offline`` rebuild must see the same answer.
+* **"Nothing here" is a verdict, not an answer** (:meth:`HttpClient.fetch`'s ``absent``): a
+  tile of one colour, an empty tile or a tile's 404 may be a passing fault (a loaded server's
+  blank picture, a CDN edge out of sync) as well as the provider's "no imagery here". Such an
+  answer is asked again, :data:`ABSENT_ASKS` answers in all, ``backoff`` apart, before the
+  caller gets it; it is then kept apart from the cached answers (the cache's ``verdicts``
+  table, :mod:`osmseg.net.cache`), replayed only ``--offline``, and asked again by every later
+  run (within one client's life it is taken once), so a dataset never depends on one unlucky
+  answer.
 * **Retries** with exponential backoff on 429/500/502/503/504, connection errors, timeouts,
   truncated bodies and (:meth:`HttpClient.fetch`) 200 answers whose body the caller cannot
   use, honouring ``Retry-After`` (seconds or HTTP date) up to ``max_retry_after``;
@@ -78,6 +86,10 @@ T = TypeVar("T")
 
 #: Default per-host limits: the OSM API and Overpass ask clients for at most two slots.
 DEFAULT_HOST_LIMITS: Mapping[str, int] = {"api.openstreetmap.org": 2, "overpass-api.de": 2}
+#: Answers a "nothing here" verdict needs (:meth:`HttpClient.fetch`'s ``absent``): the first and two
+#: more. A server that sends a blank tile for 5 % of requests by chance says it three times in a
+#: row for 1 in 8,000 tiles; a provider with no imagery says it every time.
+ABSENT_ASKS = 3
 #: Name of the cache file inside ``HttpConfig.cache_dir``.
 CACHE_FILE = "http.sqlite"
 DEFAULT_USER_AGENT = f"osmseg/{__version__} (+https://github.com/osmseg/osmseg)"
@@ -152,6 +164,8 @@ class HttpClient:
         self._gates_lock = threading.Lock()
         self._answered: set[str] = set()  # hosts that have answered (any HTTP status) in this client's life
         self._warned: set[str] = set()  # hosts whose retries were already said at WARNING
+        # "nothing here" verdicts taken in this client's life (asked ABSENT_ASKS times once, not per sample)
+        self._verdicts: dict[tuple[str, str, str], requests.Response] = {}
 
     # -- public API ---------------------------------------------------------------------------
 
@@ -208,6 +222,7 @@ class HttpClient:
         headers: Mapping[str, str] | None = None,
         ok_statuses: Collection[int] = (),
         corrupt: tuple[type[Exception], ...] = (CorruptResponse,),
+        absent: Callable[[T | None], bool] | None = None,
     ) -> tuple[requests.Response, T | None]:
         """Fetch ``url`` and ``parse`` its 2xx answer; an unusable body is fetched again.
 
@@ -217,9 +232,16 @@ class HttpClient:
         cache) and the request is retried with the same backoff and bound as a 5xx; after the
         last retry :class:`~osmseg.errors.RetriesExhausted` says what was wrong. Returns the
         response and the parsed value (None for a non-2xx status listed in ``ok_statuses``).
+
+        ``absent`` says of a parsed value (None for an ``ok_statuses`` answer) whether it means
+        "nothing here": such an answer is a verdict, asked :data:`ABSENT_ASKS` times before it is
+        returned, never stored with the answers, replayed only offline (see the module doc).
         """
-        return self._request(method, url, params=params, data=data, headers=headers, ok_statuses=ok_statuses,
-                             parse=parse, corrupt=corrupt)
+        if absent is None:
+            return self._request(method, url, params=params, data=data, headers=headers, ok_statuses=ok_statuses,
+                                 parse=parse, corrupt=corrupt)
+        return self._verdict(method, url, parse, absent, params=params, data=data, headers=headers,
+                             ok_statuses=ok_statuses, corrupt=corrupt)
 
     def forget(self, response: requests.Response) -> None:
         """Drop ``response`` from the cache: a 200 the caller could not use must not be replayed.
@@ -336,7 +358,10 @@ class HttpClient:
         ok_statuses: Collection[int] = (),
         parse: Callable[[requests.Response], Any] | None = None,
         corrupt: tuple[type[Exception], ...] = (),
+        keep: Callable[[Any], bool] | None = None,
     ) -> tuple[requests.Response, Any]:
+        """Ask until answered (retries, backoff, pauses); store an answer that passed ``parse`` and,
+        when given, ``keep`` (a verdict of "nothing here" is not stored: :meth:`_verdict`)."""
         cfg = self.config
         full_url = self._full_url(url, params)
         shown = redact(full_url)
@@ -367,11 +392,13 @@ class HttpClient:
             elif self._accept(method, shown, outcome, ok_statuses):
                 self._answered.add(host)
                 if parse is None or not 200 <= outcome.status_code < 300:
-                    self._store(outcome)
+                    if keep is None or keep(None):
+                        self._store(outcome)
                     return outcome, None
                 try:
                     parsed = parse(outcome)
-                    self._store(outcome)  # only now: nothing unchecked is ever cached
+                    if keep is None or keep(parsed):
+                        self._store(outcome)  # only now: nothing unchecked is ever cached
                     return outcome, parsed
                 except corrupt as exc:  # a 200 with a body nobody can use: like a 5xx, not the end
                     if cfg.offline:  # the cache is all there is: keep it, and say what to do
@@ -398,6 +425,69 @@ class HttpClient:
                 if STOPPING.wait(wait):  # the process is stopping: no more attempts
                     raise RetriesExhausted(f"{method} {shown}: stopped (the command is ending)")
         raise _given_up(f"{method} {shown}", attempts, problem, last_status)
+
+    def _verdict(
+        self,
+        method: str,
+        url: str,
+        parse: Callable[[requests.Response], T],
+        absent: Callable[[T | None], bool],
+        **request: Any,
+    ) -> tuple[requests.Response, T | None]:
+        """:meth:`fetch` of an answer that may be a verdict of "nothing here" (``absent``): asked
+        until the server answers otherwise or :data:`ABSENT_ASKS` answers agree, then kept in the
+        cache's verdicts table. Offline, the answers come from the cache, the verdict last."""
+        def present(value: Any) -> bool:
+            return not absent(value)
+
+        if self.config.offline:
+            try:
+                return self._request(method, url, parse=parse, **request)
+            except OfflineCacheMiss:
+                kept = self._kept_verdict(method, url, request)
+                if kept is None:
+                    raise
+                return kept, parse(kept) if 200 <= kept.status_code < 300 else None
+        taken = (method, self._full_url(url, request.get("params")), repr(request.get("data")))
+        if taken in self._verdicts:  # this client (this run, this process) has taken it already
+            response = self._verdicts[taken]
+            return response, parse(response) if 200 <= response.status_code < 300 else None
+        asked = 0
+        while True:
+            response, parsed = self._request(method, url, parse=parse, keep=present, **request)
+            if present(parsed):  # stored by _request, in place of any verdict kept before
+                return response, parsed
+            if getattr(response, "from_cache", False):  # kept as imagery by an older osmseg: ask the server
+                self.forget(response)
+                continue
+            asked += 1
+            if asked >= ABSENT_ASKS:
+                break
+            logger.debug("%s %s: nothing here (answer %d of %d); asking again", method, redact(response.url or url),
+                         asked, ABSENT_ASKS)
+            if STOPPING.wait(min(self.config.backoff * 2 ** (asked - 1), self.config.max_retry_after)):
+                raise RetriesExhausted(f"{method} {redact(url)}: stopped (the command is ending)")
+        cache = self._cache
+        if cache is not None:
+            cache.save_verdict(response)
+        self._verdicts[taken] = response
+        return response, parsed
+
+    @property
+    def _cache(self) -> Any:
+        """The cache backend (:class:`osmseg.net.cache.LockedSQLiteCache`), or None without a cache."""
+        return getattr(self._session, "cache", None)
+
+    def _kept_verdict(self, method: str, url: str, request: Mapping[str, Any]) -> requests.Response | None:
+        """The verdict the cache keeps for this request (offline), or None."""
+        cache = self._cache
+        if cache is None:
+            return None
+        prepared = self._session.prepare_request(requests.Request(
+            method, self._full_url(url, request.get("params")), data=request.get("data"),
+            headers=dict(request.get("headers") or {})))
+        kept: requests.Response | None = cache.get_verdict(cache.create_key(prepared))
+        return kept
 
     def _say_retry(self, method: str, shown: str, host: str, problem: str, attempt: int, wait: float) -> None:
         """Log a retry: the first of a host at WARNING (a user sees why a build slows down), the
