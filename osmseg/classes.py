@@ -228,6 +228,13 @@ class ClassTable:
         """
         return np.take(self.palette(), np.asarray(labels), axis=0)
 
+    @property
+    def has_rules(self) -> bool:
+        """Whether the table can draw OSM: its classes (or, mapped, its base's) carry tag rules. A
+        table read back from a manifest or a checkpoint (:meth:`from_dict`) names classes only."""
+        rules = self.base or self
+        return any(c.rules for c in rules.classes)
+
     def lookup_from_base(self) -> np.ndarray:
         """For a mapped table: ``(256,)`` uint8 array mapping base-table ids to this table's ids."""
         if self.base is None:

@@ -24,6 +24,7 @@ order of reading.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import zlib
@@ -162,11 +163,19 @@ def scene_from_osm(paths: Sequence[Path | str], lon: float, lat: float, table: C
     it has one). ``ground_class``: the class of ground no feature covers (default unlabeled)."""
     if "building" not in table.by_name:
         raise ConfigError(f"class table {table.name} has no building class; a 3-D scene needs one")
+    if not table.has_rules:
+        raise ConfigError(f"class table {table.name!r} carries no OSM tag rules (a dataset or checkpoint records its "
+                          "classes' names and colours only), so it cannot draw the OSM file: the table file the dataset "
+                          "was built with is not where the build read it; put it back, or run from the folder the "
+                          "build ran in")
     zoom = 18
     tile_m = ground_resolution(lat, zoom) * 256
     size = 2 * math.ceil(radius_m / tile_m) + 1
     grid = sample_grid(lon, lat, zoom, size)
-    features = read_features(list(paths), grid, table)
+    # a mapped table (classes6) draws with its base's rules (classes13), then names the classes its own way
+    lookup = table.lookup_from_base()
+    features = [dataclasses.replace(f, class_id=int(lookup[f.class_id]))
+                for f in read_features(list(paths), grid, table.base or table)]
     heights = read_heights(paths)
     origin, k = mercantile.xy(lon, lat), math.cos(math.radians(lat))
     building = table.by_name["building"].id

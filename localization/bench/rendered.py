@@ -85,7 +85,7 @@ from localization.profile.search import AerialIndex, ProfileConfig
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.output.manifest import manifest_path, read_manifest
+from osmseg.output.manifest import dataset_class_table, manifest_path, read_manifest
 from osmseg.progress import Progress, track
 
 logger = logging.getLogger(__name__)
@@ -228,7 +228,7 @@ def load_dataset_scenes(folder: Path) -> list[Scene]:
         raise DatasetError(f"{folder}: no manifest.json; give a dataset made by `osmseg build`, "
                            "or a mask file with --table and --resolution")
     manifest = read_manifest(folder)
-    table = ClassTable.from_dict(manifest["classes"], f"{manifest_path(folder)} classes")
+    table = dataset_class_table(manifest, folder)  # with its OSM rules when at hand (--renderer geometry)
     samples = [(s["name"], float(s["ground_resolution_m"]), s.get("bounds_3857")) for s in manifest["samples"]]
     if not samples:
         raise DatasetError(f"{folder}: the dataset has no samples")

@@ -23,7 +23,8 @@ from typing import Any, TypedDict, cast
 
 import mercantile
 
-from osmseg.errors import DatasetBusy, DatasetError
+from osmseg.classes import ClassTable, load_class_table
+from osmseg.errors import DatasetBusy, DatasetError, OsmsegError
 from osmseg.folderlock import STATE_DIR, FolderLock
 from osmseg.grid import SampleGrid
 from osmseg.output.atomic import atomic_path, sha256_file
@@ -275,6 +276,34 @@ def manifest_path(path: Path) -> Path:
     """``path`` itself if it is a file, else ``path/manifest.json``."""
     path = Path(path)
     return path / MANIFEST_NAME if path.is_dir() else path
+
+
+def dataset_class_table(manifest: dict[str, Any], root: Path) -> ClassTable:
+    """The class table of a dataset: the one it was built with, tag rules and all, when that file is
+    at hand (a shipped name such as ``classes13.toml``, or a path as the build was given it, read
+    from the current folder or the dataset's) and still names the classes the manifest records;
+    else the recorded one, which names and colours the classes but cannot draw OSM (no rules).
+
+    >>> t = dataset_class_table({"classes": load_class_table().to_dict(),
+    ...                          "config": {"classes": "classes13.toml"}}, Path("."))
+    >>> t.name, t.has_rules
+    ('osm13', True)
+    >>> dataset_class_table({"classes": t.to_dict(), "config": {"classes": "missing.toml"}}, Path(".")).has_rules
+    False
+    """
+    where = f"{manifest_path(root)} classes"
+    recorded = ClassTable.from_dict(manifest["classes"], where)
+    source = (manifest.get("config") or {}).get("classes")
+    if not isinstance(source, str) or not source:
+        return recorded
+    for candidate in (source, str(Path(root) / source)):
+        try:
+            table = load_class_table(candidate)
+        except (OsmsegError, OSError):
+            continue
+        if table.to_dict() == recorded.to_dict():
+            return table
+    return recorded
 
 
 def read_manifest(path: Path) -> dict[str, Any]:
