@@ -301,6 +301,7 @@ def test_malformed_osm_file_fails_with_one_line(tmp_path: Path, imagery_tif: Pat
     ["--lat", "52.520008", "--lon", "13.404954", "--radius-km", "2", "--max-missing-imagery", "0.123456789",
      "--min-contrast", "3.25", "--zoom", "19", "--image-format", "cog", "--osm", "overpass", "--imagery", "Esri.WorldImagery"],
     ["--bbox", "24.9,60.1,25.0,60.2", "--classes", "classes6.toml", "--max-unlabeled", "0.5", "--min-classes", "3",
+     "--sample-tiles", "3",
      "--max-placeholder-tiles", "2", "--max-tries", "4", "--seed", "9", "--imagery", "bing"],
 ])
 def test_the_recorded_command_reads_back_as_the_same_build(args: list[str], tmp_path: Path) -> None:

@@ -143,6 +143,35 @@ def test_random_sampling_reports_overlap_and_no_overlap_sampling_has_none(tmp_pa
     assert tree(sharded) == tree(tmp_path / "blocks" / "ds")
 
 
+def test_smaller_samples_fit_more_of_them_in_an_area_without_overlap(tmp_path: Path, grass: Path) -> None:
+    """``--sample-tiles 3``: 768 px samples (3x3 tiles), so an area too small for 12 samples of 5x5 tiles
+    holds them; every file is that size (read with PIL and rasterio), no two share a pixel, the manifest
+    and the STAC catalog say the size, and the recorded command gives it back."""
+    import rasterio
+    from PIL import Image
+
+    too_small = build(tmp_path / "large", grass, "--no-overlap", samples=12, radius="0.5")
+    assert too_small.exit_code == 2 and "holds only" in too_small.output
+    out = tmp_path / "ds"
+    result = build(out, grass, "--no-overlap", "--sample-tiles", "3", samples=12, radius="0.5")
+    assert result.exit_code == 0, result.output
+    boxes, manifest = boxes_of(out)
+    assert len(boxes) == 12 and all(len(g) == 1 for g in brute_groups(boxes))
+    assert manifest["grid_size"] == 3 and "--sample-tiles 3" in manifest["command"]
+    sample = manifest["samples"][0]
+    with Image.open(out / "labels" / f"{sample['name']}.png") as label, Image.open(
+            out / "images" / f"{sample['name']}.png") as image:
+        assert label.size == image.size == (768, 768)
+    with rasterio.open(out / "geo" / f"{sample['name']}.tif") as geo:
+        assert (geo.width, geo.height) == (768, 768)
+        left, bottom, right, top = geo.bounds
+        assert [left, bottom, right, top] == pytest.approx(sample["bounds_3857"])
+    item = json.loads((out / "stac" / "items" / f"{sample['name']}.json").read_text())
+    assert item["properties"]["proj:shape"] == [768, 768]
+    bad = build(tmp_path / "bad", grass, "--sample-tiles", "4")
+    assert bad.exit_code == 2 and "--sample-tiles" in bad.output
+
+
 def test_no_overlap_refuses_an_area_too_small_for_the_samples(tmp_path: Path, grass: Path) -> None:
     result = build(tmp_path / "ds", grass, "--no-overlap", samples=40, radius="0.5")
     assert result.exit_code == 2, result.output

@@ -20,7 +20,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from osmseg.build.config import DEFAULT_ZOOM, BuildConfig, Shard, sampling_box
+from osmseg.build.config import DEFAULT_ZOOM, SAMPLE_TILES, BuildConfig, Shard, sampling_box
 from osmseg.build.finalize import ENTRIES_PREFIX, finalize
 from osmseg.build.records import SlotOutcome
 from osmseg.build.sampling import check_room
@@ -50,7 +50,7 @@ from osmseg.progress import Progress, report
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["DEFAULT_ZOOM", "NO_IMAGERY_REASONS", "BuildConfig", "BuildSummary", "Shard", "build", "check_config", "finalize",
+__all__ = ["DEFAULT_ZOOM", "NO_IMAGERY_REASONS", "SAMPLE_TILES", "BuildConfig", "BuildSummary", "Shard", "build", "check_config", "finalize",
            "sampling_box"]
 
 

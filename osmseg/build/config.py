@@ -20,12 +20,15 @@ from osmseg.processes import available_cores
 from osmseg.redact import redact
 from osmseg.shard import Shard
 
-__all__ = ["DEFAULT_ZOOM", "BuildConfig", "Shard", "available_cores", "sampling_box"]
+__all__ = ["DEFAULT_ZOOM", "SAMPLE_TILES", "BuildConfig", "Shard", "available_cores", "sampling_box"]
 
 #: Zoom 18: ~0.6 m/px at the equator, ~0.37 m/px in Berlin; a 5x5 sample spans ~470 m there.
 #: Fine enough that footways, single trees and small buildings are several pixels wide, coarse
 #: enough that Bing/Esri cover every preset area at this level.
 DEFAULT_ZOOM = 18
+#: Sample sizes in tiles per side (``--sample-tiles``): odd, so that the centre tile is the middle one
+#: (:func:`osmseg.grid.sample_grid`); 5 (1280 px) is the dissertation's.
+SAMPLE_TILES = (1, 3, 5, 7, 9)
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from typing import Any
 
 import click
 
-from osmseg.build.builder import DEFAULT_ZOOM, NO_IMAGERY_REASONS, BuildConfig, BuildSummary, Shard, build
+from osmseg.build.builder import DEFAULT_ZOOM, NO_IMAGERY_REASONS, SAMPLE_TILES, BuildConfig, BuildSummary, Shard, build
 from osmseg.build.filters import FilterConfig
 from osmseg.cli.common import command_line_of, default_cache_dir, output_options, progress_bars, report_errors
 from osmseg.errors import ConfigError, DatasetError
@@ -111,6 +111,9 @@ def no_sample_error(summary: BuildSummary, config: BuildConfig) -> DatasetError:
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed for every random choice (recorded).")
 @click.option("--zoom", type=click.IntRange(1, 23), default=DEFAULT_ZOOM, show_default=True,
               help="Tile zoom. 18 = ~0.6 m/px at the equator, ~0.37 m/px at 52°N (see docs).")
+@click.option("--sample-tiles", type=click.Choice([str(n) for n in SAMPLE_TILES]), default="5", show_default=True,
+              help="Tiles per side of a sample (256 px each): 5 = 1280 px, the dissertation's; fewer for a small "
+                   "orthophoto or tile folder, so that several samples fit without overlapping.")
 @click.option("--imagery", help="A provider name (Esri.WorldImagery, GeoportailFrance.orthos, USGS.USImagery, ...; "
               "docs/imagery.md) | xyz:TEMPLATE | geotiff:PATH | bing (needs BING_MAPS_KEY).", show_default="bing")
 @click.option("--tile-size", type=click.Choice(["256", "512", "1024"]), default=None,
@@ -223,6 +226,7 @@ class BuildOptions:
     max_placeholder_tiles: int = field(metadata=_content(lambda c: c.filters.max_placeholder_tiles))
     max_tries: int = field(metadata=_content(lambda c: c.max_tries))
     no_overlap: bool = field(metadata=_content(lambda c: c.no_overlap))
+    sample_tiles: str = field(metadata=_content(lambda c: str(c.grid_size) if c.grid_size != 5 else None))
     out_dir: Path
     cache_dir: Path | None
     http_timeout: float
@@ -252,6 +256,7 @@ def build_config(options: BuildOptions) -> BuildConfig:
         http_timeout=o.http_timeout, http_retries=o.http_retries, http_retry_delay=o.http_retry_delay,
         shard=Shard.parse(o.shard) if o.shard else None, zip=o.make_zip,
         no_overlap=o.no_overlap, workers=o.workers, tile_size=int(o.tile_size) if o.tile_size else None,
+        grid_size=int(o.sample_tiles),
     )
     if o.record or o.replay:
         config = replace(config, cassette=o.record or o.replay, cassette_mode="record" if o.record else "replay")
