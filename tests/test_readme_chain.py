@@ -95,7 +95,13 @@ def docs_blocks_on_real_data() -> list[tuple[str, list[str]]]:
     return found
 
 
-@pytest.mark.parametrize("doc,commands", docs_blocks_on_real_data(), ids=lambda v: v if isinstance(v, str) else "")
+#: docs whose real-data examples take minutes (a region search): run by make test-slow
+SLOW_DOCS = ("localization.md",)
+
+
+@pytest.mark.parametrize("doc,commands", [
+    pytest.param(doc, commands, id=f"{doc}-{i}", marks=[pytest.mark.slow] if doc in SLOW_DOCS else [])
+    for i, (doc, commands) in enumerate(docs_blocks_on_real_data())])
 def test_a_docs_example_on_real_data_runs_as_written(doc: str, commands: list[str], tmp_path: Path) -> None:
     """Each docs example that reads the real example data, every line in order (osmseg and the tools
     it shows, such as rasterio's ``rio``), as written: exit 0, no traceback, distinct samples."""
@@ -105,7 +111,9 @@ def test_a_docs_example_on_real_data_runs_as_written(doc: str, commands: list[st
     python = os.path.abspath(sys.executable)  # the commands run in another folder
     tools = Path(python).parent
     for command in commands:
+        # run from a checkout's root as the docs say: its benchmarks/ scripts are at hand
         args = [a.replace("/data/", f"{SHARED_DATA}/") for a in shlex.split(command)]
+        args = [str(REPO_ROOT / a) if a.startswith("benchmarks/") else a for a in args]
         program = [python, "-m", "osmseg"] if args[0] == "osmseg" else [str(tools / args[0])]
         done = subprocess.run([*program, *args[1:]], cwd=tmp_path, env=env, capture_output=True, text=True,
                               timeout=1800)
