@@ -287,6 +287,27 @@ def test_xyz_offline_rebuild_from_the_cache(http_server, grid, tmp_path):
     assert b"TEST-live-token" not in (tmp_path / "http.sqlite").read_bytes()
 
 
+def test_a_one_colour_tile_an_older_cache_kept_as_imagery_is_asked_again(http_server, grid, tmp_path):
+    """An older osmseg cached a tile of one colour like any tile: a build against that cache asks the
+    server again (which has imagery there now) instead of condemning the sample from the cache;
+    offline, the cache is all there is and its answer stands."""
+    tile = grid.tiles[4]
+    path = f"/t/{tile.z}/{tile.x}/{tile.y}.png"
+    white = io.BytesIO()
+    Image.new("RGB", (256, 256), (255, 255, 255)).save(white, "PNG")
+    http_server.script(path, Reply(200, white.getvalue()), Reply(200, synthetic_tile(tile, "PNG")))
+    url = http_server.url(path)
+    with HttpClient(HttpConfig(cache_dir=tmp_path, retries=0, backoff=0.01)) as http:
+        http.get(url)  # what the older osmseg did with any 200 that decoded: keep it
+    with HttpClient(HttpConfig(cache_dir=tmp_path, offline=True)) as http:
+        assert XYZProvider(http_server.url("/t/{z}/{x}/{y}.png"), http).fetch_tile(tile).uniform
+    with HttpClient(HttpConfig(cache_dir=tmp_path, retries=0, backoff=0.01)) as http:
+        pixels = XYZProvider(http_server.url("/t/{z}/{x}/{y}.png"), http).fetch_tile(tile)
+    assert http_server.count(path) == 2 and not pixels.placeholder and pixels.valid.all()
+    with HttpClient(HttpConfig(cache_dir=tmp_path, offline=True)) as http:  # the imagery replaced it
+        assert XYZProvider(http_server.url("/t/{z}/{x}/{y}.png"), http).fetch_tile(tile).valid.all()
+
+
 # -- XYZ over HTTP ----------------------------------------------------------------------------
 
 

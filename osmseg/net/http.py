@@ -452,13 +452,14 @@ class HttpClient:
         if taken in self._verdicts:  # this client (this run, this process) has taken it already
             response = self._verdicts[taken]
             return response, parse(response) if 200 <= response.status_code < 300 else None
-        asked = 0
+        asked, forgotten = 0, False
         while True:
             response, parsed = self._request(method, url, parse=parse, keep=present, **request)
             if present(parsed):  # stored by _request, in place of any verdict kept before
                 return response, parsed
-            if getattr(response, "from_cache", False):  # kept as imagery by an older osmseg: ask the server
-                self.forget(response)
+            if getattr(response, "from_cache", False) and not forgotten:  # kept as imagery by an older osmseg:
+                self.forget(response)                                      # ask the server instead
+                forgotten = True
                 continue
             asked += 1
             if asked >= ABSENT_ASKS:
