@@ -262,5 +262,5 @@ def _pictures(out_dir: Path, report: LocalizeReport, config: LocalizeConfig, res
             graph = adjacency(config.paper.cliques(side.landmarks, w))
             title = f"{name}: {len(side.landmarks)} landmarks, window {w} px"
             paths.append(figures.graph_png(out_dir / f"{name}_graph.png", side.landmarks, graph,
-                                            image=side.picture(), title=title))
+                                            image=side.picture(), title=title, colours=side.colours))
     return paths

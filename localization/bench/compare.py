@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from localization.bench.render import Panorama
-from localization.bench.scores import error_fields, heading_error, score
+from localization.bench.scores import UNANSWERED_CONFIDENCE, error_fields, heading_error, score
 from localization.common.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask
 from localization.common.result import Localization
 from localization.common.views import Camera, SemanticMap, semantic_map
@@ -95,11 +95,11 @@ RIGHT_WRONG = (10.0, 50.0)
 
 def confidence_of(loc: Localization) -> float:
     """A method's confidence in its answer: the profile method's (how far the answer stands out), the
-    MAP likelihood (paper), -1 unanswered."""
+    MAP likelihood (paper), :data:`~localization.bench.scores.UNANSWERED_CONFIDENCE` (-1) unanswered."""
     if loc.method == "profile":
-        return float(loc.confidence) if loc.confidence is not None else -1.0
+        return float(loc.confidence) if loc.confidence is not None else UNANSWERED_CONFIDENCE
     if loc.unanswered or not len(loc.order):
-        return -1.0
+        return UNANSWERED_CONFIDENCE
     return float(loc.likelihoods[loc.order[0]])
 
 

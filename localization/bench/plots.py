@@ -1,9 +1,12 @@
-"""Pictures of a localization benchmark: the error CDF and the number-of-classes trend.
+"""Pictures of a localization benchmark: the error CDF, the number-of-classes trend and the confidence.
 
-Both read the ``results.json`` document of :func:`localization.bench.rendered.run_bench` (rendered
+Each reads the ``results.json`` document of :func:`localization.bench.rendered.run_bench` (rendered
 panoramas, errors in metres) or :func:`localization.bench.pairs.run_pairs` (annotated pairs, errors
 in metres given a resolution, else in pixels): ``results["unit"]`` says which, and the recall
-radii are the keys of ``summary["recall_at"]``.
+radii are the keys of ``summary["recall_at"]``. ``draw_*`` draw a picture on a given figure,
+``plot_*`` draw it on a new one and write the PNG. A query a method did not answer is counted as
+unanswered, never drawn at a value (results.json records its confidence as
+:data:`~localization.bench.scores.UNANSWERED_CONFIDENCE`).
 """
 
 from __future__ import annotations
@@ -15,12 +18,13 @@ from typing import Any, cast
 
 import numpy as np
 
-from localization.bench.scores import BenchResults, headline
+from localization.bench.scores import UNANSWERED_CONFIDENCE, BenchResults, headline
 from osmseg.errors import ConfigError
 from osmseg.output.atomic import atomic_write_text
 from osmseg.units import quantity, ratio
 
-__all__ = ["METHOD_NAMES", "errors_title", "plot_errors", "plot_classes", "plot_confidence"]
+__all__ = ["CONFIDENCE_NAMES", "METHOD_NAMES", "confidences", "draw_confidence", "draw_errors", "errors_title",
+           "plot_classes", "plot_confidence", "plot_errors"]
 
 
 def _figures() -> Any:
@@ -55,42 +59,48 @@ def errors_title(results: Mapping[str, Any]) -> str:
             f"recall@{middle} {unit} {ratio(lead['recall_at'][middle])}")
 
 
-def plot_errors(results: BenchResults, path: Path) -> Path:
-    """CDF of each method's error (all classes), with the top-5 mean distance and two blind guesses;
-    the title gives the default method's median and recall (:func:`localization.bench.scores.headline`)."""
-    figures = _figures()
+def draw_errors(fig: Any, results: BenchResults) -> None:
+    """errors.png on ``fig``: the CDF of each method's error (all classes), with the top-5 mean
+    distance and two blind guesses; the title gives the default method's median and recall
+    (:func:`localization.bench.scores.headline`)."""
     unit = results.get("unit", "m")
     recs, s = results["viewpoints"], results["summary"]
+    ax = fig.add_subplot()
+    methods = results.get("methods") or {}
+    colours = {"paper": "tab:green", "profile": "tab:blue"}
+    names = METHOD_NAMES
+    for m, summary in methods.items():
+        errors = [r["methods"][m]["error"] for r in recs if r["methods"][m]["error"] is not None]
+        _cdf(ax, errors, len(recs), color=colours.get(m, "tab:purple"), lw=2,
+             label=f"{names.get(m, m)}, {summary['answered']}/{summary['n']} answered")
+    if not methods:
+        _cdf(ax, [r["error"] for r in recs if not r["unanswered"]], len(recs), color="tab:green", lw=2,
+             label=f"landmark graphs (MAP), {s['answered']}/{s['n']} answered")
+    first = next(iter(methods), "paper")
+    _cdf(ax, [r["top5_mean"] for r in recs if not r["unanswered"]], len(recs), color=colours.get(first, "tab:green"),
+         ls=":", label=f"top-5 mean distance ({first})")
+    if first == "paper":
+        _cdf(ax, [r["candidate_guess"] for r in recs if not r["unanswered"]], len(recs), color="tab:orange",
+             ls="--", label="a random candidate (expected)")
+    _cdf(ax, [r["centre_guess"] for r in recs], len(recs), color="0.5", ls="--", label="guess the image centre")
+    _cdf(ax, [r["random_guess"] for r in recs], len(recs), color="0.7", ls="-.", label="random guess (expected)")
+    for radius in s["recall_at"]:
+        ax.axvline(float(radius), color="0.85", lw=1, zorder=0)
+    ax.set_xlim(left=0)
+    if methods:
+        ax.set_xscale("symlog", linthresh=1.0)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel(f"error ({unit})")
+    ax.set_ylabel(f"fraction of {results.get('queries', 'queries')}")
+    ax.set_title(errors_title(results))
+    ax.legend(loc="lower right", fontsize=8)
+
+
+def plot_errors(results: BenchResults, path: Path) -> Path:
+    """errors.png (:func:`draw_errors`)."""
+    figures = _figures()
     with figures.figure(6.5, 4.0) as fig:
-        ax = fig.add_subplot()
-        methods = results.get("methods") or {}
-        colours = {"paper": "tab:green", "profile": "tab:blue"}
-        names = METHOD_NAMES
-        for m, summary in methods.items():
-            errors = [r["methods"][m]["error"] for r in recs if r["methods"][m]["error"] is not None]
-            _cdf(ax, errors, len(recs), color=colours.get(m, "tab:purple"), lw=2,
-                 label=f"{names.get(m, m)}, {summary['answered']}/{summary['n']} answered")
-        if not methods:
-            _cdf(ax, [r["error"] for r in recs if not r["unanswered"]], len(recs), color="tab:green", lw=2,
-                 label=f"landmark graphs (MAP), {s['answered']}/{s['n']} answered")
-        first = next(iter(methods), "paper")
-        _cdf(ax, [r["top5_mean"] for r in recs if not r["unanswered"]], len(recs), color=colours.get(first, "tab:green"),
-             ls=":", label=f"top-5 mean distance ({first})")
-        if first == "paper":
-            _cdf(ax, [r["candidate_guess"] for r in recs if not r["unanswered"]], len(recs), color="tab:orange",
-                 ls="--", label="a random candidate (expected)")
-        _cdf(ax, [r["centre_guess"] for r in recs], len(recs), color="0.5", ls="--", label="guess the image centre")
-        _cdf(ax, [r["random_guess"] for r in recs], len(recs), color="0.7", ls="-.", label="random guess (expected)")
-        for radius in s["recall_at"]:
-            ax.axvline(float(radius), color="0.85", lw=1, zorder=0)
-        ax.set_xlim(left=0)
-        if methods:
-            ax.set_xscale("symlog", linthresh=1.0)
-        ax.set_ylim(0, 1.02)
-        ax.set_xlabel(f"error ({unit})")
-        ax.set_ylabel(f"fraction of {results.get('queries', 'queries')}")
-        ax.set_title(errors_title(results))
-        ax.legend(loc="lower right", fontsize=8)
+        draw_errors(fig, results)
         return cast(Path, figures.save_png(fig, path))
 
 
@@ -125,30 +135,83 @@ def plot_classes(results: BenchResults, path: Path) -> Path:
         return cast(Path, figures.save_png(fig, path))
 
 
-def plot_confidence(results: BenchResults, path: Path) -> Path | None:
-    """Each method's confidence on matching and on non-matching pairs (histograms, ROC AUC in the title).
+#: x axis of each method's confidence histogram
+CONFIDENCE_NAMES = {"paper": "MAP likelihood (eq. 3.3)",
+                    "profile": "confidence (lead over the best distinct alternative)"}
+#: the two kinds of pair the confidence histograms compare, and their colours
+PAIRS = (("confidence", "matching aerial image", "tab:blue"), ("negative_confidence", "another aerial image", "tab:red"))
 
-    None (nothing drawn) when the run has no non-matching pair (one scene, ``--no-negatives``).
+
+def confidences(records: Sequence[Mapping[str, Any]], method: str, key: str) -> tuple[list[float], int]:
+    """``method``'s answered ``key`` values (``confidence``, ``negative_confidence``) over ``records``,
+    and how many queries it did not answer: those recorded as
+    :data:`~localization.bench.scores.UNANSWERED_CONFIDENCE`, or without a value although the
+    method ran on that kind of pair (a run without non-matching pairs has none at all)."""
+    values = [r["methods"][method].get(key) for r in records]
+    ran = any(v is not None for v in values)
+    answered = [float(v) for v in values if v is not None and v != UNANSWERED_CONFIDENCE]
+    return answered, (len(values) - len(answered)) if ran else 0
+
+
+def draw_confidence(fig: Any, results: BenchResults) -> bool:
+    """confidence.png on ``fig``: per method, histograms of its confidence on matching and on
+    non-matching pairs (ROC AUC in the title); the queries it did not answer are counted in a
+    bar of their own, labelled "unanswered", beside the values, never drawn as one.
+
+    False (nothing drawn) when the run has no non-matching pair (one scene, ``--no-negatives``).
     """
+    from matplotlib.ticker import MaxNLocator
+
     methods = {m: v for m, v in (results.get("methods") or {}).items() if v.get("roc_auc") is not None}
+    if not methods:
+        return False
+    recs = results["viewpoints"]
+    drawn = {m: [confidences(recs, m, key) for key, _, _ in PAIRS] for m in methods}
+    unanswered = {m: any(n for _, n in sides) for m, sides in drawn.items()}
+    ratios = [r for m in methods for r in ((6, 1) if unanswered[m] else (6,))]
+    grid = fig.add_gridspec(1, len(ratios), width_ratios=ratios)
+    column = 0
+    for m, summary in methods.items():
+        ax = fig.add_subplot(grid[0, column])
+        values = [v for answered, _ in drawn[m] for v in answered]
+        if values:
+            lo, hi = min(values), max(values)
+            if hi - lo < 1e-3:  # every query alike: bins a few hundredths wide, not 1e-9 under an offset
+                lo, hi = lo - 0.05, hi + 0.05
+            bins = np.linspace(lo, hi, 25)
+            for (answered, _), (_, label, colour) in zip(drawn[m], PAIRS):
+                ax.hist(answered, bins=bins, alpha=0.6, color=colour, label=label)
+            ax.ticklabel_format(axis="x", style="plain", useOffset=False)
+        else:
+            ax.text(0.5, 0.5, "no query answered", transform=ax.transAxes, ha="center", va="center", color="0.4")
+        ax.set_xlabel(CONFIDENCE_NAMES.get(m, "confidence"))
+        ax.set_ylabel(results.get("queries", "queries"))
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts of queries
+        ax.set_title(f"{METHOD_NAMES.get(m, m)}: ROC AUC {ratio(summary['roc_auc'])}")
+        column += 1
+        if unanswered[m]:
+            side = fig.add_subplot(grid[0, column], sharey=ax)
+            counts = [n for _, n in drawn[m]]
+            bars = side.bar([0, 1], counts, width=0.8, alpha=0.6, color=[colour for _, _, colour in PAIRS])
+            side.bar_label(bars, fontsize=8)
+            side.set_xlim(-0.7, 1.7)
+            side.set_xticks([0.5], ["unanswered"])
+            side.tick_params(axis="y", labelleft=False)
+            column += 1
+        ax.legend(fontsize=8)
+    fig.suptitle("Does the confidence tell a match from a non-match?")
+    return True
+
+
+def plot_confidence(results: BenchResults, path: Path) -> Path | None:
+    """confidence.png (:func:`draw_confidence`); None (nothing written) when the run has no
+    non-matching pair (one scene, ``--no-negatives``)."""
+    methods = [v for v in (results.get("methods") or {}).values() if v.get("roc_auc") is not None]
     if not methods:
         return None
     figures = _figures()
-    recs = results["viewpoints"]
-    with figures.figure(4.2 * len(methods), 3.6) as fig:
-        axes = np.atleast_1d(fig.subplots(1, len(methods)))
-        for ax, (m, summary) in zip(axes, methods.items()):
-            pos = [r["methods"][m]["confidence"] for r in recs if r["methods"][m]["confidence"] is not None]
-            neg = [r["methods"][m]["negative_confidence"] for r in recs
-                   if r["methods"][m]["negative_confidence"] is not None]
-            bins = np.linspace(min(pos + neg), max(pos + neg) + 1e-9, 25)
-            ax.hist(pos, bins=bins, alpha=0.6, color="tab:blue", label="matching aerial image")
-            ax.hist(neg, bins=bins, alpha=0.6, color="tab:red", label="another aerial image")
-            ax.set_xlabel("kappa of the best match" if m == "profile" else "MAP likelihood (eq. 3.3)")
-            ax.set_ylabel(results.get("queries", "queries"))
-            ax.set_title(f"{m}: ROC AUC {ratio(summary['roc_auc'])}")
-            ax.legend(fontsize=8)
-        fig.suptitle("Does the confidence tell a match from a non-match?")
+    with figures.figure(4.4 * len(methods), 3.6) as fig:
+        draw_confidence(fig, results)
         return cast("Path | None", figures.save_png(fig, path))
 
 

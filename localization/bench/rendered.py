@@ -35,7 +35,7 @@ import importlib.util
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -72,7 +72,13 @@ from localization.bench.scores import (
     summarize,
 )
 from localization.bench.visible import landmark_cells, visible_landmarks
-from localization.common.landmarks import LandmarkClasses, Landmarks, landmarks_from_mask, load_landmark_classes
+from localization.common.landmarks import (
+    LandmarkClasses,
+    Landmarks,
+    landmark_colours,
+    landmarks_from_mask,
+    load_landmark_classes,
+)
 from localization.common.result import Localization
 from localization.common.views import semantic_map
 from localization.paper.config import PaperConfig
@@ -378,7 +384,7 @@ class _Bench:
         first = config.methods[0]
         if index < config.pictures:  # the first method's answer on the map
             draw_view(out_dir / "views" / f"{index:04d}_{scene.name}", scene, view, self.graphs[si][full],
-                      answers[first], config)
+                      answers[first], config, landmark_colours(self.classes, view.panorama.table))
         if first == "paper":
             scored, t_loc = localize_subsets(self.graphs[si], view.landmarks, truth, scene.resolution_m,
                                              paper_config.paper)
@@ -425,9 +431,9 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
 
 
 def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, loc: Localization,
-              config: BenchConfig) -> list[Path]:
-    """``STEM_map.png`` (the mask with ``loc``'s candidates, top-k and truth) and ``STEM_panorama.png``
-    (the view's landmark graph over it)."""
+              config: BenchConfig, colours: Mapping[str, Sequence[int]] | None = None) -> list[Path]:
+    """``STEM_map.png`` (the mask with ``loc``'s answer and the truth) and ``STEM_panorama.png``
+    (the view's landmark graph over it, each landmark class in ``colours``, its class-table colour)."""
     from localization.common.figures import graph_png, localization_png
     from localization.paper.graph import adjacency
 
@@ -440,7 +446,8 @@ def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, 
                              image=scene.table.colorize(scene.mask), truth=view.truth, resolution=scene.resolution_m,
                              classes=[(c.name, c.color) for c in scene.table.classes if (scene.mask == c.id).any()]),
             graph_png(stem.with_name(stem.name + "_panorama.png"), query, pano_graph, image=rgb[:, cols],
-                      title=f"{what} at ({view.truth[0]:.0f}, {view.truth[1]:.0f}): {len(query)} landmarks")]
+                      title=f"{what} at ({view.truth[0]:.0f}, {view.truth[1]:.0f}): {len(query)} landmarks",
+                      colours=colours)]
 
 
 def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], AerialGraph]],

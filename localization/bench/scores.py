@@ -17,10 +17,13 @@ import numpy as np
 
 from localization.common.result import DEFAULT_METHOD, Localization
 
-__all__ = ["BenchResults", "RECALL_RADII_M", "RenderedResults", "summarize", "error_fields", "score", "heading_error", "chance_errors", "by_num_classes",
+__all__ = ["BenchResults", "RECALL_RADII_M", "UNANSWERED_CONFIDENCE", "RenderedResults", "summarize", "error_fields", "score", "heading_error", "chance_errors", "by_num_classes",
            "baselines"]
 
 RECALL_RADII_M = (10, 25, 50)
+#: the confidence results.json records for a query a method did not answer: below every real one
+#: (so ROC AUC ranks it last), and no value of any method's scale, so pictures show it as unanswered
+UNANSWERED_CONFIDENCE = -1.0
 
 
 def _mean(values: Sequence[float]) -> float | None:

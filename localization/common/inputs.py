@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
@@ -36,7 +36,9 @@ class Side:
     """One image's landmarks, what to draw under them, and its ground resolution if known.
 
     ``paint`` draws a mask's colour picture when there is no RGB ``background``; it runs only
-    when pictures are asked for (it needs matplotlib's colours). ``photo`` is the RGB image
+    when pictures are asked for. ``colours`` gives each landmark class its class-table colour
+    (:func:`~localization.common.landmarks.landmark_colours`: the table of the mask, else the
+    dictionary's own), for the pictures' dots and legends. ``photo`` is the RGB image
     the landmarks were found in (segmented, or given by --*-image): the one landmark
     features (--feature-threshold) are computed from; None for a mask or landmark file alone.
     """
@@ -47,6 +49,7 @@ class Side:
     paint: Callable[[], np.ndarray] | None = None
     photo: np.ndarray | None = None
     semantic: SemanticMap | None = None  # a mask side's classes (the profile method's input)
+    colours: dict[str, tuple[int, int, int]] = field(default_factory=dict)  # landmark class -> RGB
 
     def picture(self) -> np.ndarray | None:
         """The RGB image to draw under the landmarks, if any."""
@@ -118,7 +121,7 @@ def manifest_bounds_3857(mask: Path) -> tuple[tuple[float, float, float, float],
 def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: SideOptions, dictionary: Any,
                rgb: np.ndarray | None, table: ClassTable | None) -> Side:
     """Landmarks of a label mask, with the best background at hand (RGB image, class colours)."""
-    from localization.common.landmarks import landmarks_from_mask, panorama_table
+    from localization.common.landmarks import landmark_colours, landmarks_from_mask, panorama_table
     from localization.common.views import semantic_map
 
     background = rgb
@@ -135,7 +138,9 @@ def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: S
     if table is not None and opts.name == "ground" and max(table.by_id) < 255:
         table = panorama_table(table)  # a view from the ground may show the sky, as the renderers draw it
     ids: Any = {c.id: c.name for c in table.by_id.values()} if table is not None else None
-    colours = {c.id: c.color for c in table.by_id.values()} if table is not None else {}
+    # the colours of the mask's table, else of the dictionary's own (a mask read with the dictionary's classes)
+    shown = table if table is not None else (load_class_table(dictionary.mask_table) if dictionary.mask_table else None)
+    colours = {c.id: c.color for c in shown.by_id.values()} if shown is not None else {}
     mask = pixels if np.issubdtype(pixels.dtype, np.integer) else pixels.astype(np.int64)  # not 8 bytes a pixel
     lm = landmarks_from_mask(mask, ids, dictionary, mode=opts.mode, stride=opts.grid_stride,
                              min_size=opts.min_size, panorama=opts.panorama)
@@ -146,11 +151,13 @@ def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: S
         def paint_mask() -> np.ndarray:
             return _colourise(mask, colours, names, dictionary)
         paint = paint_mask
-    return Side(lm, background, resolution, paint, semantic=semantic_map(mask, ids, dictionary))
+    return Side(lm, background, resolution, paint, semantic=semantic_map(mask, ids, dictionary),
+                colours=landmark_colours(dictionary, shown))
 
 
 def _colourise(mask: np.ndarray, colours: dict[int, Any], ids: dict[int, str] | None, dictionary: Any) -> np.ndarray:
-    """An RGB picture of a class mask: its table's colours, else pale landmark-class colours (others grey)."""
+    """An RGB picture of a class mask: its table's colours, else (a dictionary with no class table)
+    pale landmark-class colours (others grey)."""
     lut = np.full((256, 3), 235, dtype=np.uint8)
     if colours:
         for cid, rgb_colour in colours.items():
@@ -159,9 +166,9 @@ def _colourise(mask: np.ndarray, colours: dict[int, Any], ids: dict[int, str] | 
     elif ids:
         from matplotlib.colors import to_rgb
 
-        from localization.common.figures import class_colours
+        from localization.common.figures import landmark_palette
 
-        palette = dict(zip(dictionary.names, class_colours(dictionary.names)))
+        palette = dict(zip(dictionary.names, landmark_palette(dictionary.names)))
         for cid, name in ids.items():
             target = dictionary.mapping.get(name)
             if target is not None and 0 <= cid < 256:  # pale, so the graph drawn over it stands out
@@ -230,7 +237,10 @@ def _landmark_file_side(path: Path, opts: SideOptions, dictionary: Any) -> Side:
                        "; a panorama's width must be exact for its wrap-around" if opts.panorama else "")
     elif background is not None and (background.shape[1], background.shape[0]) != size:
         background = None  # an image of another size cannot be drawn under these landmarks
-    return Side(read_landmarks(path, dictionary, size[0], size[1], panorama=opts.panorama), background, resolution)
+    from localization.common.landmarks import landmark_colours
+
+    return Side(read_landmarks(path, dictionary, size[0], size[1], panorama=opts.panorama), background, resolution,
+                colours=landmark_colours(dictionary))
 
 
 def load_side(path: Path, opts: SideOptions) -> Side:

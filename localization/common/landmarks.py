@@ -51,7 +51,7 @@ from osmseg.datafiles import DATA_DIR, load_toml
 from osmseg.errors import ClassTableError, ConfigError
 
 __all__ = ["MODES", "PAPER_CLASSES", "SKY_COLOR", "SKY_NAME", "LandmarkClasses", "Landmarks", "landmarks_from_mask",
-           "circular_x", "landmark_dictionary_path", "load_landmark_classes", "panorama_table"]
+           "circular_x", "landmark_colours", "landmark_dictionary_path", "load_landmark_classes", "panorama_table"]
 
 #: The landmark classes of Verde et al. (2020), in the order the dictionaries list them.
 PAPER_CLASSES = ("building", "road", "vegetation", "footway")
@@ -153,7 +153,9 @@ class LandmarkClasses:
     (:mod:`localization.profile.profiles`) matches them as one more class, "other", on both sides; they
     never become landmarks. ``mask_table`` (a class table in
     ``data_manifests/``) or ``mask_classes`` (names by label value 0, 1, ...) say which mask
-    labels the names refer to, so a mask can be read without passing its table.
+    labels the names refer to, so a mask can be read without passing its table; with both,
+    ``mask_classes`` name the labels and ``mask_table`` (the same names and ids) gives their
+    colours (:func:`landmark_colours`).
     """
 
     names: tuple[str, ...]
@@ -189,6 +191,30 @@ class LandmarkClasses:
         if self.mask_table is not None:
             return _table_ids(load_class_table(self.mask_table))
         return None
+
+
+def landmark_colours(classes: LandmarkClasses, table: ClassTable | None = None) -> dict[str, tuple[int, int, int]]:
+    """Each landmark class's colour in pictures: the colour ``table`` (default: the dictionary's own
+    ``mask_table``) gives the first mask class the dictionary maps to it, in the dictionary's order.
+    A landmark is then drawn in the colour of the mask under it and of the class in every legend;
+    landmark classes no coloured mask class maps to are left out.
+
+    >>> landmark_colours(load_landmark_classes("aerial13"))
+    {'building': (255, 255, 0), 'road': (50, 50, 255), 'vegetation': (69, 237, 114), 'footway': (128, 181, 255)}
+    >>> landmark_colours(load_landmark_classes("camvid"))["footway"]   # CamVid's Pavement
+    (60, 40, 222)
+    """
+    if table is None:
+        if classes.mask_table is None:
+            return {}
+        table = load_class_table(classes.mask_table)
+    by_name = {c.name: c.color for c in (table.unlabeled, *table.classes)}
+    out: dict[str, tuple[int, int, int]] = {}
+    for mask_class, landmark in classes.mapping.items():
+        if landmark not in out and mask_class in by_name:
+            r, g, b = by_name[mask_class][:3]
+            out[landmark] = (int(r), int(g), int(b))
+    return out
 
 
 def load_landmark_classes(name_or_path: str) -> LandmarkClasses:
