@@ -131,6 +131,7 @@ def md5(path: Path) -> str:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(2400)  # a CPU training of 8 epochs, twice (the second resumes a finished run)
 def test_the_readme_chain_runs_as_written_on_real_data(tmp_path: Path) -> None:
     if not SHARED_DATA.exists():
         pytest.skip(f"the chain reads real data: {SHARED_DATA} is absent on this machine")
