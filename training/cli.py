@@ -67,7 +67,8 @@ def _recipes_default(name: str) -> str:
 @click.option("--model", default=_default("model"),
               help="airsegnet6 | airsegnet13 | a name of your own (the class table decides the outputs).")
 @click.option("--classes", show_default="the dataset's manifest.json, else the model's",
-              help="Class table TOML when the dataset has no manifest.json (e.g. classes6.toml).")
+              help="Class table TOML of the labels when the dataset has no manifest.json or classes.toml; with one, "
+                   "the table the model learns: the dataset's, or one mapping it (classes6.toml on 13 classes).")
 @click.option("--width", type=float, default=_default("width"),
               help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU.")
 @click.option("--arch", type=click.Choice(["segnet-skip", "segnet"]), default=_default("arch"),

@@ -53,6 +53,7 @@ from training.infer import (
     error_reason,
     run_model,
 )
+from training.tables import check_mask_folder
 from training.tiling import pixel_blocks
 
 if TYPE_CHECKING:
@@ -202,6 +203,7 @@ def predict_files(config: PredictConfig, progress: Progress | None = None) -> li
         raise ConfigError(f"{stems[clash[0]]} inputs are named {clash[0]}.*: their masks would overwrite each other "
                           f"in {config.out_dir}; predict them into separate --out folders")
     model, spec = model_from_checkpoint(config.checkpoint, device=config.device)
+    check_mask_folder(config.out_dir, spec.table, config.checkpoint)  # never masks of one table among another's
     resolution_m = target_resolution(config.resolution, spec)
     config.out_dir.mkdir(parents=True, exist_ok=True)
     written = []
