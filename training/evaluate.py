@@ -27,6 +27,7 @@ import torch
 from osmseg.errors import DatasetError
 from osmseg.images import read_label, read_rgb
 from osmseg.output.atomic import atomic_write_bytes
+from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress, track
 from osmseg.tablematch import Correspondence
 from training.checkpoint import load_checkpoint, model_from_checkpoint
@@ -132,6 +133,7 @@ def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: E
              pairs: Sequence[tuple[Path, Path]] = (), progress: Progress | None = None) -> EvalMetrics:
     """Evaluate a checkpoint and write metrics and pictures into ``out_dir`` (``progress``: a
     step per image evaluated)."""
+    refuse_busy(dataset, *(path for pair in pairs for path in pair))  # a build is writing them
     checkpoint = load_checkpoint(checkpoint_path)
     model, spec = model_from_checkpoint(checkpoint_path, device=opts.device)
     # the labels' class table against the model's, before anything is predicted: refused when

@@ -36,6 +36,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
 
 from osmseg.errors import ConfigError, DatasetError
+from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress, report
 from training.checkpoint import InitWeights, load_checkpoint, read_init, save_checkpoint
 from training.config import TrainConfig
@@ -391,6 +392,7 @@ def save_epoch(files_out: RunFiles, state: dict[str, Any], history: list[dict[st
 
 def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress | None = None) -> TrainResult:
     torch.manual_seed(config.seed)  # the same initial weights in every process
+    refuse_busy(config.dataset)  # a folder a build is writing: its first build has no manifest to say so
     dataset_table, model_table, label_lut = run_tables(config.dataset, config.classes, config.model)
     files, given_splits = discover_dataset(config.dataset)
     spec: ModelSpec = model_spec(config.model, config.width, ignore_unlabeled=config.ignore_unlabeled,

@@ -85,7 +85,7 @@ from localization.profile.search import AerialIndex, ProfileConfig
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.output.manifest import manifest_path, read_manifest
+from osmseg.output.manifest import manifest_path, read_manifest, refuse_busy
 from osmseg.progress import Progress, track
 
 logger = logging.getLogger(__name__)
@@ -215,6 +215,7 @@ def load_mask_scene(path: Path, table: ClassTable | str, resolution_m: float) ->
     """A mask file (PNG/GeoTIFF of class ids) with its class table and ground resolution (m/px)."""
     if not (resolution_m and resolution_m > 0):
         raise ConfigError("give the mask's ground resolution in metres per pixel (--resolution)")
+    refuse_busy(path)  # a label a build is writing
     tab = load_class_table(table) if isinstance(table, str) else table
     bounds = geotiff_bounds_3857(Path(path)) if Path(path).suffix.lower() in (".tif", ".tiff") else None
     return Scene(name=Path(path).stem, mask=_read_mask(Path(path)), table=tab, resolution_m=float(resolution_m),
@@ -224,6 +225,7 @@ def load_mask_scene(path: Path, table: ClassTable | str, resolution_m: float) ->
 def load_dataset_scenes(folder: Path) -> list[Scene]:
     """The label masks of a dataset made by ``osmseg build`` (labels/ + manifest.json)."""
     folder = Path(folder)
+    refuse_busy(folder)  # a build's first run has no manifest yet to refuse it
     if not manifest_path(folder).is_file():
         raise DatasetError(f"{folder}: no manifest.json; give a dataset made by `osmseg build`, "
                            "or a mask file with --table and --resolution")
