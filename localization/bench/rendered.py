@@ -256,7 +256,8 @@ def standable_ids(table: ClassTable, config: BenchConfig) -> list[int]:
     if config.stand_on is not None:
         missing = [n for n in config.stand_on if n not in table.by_name]
         if missing:
-            raise ConfigError(f"stand_on classes {missing} are not in the class table {table.name!r}")
+            raise ConfigError(f"--stand-on {', '.join(missing)}: not a class of the table {table.name!r}; use some of "
+                              f"{', '.join(c.name for c in table.classes)}")
         return [table.by_name[n].id for n in config.stand_on]
     return [c.id for c in table.classes if c.name not in NOT_STANDABLE and not config.render.heights.get(c.name, 0)]
 
