@@ -220,6 +220,11 @@ def test_train_refuses_a_class_table_that_misreads_the_dataset_labels(tmp_path: 
     from training.checkpoint import load_checkpoint
 
     assert load_checkpoint(tmp_path / "run6" / "last.pt")["spec"]["class_table"]["name"] == "osm6"
+    # without a table of its own, --classes says what a folder's labels mean, and a preset learns through the mapping
+    bare = Path(shutil.copytree(datasets["13"], tmp_path / "bare", ignore=shutil.ignore_patterns("manifest.json")))
+    result = osmseg("train", bare, "--out", tmp_path / "bare-run", "--config", TINY_YAML, "--epochs", 1,
+                    "--model", "airsegnet6", "--classes", "classes13.toml", "--split-by", "image")
+    assert result.exit_code == 0, result.output
 
 
 @pytest.mark.parametrize("width", ["0.125", "1.0"])

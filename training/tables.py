@@ -66,24 +66,26 @@ def run_tables(dataset: Path, classes: str | None, model: str) -> tuple[ClassTab
     own = dataset_class_table(dataset) if has_class_table(dataset) else None
     given = load_class_table(str(classes)) if classes is not None else None  # a broken table: refused here
     preset = load_class_table(PRESETS[model]) if model in PRESETS else None
-    labels = own or given or preset
+    labels = own or given or preset  # without a table of its own, --classes says what the labels mean
     if labels is None:
         raise ConfigError(f"{dataset} has no manifest.json or classes.toml, and --model {model} is not one of "
                           f"{', '.join(sorted(PRESETS))}; give the class table of the labels with --classes FILE.toml")
-    if preset is not None and given is not None and not same_classes(given, preset):
+    if own is not None and preset is not None and given is not None and not same_classes(given, preset):
         raise ClassTablesDiffer(
             f"--model {model} predicts the classes of {preset.name!r}, --classes {classes} gives those of "
             f"{given.name!r} ({difference(given, preset, '--classes', f'--model {model}')}): leave out --classes, or "
             f"name a model of your own (--model NAME) to learn the table of --classes")
-    learnt = preset or given or labels
+    learnt = preset or (given if own is not None else None) or labels
     if preset is not None:
-        model_is, fix = (f"--model {model}", "train a model of your own name (--model NAME) on the dataset's table, "
+        model_is, fix = (f"--model {model}", "train a model of your own name (--model NAME) on the labels' table, "
                          "or give labels of the model's classes")
     else:
         model_is, fix = (f"--model {model} with --classes {classes}",
                          f"leave out --classes ({_table_file(dataset)} says what the labels mean), or give a table "
                          "that maps the dataset's classes (as classes6.toml maps classes13.toml's)")
-    labels_are = f"but {_table_file(dataset) if own is not None else dataset} is labelled with"
+    labels_are = (f"but {_table_file(dataset)} is labelled with" if own is not None else
+                  f"but --classes {classes} says the labels are in" if given is not None else
+                  f"but {dataset} is labelled with")
     match = correspondence(labels, learnt, _mapped(learnt, given), outputs_may_map=False, model_is=model_is,
                            labels_are=labels_are, fix=fix)
     return labels, match.table, match.labels
