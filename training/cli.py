@@ -104,7 +104,7 @@ def _recipes_default(name: str) -> str:
 @click.option("--loader-workers", type=click.IntRange(min=0), default=_default("loader_workers"),
               help="DataLoader worker processes per training process (0: load in the training process).")
 @click.option("--device", default=_default("device"), help="auto | cpu | cuda | cuda:N")
-@click.option("--max-steps-per-epoch", type=click.IntRange(min=1), show_default="no cap", help="Cap batches per epoch (smoke tests).")
+@click.option("--max-steps-per-epoch", type=click.IntRange(min=0), show_default="no cap", help="Cap batches per epoch (smoke tests).")
 @renamed_option("--workers", "loader_workers", type=click.IntRange(min=0),
                 note=" (DataLoader processes; build's --workers counts build processes)")
 @click.pass_context
