@@ -38,6 +38,7 @@ from localization.profile.method import profile_index, run_profile
 from localization.profile.search import ProfileConfig
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.atomic import atomic_write_text
+from osmseg.output.manifest import refuse_busy
 
 logger = logging.getLogger(__name__)
 
@@ -143,6 +144,7 @@ def answer_lonlat(aerial: Path, xy: tuple[float, float]) -> tuple[float, float] 
 
 def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path | None = None) -> LocalizeReport:
     """Read both sides, localize, and (with ``out_dir``) write ``result.json`` and the pictures."""
+    refuse_busy(request.aerial, request.ground, request.aerial_image, request.ground_image)  # a build writes them
     aerial = load_side(request.aerial, request.aerial_options)
     ground = load_side(request.ground, request.ground_options)
     _check_ground_shape(ground, request, config)

@@ -329,18 +329,74 @@ def check_distinct_colors(name: str, classes: tuple[ClassDef, ...]) -> None:
                 f"{list(c.color)}: give each class its own colour, or the colour masks cannot tell them apart")
 
 
+def machine_name(name: str) -> str:
+    """A class name as files and catalogues spell it (letters, digits, ``-``, ``_``): the STAC
+    classification extension's ``name``, which must keep the classes of a table apart.
+
+    >>> machine_name("dirt road")
+    'dirt_road'
+    """
+    return re.sub(r"[^0-9A-Za-z_-]+", "_", name).strip("_") or "class"
+
+
+def _field(entry: Any, key: str, where: str) -> Any:
+    """``entry[key]``, or a ClassTableError naming what lacks it."""
+    if not isinstance(entry, Mapping):
+        raise ClassTableError(f"{where} must be a table of id, name and color; see data_manifests/classes13.toml")
+    if key not in entry:
+        raise ClassTableError(f"{where} lacks {key!r}: give each class an id, a name and a color "
+                              "(see data_manifests/classes13.toml)")
+    return entry[key]
+
+
+def _check_classes(name: str, unlabeled: ClassDef, classes: list[ClassDef]) -> None:
+    """ClassTableError naming ``name`` unless the classes have distinct names, ids 0..N and colours."""
+    everyone = (unlabeled, *classes)
+    names: dict[str, ClassDef] = {}
+    for c in everyone:
+        first = names.setdefault(machine_name(c.name).lower(), c)
+        if first is not c:
+            same = "the same name" if first.name == c.name else "names that differ only in case or punctuation"
+            raise ClassTableError(f"{name}: classes {first.name!r} (id {first.id}) and {c.name!r} (id {c.id}) have "
+                                  f"{same}: give each class its own name")
+    ids = sorted(c.id for c in everyone)
+    if ids != list(range(len(ids))):
+        repeated = sorted({i for i in ids if ids.count(i) > 1})
+        missing = sorted(set(range(len(ids))) - set(ids))
+        problem = f"id {repeated[0]} is given twice" if repeated else f"id {missing[0]} is missing"
+        raise ClassTableError(f"{name}: class ids, unlabeled included, must be 0..{len(ids) - 1} each once ({problem}; "
+                              f"got {ids}): number the classes 0..N")
+    check_distinct_colors(name, everyone)
+
+
 def load_class_table(name: str = "classes13.toml") -> ClassTable:
-    """Read a class table from ``data_manifests/`` (or a path), checking it as it goes."""
+    """Read a class table from ``data_manifests/`` (or a path), checking it whole before it is used:
+    distinct names and colours, ids 0..N (unlabeled included), every field there. A broken table
+    is one ClassTableError that names the file and what to fix, before anything is built with it."""
     raw = load_toml(name)
     try:
-        un = raw["unlabeled"]
-        unlabeled = ClassDef(id=int(un["id"]), name=un["name"], color=_color(un["color"], f"{name} unlabeled"))
+        un = raw.get("unlabeled")
+        if un is None:
+            raise ClassTableError(f'{name}: lacks the unlabeled class: add unlabeled = {{ id = 0, name = "unlabeled", '
+                                  'color = [0, 0, 0] }')
+        uid, uname, ucolour = (_field(un, key, f"{name} unlabeled") for key in ("id", "name", "color"))
+        if isinstance(uid, bool) or not isinstance(uid, int):
+            raise ClassTableError(f"{name} unlabeled: id must be an integer 0..255, got {uid!r}")
+        unlabeled = ClassDef(id=uid, name=str(uname), color=_color(ucolour, f"{name} unlabeled"))
         if not 0 <= unlabeled.id < 256:
             raise ClassTableError(f"{name}: the unlabeled id must be in 0..255")
         base = load_class_table(raw["base"]) if "base" in raw else None
         classes = []
-        for entry in raw["classes"]:
-            where = f"{name} class {entry.get('name', '?')!r}"
+        entries = raw.get("classes")
+        if not isinstance(entries, list) or not entries:
+            raise ClassTableError(f"{name}: no [[classes]]: give at least one class besides unlabeled "
+                                  "(see data_manifests/classes13.toml)")
+        for number, entry in enumerate(entries, start=1):
+            where = (f"{name} class {entry['name']!r}" if isinstance(entry, Mapping) and "name" in entry
+                     else f"{name} [[classes]] entry {number}")
+            cid, cname, colour = (_field(entry, key, where) for key in ("id", "name", "color"))
+            if isinstance(cid, bool) or not isinstance(cid, int):
+                raise ClassTableError(f"{where}: id must be an integer 0..255, got {cid!r}")
             rules = tuple(Rule(geometry=r["geometry"], tags=dict(r["tags"])) for r in entry.get("rules", ()))
             for r in rules:
                 if r.geometry not in ("area", "line", "point"):
@@ -354,9 +410,9 @@ def load_class_table(name: str = "classes13.toml") -> ClassTable:
                     raise ClassTableError(f"{where}: maps unknown base classes {unknown}")
             classes.append(
                 ClassDef(
-                    id=int(entry["id"]),
-                    name=entry["name"],
-                    color=_color(entry["color"], where),
+                    id=int(cid),
+                    name=str(cname),
+                    color=_color(colour, where),
                     order=int(entry.get("order", 0)),
                     rules=rules,
                     width_key=entry.get("width_key"),
@@ -370,15 +426,24 @@ def load_class_table(name: str = "classes13.toml") -> ClassTable:
     except (KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, ClassTableError):
             raise
-        raise ClassTableError(f"{name}: malformed class table ({exc!r}); see data_manifests/classes13.toml") from None
-    ids = [c.id for c in classes]
-    if len(set(ids)) != len(ids) or unlabeled.id in ids or not all(0 <= i < 256 for i in ids):
-        raise ClassTableError(f"{name}: class ids must be unique, in 0..255 and not the unlabeled id "
-                              f"{unlabeled.id}, got {ids}")
-    check_distinct_colors(name, (unlabeled, *classes))
+        raise ClassTableError(f"{name}: malformed class table ({_what_is_wrong(exc)}); see data_manifests/classes13.toml"
+                              ) from None
+    _check_classes(name, unlabeled, classes)
     try:
         hidden = tuple(Rule(geometry="any", tags=dict(tags)) for tags in raw.get("hidden", ()))
     except (TypeError, ValueError):
         raise ClassTableError(f"{name}: hidden must be a list of tag tables like {{ tunnel = \"*\" }}") from None
     return ClassTable(name=raw.get("name", name), description=raw.get("description", ""),
                       classes=tuple(classes), unlabeled=unlabeled, base=base, hidden=hidden)
+
+
+def _what_is_wrong(exc: Exception) -> str:
+    """An exception from reading a table's entries in words (never its Python repr).
+
+    >>> _what_is_wrong(KeyError("tags")), _what_is_wrong(ValueError("invalid literal for int() with base 10: 'x'"))
+    ("an entry lacks 'tags'", "invalid literal for int() with base 10: 'x'")
+    """
+    if isinstance(exc, KeyError):
+        return f"an entry lacks {exc.args[0]!r}" if exc.args else "an entry lacks a field"
+    return str(exc).strip().splitlines()[0] if str(exc).strip() else "a value of the wrong type"
+

@@ -40,6 +40,11 @@ class ClassTableError(ConfigError):
     """A class table (data_manifests/classes*.toml) is malformed."""
 
 
+class ClassTablesDiffer(ConfigError):
+    """Labels of one class table and a model (or masks) of another that cannot be compared: the
+    ids of one read as the other's would count one class's pixels as another's (exit 2)."""
+
+
 class NetworkError(OsmsegError, IOError):
     """A remote service could not be reached or kept failing after retries."""
 

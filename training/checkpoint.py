@@ -36,7 +36,7 @@ from osmseg.errors import ConfigError
 from osmseg.processes import interrupts_deferred
 from training.distributed import pick_device
 from training.errors import CheckpointError
-from training.model import SegNet, build_model, load_encoder_weights
+from training.model import SegNet, build_model, load_encoder_weights, read_encoder_weights
 from training.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
@@ -213,7 +213,7 @@ class InitWeights:
 
     ``weights`` (an osmseg checkpoint's, by parameter name) are copied onto the new network by
     :meth:`apply`, all of them or all but the classifier's (``keep_classifier`` False); without
-    them ``source`` is ``imagenet`` or a vgg16_bn file for
+    them ``source`` is ``imagenet`` or a vgg16_bn file (its weights, read, in ``encoder``) for
     :func:`training.model.load_encoder_weights`. ``record`` is what the run's checkpoints store
     under ``"init"``.
     """
@@ -222,11 +222,12 @@ class InitWeights:
     record: dict[str, Any]
     weights: Mapping[str, Tensor] | None = None
     keep_classifier: bool = True
+    encoder: Mapping[str, Tensor] | None = None  # a vgg16_bn file's weights, read by read_init
 
     def apply(self, model: SegNet) -> None:
         """Initialise ``model`` (freshly built from the run's spec) from these weights."""
         if self.weights is None:
-            load_encoder_weights(model, self.source)
+            load_encoder_weights(model, self.encoder if self.encoder is not None else self.source)
             return
         expected = model.state_dict()
         wanted = {k: v for k, v in self.weights.items() if self.keep_classifier or not k.startswith("classifier.")}
@@ -257,6 +258,14 @@ def read_init(source: str, spec: ModelSpec) -> InitWeights | None:
         raise ConfigError(f"--init {source}: no such file; give random, imagenet, a checkpoint of an osmseg run "
                           "(best.pt, last.pt) or a vgg16_bn .pth")
     if source == "imagenet" or not looks_like_checkpoint(path):
+        encoder = None
+        if source != "imagenet":  # read now: a file that is neither is refused before the run begins
+            try:
+                encoder = read_encoder_weights(path)
+            except ConfigError:
+                raise ConfigError(f"--init {source} is neither a checkpoint of an osmseg run (best.pt, last.pt) nor "
+                                  "vgg16_bn weights (a .pth state dict), or it is damaged: give one of those, "
+                                  "imagenet or random") from None
         if spec.width != 1.0:
             raise ConfigError(f"--init {source}: VGG16-BN encoder weights need width 1.0, got width {spec.width:g}; "
                               "train from random init (--init random), use --width 1.0, or give a checkpoint of an "
@@ -264,7 +273,7 @@ def read_init(source: str, spec: ModelSpec) -> InitWeights | None:
         record: dict[str, Any] = {"source": source, "reused": "the encoder (vgg16_bn)"}
         if source != "imagenet":
             record.update(path=str(path.resolve()), sha256=file_sha256(path))
-        return InitWeights(source, record)
+        return InitWeights(source, record, encoder=encoder)
     state = load_checkpoint(path)
     then = ModelSpec.from_dict(state["spec"])
     if (then.arch, float(then.width)) != (spec.arch, float(spec.width)):

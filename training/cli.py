@@ -67,7 +67,8 @@ def _recipes_default(name: str) -> str:
 @click.option("--model", default=_default("model"),
               help="airsegnet6 | airsegnet13 | a name of your own (the class table decides the outputs).")
 @click.option("--classes", show_default="the dataset's manifest.json, else the model's",
-              help="Class table TOML when the dataset has no manifest.json (e.g. classes6.toml).")
+              help="Class table TOML of the labels when the dataset has no manifest.json or classes.toml; with one, "
+                   "the table the model learns: the dataset's, or one mapping it (classes6.toml on 13 classes).")
 @click.option("--width", type=float, default=_default("width"),
               help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU.")
 @click.option("--arch", type=click.Choice(["segnet-skip", "segnet"]), default=_default("arch"),
@@ -77,13 +78,13 @@ def _recipes_default(name: str) -> str:
               help="First weights: random (as the dissertation) | imagenet (downloads) or a vgg16_bn PATH.pth "
                    "(the encoder, width 1.0) | an osmseg run's best.pt/last.pt (fine-tuning at its width: the whole "
                    "network, or all but the classifier when the classes differ).")
-@click.option("--epochs", type=int, default=_default("epochs"))
+@click.option("--epochs", type=click.IntRange(min=1), default=_default("epochs"))
 @click.option("--recipe", type=click.Choice(["osmseg", "paper"]), default=_default("recipe"),
               help="How the network learns: osmseg (AdamW, cosine, random crops, no class weights; for "
                    "small data and CPUs) | paper (the dissertation's SegNet recipe: SGD lr 0.1 poly, median-frequency "
                    "weights, fixed 360x480 patches). docs/training.md compares them.")
-@click.option("--batch-size", type=int, show_default=_recipes_default("batch_size"))
-@click.option("--lr", type=float, show_default=_recipes_default("lr"),
+@click.option("--batch-size", type=click.IntRange(min=1), show_default=_recipes_default("batch_size"))
+@click.option("--lr", type=click.FloatRange(min=0, min_open=True), show_default=_recipes_default("lr"),
               help="Peak learning rate (after the warm-up; the schedule decays it).")
 @click.option("--class-weights", type=click.Choice(["none", "median-frequency", "sqrt-median-frequency"]),
               show_default=_recipes_default("class_weights"))
@@ -99,11 +100,11 @@ def _recipes_default(name: str) -> str:
                    "do: it is their background).")
 @click.option("--split-by", type=click.Choice(["groups", "image"]), default=_default("split_by"),
               help="groups: samples that overlap on the ground stay in one split; image: each image alone.")
-@click.option("--seed", type=int, default=_default("seed"))
+@click.option("--seed", type=click.IntRange(min=0), default=_default("seed"))
 @click.option("--loader-workers", type=click.IntRange(min=0), default=_default("loader_workers"),
               help="DataLoader worker processes per training process (0: load in the training process).")
 @click.option("--device", default=_default("device"), help="auto | cpu | cuda | cuda:N")
-@click.option("--max-steps-per-epoch", type=int, show_default="no cap", help="Cap batches per epoch (smoke tests).")
+@click.option("--max-steps-per-epoch", type=click.IntRange(min=0), show_default="no cap", help="Cap batches per epoch (smoke tests).")
 @renamed_option("--workers", "loader_workers", type=click.IntRange(min=0),
                 note=" (DataLoader processes; build's --workers counts build processes)")
 @click.pass_context
@@ -166,7 +167,7 @@ def inference_options(func: F) -> F:
               help="Window overlap in pixels.")
 @click.option("--block-size", type=click.IntRange(min=256), default=2048, show_default=True,
               help="Large rasters are predicted block by block (same result, bounded memory).")
-@click.option("--batch-size", type=int, default=4, show_default=True)
+@click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True)
 @click.pass_context
 @report_errors
 def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ...], out_dir: Path, mode: str,
@@ -196,7 +197,7 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
 @inference_options
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Folder for metrics.json, metrics.txt and the pictures.")
-@click.option("--panels", type=int, default=4, show_default=True, help="Samples shown in panels.png.")
+@click.option("--panels", type=click.IntRange(min=1), default=4, show_default=True, help="Samples shown in panels.png.")
 @click.pass_context
 @report_errors
 def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pairs: tuple[tuple[Path, Path], ...],

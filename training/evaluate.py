@@ -27,15 +27,18 @@ import torch
 from osmseg.errors import DatasetError
 from osmseg.images import read_label, read_rgb
 from osmseg.output.atomic import atomic_write_bytes
+from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress, track
+from osmseg.tablematch import Correspondence
 from training.checkpoint import load_checkpoint, model_from_checkpoint
-from training.data import SampleFiles, dataset_class_table, discover_dataset
+from training.data import SampleFiles, discover_dataset
 from training.figures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
 from training.infer import InferenceOptions
 from training.metrics import ConfusionMatrix, EvalMetrics, Metrics, format_table, load_class_mapping
 from training.predict import predict_image, target_resolution
 from training.spec import ModelSpec
-from training.train import dataset_fingerprint, has_class_table, model_classes
+from training.tables import eval_correspondence
+from training.train import dataset_fingerprint
 
 logger = logging.getLogger(__name__)
 
@@ -79,22 +82,32 @@ def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequen
 
 
 def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[SampleFiles], opts: EvalOptions,
-                    label_lut: np.ndarray | None = None, progress: Progress | None = None,
+                    match: Correspondence | None = None, progress: Progress | None = None,
                     ) -> tuple[Metrics, list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], dict[str, Any]]:
     """Metrics over ``files``, the first panels' arrays, and the table they were computed in.
 
-    ``label_lut`` maps the labels' ids to the model's (a 13-class dataset for AirSegNet6).
+    ``match`` (:func:`training.tables.eval_correspondence`) says how the labels' ids and the
+    model's are compared: the labels mapped onto the model's classes (a 13-class dataset for
+    AirSegNet6), or the outputs onto the labels' (AirSegNet13 on a 6-class dataset); None: the
+    labels are in the model's ids.
     """
     names = spec.class_names  # by output id: the table lists classes in rule order, not id order
     mapping = load_class_mapping(opts.mapping) if opts.mapping else None
+    label_lut = match.labels if match is not None else None
+    output_lut = match.outputs if match is not None else None
     if mapping is not None:
         eval_table = mapping.class_table_dict()
         matrix = ConfusionMatrix(mapping.num_classes, ignore_index=mapping.ignore_index)
+        class_names = list(mapping.classes)  # a mapping's classes are numbered by position
+    elif match is not None and output_lut is not None:  # compared in the labels' classes
+        eval_table = match.table.to_dict()
+        ignore = None if spec.ignore_index is None else int(output_lut[spec.ignore_index])
+        matrix = ConfusionMatrix(match.table.num_classes, ignore_index=ignore)
+        class_names = match.table.names_by_id()
     else:
         eval_table = spec.class_table
         matrix = ConfusionMatrix(spec.num_classes, ignore_index=spec.ignore_index)
-    # names indexed by evaluation id: a mapping's classes are numbered by position, a model's by id
-    class_names = list(mapping.classes) if mapping is not None else spec.class_names
+        class_names = spec.class_names  # by id
     target_m = target_resolution(opts.resolution_m, spec)
     inference = InferenceOptions(opts.mode, opts.join, None, opts.tta, opts.batch_size, opts.device)
     panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
@@ -107,8 +120,9 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
         pred = predict_image(model, spec, f.image, inference, target_m)  # exactly what `osmseg predict` writes
         if mapping is not None:
             truth, pred = mapping.map_gt(truth), mapping.map_pred(pred, names)
-        elif label_lut is not None:
-            truth = label_lut[truth]
+        else:
+            truth = label_lut[truth] if label_lut is not None else truth
+            pred = output_lut[pred] if output_lut is not None else pred
         matrix.update(torch.from_numpy(truth.astype(np.int64)).flatten(), torch.from_numpy(pred.astype(np.int64)).flatten())
         if len(panels) < opts.panels:
             panels.append((f.name, rgb, truth, pred))
@@ -119,15 +133,16 @@ def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: E
              pairs: Sequence[tuple[Path, Path]] = (), progress: Progress | None = None) -> EvalMetrics:
     """Evaluate a checkpoint and write metrics and pictures into ``out_dir`` (``progress``: a
     step per image evaluated)."""
+    refuse_busy(dataset, *(path for pair in pairs for path in pair))  # a build is writing them
     checkpoint = load_checkpoint(checkpoint_path)
     model, spec = model_from_checkpoint(checkpoint_path, device=opts.device)
+    # the labels' class table against the model's, before anything is predicted: refused when
+    # they cannot be compared (--mapping declares how foreign labels compare)
+    match = None if opts.mapping else eval_correspondence(checkpoint, checkpoint_path, spec.table, dataset, pairs)
     files, which = choose_files(checkpoint, dataset, pairs, opts.split)
     if not files:
         raise DatasetError(f"nothing to evaluate: the '{opts.split}' split is empty; use --split all")
-    label_lut = None
-    if opts.mapping is None and dataset is not None and has_class_table(dataset):  # else: the model's ids
-        _, label_lut = model_classes(spec.name, dataset_class_table(dataset))
-    scores, panels, table = evaluate_images(model, spec, files, opts, label_lut, progress)
+    scores, panels, table = evaluate_images(model, spec, files, opts, match, progress)
     metrics: EvalMetrics = {**scores, "evaluated": {
         "checkpoint": str(checkpoint_path), "images": which, "mode": opts.mode, "join": opts.join, "tta": opts.tta,
         "mapping": opts.mapping, "resolution_m": target_resolution(opts.resolution_m, spec)}}

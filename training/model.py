@@ -284,41 +284,46 @@ def _vgg_features(state: Mapping[str, Any], source: str) -> dict[str, Tensor]:
     return out
 
 
-def load_encoder_weights(model: SegNet, source: str | Path) -> None:
-    """Initialise ``model``'s encoder from VGG16-BN weights (the decoder stays random).
-
-    ``source`` is ``"imagenet"`` (torchvision's ``IMAGENET1K_V1``, downloaded into the torch
-    hub cache on first use, so it needs the network once) or a local ``.pth`` holding a
-    ``vgg16_bn`` state dict, of the whole model or of ``.features``.  Needs ``width == 1.0``
-    and 3 input channels, where the shapes are VGG's.  Remember ImageNet weights expect
-    ImageNet normalisation (the default of :func:`model_spec`).
-    """
-    if model.width != 1.0 or model.in_channels != 3:
-        raise ConfigError(f"VGG16-BN encoder weights need width 1.0 and 3 input channels, got width {model.width} "
-                          f"and {model.in_channels}; train from random init (--init random) or use --width 1.0")
+def read_encoder_weights(source: str | Path) -> dict[str, Tensor]:
+    """The VGG16-BN ``features`` weights of ``source``: ``"imagenet"`` (torchvision's
+    ``IMAGENET1K_V1``, downloaded into the torch hub cache on first use, so it needs the network
+    once) or a local ``.pth`` holding a ``vgg16_bn`` state dict, of the whole model or of
+    ``.features``. A ConfigError (one line) for a file that holds no such weights."""
     if str(source) == "imagenet":
         from torchvision.models import VGG16_BN_Weights
 
         try:
             state = torch.hub.load_state_dict_from_url(VGG16_BN_Weights.IMAGENET1K_V1.url, progress=False,
                                                        check_hash=True)
-        except (OSError, RuntimeError) as exc:  # URLError is an OSError; bad hashes are RuntimeErrors
-            raise ConfigError(f"ImageNet weights need the network ({type(exc).__name__}); "
+        except (OSError, RuntimeError):  # URLError is an OSError; bad hashes are RuntimeErrors
+            raise ConfigError("ImageNet weights need the network to download them once; "
                               "pass a local .pth of vgg16_bn instead") from None
-        where = "torchvision ImageNet weights"
-    else:
-        path = Path(source)
-        if not path.is_file():
-            raise ConfigError(f"encoder weights {path} not found; give a .pth of torchvision vgg16_bn or 'imagenet'")
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:
-            raise ConfigError(f"{path} is not a readable vgg16_bn state dict ({type(exc).__name__}); "
-                              "save it with torch.save(model.state_dict(), path)") from None
-        if not isinstance(state, Mapping):
-            raise ConfigError(f"{path} holds a {type(state).__name__}, not a vgg16_bn state dict")
-        where = str(path)
-    weights = _vgg_features(state, where)
+        return _vgg_features(state, "torchvision ImageNet weights")
+    path = Path(source)
+    if not path.is_file():
+        raise ConfigError(f"encoder weights {path} not found; give a .pth of torchvision vgg16_bn or 'imagenet'")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # torch.load raises many kinds on a file that is not its own
+        raise ConfigError(f"{path} is not a readable vgg16_bn state dict (weights saved with "
+                          "torch.save(model.state_dict(), path))") from None
+    if not isinstance(state, Mapping):
+        raise ConfigError(f"{path} holds no state dict (a mapping of tensors), so no vgg16_bn weights")
+    return _vgg_features(state, str(path))
+
+
+def load_encoder_weights(model: SegNet, source: str | Path | Mapping[str, Tensor]) -> None:
+    """Initialise ``model``'s encoder from VGG16-BN weights (the decoder stays random).
+
+    ``source``: what :func:`read_encoder_weights` reads, or the weights it read. Needs
+    ``width == 1.0`` and 3 input channels, where the shapes are VGG's. Remember ImageNet weights
+    expect ImageNet normalisation (the default of :func:`model_spec`).
+    """
+    if model.width != 1.0 or model.in_channels != 3:
+        raise ConfigError(f"VGG16-BN encoder weights need width 1.0 and 3 input channels, got width {model.width} "
+                          f"and {model.in_channels}; train from random init (--init random) or use --width 1.0")
+    where = "the vgg16_bn weights" if isinstance(source, Mapping) else str(source)
+    weights = dict(source) if isinstance(source, Mapping) else read_encoder_weights(source)
     expected = model.encoder.features.state_dict()
     missing = [k for k in expected if k not in weights]
     wrong = [k for k in expected if k in weights and weights[k].shape != expected[k].shape]

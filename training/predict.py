@@ -38,6 +38,7 @@ from osmseg.errors import ConfigError, ImageryError
 from osmseg.grid import ground_pixel_size, resolution_mismatch
 from osmseg.output.atomic import atomic_path
 from osmseg.output.geotiff import cog_file, write_class_metadata
+from osmseg.output.manifest import refuse_busy
 from osmseg.output.style import qml_style, style_path
 from osmseg.progress import Progress
 from training.checkpoint import model_from_checkpoint
@@ -53,6 +54,7 @@ from training.infer import (
     error_reason,
     run_model,
 )
+from training.tables import check_mask_folder
 from training.tiling import pixel_blocks
 
 if TYPE_CHECKING:
@@ -201,7 +203,9 @@ def predict_files(config: PredictConfig, progress: Progress | None = None) -> li
     if clash := sorted(stem for stem, n in stems.items() if n > 1):
         raise ConfigError(f"{stems[clash[0]]} inputs are named {clash[0]}.*: their masks would overwrite each other "
                           f"in {config.out_dir}; predict them into separate --out folders")
+    refuse_busy(*config.inputs, config.out_dir)  # inputs or masks in a folder a build is writing
     model, spec = model_from_checkpoint(config.checkpoint, device=config.device)
+    check_mask_folder(config.out_dir, spec.table, config.checkpoint)  # never masks of one table among another's
     resolution_m = target_resolution(config.resolution, spec)
     config.out_dir.mkdir(parents=True, exist_ok=True)
     written = []

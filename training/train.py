@@ -35,15 +35,14 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
 
-from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
+from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress, report
 from training.checkpoint import InitWeights, load_checkpoint, read_init, save_checkpoint
 from training.config import TrainConfig
 from training.data import (
     PatchDataset,
     SampleFiles,
-    dataset_class_table,
     dataset_resolution,
     discover_dataset,
     files_by_name,
@@ -54,12 +53,13 @@ from training.data import (
 from training.distributed import Dist, barrier, cleanup, setup
 from training.engine import StepOptions, evaluate, train_one_epoch
 from training.metrics import ConfusionMatrix, Metrics
-from training.model import PRESETS, build_model, model_spec, unlabeled_as_background
+from training.model import build_model, model_spec, unlabeled_as_background
 from training.recipe import RECIPES, Recipe, lr_factor, steps_per_epoch
 from training.runfiles import RunFiles
 from training.sampling import RandomCrops, crop_sampler
 from training.spec import ModelSpec
 from training.splits import choose_splits, class_pixels, read_splits, sample_groups, split_warning, write_splits
+from training.tables import run_tables
 
 logger = logging.getLogger(__name__)
 
@@ -196,39 +196,6 @@ def _without_dropped_handovers(previous: Callable[..., Any]) -> Callable[..., An
     return hook
 
 
-def has_class_table(root: Path) -> bool:
-    """Whether dataset ``root`` says what its label ids mean (manifest.json or classes.toml)."""
-    return (Path(root) / "manifest.json").is_file() or (Path(root) / "classes.toml").is_file()
-
-
-def training_class_table(dataset: Path, classes: str | None, model: str) -> ClassTable:
-    """What the dataset's label ids mean: ``--classes``, else the dataset's own table, else
-    (a folder of images and labels only) the preset model's table."""
-    if classes is not None or has_class_table(dataset):
-        return dataset_class_table(dataset, classes)
-    if model in PRESETS:
-        return load_class_table(PRESETS[model])
-    raise ConfigError(f"{dataset} has no manifest.json or classes.toml, and --model {model} is not one of "
-                      f"{', '.join(sorted(PRESETS))}; give the class table of the labels with --classes FILE.toml")
-
-
-def model_classes(model: str, dataset_table: ClassTable) -> tuple[ClassTable, np.ndarray | None]:
-    """The model's class table, and the lookup from dataset ids to it (None when they are the same).
-
-    ``airsegnet6`` on a 13-class dataset learns the 6-class mapping of ``classes6.toml``; a
-    model name that is not a preset takes the dataset's own table.
-    """
-    if model not in PRESETS:
-        return dataset_table, None
-    table = load_class_table(PRESETS[model])
-    if table.name == dataset_table.name:
-        return table, None
-    if table.base is not None and table.base.name == dataset_table.name:
-        return table, table.lookup_from_base()
-    raise ConfigError(f"--model {model} predicts the classes of {table.name!r}, but the dataset is labelled with "
-                      f"{dataset_table.name!r}; use --classes, or a model name of your own to train on its table")
-
-
 def binary_if_one_class(spec: ModelSpec, pixels: dict[str, np.ndarray], names: Iterable[str], d: Dist,
                         where: str) -> ModelSpec:
     """``spec`` with unlabeled as background when the labels of samples ``names`` hold one class
@@ -286,10 +253,11 @@ def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist,
             raise DatasetError(
                 f"{config.dataset}: its {len(names)} samples overlap on the ground in {areas} separate "
                 f"area{'s' if areas != 1 else ''}, too few "
-                "to keep a test and a validation area apart from the training ones; build with --no-overlap or a "
-                "larger area, or train with --split-by image (test images then share pixels with training ones)")
+                "to keep a test and a validation area apart from the training ones; build it again with osmseg build "
+                "--no-overlap or a larger area, or train with --split-by image (test images then share pixels with "
+                "training ones)")
         raise DatasetError(f"{config.dataset}: {len(names)} images are too few to split into train, val and test; "
-                           "build more samples or lower --val-fraction/--test-fraction")
+                           "build more samples, or lower test_fraction and val_fraction in a --config file")
     if groups is None and d.is_main:
         logger.warning("splitting by image (--split-by image): overlapping samples may share pixels across splits")
     if d.is_main:
@@ -424,8 +392,8 @@ def save_epoch(files_out: RunFiles, state: dict[str, Any], history: list[dict[st
 
 def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress | None = None) -> TrainResult:
     torch.manual_seed(config.seed)  # the same initial weights in every process
-    dataset_table = training_class_table(config.dataset, config.classes, config.model)
-    model_table, label_lut = model_classes(config.model, dataset_table)
+    refuse_busy(config.dataset)  # a folder a build is writing: its first build has no manifest to say so
+    dataset_table, model_table, label_lut = run_tables(config.dataset, config.classes, config.model)
     files, given_splits = discover_dataset(config.dataset)
     spec: ModelSpec = model_spec(config.model, config.width, ignore_unlabeled=config.ignore_unlabeled,
                                  class_table=model_table, input_size=config.patch_size,

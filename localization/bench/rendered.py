@@ -91,7 +91,7 @@ from localization.profile.search import AerialIndex, ProfileConfig
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.output.manifest import dataset_class_table, manifest_path, read_manifest
+from osmseg.output.manifest import dataset_class_table, manifest_path, read_manifest, refuse_busy
 from osmseg.progress import Progress, track
 
 logger = logging.getLogger(__name__)
@@ -221,6 +221,7 @@ def load_mask_scene(path: Path, table: ClassTable | str, resolution_m: float) ->
     """A mask file (PNG/GeoTIFF of class ids) with its class table and ground resolution (m/px)."""
     if not (resolution_m and resolution_m > 0):
         raise ConfigError("give the mask's ground resolution in metres per pixel (--resolution)")
+    refuse_busy(path)  # a label a build is writing
     tab = load_class_table(table) if isinstance(table, str) else table
     bounds = geotiff_bounds_3857(Path(path)) if Path(path).suffix.lower() in (".tif", ".tiff") else None
     return Scene(name=Path(path).stem, mask=_read_mask(Path(path)), table=tab, resolution_m=float(resolution_m),
@@ -230,6 +231,7 @@ def load_mask_scene(path: Path, table: ClassTable | str, resolution_m: float) ->
 def load_dataset_scenes(folder: Path) -> list[Scene]:
     """The label masks of a dataset made by ``osmseg build`` (labels/ + manifest.json)."""
     folder = Path(folder)
+    refuse_busy(folder)  # a build's first run has no manifest yet to refuse it
     if not manifest_path(folder).is_file():
         raise DatasetError(f"{folder}: no manifest.json; give a dataset made by `osmseg build`, "
                            "or a mask file with --table and --resolution")
@@ -260,7 +262,8 @@ def standable_ids(table: ClassTable, config: BenchConfig) -> list[int]:
     if config.stand_on is not None:
         missing = [n for n in config.stand_on if n not in table.by_name]
         if missing:
-            raise ConfigError(f"stand_on classes {missing} are not in the class table {table.name!r}")
+            raise ConfigError(f"--stand-on {', '.join(missing)}: not a class of the table {table.name!r}; use some of "
+                              f"{', '.join(c.name for c in table.classes)}")
         return [table.by_name[n].id for n in config.stand_on]
     return [c.id for c in table.classes if c.name not in NOT_STANDABLE and not config.render.heights.get(c.name, 0)]
 

@@ -37,20 +37,20 @@ def bench_options(func: F) -> F:
     options = [
         click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
                      help="Folder for results.json, errors.png and classes.png."),
-        click.option("--resolution", type=float,
+        click.option("--resolution", type=click.FloatRange(min=0, min_open=True),
                      help="Ground resolution of the aerial side in m/px (a dataset records its own; pairs without "
                           "it are scored in pixels)."),
         click.option("--landmarks", "landmark_dict",
                      show_default="the one for the class table; camvid for annotated pairs",
                      help="Landmark class dictionary (data_manifests/landmarks-*.toml)."),
-        click.option("--window", type=int, show_default="mu + 5 sigma of nearest-neighbour distances",
+        click.option("--window", type=click.IntRange(min=1), show_default="mu + 5 sigma of nearest-neighbour distances",
                      help="Aerial covisibility window (pixels)."),
-        click.option("--p", "p", type=float, default=0.5, show_default=True,
+        click.option("--p", "p", type=click.FloatRange(0, 1, min_open=True), default=0.5, show_default=True,
                      help="Covisibility parameter of candidates."),
-        click.option("--top-k", type=int, default=5, show_default=True),
+        click.option("--top-k", type=click.IntRange(min=1), default=5, show_default=True),
         click.option("--subsets/--no-subsets", default=True, show_default=True,
                      help="Also localize with every subset of 2, 3... landmark classes."),
-        click.option("--camera-height", type=float, default=2.0, show_default=True, help="Metres above the ground."),
+        click.option("--camera-height", type=click.FloatRange(min=0, min_open=True), default=2.0, show_default=True, help="Metres above the ground."),
         click.option("--method", "methods_text", default="profile,paper", show_default=True,
                      help="Methods to compare, comma-separated, side by side in one run: profile, paper. The first "
                           "fills the summary; the class-subset figure is the paper method's when it comes first."),
@@ -89,37 +89,37 @@ def _bars(ctx: click.Context) -> bool:
 @bench_options
 @click.option("--viewpoints", type=click.IntRange(min=1), default=20, show_default=True,
               help="Rendered panoramas to localize, placed round-robin over the masks (-n is build's --samples).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seeds viewpoints and noise.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seeds viewpoints and noise.")
 @click.option("--table", default="classes13.toml", show_default=True,
               help="Class table of a mask file (a dataset folder brings its own).")
 @click.option("--mode", type=click.Choice(["centroid", "grid", "component"]), default="centroid", show_default=True,
               help="Landmarks as component centroids, grid points or whole components.")
-@click.option("--min-size", type=int, default=50, show_default=True, help="Smallest landmark component (pixels).")
+@click.option("--min-size", type=click.IntRange(min=0), default=50, show_default=True, help="Smallest landmark component (pixels).")
 @click.option("--grid-stride", "stride", type=click.IntRange(min=1), default=50, show_default=True,
               help="Grid step for --mode grid (pixels), as osmseg localize's --grid-stride.")
-@click.option("--margin", type=float, default=20.0, show_default=True,
+@click.option("--margin", type=click.FloatRange(min=0), default=20.0, show_default=True,
               help="Viewpoints stay this many metres from the mask border.")
 @click.option("--stand-on", multiple=True, show_default="every flat class but unlabeled and water",
               help="Classes viewpoints may stand on (repeatable).")
-@click.option("--width", type=int, default=1232, show_default=True, help="Panorama width (pixels, 360 degrees).")
-@click.option("--height", type=int, default=224, show_default=True, help="Panorama height (pixels).")
-@click.option("--max-range", type=float, default=100.0, show_default=True, help="How far the camera sees (m).")
+@click.option("--width", type=click.IntRange(min=8), default=1232, show_default=True, help="Panorama width (pixels, 360 degrees).")
+@click.option("--height", type=click.IntRange(min=2), default=224, show_default=True, help="Panorama height (pixels).")
+@click.option("--max-range", type=click.FloatRange(min=0, min_open=True), default=100.0, show_default=True, help="How far the camera sees (m).")
 @click.option("--class-height", multiple=True, metavar="CLASS=METRES", show_default="building=10, tree=6, others 0",
               help="Height of a class that occludes (repeatable).")
-@click.option("--confusion", type=float, default=0.0, show_default=True,
+@click.option("--confusion", type=click.FloatRange(0, 1), default=0.0, show_default=True,
               help="Noise: fraction of panorama landmarks relabelled as another landmark class.")
-@click.option("--miss-small", type=int, default=0, show_default=True,
+@click.option("--miss-small", type=click.IntRange(min=0), default=0, show_default=True,
               help="Noise: panorama landmarks under this many pixels are missed.")
-@click.option("--miss-prob", type=float, default=0.0, show_default=True,
+@click.option("--miss-prob", type=click.FloatRange(0, 1), default=0.0, show_default=True,
               help="Noise: every other panorama landmark is missed with this probability.")
-@click.option("--offset", type=float, default=0.0, show_default=True,
+@click.option("--offset", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="Noise: render from this many metres away from the true viewpoint.")
 @click.option("--query-landmarks", type=click.Choice(["mask", "visible"]), default="mask", show_default=True,
               help="Panorama landmarks from its rendered mask, or the aerial landmarks the camera sees "
               "(perfect correspondence, as a person annotating both views: measures the matching alone).")
 @click.option("--visible-min-px", type=click.IntRange(min=1), default=20, show_default=True,
               help="With --query-landmarks visible: panorama pixels an aerial landmark needs to count as seen.")
-@click.option("--save-panoramas", type=int, default=0, show_default=True,
+@click.option("--save-panoramas", type=click.IntRange(min=0), default=0, show_default=True,
               help="Write the first K rendered panoramas as PNG under OUT/panoramas/.")
 @click.option("--pictures", type=click.IntRange(min=0), default=0, show_default=True,
               help="Draw the first K localizations under OUT/views/: the mask with candidates, top-k and truth, "

@@ -20,7 +20,9 @@ import dataclasses
 import hashlib
 import importlib.util
 import json
+import tempfile
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,7 +43,9 @@ from localization.region.search import (
     search_part,
 )
 from osmseg.errors import ConfigError
+from osmseg.osm.localfile import LocalFileSource
 from osmseg.output.atomic import atomic_write_text
+from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress
 from osmseg.shard import Shard
 
@@ -139,6 +143,25 @@ def _load_query(request: RegionRequest) -> tuple[SemanticMap, Camera]:
                                    camera_height_m=request.camera_height_m)
 
 
+def check_covered(osm: Sequence[Path], bbox: tuple[float, float, float, float], cache_dir: Path | None) -> None:
+    """ConfigError when no OSM file of ``osm`` holds data over the region ``bbox`` (W, S, E, N degrees),
+    naming each file's extent, as ``osmseg build`` says it of its area: every block would be drawn
+    empty, and the search would answer that no place fits instead of that there is no data."""
+    problems = []
+    with tempfile.TemporaryDirectory() as scratch:  # where a node extent read from a file is kept without a cache
+        workdir = Path(cache_dir) / "osm" if cache_dir is not None else Path(scratch)
+        for path in osm:
+            try:
+                LocalFileSource(Path(path), workdir).check_covers(
+                    *bbox, area="the region", fix="search where the data is (--bbox, or --lat/--lon/--radius-km)")
+                return
+            except ConfigError as exc:
+                problems.append(str(exc))
+    if problems:
+        raise ConfigError(problems[0] if len(problems) == 1 else
+                          "none of the --osm files holds data over the region: " + "; ".join(problems))
+
+
 def localize_region(request: RegionRequest, config: RegionConfig, profile: ProfileConfig = ProfileConfig(),
                     out_dir: Path | None = None, progress: Progress | None = None) -> RegionRun:
     """Read the query, search the region (or this shard's share of it), and with ``out_dir``
@@ -148,6 +171,8 @@ def localize_region(request: RegionRequest, config: RegionConfig, profile: Profi
     for path in request.osm:
         if not Path(path).is_file():
             raise ConfigError(f"--osm {path} is not a file: give the region's OSM extract (.osm, .osm.pbf)")
+    refuse_busy(request.ground)  # a label a build is writing
+    check_covered(request.osm, config.bbox, request.cache_dir)
     shard = request.shard
     if shard.count > 1 and out_dir is None:
         raise ConfigError(f"--shard {shard.index}/{shard.count} needs --out DIR: the folder every shard writes its "

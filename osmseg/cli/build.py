@@ -125,8 +125,8 @@ def no_sample_error(summary: BuildSummary, config: BuildConfig) -> DatasetError:
               help="cog: images/NAME.tif, a Cloud-Optimized GeoTIFF on the label GeoTIFF's grid (GIS, torchgeo); "
                    "png/jpg: the dissertation's layout.")
 @click.option("--max-unlabeled", type=click.FloatRange(0, 1), default=0.70, show_default=True, help="Reject samples with at least this unlabeled share.")
-@click.option("--min-classes", type=int, default=2, show_default=True, help="Reject samples with fewer classes.")
-@click.option("--min-contrast", type=float, default=FilterConfig.min_contrast, show_default=True,
+@click.option("--min-classes", type=click.IntRange(min=0), default=2, show_default=True, help="Reject samples with fewer classes.")
+@click.option("--min-contrast", type=click.FloatRange(0, 255), default=FilterConfig.min_contrast, show_default=True,
               help="Reject images whose grey-level standard deviation (0-255) is below this.")
 @click.option("--max-missing-imagery", type=click.FloatRange(0, 1), default=0.0, show_default=True,
               help="Reject samples with more than this share of pixels without imagery.")

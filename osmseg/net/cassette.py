@@ -155,8 +155,9 @@ class ReplayAdapter(HTTPAdapter):
             raise ConfigError(f"replay cassette {self.path} does not exist: record it first with --record {self.path}")
         try:
             loaded = _vcr_load(read_cassette_text(self.path))
-        except Exception as exc:  # vcrpy raises ValueError/yaml errors/KeyError on bad files
-            raise ConfigError(f"{self.path} is not a vcrpy cassette ({type(exc).__name__}); record it again") from None
+        except Exception:  # vcrpy raises ValueError/yaml errors/KeyError on bad files
+            raise ConfigError(f"--replay {self.path} is not a cassette (the file --record writes): record it again"
+                              ) from None
         requests_, responses = loaded[0], loaded[1]
         #: how many times each recorded URL (secrets removed) was answered
         self.plays: Counter[str] = Counter()
@@ -200,8 +201,12 @@ class RecordAdapter(HTTPAdapter):
         self._requests: list[VcrRequest] = []
         self._responses: list[dict[str, Any]] = []
         self._seen: dict[tuple[Any, ...], dict[str, Any]] = {}
-        if self.path.is_file() and read_cassette_text(self.path).strip():
-            loaded = _vcr_load(read_cassette_text(self.path))
+        if self.path.is_file() and self.path.stat().st_size:
+            try:
+                loaded = _vcr_load(read_cassette_text(self.path)) if read_cassette_text(self.path).strip() else ([], [])
+            except Exception:  # as in ReplayAdapter: a file that is not a cassette
+                raise ConfigError(f"--record {self.path} is a file that is not a cassette: give a new file name, or "
+                                  "a cassette to extend") from None
             for req, resp in zip(loaded[0], loaded[1]):
                 self._keep(req, resp)
 

@@ -341,19 +341,21 @@ class LocalFileSource:
             self.workdir.mkdir(parents=True, exist_ok=True)
             atomic_write_text(kept, json.dumps(list(extent)) + "\n")
 
-    def check_covers(self, west: float, south: float, east: float, north: float) -> None:
+    def check_covers(self, west: float, south: float, east: float, north: float, area: str = "the sampling area",
+                     fix: str = "sample where the data is (--bbox/--lat/--lon)") -> None:
         """ConfigError when the file's extent (:meth:`extent`) misses the sampling area (lon/lat
-        degrees) entirely: every sample would have an empty mask, so say it before the build."""
+        degrees) entirely: every sample would have an empty mask, so say it before the build.
+        ``area`` names the box and ``fix`` says what to change in another command's words (a
+        region search's: ``osmseg localize --osm FILE --bbox``)."""
         extent, origin = self.extent()
         if extent is None:
             raise ConfigError(f"--osm {self.path} holds no node with a location: give an OSM file with data "
-                              "of the sampling area")
+                              f"of {area}")
         if extent.east < west or extent.west > east or extent.north < south or extent.south > north:
             raise ConfigError(
                 f"--osm {self.path} covers lon {extent.west:.5f}..{extent.east:.5f}, lat {extent.south:.5f}.."
-                f"{extent.north:.5f} ({origin}), which misses the sampling area (lon {west:.5f}..{east:.5f}, "
-                f"lat {south:.5f}..{north:.5f}): sample where the data is (--bbox/--lat/--lon), or give the OSM "
-                "file of this area")
+                f"{extent.north:.5f} ({origin}), which misses {area} (lon {west:.5f}..{east:.5f}, "
+                f"lat {south:.5f}..{north:.5f}): {fix}, or give the OSM file of this area")
         self._keep_extent()  # only once it served: a refused command writes nothing
 
     def timestamp(self) -> tuple[str | None, str]:

@@ -306,6 +306,29 @@ def dataset_class_table(manifest: dict[str, Any], root: Path) -> ClassTable:
     return recorded
 
 
+def _refuse_busy_folder(folder: Path) -> None:
+    busy = FolderLock.busy(folder / STATE_DIR)
+    if busy is not None:
+        raise DatasetBusy(f"{folder} is being built now ({busy.describe_holders()}): use it when the build has ended")
+
+
+def refuse_busy(*paths: Path | str | None) -> None:
+    """:class:`DatasetBusy` when one of ``paths`` is a dataset folder that a build holds now, or lies
+    in one (a file or folder up to two levels down: ``DATASET/labels/NAME.png``, ``DATASET/labels``).
+
+    What every command that reads a dataset, or writes into one, asks first (``train``, ``eval``,
+    ``predict``, ``localize``, ``localize-bench``; ``verify`` through :func:`read_manifest`): a
+    build's files and manifest are still being written, and a first build has no manifest yet to
+    say so. Changes nothing; a folder this process holds itself is not busy (:meth:`FolderLock.busy`).
+    """
+    for path in paths:
+        if path is None:
+            continue
+        p = Path(path)
+        for folder in dict.fromkeys((p, p.parent, p.parent.parent)):
+            _refuse_busy_folder(folder)
+
+
 def read_manifest(path: Path) -> dict[str, Any]:
     """Read and validate a manifest (a dataset folder or the manifest file itself).
 
@@ -313,10 +336,7 @@ def read_manifest(path: Path) -> dict[str, Any]:
     are still being written, and what would be read may not be what the build ends with.
     """
     file = manifest_path(path)
-    busy = FolderLock.busy(file.parent / STATE_DIR)
-    if busy is not None:
-        raise DatasetBusy(f"{file.parent} is being built now ({busy.describe_holders()}): use it when the build has "
-                          "ended")
+    _refuse_busy_folder(file.parent)
     try:
         manifest = json.loads(file.read_text(encoding="utf-8"))
     except FileNotFoundError:

@@ -66,7 +66,7 @@ with warnings.catch_warnings():  # pystac flags the label extension "unmaintaine
     warnings.simplefilter("ignore", DeprecationWarning)
     from pystac.extensions.label import LabelClasses, LabelCount, LabelExtension, LabelOverview, LabelType
 
-from osmseg.classes import ClassTable
+from osmseg.classes import ClassTable, machine_name
 from osmseg.errors import DatasetError
 from osmseg.grid import TILE_SIZE
 from osmseg.output.atomic import atomic_path, atomic_write_text, sync_file_system
@@ -122,15 +122,6 @@ def media_type(rel: str) -> str | None:
     if known == pystac.MediaType.GEOTIFF and path.parts[0] in COG_FOLDERS:  # osmseg.output.geotiff writes COGs
         known = pystac.MediaType.COG
     return str(known) if known else None
-
-
-def machine_name(name: str) -> str:
-    """A class name as the classification extension's ``name`` (letters, digits, ``-``, ``_``).
-
-    >>> machine_name("dirt road")
-    'dirt_road'
-    """
-    return re.sub(r"[^0-9A-Za-z_-]+", "_", name).strip("_") or "class"
 
 
 def classification(table: ClassTable) -> list[Classification]:
