@@ -26,6 +26,7 @@ from localization.common.inputs import SideOptions
 from osmseg.cli.common import default_cache_dir, parse_size, progress_bars
 from osmseg.errors import ConfigError
 from osmseg.shard import Shard
+from osmseg.tables import text_table
 from osmseg.units import degrees, metres, ratio
 
 if TYPE_CHECKING:
@@ -141,11 +142,9 @@ def parse_lonlat(text: str | None) -> tuple[float, float] | None:
 
 def answers_table(result: RegionResult) -> str:
     """The answers, best first, as a fixed-width table."""
-    lines = [f"{'rank':>4}  {'lon':>12}  {'lat':>12}  {'score':>7}  {'kappa':>6}  {'confidence':>10}"]
-    for rank, a in enumerate(result.answers, start=1):
-        lines.append(f"{rank:>4}  {a.lon:>12.7f}  {a.lat:>12.7f}  {ratio(a.score):>7}  {ratio(a.kappa):>6}  "
-                     f"{ratio(a.confidence):>10}")
-    return "\n".join(lines)
+    return text_table(["rank", "lon", "lat", "score", "kappa", "confidence"],
+                      [[str(rank), f"{a.lon:.7f}", f"{a.lat:.7f}", ratio(a.score), ratio(a.kappa), ratio(a.confidence)]
+                       for rank, a in enumerate(result.answers, start=1)], left=0)
 
 
 def run_region(ctx: click.Context, ground: Path | None, region: RegionArgs, method: str, ground_classes: str,
