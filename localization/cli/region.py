@@ -23,7 +23,8 @@ import click
 
 from localization.cli.options import parse_pair
 from localization.common.inputs import SideOptions
-from osmseg.cli.common import default_cache_dir, parse_size, progress_bars
+from osmseg.cli.common import default_cache_dir, parse_size
+from osmseg.cli.drawers import progress_drawer
 from osmseg.errors import ConfigError
 from osmseg.shard import Shard
 from osmseg.tables import text_table
@@ -176,8 +177,7 @@ def run_region(ctx: click.Context, ground: Path | None, region: RegionArgs, meth
                                    grid_stride=grid_stride),
         shard=Shard.parse(region.shard_text) if region.shard_text else Shard(1, 1),
         cache_dir=region.cache_dir if region.cache_dir is not None else default_cache_dir())
-    bars = bool((ctx.obj or {}).get("progress", False))
-    with progress_bars(bars) as progress:
+    with progress_drawer((ctx.obj or {}).get("progress")) as progress:
         run = localize_region(request, config, profile, out_dir, progress)
     result = run.result
     if result is None:
