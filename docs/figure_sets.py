@@ -18,9 +18,9 @@ from figures import DEMO_BUILD, Figure, Workspace, figure_set, transcript
 
 from osmseg.units import count, degrees, factor, metres, number, ratio, seconds
 
-#: the s/view column of localize-bench's method table (the last number of a row, with the spaces that pad it
-#: to its width): never the same twice
-TIMING_COLUMN = r"(?m) +\d[\d.]*$"
+#: the s/view column of localize-bench's method table (the last number of a row, and the label over it, with
+#: the spaces that pad them to the column's width): never the same twice
+TIMING_COLUMN = r"(?m) +(?:\d[\d.]*|s/view)$"
 
 
 def F(text: Any, volatile: str | None = None) -> Figure:

@@ -113,10 +113,13 @@ class Workspace:
         return {**os.environ, "PYTHONPATH": path, "COLUMNS": "120"}
 
     def run(self, *args: str, python: bool = False) -> tuple[str, str]:
-        """``osmseg ARGS`` (or ``python ARGS``) in the workspace: (stdout, stderr); raises when it fails."""
+        """``osmseg ARGS`` (or ``python ARGS``) in the workspace: (stdout, stderr); raises when it fails.
+
+        A command runs with ``--no-progress``: what it prints is what a terminal keeps once its
+        progress bars are gone, not the progress lines a log gets."""
         key = ("python" if python else "osmseg", *args)
         if key not in self._runs:
-            command = [sys.executable, *args] if python else [sys.executable, "-m", "osmseg", *args]
+            command = [sys.executable, *args] if python else [sys.executable, "-m", "osmseg", "--no-progress", *args]
             done = subprocess.run(command, cwd=self.root, env=self.env(), capture_output=True, text=True)
             if done.returncode != 0:
                 raise CommandFailed(f"{' '.join(key)} exited {done.returncode}: {done.stderr.strip()[-2000:]}")

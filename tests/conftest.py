@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,37 @@ def shared_path(*parts: str) -> Path:
     if not path.exists():
         pytest.skip(f"real data not available: {path} (../shared/data is absent on this machine)")
     return path
+
+
+def table_rows(lines: Sequence[str]) -> list[dict[str, str]]:
+    """A printed table read as a person reads it: ``lines[0]`` the labels, the rest rows of values.
+    Cells are what two or more spaces separate (a label of two words is one cell). Asserts one
+    label per value in every row and each label over its value (their left or right edges line
+    up); returns every row as {label: value}."""
+    def cells(line: str) -> list[re.Match[str]]:
+        return list(re.finditer(r"\S+(?: \S+)*", line))
+
+    labels = cells(lines[0])
+    rows = []
+    for line in lines[1:]:
+        values = cells(line)
+        assert len(values) == len(labels), f"{len(labels)} labels over {len(values)} values:\n{lines[0]}\n{line}"
+        for label, value in zip(labels, values):
+            assert label.start() == value.start() or label.end() == value.end(), (
+                f"{label.group()!r} is not over {value.group()!r}:\n{lines[0]}\n{line}")
+        rows.append({label.group(): value.group() for label, value in zip(labels, values)})
+    return rows
+
+
+def table_after(text: str, labels: Sequence[str], rows: int) -> list[dict[str, str]]:
+    """The first table of ``text`` whose header starts with ``labels[0]`` and holds every label of
+    ``labels``, read with its next ``rows`` lines (:func:`table_rows`)."""
+    lines = text.splitlines()
+    at = next((i for i, line in enumerate(lines) if line.startswith(labels[0]) and all(w in line for w in labels)),
+              None)
+    assert at is not None, f"no table headed {list(labels)} in:\n{text}"
+    assert len(lines) >= at + 1 + rows, f"fewer than {rows} rows under {lines[at]!r}"
+    return table_rows(lines[at:at + 1 + rows])
 
 
 @pytest.fixture

@@ -21,7 +21,7 @@ from pathlib import Path
 import click
 import pytest
 from click.testing import CliRunner
-from conftest import TEST_DATA
+from conftest import TEST_DATA, table_after
 
 from osmseg.cli.main import cli
 from osmseg.demo import DEMO_CASSETTE
@@ -186,7 +186,8 @@ def test_train_help_shows_the_training_defaults() -> None:
 
 # ------------------------------------------------------------------------------ figures in summaries
 
-NUMBER_WITH_UNIT = re.compile(r"(?<![\w.@])(-?\d+(?:\.\d+)?) ?(m|px|°)(?![\w/])")
+#: a measured figure with its unit (not a setting: a recall radius "@10 m", "within 10 m", "beyond 50 m")
+NUMBER_WITH_UNIT = re.compile(r"(?<![\w.@])(?<!within )(?<!beyond )(-?\d+(?:\.\d+)?) ?(m|px|°)(?![\w/])")
 
 
 def decimals(text: str) -> int:
@@ -203,8 +204,9 @@ def test_localization_summary_leads_with_the_default_method_at_one_precision(tmp
     lines = result.stderr.splitlines()
     results = json.loads((tmp_path / "bench" / "results.json").read_text())
     profile = results["methods"]["profile"]
-    assert lines[1].startswith("profile method: ")
-    assert f"median {profile['median_error']:.2f} m" in lines[1]
+    first = next(i for i, line in enumerate(lines) if "rendered panoramas" in line)  # after the progress lines
+    assert lines[first + 1].startswith("profile method: ")
+    assert f"median {profile['median_error']:.2f} m" in lines[first + 1]
     assert any(line.startswith("paper method by number of landmark classes") for line in lines)
     found = NUMBER_WITH_UNIT.findall(result.stderr)
     assert found
@@ -212,11 +214,9 @@ def test_localization_summary_leads_with_the_default_method_at_one_precision(tmp
         assert decimals(value) == {"m": 2, "px": 1, "°": 1}[unit], (value, unit, result.stderr)
     for recall in re.findall(r"@\d+ m (\d\.\d+)", result.stderr):
         assert decimals(recall) == 3, result.stderr
-    table = lines[lines.index(next(line for line in lines if line.startswith("method "))) + 1:]
-    for row in table:
-        cells = row.split()
-        assert cells[1].count("/") == 1  # answered/asked
-        assert all(decimals(c) == 3 for c in cells[4:7] if c != "-"), row  # recall columns are ratios
+    for row in table_after(result.stderr, ["method", "answered"], 2):
+        assert row["answered"].count("/") == 1  # answered/asked
+        assert all(decimals(row[f"@{r} m"]) == 3 for r in (10, 25, 50) if row[f"@{r} m"] != "-"), row  # ratios
 
     from localization.bench.plots import errors_title
 

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import table_rows
 from PIL import Image
 from shapely.geometry import box
 
@@ -390,6 +391,8 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     runs = [CliRunner().invoke(cli, args) for _ in range(2)]
     assert runs[0].exit_code == 0, runs[0].output
     assert runs[0].stdout == runs[1].stdout  # the same answers every time...
+    answers = table_rows(runs[0].stdout.splitlines())  # one label over each column
+    assert list(answers[0]) == ["rank", "lon", "lat", "score", "kappa", "confidence"] and answers[0]["rank"] == "1"
     assert " 0 read from the cache" in runs[0].stderr and "(0 drawn from OSM" in runs[1].stderr  # ...drawn once
     doc = json.loads((tmp_path / "out" / "region.geojson").read_text())
     with Image.open(tmp_path / "out" / "region.png") as picture:  # the map: the region, the answers, a legend

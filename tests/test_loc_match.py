@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from conftest import write_dataset_manifest
+from conftest import table_rows, write_dataset_manifest
 from PIL import Image
 
 from localization.cli.commands import localize_command
@@ -469,8 +469,9 @@ def test_cli_with_landmark_files(tmp_path) -> None:
     table = run("--aerial", str(tmp_path / "aerial.txt"), "--aerial-size", "400x400",
                 "--ground", str(tmp_path / "ground.txt"), "--ground-size", "616x112", "--window", "60")
     assert table.exit_code == 0
-    assert table.stdout.splitlines()[0].split() == ["rank", "x", "y", "posterior", "likelihood"]
-    assert len(table.stdout.splitlines()) == 6
+    rows = table_rows(table.stdout.splitlines())  # one label over each column
+    assert list(rows[0]) == ["rank", "x", "y", "posterior", "likelihood"] and len(rows) == 5
+    assert [r["rank"] for r in rows] == ["1", "2", "3", "4", "5"]
 
 
 def _paint(mask: np.ndarray, lm: Landmarks, ids: dict[int, int], half: int = 4) -> None:

@@ -22,12 +22,12 @@ import click
 from osmseg.cli.common import (
     F,
     output_options,
-    progress_bars,
     renamed_option,
     report_errors,
     require_torch,
     typed_options,
 )
+from osmseg.cli.drawers import progress_drawer
 from osmseg.errors import ConfigError
 from osmseg.units import ratio
 
@@ -120,7 +120,7 @@ def train_command(ctx: click.Context, /, dataset: Path, out_dir: Path, config_fi
     overrides = {k: v for k, v in options.items() if k in typed}
     overrides["ignore_unlabeled"] = not keep_unlabeled if "keep_unlabeled" in typed else None
     config = make_config(dataset, out_dir, find_config_file(config_file) if config_file else None, overrides)
-    with progress_bars(ctx.obj.get("progress", False)) as progress:
+    with progress_drawer(ctx.obj.get("progress")) as progress:
         summary = run(config, progress=progress)
     if summary.rank != 0:  # under torchrun only rank 0 reports, as only it writes
         return
@@ -179,7 +179,7 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
 
     config = PredictConfig(checkpoint, inputs, out_dir, mode=mode, join=join, overlap=overlap, block_size=block_size,
                            tta=tta, resolution=resolution, batch_size=batch_size, device=device)
-    with progress_bars(ctx.obj.get("progress", False)) as progress:
+    with progress_drawer(ctx.obj.get("progress")) as progress:
         masks = predict_files(config, progress)
     for mask in masks:
         click.echo(str(mask))
@@ -213,7 +213,7 @@ def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pai
 
     opts = EvalOptions(mode=mode, join=join, tta=tta, split=split, mapping=mapping, panels=panels, device=device,
                        resolution_m=resolution)
-    with progress_bars(ctx.obj.get("progress", False)) as progress:
+    with progress_drawer(ctx.obj.get("progress")) as progress:
         metrics = run_eval(checkpoint, dataset, out_dir, opts, pairs, progress)
     if ctx.obj["verbosity"] >= 0:
         click.echo(format_table(metrics), err=True)

@@ -42,6 +42,7 @@ from torch import Tensor
 
 from osmseg.datafiles import load_toml
 from osmseg.errors import ConfigError, DatasetError
+from osmseg.tables import text_table
 from osmseg.units import number
 
 __all__ = [
@@ -262,47 +263,45 @@ def metrics_from_matrix(matrix: np.ndarray | Sequence[Sequence[int]], class_name
     }
 
 
-def _fmt(value: float | None, width: int) -> str:
-    """A ratio at the CLI's one precision (:mod:`osmseg.units`), right-aligned in ``width``."""
-    return f"{number(value, 'ratio'):>{width}}"
-
-
 def format_table(metrics: Mapping[str, Any]) -> str:
     """A fixed-width table of per-class IoU, precision, recall, F1 and support, plus summaries.
 
-    ``-`` marks an undefined value (0/0, or IoU of a class absent from the ground truth).
+    ``-`` marks an undefined value (0/0, or IoU of a class absent from the ground truth). A class
+    the metrics leave out (the ignored one: unlabeled) is named under the table, not given a row
+    without values.
 
     >>> print(format_table(metrics_from_matrix([[3, 1], [0, 0]], ["bg", "fg"])))
-    class     IoU  precision   recall       F1  support
-    ---------------------------------------------------
-    bg      0.750      1.000    0.750    0.857        4
-    fg          -      0.000        -        -        0
-    ---------------------------------------------------
+    class    IoU  precision  recall     F1  support
+    -----------------------------------------------
+    bg     0.750      1.000   0.750  0.857        4
+    fg         -      0.000       -      -        0
+    -----------------------------------------------
     pixel accuracy   0.750  (4 pixels)
     mean accuracy    0.750
     mIoU             0.750  (over 1 of 2 classes present in the ground truth)
     FWIoU            0.750
     """
     per_class = metrics["per_class"]
-    name_w = max([len("class"), *(len(n) for n in per_class)])
-    support_w = max(len("support"), *(len(f"{c['support']:,}") for c in per_class.values()))
-    header = f"{'class':<{name_w}}  {'IoU':>6}  {'precision':>9}  {'recall':>7}  {'F1':>7}  {'support':>{support_w}}"
-    rule = "-" * len(header)
-    lines = [header, rule]
-    for name, c in per_class.items():
-        if c.get("ignored"):
-            lines.append(f"{name:<{name_w}}  {'ignored (not scored)':^{len(header) - name_w - 2}}")
-            continue
-        lines.append(f"{name:<{name_w}}  {_fmt(c['iou'], 6)}  {_fmt(c['precision'], 9)}  {_fmt(c['recall'], 7)}  "
-                     f"{_fmt(c['f1'], 7)}  {c['support']:>{support_w},}")
-    lines.append(rule)
+    scored = {name: c for name, c in per_class.items() if not c.get("ignored")}
+    table = text_table(["class", "IoU", "precision", "recall", "F1", "support"],
+                       [[name, *(number(c[k], "ratio") for k in ("iou", "precision", "recall", "f1")),
+                         f"{c['support']:,}"] for name, c in scored.items()])
+    rule = "-" * max(len(line) for line in table.splitlines())
+    header, *rows = table.splitlines()
+    lines = [header, rule, *rows, rule]
+    ignored = [name for name in per_class if name not in scored]
+    if ignored:
+        lines.append(f"not scored: {', '.join(ignored)} (its pixels are left out, as in training)")
     present = metrics.get("classes_present", sum(1 for c in per_class.values() if c["iou"] is not None))
-    scored = sum(1 for c in per_class.values() if not c.get("ignored"))
+
+    def ratio_(key: str) -> str:
+        return f"{number(metrics[key], 'ratio'):>6}"
+
     lines += [
-        f"pixel accuracy  {_fmt(metrics['pixel_accuracy'], 6)}  ({metrics.get('num_pixels', 0):,} pixels)",
-        f"mean accuracy   {_fmt(metrics['mean_accuracy'], 6)}",
-        f"mIoU            {_fmt(metrics['miou'], 6)}  (over {present} of {scored} classes present in the ground truth)",
-        f"FWIoU           {_fmt(metrics['fwiou'], 6)}",
+        f"pixel accuracy  {ratio_('pixel_accuracy')}  ({metrics.get('num_pixels', 0):,} pixels)",
+        f"mean accuracy   {ratio_('mean_accuracy')}",
+        f"mIoU            {ratio_('miou')}  (over {present} of {len(scored)} classes present in the ground truth)",
+        f"FWIoU           {ratio_('fwiou')}",
     ]
     return "\n".join(lines)
 

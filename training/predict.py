@@ -40,7 +40,7 @@ from osmseg.output.atomic import atomic_path
 from osmseg.output.geotiff import cog_file, write_class_metadata
 from osmseg.output.manifest import refuse_busy
 from osmseg.output.style import qml_style, style_path
-from osmseg.progress import Progress
+from osmseg.progress import Progress, track
 from training.checkpoint import model_from_checkpoint
 from training.infer import (
     DEFAULT_BLOCK,
@@ -197,7 +197,8 @@ def predict_files(config: PredictConfig, progress: Progress | None = None) -> li
     """Predict every input of ``config``; returns the class masks written, in input order.
 
     Inputs whose masks would land on one path (``a.png`` and ``a.jpg``) are refused before the
-    model is loaded. ``progress``: the windows of each input (task ``predict NAME``).
+    model is loaded. ``progress``: the inputs (task ``predict``), and the windows of each (task
+    ``predict NAME``).
     """
     stems = Counter(src.stem for src in config.inputs)
     if clash := sorted(stem for stem, n in stems.items() if n > 1):
@@ -209,7 +210,7 @@ def predict_files(config: PredictConfig, progress: Progress | None = None) -> li
     resolution_m = target_resolution(config.resolution, spec)
     config.out_dir.mkdir(parents=True, exist_ok=True)
     written = []
-    for src in config.inputs:
+    for src in track(config.inputs, progress, "predict", unit="image"):  # each image's windows: its own task
         dst, colour = config.outputs(src)
         written.append(predict_file(model, spec, src, dst, colour_dst=colour, mode=config.mode, join=config.join,
                                     overlap=config.overlap, block_size=config.block_size, tta=config.tta,

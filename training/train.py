@@ -272,8 +272,9 @@ def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist,
 def run(config: TrainConfig, progress: Progress | None = None) -> TrainResult:
     """Train (or resume) the run ``config`` describes; returns a summary of the best epoch.
 
-    ``progress`` gets steps from rank 0 only: epochs (task ``train``), and each epoch's
-    training and validation batches (the CLI draws them as bars on a terminal).
+    ``progress`` gets steps from rank 0 only: epochs (task ``train``, each with its losses,
+    validation mIoU and seconds as values), and each epoch's training and validation batches
+    (the CLI draws them as bars on a terminal, and a line per epoch in a log).
     """
     d = setup(config.device)
     try:
@@ -453,7 +454,8 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
                "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
                "seconds": round(time.monotonic() - began, 2)}
         history.append(row)
-        report(shown, "train", epoch + 1, config.epochs, "epoch")
+        measured = {"train loss": row["train_loss"], "val loss": row["val_loss"], "val mIoU": row["val_miou"]}
+        report(shown, "train", epoch + 1, config.epochs, "epoch", {**measured, "epoch seconds": row["seconds"]})
         if d.is_main:
             state = dict(base_state, model=model.state_dict(), optimizer=optimizer.state_dict(),
                          scheduler=scheduler.state_dict(), scaler=scaler.state_dict(), epoch=epoch + 1,

@@ -77,12 +77,14 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 
 @dataclass(frozen=True)
 class Pair:
-    """One panorama's landmarks, its aerial image's landmarks and the true viewpoint (aerial pixels)."""
+    """One panorama's landmarks, its aerial image's landmarks and the true viewpoint (aerial pixels):
+    ``truth_given`` False when it is the aerial image's centre by default (no line in truth.csv)."""
 
     name: str
     aerial: Landmarks
     ground: Landmarks
     truth: tuple[float, float]
+    truth_given: bool = True
 
 
 @dataclass(frozen=True)
@@ -210,7 +212,7 @@ def load_pairs(folder: Path, config: PairsConfig = PairsConfig()) -> list[Pair]:
         if not (0 <= truth[0] < aw and 0 <= truth[1] < ah):
             raise DatasetError(f"{folder / 'truth.csv'}: the truth of {name} ({truth[0]:g}, {truth[1]:g}) is outside "
                                f"its {aw}x{ah} aerial image")
-        pairs.append(Pair(name, aerial, ground, truth))
+        pairs.append(Pair(name, aerial, ground, truth, truth_given=name in truths))
     return pairs
 
 
@@ -259,7 +261,7 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
         centre, uniform = chance_errors((pair.aerial.height, pair.aerial.width), pair.truth, scale)
         ground = pair.ground
         records.append({
-            "index": index, "name": pair.name, "truth": list(pair.truth),
+            "index": index, "name": pair.name, "truth": list(pair.truth), "truth_given": pair.truth_given,
             "aerial_landmarks": len(pair.aerial), "query_landmarks": len(ground), "window_px": graphs[subsets[0]].window,
             "classes_seen": sorted({ground.classes[c] for c in set(ground.cls.tolist())}),
             "centre_guess": round(centre, 4), "random_guess": round(uniform, 4), "localize_s": round(seconds, 4),
@@ -275,7 +277,7 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
         "landmark_classes": {"name": classes.name, "names": list(classes.names), "mapping": dict(classes.mapping)},
         "classes": list(subsets[0]),
         "summary": summarize(records, radii),
-        "baselines": baselines(records),
+        "baselines": _baselines(records),
         "by_num_classes": by_num_classes(subsets, records, radii),
         "methods": {m: method_summary(records, m, lambda rows: summarize(rows, radii),
                                       right_wrong=RIGHT_WRONG if config.resolution_m else None)
@@ -285,6 +287,16 @@ def run_pairs(pairs: Sequence[Pair], config: PairsConfig, out_dir: Path, *, prog
     }
     write_results(results, Path(out_dir), plots)
     return results
+
+
+def _baselines(records: list[dict[str, Any]]) -> dict[str, float | None]:
+    """The blind guesses' errors (:func:`~localization.bench.scores.baselines`), without the image
+    centre's when no pair has a truth of its own: the truth is then the centre, and guessing it
+    would score a made-up 0."""
+    out = baselines(records)
+    if not any(r["truth_given"] for r in records):
+        out["centre_guess_mean"] = None
+    return out
 
 
 def _profile_pair(pair: Pair, other: Pair | None, config: PairsConfig, scale: float) -> dict[str, Any]:

@@ -20,7 +20,8 @@ import click
 
 from localization.cli.options import given, misplaced, parse_heights
 from localization.cli.summary import format_summary
-from osmseg.cli.common import output_options, parse_size, progress_bars, renamed_option, report_errors
+from osmseg.cli.common import output_options, parse_size, renamed_option, report_errors
+from osmseg.cli.drawers import Mode, progress_drawer
 from osmseg.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -79,8 +80,9 @@ def _report(ctx: click.Context, results: BenchResults, out_dir: Path) -> None:
     click.echo(str(out_dir / "results.json"))
 
 
-def _bars(ctx: click.Context) -> bool:
-    return bool(ctx.obj.get("progress", False)) if ctx.obj else False
+def _drawn(ctx: click.Context) -> Mode | None:
+    """How the command shows its progress (:func:`osmseg.cli.drawers.progress_mode`)."""
+    return ctx.obj.get("progress") if ctx.obj else None
 
 
 @click.command("localize-bench")
@@ -184,7 +186,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
         if resolution is None:
             raise ConfigError(f"{source} is a mask file: give its ground resolution with --resolution (m/px)")
         scenes = [load_mask_scene(source, table, resolution)]
-    with progress_bars(_bars(ctx)) as progress:
+    with progress_drawer(_drawn(ctx)) as progress:
         results = run_bench(scenes, config, out_dir, progress=progress, plots=plots, source=str(source))
     _report(ctx, results, out_dir)
 
@@ -223,7 +225,7 @@ def localize_pairs_command(ctx: click.Context, folder: Path, out_dir: Path, reso
                          resolution_m=resolution, aerial_size=parse_size(aerial_size, "--aerial-size"),
                          ground_size=parse_size(ground_size, "--ground-size"), methods=methods, heading=heading,
                          camera_height_m=camera_height, conventions=conventions)
-    with progress_bars(_bars(ctx)) as progress:
+    with progress_drawer(_drawn(ctx)) as progress:
         results = run_pairs(load_pairs(folder, config), config, out_dir, progress=progress, plots=plots,
                             source=str(folder))
     _report(ctx, results, out_dir)

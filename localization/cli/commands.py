@@ -44,6 +44,7 @@ from localization.cli.region import RegionArgs, region_options, run_region
 from localization.common.inputs import SideOptions
 from osmseg.cli.common import output_options, parse_size, report_errors
 from osmseg.errors import ConfigError
+from osmseg.tables import text_table
 from osmseg.units import degrees, metres, number, pixels, ratio
 
 if TYPE_CHECKING:  # the command imports the pipeline only when it runs
@@ -56,11 +57,9 @@ logger = logging.getLogger(__name__)
 
 def _table(result: Any) -> str:
     """The top-k as a fixed-width table."""
-    lines = [f"{'rank':>4}  {'x':>8}  {'y':>8}  {'posterior':>10}  {'likelihood':>10}"]
-    for rank, ((x, y, post), i) in enumerate(zip(result.top_k, result.order), start=1):
-        lines.append(f"{rank:>4}  {number(x, 'px'):>8}  {number(y, 'px'):>8}  {ratio(post):>10}  "
-                     f"{ratio(float(result.likelihoods[i])):>10}")
-    return "\n".join(lines)
+    return text_table(["rank", "x", "y", "posterior", "likelihood"],
+                      [[str(rank), number(x, "px"), number(y, "px"), ratio(post), ratio(float(result.likelihoods[i]))]
+                       for rank, ((x, y, post), i) in enumerate(zip(result.top_k, result.order), start=1)], left=0)
 
 
 @click.command("localize")

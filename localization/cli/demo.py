@@ -16,7 +16,8 @@ from pathlib import Path
 import click
 
 from osmseg.cli.build import run_build
-from osmseg.cli.common import output_options, progress_bars, report_errors
+from osmseg.cli.common import output_options, report_errors
+from osmseg.cli.drawers import progress_drawer
 from osmseg.demo import DEMO_CASSETTE, demo_config
 from osmseg.progress import Progress
 from osmseg.units import ratio
@@ -90,17 +91,17 @@ def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: Pr
 def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int, localize: bool) -> None:
     """Build a small dataset offline from embedded recorded fixtures, localize panoramas rendered
     from its masks, then train and evaluate a tiny model on it."""
-    verbosity, bars = ctx.obj["verbosity"], ctx.obj.get("progress", False)
+    verbosity, drawn = ctx.obj["verbosity"], ctx.obj.get("progress")
     if verbosity >= 0:
         click.echo(f"osmseg demo: replaying {DEMO_CASSETTE.name} (Helsinki, OSM API + Bing wire formats; "
                    "OSM © OpenStreetMap contributors, ODbL; imagery rendered from OSM by osmseg)", err=True)
     dataset = out_dir / "dataset"
     env = dict(os.environ, BING_MAPS_KEY="demo-key-not-secret")
-    summary = run_build(demo_config(dataset), verbosity, bars, env=env)
+    summary = run_build(demo_config(dataset), verbosity, drawn, env=env)
     if verbosity >= 0:
         click.echo(f"dataset in {dataset}/: images/, segmented/, labels/, geo/, manifest.json, DATASHEET.md, "
                    f"overview.png ({summary.accepted} samples)", err=True)
-    with progress_bars(bars) as progress:
+    with progress_drawer(drawn) as progress:
         if localize:
             demo_localization(dataset, out_dir, verbosity, progress)
         if not train:

@@ -23,9 +23,11 @@ import click
 
 from localization.cli.options import parse_pair
 from localization.common.inputs import SideOptions
-from osmseg.cli.common import default_cache_dir, parse_size, progress_bars
+from osmseg.cli.common import default_cache_dir, parse_size
+from osmseg.cli.drawers import progress_drawer
 from osmseg.errors import ConfigError
 from osmseg.shard import Shard
+from osmseg.tables import text_table
 from osmseg.units import degrees, metres, ratio
 
 if TYPE_CHECKING:
@@ -141,11 +143,9 @@ def parse_lonlat(text: str | None) -> tuple[float, float] | None:
 
 def answers_table(result: RegionResult) -> str:
     """The answers, best first, as a fixed-width table."""
-    lines = [f"{'rank':>4}  {'lon':>12}  {'lat':>12}  {'score':>7}  {'kappa':>6}  {'confidence':>10}"]
-    for rank, a in enumerate(result.answers, start=1):
-        lines.append(f"{rank:>4}  {a.lon:>12.7f}  {a.lat:>12.7f}  {ratio(a.score):>7}  {ratio(a.kappa):>6}  "
-                     f"{ratio(a.confidence):>10}")
-    return "\n".join(lines)
+    return text_table(["rank", "lon", "lat", "score", "kappa", "confidence"],
+                      [[str(rank), f"{a.lon:.7f}", f"{a.lat:.7f}", ratio(a.score), ratio(a.kappa), ratio(a.confidence)]
+                       for rank, a in enumerate(result.answers, start=1)], left=0)
 
 
 def run_region(ctx: click.Context, ground: Path | None, region: RegionArgs, method: str, ground_classes: str,
@@ -177,8 +177,7 @@ def run_region(ctx: click.Context, ground: Path | None, region: RegionArgs, meth
                                    grid_stride=grid_stride),
         shard=Shard.parse(region.shard_text) if region.shard_text else Shard(1, 1),
         cache_dir=region.cache_dir if region.cache_dir is not None else default_cache_dir())
-    bars = bool((ctx.obj or {}).get("progress", False))
-    with progress_bars(bars) as progress:
+    with progress_drawer((ctx.obj or {}).get("progress")) as progress:
         run = localize_region(request, config, profile, out_dir, progress)
     result = run.result
     if result is None:

@@ -1,6 +1,6 @@
 """What ``osmseg localize-bench`` and ``localize-pairs`` print on the terminal: a few lines and the methods side by side.
 
-Imports: osmseg.units and localization.bench.scores (never the commands).
+Imports: osmseg.units, osmseg.tables and localization.bench's scores and compare (never the commands).
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from localization.bench.scores import BenchResults
 
+from osmseg.tables import text_table
 from osmseg.units import number, pixels, quantity, ratio
 
 __all__ = ["format_summary", "method_table"]
@@ -35,8 +36,7 @@ def format_summary(results: BenchResults) -> str:
         f"{name + ' method' if name else 'result'}: {s['answered']} answered, {s['unanswered']} unanswered, "
         f"{s['tied']} tied; error median {quantity(s['median_error'], u)}, mean {quantity(s['mean_error'], u)}"
         f"{in_px}; top-5 mean distance {quantity(s['top5_mean_distance'], u)}",
-        f"recall {rec}; blind guesses: image centre {quantity(b['centre_guess_mean'], u)}, "
-        f"random {quantity(b['random_guess_mean'], u)}",
+        f"recall {rec}; blind guesses: {_blind_guesses(b, u)}",
     ]
     if b.get("random_candidate_median") is not None:
         lines.append(f"{first} method, a random candidate: median {quantity(b['random_candidate_median'], u)}")
@@ -52,18 +52,40 @@ def format_summary(results: BenchResults) -> str:
     return "\n".join(lines)
 
 
+def _blind_guesses(b: dict[str, Any], unit: str) -> str:
+    """The blind guesses' mean errors; no image centre's where it is the truth itself (annotated
+    pairs without truth.csv): there is no truth to compare it to.
+
+    >>> _blind_guesses({"centre_guess_mean": None, "random_guess_mean": 291.08}, "px")
+    'random 291.1 px (the image centre is no baseline: without truth.csv it is taken as the truth)'
+    """
+    random = f"random {quantity(b['random_guess_mean'], unit)}"
+    if b.get("centre_guess_mean") is None:
+        return f"{random} (the image centre is no baseline: without truth.csv it is taken as the truth)"
+    return f"image centre {quantity(b['centre_guess_mean'], unit)}, {random}"
+
+
 def method_table(methods: dict[str, Any], unit: str) -> str:
-    """The methods side by side: one row each (the numbers of results.json's ``methods``), errors
-    in ``unit``, recall and AUC as ratios, heading error in degrees, time in seconds per view."""
+    """The methods side by side (the numbers of results.json's ``methods``), in two tables of one
+    label per column: how near the answers are (errors in ``unit``, recall as ratios, heading error
+    in degrees, seconds per view), then how well each method's confidence tells good answers from
+    bad ones (ROC AUCs, and the share of views answered at the method's confidence threshold)."""
+    from localization.bench.compare import RIGHT_WRONG
+
     radii = list(next(iter(methods.values()))["recall_at"])
-    head = (f"{'method':<8} {'answered':>8} {'median ' + unit:>9} {'mean ' + unit:>9} "
-            + " ".join(f"{'@' + r + unit:>6}" for r in radii) + f" {'heading°':>8} {'AUC':>6} {'s/view':>7}")
-    rows = [head]
-    for name, m in methods.items():
-        rows.append(f"{name:<8} {str(m['answered']) + '/' + str(m['n']):>8} {number(m['median_error'], unit):>9} "
-                    f"{number(m['mean_error'], unit):>9} "
-                    + " ".join(f"{number(m['recall_at'][r], 'ratio'):>6}" for r in radii)
-                    + f" {number(m['median_heading_error_deg'], 'deg'):>8} {number(m['roc_auc'], 'ratio'):>6} "
-                    f"{number(m.get('right_wrong_auc'), 'ratio'):>7} {number(m.get('accepted'), 'ratio'):>8} "
-                    f"{number(m.get('false_accept'), 'ratio'):>6} {number(m['localize_mean_s'], 's'):>7}")
-    return "\n".join(rows)
+    errors = text_table(
+        ["method", "answered", f"median {unit}", f"mean {unit}", *(f"@{r} {unit}" for r in radii), "heading error °",
+         "s/view"],
+        [[name, f"{m['answered']}/{m['n']}", number(m["median_error"], unit), number(m["mean_error"], unit),
+          *(number(m["recall_at"][r], "ratio") for r in radii), number(m["median_heading_error_deg"], "deg"),
+          number(m["localize_mean_s"], "s")] for name, m in methods.items()])
+    right, wrong = (f"{v:g} m" for v in RIGHT_WRONG)
+    judged = any("right_wrong_auc" in m for m in methods.values())  # errors in metres (pairs in pixels: none)
+    legend = ("confidence (match/other AUC: a view in its own scene vs in another"
+              + (f"; right/wrong AUC: within {right} vs beyond {wrong}" if judged else "") + "):")
+    confidence = text_table(
+        ["method", "match/other AUC", "right/wrong AUC", "threshold", "accepted", "of them wrong"],
+        [[name, number(m["roc_auc"], "ratio"), number(m.get("right_wrong_auc"), "ratio"),
+          "-" if m.get("threshold") is None else f"{m['threshold']:g}", number(m.get("accepted"), "ratio"),
+          number(m.get("false_accept"), "ratio")] for name, m in methods.items()])
+    return "\n".join([errors, legend, confidence])

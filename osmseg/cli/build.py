@@ -22,7 +22,8 @@ import click
 
 from osmseg.build.builder import DEFAULT_ZOOM, NO_IMAGERY_REASONS, SAMPLE_TILES, BuildConfig, BuildSummary, Shard, build
 from osmseg.build.filters import FilterConfig
-from osmseg.cli.common import command_line_of, default_cache_dir, output_options, progress_bars, report_errors
+from osmseg.cli.common import command_line_of, default_cache_dir, output_options, report_errors
+from osmseg.cli.drawers import Mode, progress_drawer
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT, missing_bing_key
 from osmseg.output import command_line
@@ -51,10 +52,12 @@ def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: s
     return Area(name=name, lat=lat, lon=lon, radius_km=radius_km or 2.0)
 
 
-def run_build(config: BuildConfig, verbosity: int, progress: bool, env: dict[str, str] | None = None) -> BuildSummary:
-    """Run a build (a progress bar if ``progress``) and print the summary (stderr) and output path (stdout)."""
+def run_build(config: BuildConfig, verbosity: int, progress: Mode | None,
+              env: dict[str, str] | None = None) -> BuildSummary:
+    """Run a build (its progress drawn as ``progress`` says: :func:`osmseg.cli.drawers.progress_mode`)
+    and print the summary (stderr) and output path (stdout)."""
     try:
-        with progress_bars(progress) as bars:
+        with progress_drawer(progress) as bars:
             summary = build(config, env=env, progress=bars, command_line=command_line(recorded_command(config)))
     except OSError as exc:
         if exc.errno != errno.ENOSPC:
@@ -173,7 +176,7 @@ def build_command(ctx: click.Context, /, **params: Any) -> None:
         # Bing Maps Basic keys no longer exist: say so, and give a command that works as it is
         raise ConfigError(f"{missing_bing_key(imagery is not None)}; run instead: "
                           f"{command_line_of(ctx, imagery=KEYLESS_DEFAULT)}  (keyless; other providers: docs/imagery.md)")
-    run_build(config, ctx.obj["verbosity"], ctx.obj.get("progress", False), env=env)
+    run_build(config, ctx.obj["verbosity"], ctx.obj.get("progress"), env=env)
 
 
 def _content(read: Callable[[BuildConfig], object]) -> dict[str, Callable[[BuildConfig], object]]:

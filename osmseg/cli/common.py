@@ -1,4 +1,4 @@
-"""What every subcommand shares: logging set-up, progress bars, and osmseg errors as exit codes.
+"""What every subcommand shares: logging set-up, the output options, and osmseg errors as exit codes.
 
 Imports: osmseg core (the commands of training and localization import this, never the reverse)."""
 
@@ -10,18 +10,17 @@ import logging
 import os
 import re
 import sys
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
 import click
 from tqdm import tqdm
 
+from osmseg.cli.drawers import PROGRESS_DEFAULT, PROGRESS_HELP, progress_mode
 from osmseg.errors import ConfigError, OsmsegError
 from osmseg.output.manifest import command_line
 from osmseg.processes import INTERRUPTED, TERMINATED, Terminated
-from osmseg.progress import Progress, Step
 from osmseg.redact import RedactingFilter
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -74,64 +73,6 @@ def configure_logging(verbosity: int) -> None:
     handler.addFilter(RedactingFilter())  # every record, from any logger, loses its keys here
     root.addHandler(handler)
     root.setLevel({0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG if verbosity > 1 else logging.ERROR))
-
-
-def show_progress(asked: bool | None, verbosity: int, stream: Any = None) -> bool:
-    """Whether to draw progress bars: as asked (``--progress``/``--no-progress``), else only when
-    stderr is a terminal and not ``-q``. A log file or a CI capture then gets no ``\\r`` frames.
-
-    >>> show_progress(True, -1), show_progress(False, 0), show_progress(None, 0, stream=open("/dev/null", "w"))
-    (True, False, False)
-    """
-    if asked is not None:
-        return asked
-    stream = sys.stderr if stream is None else stream
-    isatty = getattr(stream, "isatty", None)
-    return verbosity >= 0 and bool(isatty and isatty())
-
-
-class ProgressBars:
-    """Draws :class:`osmseg.progress.Step` reports as tqdm bars on stderr, one bar per task.
-
-    A bar opens at its task's first step and closes when the task finishes; :meth:`close`
-    closes what a failed or interrupted command left open. Bars do not stay on screen: the
-    command's summary says what was done.
-    """
-
-    def __init__(self) -> None:
-        self._bars: dict[str, tqdm] = {}
-
-    def __call__(self, step: Step) -> None:
-        bar = self._bars.get(step.task)
-        if bar is None:
-            bar = tqdm(total=step.total, desc=step.task, unit=step.unit, file=sys.stderr, dynamic_ncols=True,
-                       leave=False)
-            self._bars[step.task] = bar
-        if step.total != bar.total:
-            bar.total = step.total
-        if step.info:
-            bar.set_postfix(dict(step.info), refresh=False)
-        bar.update(step.done - bar.n)
-        if step.finished:
-            self._bars.pop(step.task).close()
-
-    def close(self) -> None:
-        for task in reversed(list(self._bars)):
-            self._bars.pop(task).close()
-
-
-@contextmanager
-def progress_bars(enabled: bool) -> Iterator[Progress | None]:
-    """The callback a command passes to the library: bars when ``enabled`` (see
-    :func:`show_progress`), else None, so nothing is drawn and nothing is counted."""
-    if not enabled:
-        yield None
-        return
-    bars = ProgressBars()
-    try:
-        yield bars
-    finally:
-        bars.close()
 
 
 def report_errors(func: F) -> F:
@@ -248,7 +189,7 @@ def apply_output_options(ctx: click.Context, verbose: int = 0, quiet: int = 0, p
     before = obj.get("verbosity", 0)
     verbosity = before + verbose - quiet
     asked = progress if progress is not None else obj.get("progress_asked")
-    obj.update(verbosity=verbosity, progress_asked=asked, progress=show_progress(asked, verbosity))
+    obj.update(verbosity=verbosity, progress_asked=asked, progress=progress_mode(asked, verbosity))
     if verbosity != before:
         set_verbosity(verbosity)
     ctx.obj = obj
@@ -260,7 +201,8 @@ def output_options(func: F) -> F:
     they may follow it (``osmseg train DATA --out run -v``) as well as precede it. Shared by
     every command of the group, the plugins of training and localization included (as
     rasterio's ``rio`` shares its option decorators). The values reach the command through
-    ``ctx.obj`` (``verbosity``, ``progress``), never as parameters."""
+    ``ctx.obj`` (``verbosity``, and ``progress``: :func:`osmseg.cli.drawers.progress_mode`'s answer),
+    never as parameters."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -273,10 +215,9 @@ def output_options(func: F) -> F:
         click.Option(["-v", "--verbose"], count=True, expose_value=False, callback=_remember, show_default=False,
                      help="More log output on stderr (-vv for debug); also before the command."),
         click.Option(["-q", "--quiet"], count=True, expose_value=False, callback=_remember, show_default=False,
-                     help="Less output on stderr: only errors, no progress bar; also before the command."),
+                     help="Less output on stderr: only errors, no progress; also before the command."),
         click.Option(["--progress/--no-progress"], default=None, expose_value=False, callback=_remember,
-                     show_default="only when stderr is a terminal",
-                     help="Draw progress bars on stderr; also before the command."),
+                     show_default=PROGRESS_DEFAULT, help=PROGRESS_HELP + "; also before the command."),
     ]
     # click lists a command's parameters in reverse order of __click_params__: these come last in --help
     wrapper.__click_params__ = options[::-1] + list(getattr(func, "__click_params__", []))  # type: ignore[attr-defined]

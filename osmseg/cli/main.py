@@ -22,7 +22,8 @@ from click_plugins import with_plugins
 
 from osmseg import __version__
 from osmseg.cli.build import build_command
-from osmseg.cli.common import configure_logging, show_progress
+from osmseg.cli.common import configure_logging
+from osmseg.cli.drawers import PROGRESS_DEFAULT, PROGRESS_HELP, progress_mode
 from osmseg.cli.verify import verify_command
 
 #: the entry-point group other packages register ``osmseg`` subcommands in
@@ -35,15 +36,15 @@ PLUGIN_GROUP = "osmseg.commands"
 @click.option("-v", "--verbose", count=True, show_default=False,
               help="More log output on stderr (-vv for debug); also after the command.")
 @click.option("-q", "--quiet", count=True, show_default=False,
-              help="Less output on stderr: only errors, no progress bar; also after the command.")
-@click.option("--progress/--no-progress", default=None, show_default="only when stderr is a terminal",
-              help="Draw progress bars on stderr (a log file gets no bar frames); also after the command.")
+              help="Less output on stderr: only errors, no progress; also after the command.")
+@click.option("--progress/--no-progress", default=None, show_default=PROGRESS_DEFAULT,
+              help=PROGRESS_HELP + "; also after the command.")
 @click.pass_context
 def cli(ctx: click.Context, verbose: int, quiet: int, progress: bool | None) -> None:
     """osmseg: aerial segmentation datasets from OpenStreetMap, and what to do with them."""
     verbosity = verbose - quiet
     configure_logging(verbosity)
-    ctx.obj = {"verbosity": verbosity, "progress_asked": progress, "progress": show_progress(progress, verbosity)}
+    ctx.obj = {"verbosity": verbosity, "progress_asked": progress, "progress": progress_mode(progress, verbosity)}
 
 
 cli.add_command(build_command)
