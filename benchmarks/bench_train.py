@@ -51,8 +51,8 @@ from training.data import PatchDataset, dataset_class_table, discover, validate,
 from training.distributed import Dist  # noqa: E402
 from training.engine import StepOptions, train_one_epoch  # noqa: E402
 from training.model import build_model, model_spec  # noqa: E402
+from training.runclasses import model_classes  # noqa: E402
 from training.sampling import RandomCrops  # noqa: E402
-from training.tables import model_classes  # noqa: E402
 from training.train import make_optimizer, make_scheduler, seeded_loader  # noqa: E402
 
 

@@ -24,20 +24,20 @@ from typing import Any
 import numpy as np
 import torch
 
+from osmseg.classmatch import Correspondence
 from osmseg.errors import DatasetError
 from osmseg.images import read_label, read_rgb
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress, track
-from osmseg.tablematch import Correspondence
 from training.checkpoint import load_checkpoint, model_from_checkpoint
 from training.data import SampleFiles, discover_dataset
 from training.figures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
 from training.infer import InferenceOptions
 from training.metrics import ConfusionMatrix, EvalMetrics, Metrics, format_table, load_class_mapping
 from training.predict import predict_image, target_resolution
+from training.runclasses import eval_correspondence
 from training.spec import ModelSpec
-from training.tables import eval_correspondence
 from training.train import dataset_fingerprint
 
 logger = logging.getLogger(__name__)
@@ -86,7 +86,7 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
                     ) -> tuple[Metrics, list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], dict[str, Any]]:
     """Metrics over ``files``, the first panels' arrays, and the table they were computed in.
 
-    ``match`` (:func:`training.tables.eval_correspondence`) says how the labels' ids and the
+    ``match`` (:func:`training.runclasses.eval_correspondence`) says how the labels' ids and the
     model's are compared: the labels mapped onto the model's classes (a 13-class dataset for
     AirSegNet6), or the outputs onto the labels' (AirSegNet13 on a 6-class dataset); None: the
     labels are in the model's ids.

@@ -42,7 +42,7 @@ from torch import Tensor
 
 from osmseg.datafiles import load_toml
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.tables import text_table
+from osmseg.texttable import text_table
 from osmseg.units import number
 
 __all__ = [

@@ -54,7 +54,7 @@ from training.infer import (
     error_reason,
     run_model,
 )
-from training.tables import check_mask_folder
+from training.runclasses import check_mask_folder
 from training.tiling import pixel_blocks
 
 if TYPE_CHECKING:

@@ -55,11 +55,11 @@ from training.engine import StepOptions, evaluate, train_one_epoch
 from training.metrics import ConfusionMatrix, Metrics
 from training.model import build_model, model_spec, unlabeled_as_background
 from training.recipe import RECIPES, Recipe, lr_factor, steps_per_epoch
+from training.runclasses import run_tables
 from training.runfiles import RunFiles
 from training.sampling import RandomCrops, crop_sampler
 from training.spec import ModelSpec
 from training.splits import choose_splits, class_pixels, read_splits, sample_groups, split_warning, write_splits
-from training.tables import run_tables
 
 logger = logging.getLogger(__name__)
 

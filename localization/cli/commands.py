@@ -44,7 +44,7 @@ from localization.cli.region import RegionArgs, region_options, run_region
 from localization.common.inputs import SideOptions
 from osmseg.cli.common import output_options, parse_size, report_errors
 from osmseg.errors import ConfigError
-from osmseg.tables import text_table
+from osmseg.texttable import text_table
 from osmseg.units import degrees, metres, number, pixels, ratio
 
 if TYPE_CHECKING:  # the command imports the pipeline only when it runs

@@ -1,6 +1,6 @@
 """What ``osmseg localize-bench`` and ``localize-pairs`` print on the terminal: a few lines and the methods side by side.
 
-Imports: osmseg.units, osmseg.tables and localization.bench's scores and compare (never the commands).
+Imports: osmseg.units, osmseg.texttable and localization.bench's scores and compare (never the commands).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from localization.bench.scores import BenchResults
 
-from osmseg.tables import text_table
+from osmseg.texttable import text_table
 from osmseg.units import number, pixels, quantity, ratio
 
 __all__ = ["format_summary", "method_table"]
