@@ -83,6 +83,15 @@ def test_localize_pairs_without_truth_makes_up_no_centre_baseline(tmp_path: Path
         else:
             assert results["baselines"]["centre_guess_mean"] is None
             assert "image centre 0" not in guesses and "without truth.csv" in guesses, guesses
+        # and errors.png draws the centre's guess only where it is one
+        from matplotlib.figure import Figure
+
+        from localization.bench.plots import draw_errors
+
+        fig = Figure()
+        draw_errors(fig, results)
+        legend = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+        assert ("guess the image centre" in legend) == truth, legend
 
 
 def test_eval_prints_and_writes_one_label_per_column(tmp_path: Path) -> None:

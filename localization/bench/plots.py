@@ -82,7 +82,10 @@ def draw_errors(fig: Any, results: BenchResults) -> None:
     if first == "paper":
         _cdf(ax, [r["candidate_guess"] for r in recs if not r["unanswered"]], len(recs), color="tab:orange",
              ls="--", label="a random candidate (expected)")
-    _cdf(ax, [r["centre_guess"] for r in recs], len(recs), color="0.5", ls="--", label="guess the image centre")
+    # where the truth was not given it is taken as the image centre, so that guess is no baseline there
+    centre = [r["centre_guess"] for r in recs if r.get("truth_given", True)]
+    if centre:
+        _cdf(ax, centre, len(recs), color="0.5", ls="--", label="guess the image centre")
     _cdf(ax, [r["random_guess"] for r in recs], len(recs), color="0.7", ls="-.", label="random guess (expected)")
     for radius in s["recall_at"]:
         ax.axvline(float(radius), color="0.85", lw=1, zorder=0)
