@@ -3,9 +3,10 @@
 Which exceptions are worth another attempt (:data:`RETRY_EXCEPTIONS`) and which say the URL
 itself is wrong; how long a server asks us to wait (:func:`retry_after`, seconds or an HTTP
 date); a short, secret-free phrase for a failure (:func:`describe_failure`) and what the user
-can do about an HTTP status (:func:`status_hint`); and the per-host gate that limits
+can do about an HTTP status (:func:`status_hint`); the error of a request that retries did not
+get answered (:func:`given_up`); and the per-host gate that limits
 concurrency and holds every caller of a host during a ``Retry-After`` (:class:`HostGate`).
-Imports: requests and urllib3 only.
+Imports: requests, urllib3 and osmseg.errors only.
 """
 
 from __future__ import annotations
@@ -18,8 +19,10 @@ import requests
 from urllib3.exceptions import InvalidHeader
 from urllib3.util import Retry
 
+from osmseg.errors import OsmsegError, RetriesExhausted, ServiceUnavailable
+
 __all__ = ["BAD_URL_EXCEPTIONS", "NO_CONNECTION", "RETRY_EXCEPTIONS", "STOPPING", "HostGate", "describe_failure",
-           "retry_after", "status_hint", "stop_requests"]
+           "given_up", "retry_after", "status_hint", "stop_requests"]
 
 #: Set once this process is stopping (Ctrl-C, SIGTERM): every wait between attempts and every
 #: ``Retry-After`` pause ends at once, so threads fetching tiles do not keep a stopping command
@@ -130,3 +133,19 @@ def status_hint(status: int) -> str:
     """What the user can do about an HTTP error status."""
     key = 401 if status == 403 else min(status, 500)
     return HINTS.get(key, "check the request (URL, parameters, key)")
+
+
+def given_up(request: str, attempts: int, problem: str, last_status: int | None) -> OsmsegError:
+    """The error of a ``request`` (method and shown URL) that ``attempts`` attempts did not get answered:
+    the last HTTP status that was worth retrying, unusable answers, or the last connection problem."""
+    if last_status is not None:
+        return ServiceUnavailable(
+            f"{request} failed with HTTP {last_status} after {attempts} attempts: {status_hint(last_status)}",
+            last_status,
+        )
+    if problem.startswith("unusable answer"):
+        return RetriesExhausted(f"{request}: {attempts} unusable answers in a row, the last: {problem[17:]}")
+    return RetriesExhausted(
+        f"{request} failed after {attempts} attempts ({problem}): check the network "
+        "connection, or run the same command again later (finished work is kept)"
+    )

@@ -47,7 +47,6 @@ import logging
 import threading
 from collections.abc import Callable, Collection, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 from urllib.parse import urlsplit
@@ -55,7 +54,6 @@ from urllib.parse import urlsplit
 import requests
 from requests.adapters import HTTPAdapter
 
-from osmseg import __version__
 from osmseg.errors import (
     AuthError,
     ConfigError,
@@ -65,83 +63,29 @@ from osmseg.errors import (
     OfflineCacheMiss,
     OsmsegError,
     RetriesExhausted,
-    ServiceUnavailable,
     first_line,
 )
 from osmseg.net.cassette import RETRY_STATUSES, RecordAdapter, ReplayAdapter
+from osmseg.net.config import ABSENT_ASKS, CACHE_FILE, DEFAULT_HOST_LIMITS, DEFAULT_USER_AGENT, HttpConfig
 from osmseg.net.failures import (
     BAD_URL_EXCEPTIONS,
     NO_CONNECTION,
     STOPPING,
     HostGate,
     describe_failure,
+    given_up,
     retry_after,
     status_hint,
 )
 from osmseg.net.gates import SharedHostGate, shared_gates_supported
 from osmseg.redact import SECRET_HEADERS, SECRET_PARAMS, install_log_redaction, redact
 
+__all__ = ["ABSENT_ASKS", "CACHE_FILE", "DEFAULT_HOST_LIMITS", "DEFAULT_USER_AGENT", "HttpClient", "HttpConfig"]
+
 logger = logging.getLogger(__name__)
 T = TypeVar("T")
 
-#: Default per-host limits: the OSM API and Overpass ask clients for at most two slots.
-DEFAULT_HOST_LIMITS: Mapping[str, int] = {"api.openstreetmap.org": 2, "overpass-api.de": 2}
-#: Answers a "nothing here" verdict needs (:meth:`HttpClient.fetch`'s ``absent``): the first and two
-#: more. A server that sends a blank tile for 5 % of requests by chance says it three times in a
-#: row for 1 in 8,000 tiles; a provider with no imagery says it every time.
-ABSENT_ASKS = 3
-#: Name of the cache file inside ``HttpConfig.cache_dir``.
-CACHE_FILE = "http.sqlite"
-DEFAULT_USER_AGENT = f"osmseg/{__version__} (+https://github.com/osmseg/osmseg)"
-
 install_log_redaction(__name__)
-
-
-@dataclass(frozen=True)
-class HttpConfig:
-    """How :class:`HttpClient` talks to the network.
-
-    Attributes:
-        cache_dir: folder of the on-disk cache (``http.sqlite`` inside); None = no cache.
-        offline: answer only from the cache; a miss raises ``OfflineCacheMiss``.
-        timeout: seconds allowed for connecting and, separately, between bytes read.
-        retries: extra attempts after the first on 429/5xx/timeouts/truncated bodies.
-        backoff: first wait between attempts in seconds; doubles each time.
-        max_retry_after: cap in seconds for a server's ``Retry-After``.
-        host_limits: concurrent requests allowed per host name.
-        default_host_limit: concurrent requests for hosts not in ``host_limits``.
-        user_agent: sent with every request (services ask clients to identify themselves).
-        cassette: a vcrpy cassette file to replay every request from (no network), or to
-            record every request into (``cassette_mode="record"``); see osmseg.net.cassette.
-        cassette_mode: ``"replay"`` or ``"record"``.
-        gate_dir: a folder shared by several processes (a build's workers): the per-host
-            limits and ``Retry-After`` pauses then hold across all of them
-            (:mod:`osmseg.net.gates`); None keeps them per client.
-    """
-
-    cache_dir: Path | None = None
-    offline: bool = False
-    timeout: float = 30.0
-    retries: int = 5
-    backoff: float = 0.5
-    max_retry_after: float = 300.0
-    host_limits: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_HOST_LIMITS))
-    default_host_limit: int = 6
-    user_agent: str = DEFAULT_USER_AGENT
-    cassette: Path | None = None
-    cassette_mode: str = "replay"
-    gate_dir: Path | None = None
-
-    def __post_init__(self) -> None:
-        if self.cassette_mode not in ("replay", "record"):
-            raise ConfigError(f"cassette_mode must be 'replay' or 'record', got {self.cassette_mode!r}")
-        if self.timeout <= 0:
-            raise ConfigError(f"HTTP timeout must be > 0 seconds, got {self.timeout}")
-        if self.retries < 0 or self.backoff < 0 or self.max_retry_after < 0:
-            raise ConfigError("HTTP retries, backoff and max_retry_after must be >= 0")
-        limits = [self.default_host_limit, *self.host_limits.values()]
-        if min(limits) < 1:
-            raise ConfigError(f"per-host HTTP limits must be >= 1, got {limits}")
 
 
 class HttpClient:
@@ -424,7 +368,7 @@ class HttpClient:
                 self._say_retry(method, shown, host, problem, attempt, wait)
                 if STOPPING.wait(wait):  # the process is stopping: no more attempts
                     raise RetriesExhausted(f"{method} {shown}: stopped (the command is ending)")
-        raise _given_up(f"{method} {shown}", attempts, problem, last_status)
+        raise given_up(f"{method} {shown}", attempts, problem, last_status)
 
     def _verdict(
         self,
@@ -595,19 +539,3 @@ class HttpClient:
         cache = getattr(self._session, "cache", None)  # a CachedSession's
         if cache is not None and not self.config.offline and not getattr(response, "from_cache", False):
             cache.save_response(response)
-
-
-def _given_up(request: str, attempts: int, problem: str, last_status: int | None) -> OsmsegError:
-    """The error of a ``request`` (method and shown URL) that ``attempts`` attempts did not get answered:
-    the last HTTP status that was worth retrying, unusable answers, or the last connection problem."""
-    if last_status is not None:
-        return ServiceUnavailable(
-            f"{request} failed with HTTP {last_status} after {attempts} attempts: {status_hint(last_status)}",
-            last_status,
-        )
-    if problem.startswith("unusable answer"):
-        return RetriesExhausted(f"{request}: {attempts} unusable answers in a row, the last: {problem[17:]}")
-    return RetriesExhausted(
-        f"{request} failed after {attempts} attempts ({problem}): check the network "
-        "connection, or run the same command again later (finished work is kept)"
-    )
