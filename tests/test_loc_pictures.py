@@ -124,6 +124,24 @@ def test_an_equal_aspect_map_keeps_its_title_inside(tmp_path: Path) -> None:
     assert (pixels[:30] < WHITE).any()  # the title is in the picture, near its top
 
 
+def test_no_legend_covers_the_curves_or_the_bars(demo: Path) -> None:
+    """errors.png's legend sat in the lower right of its axes, over the lower parts of several
+    CDFs, and confidence.png's in each panel, over its histograms: each is under the axes now,
+    clear of every axes' data area."""
+    from localization.bench.plots import draw_confidence, draw_errors
+
+    results = _results(demo)
+    for draw, size in ((draw_errors, (6.5, 4.8)), (draw_confidence, (8.8, 4.0))):
+        with figure(*size) as fig:
+            draw(fig, results)
+            fig.canvas.draw()
+            legends = [*fig.legends, *(ax.get_legend() for ax in fig.axes if ax.get_legend() is not None)]
+            assert legends, draw.__name__
+            for legend in legends:
+                box = legend.get_window_extent()
+                assert not [ax for ax in fig.axes if box.overlaps(ax.get_window_extent())], draw.__name__
+
+
 # ------------------------------------------------------------------------------------------ unanswered
 def test_unanswered_queries_are_counted_apart_never_drawn_at_a_likelihood(demo: Path) -> None:
     from localization.bench.plots import confidences, draw_confidence

@@ -84,13 +84,12 @@ def test_localize_pairs_without_truth_makes_up_no_centre_baseline(tmp_path: Path
             assert results["baselines"]["centre_guess_mean"] is None
             assert "image centre 0" not in guesses and "without truth.csv" in guesses, guesses
         # and errors.png draws the centre's guess only where it is one
-        from matplotlib.figure import Figure
-
         from localization.bench.plots import draw_errors
+        from osmseg.output.plotting import figure
 
-        fig = Figure()
-        draw_errors(fig, results)
-        legend = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+        with figure(6.5, 4.8) as fig:
+            draw_errors(fig, results)
+            legend = [t.get_text() for legend in fig.legends for t in legend.get_texts()]  # under the axes
         assert ("guess the image centre" in legend) == truth, legend
 
 

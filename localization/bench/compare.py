@@ -160,6 +160,11 @@ def method_summary(records: Sequence[dict[str, Any]], method: str,
                    ) -> dict[str, Any]:
     """Error statistics (``summarize``), heading error, ROC AUC and time of ``method`` over the records.
 
+    ``roc_auc`` (a matching pair's confidence against a non-matching one's; an unanswered query
+    counts as :data:`~localization.bench.scores.UNANSWERED_CONFIDENCE`, below every answer) is
+    None without non-matching pairs, and when the method answered no view: its confidences
+    would all be that stand-in, and their ties alone would make an AUC of 0.5 out of nothing.
+
     With ``right_wrong`` (``(right, wrong)`` in the run's unit): ``right_wrong_auc``, the chance
     that a right answer (error <= right) has a higher confidence than a wrong one (error >
     wrong, or none); with ``threshold``, the share of views answered at that confidence
@@ -172,7 +177,7 @@ def method_summary(records: Sequence[dict[str, Any]], method: str,
     out = summarize(rows)
     out.update({
         "median_heading_error_deg": round(float(np.median(headings)), 3) if headings else None,
-        "roc_auc": roc_auc(positives, negatives),
+        "roc_auc": roc_auc(positives, negatives) if out["answered"] else None,
         "localize_mean_s": round(float(np.mean([r["localize_s"] for r in rows])), 4) if rows else None,
     })
     if right_wrong is not None:

@@ -23,7 +23,7 @@ from osmseg.errors import ConfigError
 from osmseg.output.atomic import atomic_write_text
 from osmseg.units import quantity, ratio
 
-__all__ = ["CONFIDENCE_NAMES", "METHOD_NAMES", "confidences", "draw_confidence", "draw_errors", "errors_title",
+__all__ = ["CONFIDENCE_NAMES", "METHOD_NAMES", "compared", "confidences", "draw_confidence", "draw_errors", "errors_title",
            "plot_classes", "plot_confidence", "plot_errors"]
 
 
@@ -96,13 +96,14 @@ def draw_errors(fig: Any, results: BenchResults) -> None:
     ax.set_xlabel(f"error ({unit})")
     ax.set_ylabel(f"fraction of {results.get('queries', 'queries')}")
     ax.set_title(errors_title(results))
-    ax.legend(loc="lower right", fontsize=8)
+    # under the axes, where it cannot hide the curves: their lower parts ran under it, at the right
+    _figures().legend_below(fig, ax.get_legend_handles_labels()[0], columns=2, fontsize=8)
 
 
 def plot_errors(results: BenchResults, path: Path) -> Path:
     """errors.png (:func:`draw_errors`)."""
     figures = _figures()
-    with figures.figure(6.5, 4.0) as fig:
+    with figures.figure(6.5, 4.8) as fig:
         draw_errors(fig, results)
         return cast(Path, figures.save_png(fig, path))
 
@@ -156,16 +157,27 @@ def confidences(records: Sequence[Mapping[str, Any]], method: str, key: str) -> 
     return answered, (len(values) - len(answered)) if ran else 0
 
 
+def compared(results: BenchResults) -> dict[str, dict[str, Any]]:
+    """The methods confidence.png shows, with their summaries: those run on non-matching pairs
+    too (their records hold a ``negative_confidence``); none in a run without non-matching pairs
+    (one scene, ``--no-negatives``)."""
+    recs = results["viewpoints"]
+    return {m: v for m, v in (results.get("methods") or {}).items()
+            if any(r["methods"][m].get("negative_confidence") is not None for r in recs)}
+
+
 def draw_confidence(fig: Any, results: BenchResults) -> bool:
     """confidence.png on ``fig``: per method, histograms of its confidence on matching and on
-    non-matching pairs (ROC AUC in the title); the queries it did not answer are counted in a
-    bar of their own, labelled "unanswered", beside the values, never drawn as one.
+    non-matching pairs (ROC AUC in the title, or "no answered view" for a method without one,
+    whose AUC would be made of ties alone); the queries it did not answer are counted in a bar
+    of their own, labelled "unanswered", beside the values, never drawn as one. One legend of
+    the two kinds of pair, under the panels, when a histogram was drawn.
 
-    False (nothing drawn) when the run has no non-matching pair (one scene, ``--no-negatives``).
+    False (nothing drawn) when the run has no non-matching pair (:func:`compared`).
     """
     from matplotlib.ticker import MaxNLocator
 
-    methods = {m: v for m, v in (results.get("methods") or {}).items() if v.get("roc_auc") is not None}
+    methods = compared(results)
     if not methods:
         return False
     recs = results["viewpoints"]
@@ -174,6 +186,7 @@ def draw_confidence(fig: Any, results: BenchResults) -> bool:
     ratios = [r for m in methods for r in ((6, 1) if unanswered[m] else (6,))]
     grid = fig.add_gridspec(1, len(ratios), width_ratios=ratios)
     column = 0
+    handles: list[Any] = []
     for m, summary in methods.items():
         ax = fig.add_subplot(grid[0, column])
         values = [v for answered, _ in drawn[m] for v in answered]
@@ -185,12 +198,14 @@ def draw_confidence(fig: Any, results: BenchResults) -> bool:
             for (answered, _), (_, label, colour) in zip(drawn[m], PAIRS):
                 ax.hist(answered, bins=bins, alpha=0.6, color=colour, label=label)
             ax.ticklabel_format(axis="x", style="plain", useOffset=False)
+            handles = handles or ax.get_legend_handles_labels()[0]
         else:
             ax.text(0.5, 0.5, "no query answered", transform=ax.transAxes, ha="center", va="center", color="0.4")
         ax.set_xlabel(CONFIDENCE_NAMES.get(m, "confidence"))
         ax.set_ylabel(results.get("queries", "queries"))
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts of queries
-        ax.set_title(f"{METHOD_NAMES.get(m, m)}: ROC AUC {ratio(summary['roc_auc'])}")
+        auc = summary.get("roc_auc")
+        ax.set_title(f"{METHOD_NAMES.get(m, m)}: " + ("no answered view" if auc is None else f"ROC AUC {ratio(auc)}"))
         column += 1
         if unanswered[m]:
             side = fig.add_subplot(grid[0, column], sharey=ax)
@@ -201,7 +216,8 @@ def draw_confidence(fig: Any, results: BenchResults) -> bool:
             side.set_xticks([0.5], ["unanswered"])
             side.tick_params(axis="y", labelleft=False)
             column += 1
-        ax.legend(fontsize=8)
+    if handles:  # under the panels, where it hides no bar; none when no histogram was drawn
+        _figures().legend_below(fig, handles, fontsize=8)
     fig.suptitle("Does the confidence tell a match from a non-match?")
     return True
 
@@ -209,11 +225,11 @@ def draw_confidence(fig: Any, results: BenchResults) -> bool:
 def plot_confidence(results: BenchResults, path: Path) -> Path | None:
     """confidence.png (:func:`draw_confidence`); None (nothing written) when the run has no
     non-matching pair (one scene, ``--no-negatives``)."""
-    methods = [v for v in (results.get("methods") or {}).values() if v.get("roc_auc") is not None]
+    methods = compared(results)
     if not methods:
         return None
     figures = _figures()
-    with figures.figure(4.4 * len(methods), 3.6) as fig:
+    with figures.figure(4.4 * len(methods), 4.0) as fig:
         draw_confidence(fig, results)
         return cast("Path | None", figures.save_png(fig, path))
 
