@@ -3,8 +3,10 @@ tiles and OSM building footprints, one class), panoramas standing on unlabeled g
 
 The paper method answers none of the views there. What a user checks: it gets no ROC AUC
 (results.json ``null``, ``-`` in the printed table, "no answered view" on confidence.png)
-rather than the 0.5 its tied stand-in confidences made; and nothing of matplotlib's (a warning
-about an empty legend) reaches stderr. Skipped without ``../shared/data``.
+rather than the 0.5 its tied stand-in confidences made; nothing of matplotlib's (a warning
+about an empty legend) reaches stderr; and the views' pictures name every colour they draw,
+the map's black unlabeled ground and the panorama's sky among them. Skipped without
+``../shared/data``.
 """
 
 from __future__ import annotations
@@ -17,13 +19,17 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from conftest import SHARED_DATA, shared_path, table_after
+from PIL import Image
 from test_readme_chain import BUILD_MARK, sh_blocks
 
+from localization.common.landmarks import panorama_table
 from osmseg.output.plotting import figure
 
 pytestmark = pytest.mark.shared_data
+WHITE = 250  # lighter than this, in every channel, is the page
 
 
 def osmseg(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -80,3 +86,33 @@ def test_confidence_png_says_no_answered_view_and_draws_no_empty_legend(bench: t
         assert all(ax.get_legend() is None for ax in fig.axes)  # the empty legend box was the paper panel's
         # one legend, of what the profile method's histograms drew, under the panels
         assert [[t.get_text() for t in legend.get_texts()] for legend in fig.legends] == [[p[1] for p in PAIRS]]
+
+
+def _legend(path: Path) -> np.ndarray:
+    """The rows of a view picture under its axes: its legend."""
+    with Image.open(path) as im:
+        pixels = np.asarray(im.convert("RGB"))
+    page = (pixels >= WHITE).all(axis=2).mean(axis=1) > 0.5  # rows that are mostly page
+    return pixels[int(np.flatnonzero(~page).max()) + 1:]
+
+
+def _swatches(region: np.ndarray, rgb: tuple[int, int, int], h: int = 6, w: int = 12) -> int:
+    """Places where ``region`` holds an ``h`` x ``w`` block of colour ``rgb`` (a legend swatch;
+    text, even black, is never that solid)."""
+    same = (np.abs(region.astype(int) - np.array(rgb)).max(axis=2) <= 3).astype(int)
+    sums = np.pad(same.cumsum(0).cumsum(1), ((1, 0), (1, 0)))
+    blocks = sums[h:, w:] - sums[:-h, w:] - sums[h:, :-w] + sums[:-h, :-w]
+    return int((blocks == h * w).sum())
+
+
+def test_the_views_legends_name_unlabeled_ground_and_sky(bench: tuple[Path, str]) -> None:
+    """The map drew the unlabeled ground black, the panorama its sky light blue (near footway's
+    colour), and neither legend said what they were."""
+    out, _ = bench
+    views = out / "views"
+    (map_png,) = views.glob("*_map.png")
+    (panorama_png,) = views.glob("*_panorama.png")
+    assert _swatches(_legend(map_png), (0, 0, 0)) > 0  # unlabeled: classes13's black
+    panorama = _legend(panorama_png)
+    assert _swatches(panorama, (0, 0, 0)) > 0  # the ground it stands on, unlabeled too
+    assert _swatches(panorama, panorama_table("classes13.toml").by_name["sky"].color) > 0

@@ -447,10 +447,17 @@ def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, 
     what = "rendered panorama" if config.fov_deg >= 360 else f"{config.fov_deg:g}° photo"
     return [localization_png(stem.with_name(stem.name + "_map.png"), loc, graph.landmarks,
                              image=scene.table.colorize(scene.mask), truth=view.truth, resolution=scene.resolution_m,
-                             classes=[(c.name, c.color) for c in scene.table.classes if (scene.mask == c.id).any()]),
+                             classes=drawn_classes(scene.table, scene.mask)),
             graph_png(stem.with_name(stem.name + "_panorama.png"), query, pano_graph, image=rgb[:, cols],
                       title=f"{what} at ({view.truth[0]:.0f}, {view.truth[1]:.0f}): {len(query)} landmarks",
-                      colours=colours)]
+                      colours=colours, classes=drawn_classes(view.panorama.table, view.panorama.labels[:, cols]))]
+
+
+def drawn_classes(table: ClassTable, mask: np.ndarray) -> list[tuple[str, tuple[int, int, int]]]:
+    """``(name, rgb)`` of each class of ``table`` that ``mask`` holds, unlabeled (black) and a
+    panorama table's sky included: a picture's legend names every colour it draws."""
+    present = set(np.unique(mask).tolist())
+    return [(c.name, c.color) for c in (table.unlabeled, *table.classes) if c.id in present]
 
 
 def _results(scenes: Sequence[Scene], graphs: list[dict[tuple[str, ...], AerialGraph]],

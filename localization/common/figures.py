@@ -211,7 +211,8 @@ def _segments(lm: Landmarks, adjacency: np.ndarray) -> np.ndarray:
 
 
 def draw_graph(fig: Figure, lm: Landmarks, adjacency: np.ndarray, *, image: np.ndarray | None = None,
-               title: str | None = None, colours: Mapping[str, Sequence[int]] | None = None) -> Axes:
+               title: str | None = None, colours: Mapping[str, Sequence[int]] | None = None,
+               classes: Sequence[tuple[str, Sequence[int]]] = ()) -> Axes:
     """:func:`graph_png`'s picture on ``fig``; returns its axes."""
     k = len(lm.xy)
     adj = np.asarray(adjacency)
@@ -228,8 +229,11 @@ def draw_graph(fig: Figure, lm: Landmarks, adjacency: np.ndarray, *, image: np.n
         ax.scatter(lm.xy[:, 0], lm.xy[:, 1], s=28, c=[palette[c] for c in cls], edgecolors="black",
                    linewidths=0.6, zorder=3)
     present = sorted(set(cls.tolist()))
-    handles = [Line2D([], [], ls="", marker="o", mfc=palette[c], mec="black", label=lm.classes[c]) for c in present]
+    handles: list[Any] = [Line2D([], [], ls="", marker="o", mfc=palette[c], mec="black", label=lm.classes[c]) for c in present]
     handles.append(Line2D([], [], color="0.25", lw=1, label="covisible"))
+    dots = {palette[c] for c in present}  # a colour a landmark's dot names needs no swatch of its own
+    handles += [Rectangle((0, 0), 1, 1, fc=np.asarray(rgb[:3]) / 255.0, ec="0.3", label=name) for name, rgb in classes
+                if "#{:02x}{:02x}{:02x}".format(*(int(v) for v in rgb[:3])) not in dots]
     n_edges = int(np.triu(adj.astype(bool), k=1).sum())
     ax.set_title(title or f"{k} landmarks, {n_edges} edges" + (" (panorama)" if lm.panorama else ""))
     legend_below(fig, handles, columns=6)
@@ -237,16 +241,19 @@ def draw_graph(fig: Figure, lm: Landmarks, adjacency: np.ndarray, *, image: np.n
 
 
 def graph_png(path: Path | str, lm: Landmarks, adjacency: np.ndarray, *, image: np.ndarray | None = None,
-              title: str | None = None, colours: Mapping[str, Sequence[int]] | None = None) -> Path:
+              title: str | None = None, colours: Mapping[str, Sequence[int]] | None = None,
+              classes: Sequence[tuple[str, Sequence[int]]] = ()) -> Path:
     """``lm``'s landmark graph over ``image``: class-coloured dots, grey edges, a class legend.
 
     ``adjacency`` is the ``(K, K)`` binary landmark adjacency (:func:`localization.paper.graph.adjacency`);
     ``colours``: each landmark class's RGB in the class table of the image's mask
     (:func:`~localization.common.landmarks.landmark_colours`), so a dot has the colour of the
-    mask under it and of its class in every other picture.
+    mask under it and of its class in every other picture. ``classes``: ``(name, rgb)`` of the
+    classes a colourised mask ``image`` shows (a rendered panorama's sky, unlabeled ground, ...),
+    added to the legend as swatches, but for a colour a landmark's dot there already names.
     """
     with _figure(*_size(lm.width, lm.height, extra=0.7)) as fig:
-        draw_graph(fig, lm, adjacency, image=image, title=title, colours=colours)
+        draw_graph(fig, lm, adjacency, image=image, title=title, colours=colours, classes=classes)
         return _save(fig, path)
 
 
