@@ -8,12 +8,19 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 import pytest
+from matplotlib.figure import Figure
+from matplotlib.legend import Legend
 from PIL import Image
 
 from osmseg.classes import load_class_table
 from osmseg.errors import DatasetError
+from osmseg.output.plotting import figure
 from training.figures import (
+    checkpoint_curves,
+    checkpoint_curves_png,
     confusion_matrix_png,
+    draw_per_class_iou,
+    draw_training_curves,
     per_class_iou_png,
     qualitative_panels,
     training_curves_png,
@@ -153,3 +160,67 @@ def test_per_class_iou_bars_in_class_colours(tmp_path: Path) -> None:
     pixels = _pixels(per_class_iou_png(metrics, TABLE, tmp_path / "iou.png"))
     assert _count(pixels, (255, 255, 0)) > 500 and _count(pixels, (50, 50, 255)) > 500
     assert _count(pixels, (119, 242, 242)) == 0  # water is absent from the ground truth: no bar
+
+
+def _legends(fig: Figure) -> list[Legend]:
+    return [*fig.legends, *(ax.get_legend() for ax in fig.axes if ax.get_legend() is not None)]
+
+
+def test_the_miou_legend_hides_no_bar_or_value(tmp_path: Path) -> None:
+    """The demo's per_class_iou.png: "mIoU 0.763" sat in the lower right of the axes, over the
+    value of the last bar (tree, 0.780). The legend is under the axes, clear of every bar and value."""
+    names = ["unlabeled", "building", "highway", "water"]
+    matrix = [[0, 0, 0, 0], [0, 80, 2, 1], [0, 3, 90, 1], [0, 1, 2, 85]]  # water last, IoU ~0.9
+    metrics = metrics_from_matrix(matrix, names, ignore_index=0)
+    with figure(6.5, 2.8) as fig:
+        ax = draw_per_class_iou(fig, metrics, TABLE)
+        fig.canvas.draw()
+        values = [t for t in ax.texts if t.get_text().startswith("0.")]
+        assert len(values) == 3  # building, highway, water
+        legends = _legends(fig)
+        assert [[t.get_text() for t in legend.get_texts()] for legend in legends] == [[f"mIoU {metrics['miou']:.3f}"]]
+        box = legends[0].get_window_extent()
+        assert not box.overlaps(ax.get_window_extent())
+        assert not [t.get_text() for t in values if box.overlaps(t.get_window_extent())]
+    _pixels(per_class_iou_png(metrics, TABLE, tmp_path / "iou.png"))
+
+
+def test_training_curves_mark_an_epoch_and_their_legend_hides_no_point() -> None:
+    with figure(9.0, 4.5) as fig:
+        loss_ax, score_ax = draw_training_curves(fig, HISTORY, title="what the curves are", mark=(2, "best.pt: epoch 2"))
+        fig.canvas.draw()
+        for ax in (loss_ax, score_ax):
+            marks = [line for line in ax.lines if line.get_label() == "best.pt: epoch 2"]
+            assert len(marks) == 1 and list(marks[0].get_xdata()) == [2, 2]
+        (legend,) = _legends(fig)  # one, for both axes, the mark named once
+        assert [t.get_text() for t in legend.get_texts()] == [
+            "train loss", "validation loss", "validation mIoU", "validation pixel accuracy", "best.pt: epoch 2"]
+        assert not legend.get_window_extent().overlaps(loss_ax.get_window_extent())
+        assert not legend.get_window_extent().overlaps(score_ax.get_window_extent())
+        assert fig.get_suptitle() == "what the curves are"
+
+
+def test_eval_curves_of_best_pt_draw_the_whole_run_when_its_log_is_beside_it(tmp_path: Path) -> None:
+    """The demo's case: 8 epochs planned and run, best.pt saved at epoch 6 with the history up to
+    it, the run's log.csv beside it. eval's curves.png stopped at epoch 6 and said nothing of it."""
+    history = [{"epoch": e, "lr": 0.01, "train_loss": 2.0 / e, "val_loss": 2.2 / e, "val_miou": 0.1 * e,
+                "val_pixel_accuracy": 0.05 + 0.1 * e, "seconds": 1.0} for e in range(1, 9)]
+    run = tmp_path / "run"
+    run.mkdir()
+    with (run / "log.csv").open("w", newline="") as f:  # as training.runfiles writes it
+        writer = csv.DictWriter(f, fieldnames=list(history[0]), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(history)
+    best = {"epoch": 6, "history": history[:6], "config": {"epochs": 8}}
+    rows, title, mark = checkpoint_curves(best, run / "best.pt")
+    assert [r["epoch"] for r in rows] == list(range(1, 9))
+    assert title == "The whole training run (the log.csv beside best.pt): epochs 1–8 of 8 planned; best.pt is epoch 6"
+    assert mark == (6, "best.pt: epoch 6 (evaluated)")
+    pixels = _pixels(checkpoint_curves_png(best, run / "best.pt", tmp_path / "curves.png"))
+    assert _count(pixels, CURVE_GREEN) > 50
+
+    (run / "log.csv").unlink()  # the checkpoint alone: its own history, said to stop at its epoch
+    rows, title, mark = checkpoint_curves(best, run / "best.pt")
+    assert [r["epoch"] for r in rows] == list(range(1, 7)) and mark[0] == 6
+    assert title == ("Training history stored in best.pt: epochs 1–6 of 8 planned, up to the checkpoint's epoch; "
+                     "the run's log.csv, with any later epochs, is not beside it")

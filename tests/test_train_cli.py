@@ -151,7 +151,7 @@ def test_eval_reports_on_the_test_split_it_was_trained_with(trained: tuple[Path,
         matrix[3, 3] / (matrix[3].sum() + matrix[:, 3].sum() - matrix[3, 3]))
     assert 0 <= metrics["miou"] <= 1
     assert "mIoU" in (out / "metrics.txt").read_text()
-    for picture in ("confusion_matrix.png", "panels.png"):
+    for picture in ("confusion_matrix.png", "panels.png", "per_class_iou.png", "curves.png"):
         with Image.open(out / picture) as im:
             assert im.format == "PNG" and min(im.size) > 100
 
@@ -164,6 +164,41 @@ def test_eval_reports_on_the_test_split_it_was_trained_with(trained: tuple[Path,
         keep = truth != 0
         np.add.at(recount, (truth[keep], pred[keep]), 1)
     assert recount.tolist() == metrics["confusion_matrix"]
+
+
+def test_eval_curves_show_the_whole_run_or_say_where_they_stop(trained: tuple[Path, Result], tmp_path: Path) -> None:
+    """The demo's eval/curves.png stopped at epoch 6 of 8 and said nothing of it: it was drawn from
+    the history best.pt holds, while the run's own curves.png showed all 8 epochs. With the run's
+    log.csv beside the checkpoint it draws the whole run; without it, it says it stops at the
+    checkpoint's epoch; either way the checkpoint's epoch is marked."""
+    from training.figures import checkpoint_curves
+
+    run, _ = trained
+    best = load_checkpoint(run / "best.pt")
+    epoch = best["epoch"]
+    assert 1 <= epoch <= EPOCHS and len(best["history"]) == epoch
+    rows, title, mark = checkpoint_curves(best, run / "best.pt")
+    assert [r["epoch"] for r in rows] == list(range(1, EPOCHS + 1))  # the whole run, from its log.csv
+    assert f"log.csv beside best.pt): epochs 1–{EPOCHS} of {EPOCHS} planned; best.pt is epoch {epoch}" in title
+    assert mark == (epoch, f"best.pt: epoch {epoch} (evaluated)")
+
+    alone = tmp_path / "alone"  # best.pt copied away from its run
+    alone.mkdir()
+    shutil.copy(run / "best.pt", alone / "best.pt")
+    rows, title, mark = checkpoint_curves(best, alone / "best.pt")
+    assert [r["epoch"] for r in rows] == list(range(1, epoch + 1))
+    assert title.startswith(f"Training history stored in best.pt: epochs 1–{epoch} of {EPOCHS} planned, up to the "
+                            "checkpoint's epoch")
+    assert mark[0] == epoch
+
+    other = log_rows(run)  # beside it, the log of another run (other losses): not taken for its own
+    other[0]["train_loss"] = str(float(other[0]["train_loss"]) + 0.5)
+    with (alone / "log.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(other[0]))
+        writer.writeheader()
+        writer.writerows(other)
+    rows, title, _ = checkpoint_curves(best, alone / "best.pt")
+    assert len(rows) == epoch and title.startswith("Training history stored in best.pt")
 
 
 def test_eval_names_every_number_by_class_id_not_by_list_position(tmp_path: Path) -> None:

@@ -5,7 +5,9 @@ with their labels in one confusion matrix, and written to an output folder:
 ``metrics.json`` (pixel accuracy, per-class IoU/precision/recall/F1, mIoU over classes present
 in the ground truth, FWIoU, the matrix), ``metrics.txt`` (a table), ``confusion_matrix.png``,
 ``per_class_iou.png``, ``panels.png`` (image | ground truth | prediction with a legend) and,
-when the checkpoint carries its training history, ``curves.png``.
+when the checkpoint carries its training history, ``curves.png`` (the whole run from the
+``log.csv`` beside the checkpoint when it is that run's, else the history up to the
+checkpoint's epoch; the checkpoint's epoch marked).
 
 Foreign labelled data (e.g. Inria's building masks) is compared through a class mapping
 (``data_manifests/inria-buildings.toml``) that maps both the labels and the model's classes
@@ -32,7 +34,7 @@ from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress, track
 from training.checkpoint import load_checkpoint, model_from_checkpoint
 from training.data import SampleFiles, discover_dataset
-from training.figures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
+from training.figures import checkpoint_curves_png, confusion_matrix_png, per_class_iou_png, qualitative_panels
 from training.infer import InferenceOptions
 from training.metrics import ConfusionMatrix, EvalMetrics, Metrics, format_table, load_class_mapping
 from training.predict import predict_image, target_resolution
@@ -152,6 +154,6 @@ def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: E
     confusion_matrix_png(metrics, out_dir / "confusion_matrix.png")
     per_class_iou_png(metrics, table, out_dir / "per_class_iou.png")
     qualitative_panels(panels, table, out_dir / "panels.png")
-    if checkpoint.get("history"):
-        training_curves_png(checkpoint["history"], out_dir / "curves.png")
+    if checkpoint.get("history"):  # the whole run when its log.csv is at hand, the checkpoint's epoch marked
+        checkpoint_curves_png(checkpoint, checkpoint_path, out_dir / "curves.png")
     return metrics

@@ -23,13 +23,16 @@ from typing import Any
 
 import matplotlib
 import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.output.plotting import figure as _figure, save_png as _save
+from osmseg.output.plotting import figure as _figure, legend_below, save_png as _save
 
-__all__ = ["confusion_matrix_png", "qualitative_panels", "training_curves_png", "per_class_iou_png"]
+__all__ = ["checkpoint_curves", "checkpoint_curves_png", "confusion_matrix_png", "draw_per_class_iou", "draw_training_curves",
+           "per_class_iou_png", "qualitative_panels", "training_curves_png"]
 
 #: Matrices up to this many classes get their values written in the cells.
 MAX_ANNOTATED = 16
@@ -224,13 +227,9 @@ def read_history(history: Sequence[Mapping[str, Any]] | Path | str) -> list[dict
     return rows
 
 
-def training_curves_png(history: Sequence[Mapping[str, Any]] | Path | str, path: Path | str) -> Path:
-    """Loss (train and validation) and validation mIoU per epoch, side by side.
-
-    ``history`` is the trainer's list of per-epoch dicts or its ``log.csv``; the columns used
-    are ``epoch``, ``train_loss``, ``val_loss``, ``val_miou`` and (if present)
-    ``val_pixel_accuracy``. Missing or non-finite values are skipped, not drawn as zero.
-    """
+def draw_training_curves(fig: Figure, history: Sequence[Mapping[str, Any]] | Path | str, *, title: str | None = None,
+                         mark: tuple[int, str] | None = None) -> tuple[Axes, Axes]:
+    """:func:`training_curves_png`'s picture on ``fig``; returns its (loss, validation) axes."""
     rows = read_history(history)
     epochs = [row.get("epoch") or float(i + 1) for i, row in enumerate(rows)]
 
@@ -238,61 +237,142 @@ def training_curves_png(history: Sequence[Mapping[str, Any]] | Path | str, path:
         pairs = [(e, row[key]) for e, row in zip(epochs, rows) if row.get(key) is not None]
         return [p[0] for p in pairs], [p[1] for p in pairs]  # type: ignore[misc]
 
-    with _figure(9.0, 3.6) as fig:
-        loss_ax, score_ax = fig.subplots(1, 2)
-        for key, label, color in (("train_loss", "train loss", "tab:blue"), ("val_loss", "validation loss", "tab:orange")):
-            xs, ys = series(key)
-            if xs:
-                loss_ax.plot(xs, ys, marker="o", color=color, label=label)
-        loss_ax.set_title("Loss")
-        loss_ax.set_ylabel("loss")
-        for key, label, color, style in (("val_miou", "validation mIoU", "tab:green", "-"),
-                                         ("val_pixel_accuracy", "validation pixel accuracy", "tab:purple", "--")):
-            xs, ys = series(key)
-            if xs:
-                score_ax.plot(xs, ys, marker="o", linestyle=style, color=color, label=label)
-        score_ax.set_title("Validation")
-        score_ax.set_ylim(0.0, 1.0)
-        for ax in (loss_ax, score_ax):
-            ax.set_xlabel("epoch")
-            ax.grid(True, alpha=0.3)
-            ax.xaxis.get_major_locator().set_params(integer=True)
-            if ax.lines:
-                ax.legend(loc="best")
+    loss_ax, score_ax = fig.subplots(1, 2)
+    for key, label, color in (("train_loss", "train loss", "tab:blue"), ("val_loss", "validation loss", "tab:orange")):
+        xs, ys = series(key)
+        if xs:
+            loss_ax.plot(xs, ys, marker="o", color=color, label=label)
+    loss_ax.set_title("Loss")
+    loss_ax.set_ylabel("loss")
+    for key, label, color, style in (("val_miou", "validation mIoU", "tab:green", "-"),
+                                     ("val_pixel_accuracy", "validation pixel accuracy", "tab:purple", "--")):
+        xs, ys = series(key)
+        if xs:
+            score_ax.plot(xs, ys, marker="o", linestyle=style, color=color, label=label)
+    score_ax.set_title("Validation")
+    score_ax.set_ylim(0.0, 1.0)
+    for ax in (loss_ax, score_ax):
+        ax.set_xlabel("epoch")
+        ax.grid(True, alpha=0.3)
+        ax.xaxis.get_major_locator().set_params(integer=True)
+        if mark is not None:
+            ax.axvline(mark[0], color="0.25", linestyle=":", linewidth=1.5, label=mark[1], zorder=1)
+    handles = [h for ax in (loss_ax, score_ax) for h in ax.get_legend_handles_labels()[0]
+               if mark is None or h.get_label() != mark[1]]
+    unique = handles + [h for h in loss_ax.lines if mark is not None and h.get_label() == mark[1]]  # named once, last
+    if unique:  # under the axes, where it hides no point of a curve
+        legend_below(fig, unique, columns=3)
+    if title:
+        fig.suptitle(title)
+    return loss_ax, score_ax
+
+
+def training_curves_png(history: Sequence[Mapping[str, Any]] | Path | str, path: Path | str, *,
+                        title: str | None = None, mark: tuple[int, str] | None = None) -> Path:
+    """Loss (train and validation) and validation mIoU per epoch, side by side, one legend under them.
+
+    ``history`` is the trainer's list of per-epoch dicts or its ``log.csv``; the columns used
+    are ``epoch``, ``train_loss``, ``val_loss``, ``val_miou`` and (if present)
+    ``val_pixel_accuracy``. Missing or non-finite values are skipped, not drawn as zero.
+    ``title`` says what the curves are (:func:`checkpoint_curves_png`); ``mark`` (epoch, label)
+    draws a dotted line at that epoch, named in the legend.
+    """
+    with _figure(9.0, 4.0 if title is None else 4.5) as fig:
+        draw_training_curves(fig, history, title=title, mark=mark)
         return _save(fig, path)
+
+
+def _same_epochs(log: Sequence[Mapping[str, float | None]], history: Sequence[Mapping[str, float | None]]) -> bool:
+    """Whether ``log``'s first rows are ``history``'s epochs, number for number: the log of the run
+    a checkpoint with that history comes from (a later epoch never changes an earlier row)."""
+    if len(log) < len(history):
+        return False
+    for written, kept in zip(log, history):
+        for key in ("epoch", "train_loss", "val_loss", "val_miou"):
+            a, b = written.get(key), kept.get(key)
+            if (a is None) != (b is None) or (a is not None and b is not None and not math.isclose(a, b, rel_tol=1e-9)):
+                return False
+    return True
+
+
+def checkpoint_curves(checkpoint: Mapping[str, Any], checkpoint_path: Path | str
+                      ) -> tuple[list[dict[str, float | None]], str, tuple[int, str]]:
+    """What ``osmseg eval``'s curves.png draws of a checkpoint's training: ``(epoch rows, title,
+    (the checkpoint's epoch, its label))``.
+
+    A checkpoint holds its run's history up to its own epoch (best.pt: the epoch of the best
+    validation mIoU, often before the last). When the checkpoint's folder holds its run's
+    ``log.csv`` (its first rows are the checkpoint's history), the rows are the whole run's;
+    else the history the checkpoint holds, titled as stopping at its epoch (of the epochs the
+    run planned).
+    """
+    checkpoint_path = Path(checkpoint_path)
+    name = checkpoint_path.name
+    history = read_history(list(checkpoint["history"]))
+    epoch = int(checkpoint.get("epoch") or history[-1].get("epoch") or len(history))
+    planned = (checkpoint.get("config") or {}).get("epochs")
+    log_path = checkpoint_path.parent / "log.csv"
+    try:
+        log = read_history(log_path) if log_path.is_file() else None
+    except DatasetError:  # unreadable or empty: not the run's log
+        log = None
+    rows = log if log is not None and _same_epochs(log, history) else history
+    first, last = int(rows[0].get("epoch") or 1), int(rows[-1].get("epoch") or len(rows))
+    of = f" of {planned} planned" if planned else ""
+    if rows is log:
+        title = f"The whole training run (the log.csv beside {name}): epochs {first}–{last}{of}; {name} is epoch {epoch}"
+    else:
+        title = f"Training history stored in {name}: epochs {first}–{last}{of}, up to the checkpoint's epoch"
+        if planned and last < int(planned):
+            title += "; the run's log.csv, with any later epochs, is not beside it"
+    return rows, title, (epoch, f"{name}: epoch {epoch} (evaluated)")
+
+
+def checkpoint_curves_png(checkpoint: Mapping[str, Any], checkpoint_path: Path | str, path: Path | str) -> Path:
+    """``osmseg eval``'s curves.png: the training of the checkpoint it evaluated, titled with what
+    it shows, the checkpoint's epoch marked (:func:`checkpoint_curves`)."""
+    rows, title, mark = checkpoint_curves(checkpoint, checkpoint_path)
+    return training_curves_png(rows, path, title=title, mark=mark)
 
 
 # --------------------------------------------------------------------------- per-class IoU
 
 
-def per_class_iou_png(metrics: Mapping[str, Any], class_table: Mapping[str, Any], path: Path | str) -> Path:
-    """Horizontal bars of each class's IoU in its class colour, with the mIoU as a dashed line.
-
-    Classes absent from the ground truth (IoU ``null``) are listed as "absent", not drawn as 0.
-    """
+def draw_per_class_iou(fig: Figure, metrics: Mapping[str, Any], class_table: Mapping[str, Any]) -> Axes:
+    """:func:`per_class_iou_png`'s picture on ``fig``; returns its axes."""
     colours = {name: rgb for _, name, rgb in _classes(class_table)}
     by_id = {cid: rgb for cid, _, rgb in _classes(class_table)}
     items = list(metrics["per_class"].items())
     n = len(items)
-    with _figure(6.5, max(2.5, 0.32 * n + 1.2)) as fig:
-        ax = fig.add_subplot()
-        ys = np.arange(n)[::-1]
-        for y, (name, c) in zip(ys, items):
-            rgb = colours.get(name, by_id.get(int(c.get("id", -1)), (128, 128, 128)))
-            iou = c.get("iou")
-            if c.get("ignored") or iou is None:
-                ax.text(0.01, y, "ignored (not scored)" if c.get("ignored") else "absent from ground truth",
-                        va="center", fontsize=8, color="0.4")
-                continue
-            ax.barh(y, iou, color=_rgb01(rgb), edgecolor="0.2", linewidth=0.6, height=0.75)
-            ax.text(min(iou + 0.01, 0.9), y, f"{iou:.3f}", va="center", fontsize=8)
-        miou = metrics.get("miou")
-        if miou is not None:
-            ax.axvline(miou, color="0.2", linestyle="--", linewidth=1, label=f"mIoU {miou:.3f}")
-            ax.legend(loc="lower right")
-        ax.set_yticks(ys, [name for name, _ in items])
-        ax.set_xlim(0.0, 1.0)
-        ax.set_ylim(-0.6, n - 0.4)
-        ax.set_xlabel("IoU")
-        ax.set_title("Per-class IoU")
+    ax = fig.add_subplot()
+    ys = np.arange(n)[::-1]
+    for y, (name, c) in zip(ys, items):
+        rgb = colours.get(name, by_id.get(int(c.get("id", -1)), (128, 128, 128)))
+        iou = c.get("iou")
+        if c.get("ignored") or iou is None:
+            ax.text(0.01, y, "ignored (not scored)" if c.get("ignored") else "absent from ground truth",
+                    va="center", fontsize=8, color="0.4")
+            continue
+        ax.barh(y, iou, color=_rgb01(rgb), edgecolor="0.2", linewidth=0.6, height=0.75)
+        ax.text(min(iou + 0.01, 0.9), y, f"{iou:.3f}", va="center", fontsize=8)
+    miou = metrics.get("miou")
+    if miou is not None:
+        line = ax.axvline(miou, color="0.2", linestyle="--", linewidth=1, label=f"mIoU {miou:.3f}")
+        legend_below(fig, [line])  # under the axes: inside them it hid the value of a bar
+    ax.set_yticks(ys, [name for name, _ in items])
+    ax.set_xlim(0.0, 1.0)
+    ax.set_ylim(-0.6, n - 0.4)
+    ax.set_xlabel("IoU")
+    ax.set_title("Per-class IoU")
+    return ax
+
+
+def per_class_iou_png(metrics: Mapping[str, Any], class_table: Mapping[str, Any], path: Path | str) -> Path:
+    """Horizontal bars of each class's IoU in its class colour, with the mIoU as a dashed line
+    named in a legend under the bars.
+
+    Classes absent from the ground truth (IoU ``null``) are listed as "absent", not drawn as 0.
+    """
+    with _figure(6.5, max(2.5, 0.32 * len(metrics["per_class"]) + 1.5)) as fig:
+        draw_per_class_iou(fig, metrics, class_table)
         return _save(fig, path)
