@@ -144,8 +144,9 @@ def inference_options(func: F) -> F:
                           "dissertation's)."),
         click.option("--tta", is_flag=True, help="Average over flips (and 90-degree turns of square inputs)."),
         click.option("--resolution", metavar="METRES|model",
-                     help="Resample georeferenced inputs to this ground pixel size before predicting ('model': the "
-                          "training data's, from the checkpoint); masks and labels stay on the input's grid."),
+                     help="Resample georeferenced inputs, and a dataset's images (placed by its manifest.json), to "
+                          "this ground pixel size before predicting ('model': the training data's, from the "
+                          "checkpoint); masks and labels stay on the input's grid."),
         click.option("--device", default="auto", show_default=True,
                      help="auto (a GPU when there is one) | cpu | cuda | cuda:N"),
     ]
