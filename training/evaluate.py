@@ -34,6 +34,7 @@ from osmseg.images import read_label, read_rgb
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress, track
+from osmseg.units import plural
 from training.checkpoint import load_checkpoint, model_from_checkpoint
 from training.data import SampleFiles, discover_dataset
 from training.figures import confusion_matrix_png, per_class_iou_png, qualitative_panels, training_curves_png
@@ -79,11 +80,11 @@ def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequen
         if (checkpoint.get("config") or {}).get("split_by") == "image" and split == "test":
             logger.warning("the model's splits were drawn by image (--split-by image): test images may share "
                            "ground with training images, so these numbers can be optimistic")
-        return chosen, f"the '{split}' split the model was trained with ({len(chosen)} images)"
+        return chosen, f"the '{split}' split the model was trained with ({plural(len(chosen), 'image')})"
     if split != "all":
-        logger.warning("%s is not the dataset the model was trained on: evaluating all its %d images "
-                       "(--split applies to the training dataset only)", dataset, len(files))
-    return files, f"all {len(files)} images (not the dataset the model was trained on)"
+        logger.warning("%s is not the dataset the model was trained on: evaluating all its %s "
+                       "(--split applies to the training dataset only)", dataset, plural(len(files), "image"))
+    return files, f"all {plural(len(files), 'image')} (not the dataset the model was trained on)"
 
 
 def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[SampleFiles], opts: EvalOptions,
