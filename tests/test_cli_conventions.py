@@ -82,7 +82,7 @@ def test_verbosity_after_the_command_acts_as_before_it_and_adds_up(tmp_path: Pat
     said = osmseg_process(*bench, tmp_path / "b1")
     hushed = osmseg_process(*bench, tmp_path / "b2", "-q")
     assert said.returncode == hushed.returncode == 0, said.stderr + hushed.stderr
-    assert "rendered panoramas" in said.stderr and hushed.stderr == ""
+    assert "1 rendered panorama, classes" in said.stderr and hushed.stderr == ""
     assert hushed.stdout.strip() == str(tmp_path / "b2" / "results.json")
 
 

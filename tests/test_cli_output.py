@@ -120,6 +120,42 @@ def test_a_build_in_a_log_says_how_far_it_got_in_plain_lines(tmp_path: Path) -> 
     assert (code, err) == (0, b"")
 
 
+def test_a_rerun_build_says_it_had_nothing_to_do_and_counts_agree_with_their_nouns(tmp_path: Path) -> None:
+    """A finished build run again says first that every sample was already built, then its usual
+    summary (before, only the summary, as if it had built them); -q still prints nothing. A build
+    of one sample says "accepted 1 sample" (it said "accepted 1 samples")."""
+    args = ["--no-progress", *build_args(tmp_path / "ds")]
+    first = osmseg_process(args, log=tmp_path / "first.log")[1].decode().splitlines()
+    assert first[0].startswith("accepted 2 samples; rejected ") and not any("nothing to do" in x for x in first)
+    code, err = osmseg_process(args, log=tmp_path / "again.log")
+    again = err.decode().splitlines()
+    assert code == 0 and again[0] == "nothing to do: every sample was already built", again
+    assert again[1] == first[0] and again[2].startswith("time "), again
+    assert osmseg_process([*args, "-q"], log=tmp_path / "hushed.log") == (0, b"")
+    one = [*build_args(tmp_path / "one"), "--no-progress"]
+    one[one.index("--samples") + 1] = "1"
+    lines = osmseg_process(one, log=tmp_path / "one.log")[1].decode().splitlines()
+    assert lines[0].startswith("accepted 1 sample; rejected "), lines
+
+
+def test_a_log_rounds_its_percentages() -> None:
+    """8 of 12 is 67 % (it said 66 %, floored); 100 % only at the end, 0 % only before the first."""
+    from osmseg.cli.drawers import ProgressLines
+
+    lines: list[str] = []
+    draw = ProgressLines(lines.append, clock=lambda: 0.0)
+    for done in range(13):
+        draw(Step("build", done, 12, "sample"))
+    said = [line.split(" in ")[0] for line in lines]
+    assert "build: 8/12 samples (67%)" in said and "build: 11/12 samples (92%)" in said, said
+    assert said[-1] == "build: 12/12 samples (100%)"
+    lines.clear()
+    for done in (0, 1, 199, 200):
+        draw(Step("predict", done, 200, "window"))
+    assert [line.split(" in ")[0] for line in lines] == ["predict: 199/200 windows (99%)",
+                                                         "predict: 200/200 windows (100%)"], lines
+
+
 def test_training_in_a_log_prints_one_line_per_epoch(tmp_path: Path) -> None:
     """Stderr a file, as ``make demo 2> log`` or a batch job: one line per epoch with the epoch,
     its training loss, validation loss and mIoU (those of log.csv) and its seconds; the batches

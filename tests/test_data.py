@@ -109,7 +109,7 @@ def test_discover_errors_are_one_line_and_name_the_problem(tmp_path: Path) -> No
         (tmp_path / "labels" / f"{name}.png").unlink()
     with pytest.raises(DatasetError) as exc:
         discover(tmp_path)
-    assert "no label for 4 image(s): b, c, d and 1 more" in one_line(exc)
+    assert "no label for 4 images: b, c, d and 1 more" in one_line(exc)
     for name in ("b", "c", "d", "e"):
         (tmp_path / "images" / f"{name}.png").unlink()
     (tmp_path / "images" / ".a.png.x1.tmp").write_bytes(b"half-written")  # hidden temp files are ignored

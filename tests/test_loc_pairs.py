@@ -54,6 +54,21 @@ def write_pairs(root: Path, names: tuple[str, ...] = ("p1", "p2"), *, images: bo
     return root
 
 
+def test_what_is_left_out_of_the_pairs_is_said_in_agreeing_words(tmp_path: Path,
+                                                                 caplog: pytest.LogCaptureFixture) -> None:
+    """One lonely landmark file, one unknown name in truth.csv, one pair without its truth: each said
+    in the singular (they said '1 landmark files have', '1 pairs that do not exist', '1 pairs have')."""
+    root = write_pairs(tmp_path / "pairs", ("p1", "p2"))
+    (root / "aerial" / "p3.txt").write_text((root / "aerial" / "p1.txt").read_text())
+    (root / "truth.csv").write_text(f"name,x,y\np1,{TRUTH[0]},{TRUTH[1]}\nzz,{TRUTH[0]},{TRUTH[1]}\n")
+    with caplog.at_level("WARNING"):
+        assert [p.name for p in load_pairs(root)] == ["p1", "p2"]
+    said = [r.getMessage() for r in caplog.records]
+    assert any(m.startswith("1 landmark file has no partner on the other side and is skipped: p3") for m in said), said
+    assert any(m.startswith("truth.csv names 1 pair that does not exist (zz)") for m in said), said
+    assert "1 pair has no line in truth.csv: its truth is the aerial image's centre" in said, said
+
+
 def test_pairs_are_read_with_sizes_from_images_and_truth_from_csv(tmp_path: Path) -> None:
     pairs = load_pairs(write_pairs(tmp_path / "pairs"))
     assert [p.name for p in pairs] == ["p1", "p2"]

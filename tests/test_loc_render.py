@@ -350,7 +350,7 @@ def test_cli_bad_input_is_one_line(tmp_path: Path) -> None:
     assert res.exit_code == 1 and "manifest.json" in res.stderr
     res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--viewpoints", "100000",
                                                  "--out", str(tmp_path / "o")], obj={"verbosity": 0})
-    assert res.exit_code == 2 and "standable pixels" in res.stderr
+    assert res.exit_code == 2 and "pixels of the standable classes" in res.stderr and "100,000 viewpoints asked" in res.stderr
     res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--class-height", "tall",
                                                  "--out", str(tmp_path / "o")], obj={"verbosity": 0})
     assert res.exit_code == 2 and "CLASS=METRES" in res.stderr

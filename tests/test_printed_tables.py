@@ -20,7 +20,7 @@ from conftest import TEST_DATA, table_after, table_rows
 from test_loc_pairs import write_pairs
 
 from osmseg.cli.main import cli
-from osmseg.units import number
+from osmseg.units import column, metres, number
 
 
 @pytest.fixture(scope="module")
@@ -41,13 +41,15 @@ def check_method_tables(printed: str, results: dict, unit: str) -> None:
     confidence = table_after(printed, ["method", "match/other AUC"], len(methods))
     assert list(confidence[0]) == ["method", "match/other AUC", "right/wrong AUC", "threshold", "accepted",
                                    "of them wrong"]
-    for (name, m), row, conf in zip(methods.items(), errors, confidence):
+    per_view = column([m["localize_mean_s"] for m in methods.values()], "s")
+    assert len({len(row["s/view"].split(".")[-1]) for row in errors}) == 1, errors  # one precision in the column
+    for (name, m), row, conf, seconds in zip(methods.items(), errors, confidence, per_view):
         assert row["method"] == conf["method"] == name
         assert row["answered"] == f"{m['answered']}/{m['n']}"
         assert row[f"median {unit}"] == number(m["median_error"], unit)
         assert row[f"mean {unit}"] == number(m["mean_error"], unit)
         assert [row[f"@{r} {unit}"] for r in radii] == [number(m["recall_at"][r], "ratio") for r in radii]
-        assert row["s/view"] == number(m["localize_mean_s"], "s")
+        assert row["s/view"] == seconds and float(seconds) == pytest.approx(m["localize_mean_s"], rel=0.01)
         assert conf["match/other AUC"] == number(m["roc_auc"], "ratio")
         assert conf["right/wrong AUC"] == number(m.get("right_wrong_auc"), "ratio")
         assert conf["accepted"] == number(m.get("accepted"), "ratio")
@@ -64,6 +66,25 @@ def test_localize_bench_prints_the_methods_one_label_per_column(demo_dataset: Pa
     check_method_tables(result.stderr, results, "m")
     profile = results["methods"]["profile"]
     assert table_after(result.stderr, ["method", "threshold"], 2)[1]["threshold"] == f"{profile['threshold']:g}"
+
+
+def test_localize_bench_says_its_counts_and_the_candidate_baseline_in_words(demo_dataset: Path, tmp_path: Path) -> None:
+    """One view is '1 rendered panorama', the one subset of 4 classes '(1 subset)' (they said '1
+    rendered panoramas', '1 subsets'); the paper method's random-candidate baseline says what it is
+    beside the method's own median (it said 'paper method, a random candidate: median ...')."""
+    out = tmp_path / "bench"
+    result = CliRunner().invoke(cli, ["--no-progress", "localize-bench", str(demo_dataset), "--viewpoints", "1", "--method",
+                                      "paper,profile", "--no-plots", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    results = json.loads((out / "results.json").read_text())
+    lines = result.stderr.splitlines()
+    assert lines[0].startswith("1 rendered panorama, classes ")
+    assert any(line.strip().startswith("4 classes (1 subset): ") for line in lines), lines
+    assert any(line.strip().startswith("2 classes (6 subsets): ") for line in lines), lines
+    baseline = results["baselines"]["random_candidate_median"]
+    assert baseline is not None
+    assert (f"baseline of the paper method, one of its own candidates taken at random: median error "
+            f"{metres(baseline)} (the method's answers: {metres(results['methods']['paper']['median_error'])})") in lines
 
 
 def test_localize_pairs_without_truth_makes_up_no_centre_baseline(tmp_path: Path) -> None:

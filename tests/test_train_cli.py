@@ -356,8 +356,12 @@ def test_a_killed_run_resumes_to_the_same_weights(trained: tuple[Path, Result], 
     assert proc.returncode == -signal.SIGKILL
     assert load_checkpoint(run / "last.pt")["epoch"] == killed_after < EPOCHS  # it really was interrupted
 
-    finish = subprocess.run(command, env=subprocess_env(), capture_output=True, cwd=tmp_path, timeout=300)
+    loud = [c for c in command if c != "-q"] + ["--no-progress"]  # the rerun says it resumes (not with -q)
+    finish = subprocess.run(loud, env=subprocess_env(), capture_output=True, cwd=tmp_path, timeout=300)
     assert finish.returncode == 0, finish.stderr.decode()[-2000:]
+    said = [line for line in finish.stderr.decode().splitlines() if not line.startswith("WARNING")]
+    assert said[0] == f"resuming {run} after epoch {killed_after} of {EPOCHS}", said  # once, before anything else
+    assert sum("resuming" in line for line in said) == 1 and said[1].startswith("best epoch "), said
 
     a, b = load_checkpoint(reference / "last.pt"), load_checkpoint(run / "last.pt")
     assert b["epoch"] == EPOCHS
@@ -483,6 +487,15 @@ def test_config_file_with_an_unknown_setting_is_a_usage_error(tmp_path: Path) ->
     assert result.exit_code == 2
     assert "unknown settings ['epochz']" in result.output
     assert not (tmp_path / "run").exists()
+
+
+def test_a_finished_run_run_again_says_it_has_nothing_to_do(trained: tuple[Path, Result], tmp_path: Path) -> None:
+    run = Path(shutil.copytree(trained[0], tmp_path / "run"))
+    result = CliRunner().invoke(cli, ["--no-progress", *(str(a) for a in train_args(run))])
+    assert result.exit_code == 0, result.output
+    said = [line for line in result.stderr.splitlines() if not line.startswith("WARNING")]
+    assert said[0] == f"nothing to do: {run} has trained its {EPOCHS} epochs" and said[1].startswith("best epoch "), said
+    assert osmseg(*train_args(run)).stderr == ""  # -q: nothing
 
 
 def test_resuming_a_run_with_other_settings_is_refused_and_keeps_it(trained: tuple[Path, Result],

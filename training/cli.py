@@ -29,7 +29,7 @@ from osmseg.cli.common import (
 )
 from osmseg.cli.drawers import progress_drawer
 from osmseg.errors import ConfigError
-from osmseg.units import ratio
+from osmseg.units import plural, ratio
 
 
 def _default(name: str) -> object:
@@ -120,8 +120,14 @@ def train_command(ctx: click.Context, /, dataset: Path, out_dir: Path, config_fi
     overrides = {k: v for k, v in options.items() if k in typed}
     overrides["ignore_unlabeled"] = not keep_unlabeled if "keep_unlabeled" in typed else None
     config = make_config(dataset, out_dir, find_config_file(config_file) if config_file else None, overrides)
+
+    def resuming(done: int, epochs: int) -> None:
+        if ctx.obj["verbosity"] >= 0:
+            click.echo(f"nothing to do: {out_dir} has trained its {plural(epochs, 'epoch')}" if done >= epochs else
+                       f"resuming {out_dir} after epoch {done} of {epochs}", err=True)
+
     with progress_drawer(ctx.obj.get("progress")) as progress:
-        summary = run(config, progress=progress)
+        summary = run(config, progress=progress, resuming=resuming)
     if summary.rank != 0:  # under torchrun only rank 0 reports, as only it writes
         return
     if summary.best is not None and ctx.obj["verbosity"] >= 0:
@@ -144,8 +150,9 @@ def inference_options(func: F) -> F:
                           "dissertation's)."),
         click.option("--tta", is_flag=True, help="Average over flips (and 90-degree turns of square inputs)."),
         click.option("--resolution", metavar="METRES|model",
-                     help="Resample georeferenced inputs to this ground pixel size before predicting ('model': the "
-                          "training data's, from the checkpoint); masks and labels stay on the input's grid."),
+                     help="Resample georeferenced inputs, and a dataset's images (placed by its manifest.json), to "
+                          "this ground pixel size before predicting ('model': the training data's, from the "
+                          "checkpoint); masks and labels stay on the input's grid."),
         click.option("--device", default="auto", show_default=True,
                      help="auto (a GPU when there is one) | cpu | cuda | cuda:N"),
     ]

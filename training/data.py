@@ -46,6 +46,7 @@ from osmseg.errors import DatasetError
 from osmseg.grid import ground_pixel_size
 from osmseg.images import image_size, is_tiff, read_label, read_rgb
 from osmseg.output.manifest import manifest_path, read_manifest
+from osmseg.units import plural
 from training.augment import OVERHEAD, AugmentConfig, Draw, draw, item_rng, jitter, orient
 
 logger = logging.getLogger(__name__)
@@ -164,11 +165,12 @@ def discover(root: Path, image_dir: str = "images", label_dir: str = "labels") -
     missing = [name for name in images if name not in labels]
     if missing:
         shown = ", ".join(missing[:3]) + (f" and {len(missing) - 3} more" if len(missing) > 3 else "")
-        raise DatasetError(f"{folders[1]}: no label for {len(missing)} image(s): {shown}; add the labels or "
+        raise DatasetError(f"{folders[1]}: no label for {plural(len(missing), 'image')}: {shown}; add the labels or "
                            "remove the images")
     orphans = sorted(set(labels) - set(images))
     if orphans:
-        logger.warning("%s: %d label(s) without an image ignored (e.g. %s)", folders[1], len(orphans), orphans[0])
+        logger.warning("%s: %s without an image ignored (e.g. %s)", folders[1], plural(len(orphans), "label"),
+                       orphans[0])
     files = [SampleFiles(name=name, image=path, label=labels[name]) for name, path in sorted(images.items())]
     for f in files:
         image_size(f.image)

@@ -18,6 +18,7 @@ import torch
 from torch import nn
 
 from osmseg.progress import Progress, track
+from osmseg.units import plural
 from training.distributed import all_reduce_sum, is_distributed
 from training.metrics import ConfusionMatrix
 
@@ -118,7 +119,8 @@ def train_one_epoch(
             if on_step is not None:
                 on_step(step, loss.item())
     if skipped:
-        logger.info("epoch %d: %d batch(es) had no labelled pixel and were skipped", epoch, skipped)
+        logger.info("epoch %d: %s had no labelled pixel and %s skipped", epoch, plural(skipped, "batch"),
+                    "was" if skipped == 1 else "were")
     all_reduce_sum(total)
     return float(total[0] / total[1]) if total[1] else None
 

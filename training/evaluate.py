@@ -12,13 +12,17 @@ checkpoint's epoch; the checkpoint's epoch marked).
 Foreign labelled data (e.g. Inria's building masks) is compared through a class mapping
 (``data_manifests/inria-buildings.toml``) that maps both the labels and the model's classes
 onto the evaluation classes.
+
+A dataset's images are placed by its manifest (each sample's ``ground_resolution_m`` and
+``bounds_3857``), so they are resampled for ``--resolution`` as a GeoTIFF of the same place
+would be, and an evaluation far from the training data's resolution is warned about once.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,12 +36,14 @@ from osmseg.images import read_label, read_rgb
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress, track
+from osmseg.units import plural
 from training.checkpoint import load_checkpoint, model_from_checkpoint
 from training.data import SampleFiles, discover_dataset
 from training.figures import checkpoint_curves_png, confusion_matrix_png, per_class_iou_png, qualitative_panels
 from training.infer import InferenceOptions
 from training.metrics import ConfusionMatrix, EvalMetrics, Metrics, format_table, load_class_mapping
-from training.predict import predict_image, target_resolution
+from training.predict import predict_image
+from training.resolution import GroundPlace, dataset_places, known_resolution, target_resolution, warn_resolutions
 from training.runclasses import eval_correspondence
 from training.spec import ModelSpec
 from training.train import dataset_fingerprint
@@ -76,23 +82,28 @@ def choose_files(checkpoint: dict[str, Any], dataset: Path | None, pairs: Sequen
         if (checkpoint.get("config") or {}).get("split_by") == "image" and split == "test":
             logger.warning("the model's splits were drawn by image (--split-by image): test images may share "
                            "ground with training images, so these numbers can be optimistic")
-        return chosen, f"the '{split}' split the model was trained with ({len(chosen)} images)"
+        return chosen, f"the '{split}' split the model was trained with ({plural(len(chosen), 'image')})"
     if split != "all":
-        logger.warning("%s is not the dataset the model was trained on: evaluating all its %d images "
-                       "(--split applies to the training dataset only)", dataset, len(files))
-    return files, f"all {len(files)} images (not the dataset the model was trained on)"
+        logger.warning("%s is not the dataset the model was trained on: evaluating all its %s "
+                       "(--split applies to the training dataset only)", dataset, plural(len(files), "image"))
+    return files, f"all {plural(len(files), 'image')} (not the dataset the model was trained on)"
 
 
 def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[SampleFiles], opts: EvalOptions,
                     match: Correspondence | None = None, progress: Progress | None = None,
+                    places: Mapping[str, GroundPlace] | None = None,
                     ) -> tuple[Metrics, list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], dict[str, Any]]:
     """Metrics over ``files``, the first panels' arrays, and the table they were computed in.
 
     ``match`` (:func:`training.runclasses.eval_correspondence`) says how the labels' ids and the
     model's are compared: the labels mapped onto the model's classes (a 13-class dataset for
     AirSegNet6), or the outputs onto the labels' (AirSegNet13 on a 6-class dataset); None: the
-    labels are in the model's ids.
+    labels are in the model's ids. ``places`` (:func:`dataset_places`, by sample name) place the
+    images whose files do not say where they lie, for ``opts.resolution_m``. How far the images'
+    ground resolution is from the training data's is said once for all of them
+    (:func:`training.predict.warn_resolutions`), before the first is predicted.
     """
+    places = places or {}
     names = spec.class_names  # by output id: the table lists classes in rule order, not id order
     mapping = load_class_mapping(opts.mapping) if opts.mapping else None
     label_lut = match.labels if match is not None else None
@@ -111,6 +122,7 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
         matrix = ConfusionMatrix(spec.num_classes, ignore_index=spec.ignore_index)
         class_names = spec.class_names  # by id
     target_m = target_resolution(opts.resolution_m, spec)
+    warn_resolutions([(str(f.image), known_resolution(f.image, places.get(f.name))) for f in files], spec, target_m)
     inference = InferenceOptions(opts.mode, opts.join, None, opts.tta, opts.batch_size, opts.device)
     panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
     for f in track(files, progress, "evaluate", unit="image"):
@@ -119,7 +131,8 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
         if truth.shape != rgb.shape[:2]:
             raise DatasetError(f"{f.label}: label is {truth.shape[1]}x{truth.shape[0]} but the image is "
                                f"{rgb.shape[1]}x{rgb.shape[0]}; give labels on the image's grid")
-        pred = predict_image(model, spec, f.image, inference, target_m)  # exactly what `osmseg predict` writes
+        pred = predict_image(model, spec, f.image, inference, target_m,  # exactly what `osmseg predict` writes
+                             place=places.get(f.name), warn=False)
         if mapping is not None:
             truth, pred = mapping.map_gt(truth), mapping.map_pred(pred, names)
         else:
@@ -144,7 +157,8 @@ def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: E
     files, which = choose_files(checkpoint, dataset, pairs, opts.split)
     if not files:
         raise DatasetError(f"nothing to evaluate: the '{opts.split}' split is empty; use --split all")
-    scores, panels, table = evaluate_images(model, spec, files, opts, match, progress)
+    places = dataset_places(dataset) if not pairs else {}
+    scores, panels, table = evaluate_images(model, spec, files, opts, match, progress, places)
     metrics: EvalMetrics = {**scores, "evaluated": {
         "checkpoint": str(checkpoint_path), "images": which, "mode": opts.mode, "join": opts.join, "tta": opts.tta,
         "mapping": opts.mapping, "resolution_m": target_resolution(opts.resolution_m, spec)}}

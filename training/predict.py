@@ -6,9 +6,12 @@ every osmseg GeoTIFF carries (:mod:`osmseg.output.geotiff`), block by block for 
 (:mod:`training.infer` runs the model). With a target ground resolution the input is seen
 through a bilinear WarpedVRT at that pixel size and the classes are brought back onto the
 input's own grid with nearest neighbour, so a 0.1 m drone mosaic reaches a model trained on
-0.3 m pixels at the size it learnt objects; :func:`check_resolution` warns when an input is far
-from the training data's resolution and nothing resamples it. Imports: osmseg core and
-:mod:`training.infer`.
+0.3 m pixels at the size it learnt objects. An image that does not say where it lies (a dataset's
+PNG or JPEG) is resampled the same way when its :class:`~training.resolution.GroundPlace` is
+known (a dataset's manifest records each sample's); :mod:`training.resolution` also says once,
+for all the inputs, which are far from the training data's resolution with nothing resampling
+them, or cannot be resampled. Imports: osmseg core, :mod:`training.infer` and
+:mod:`training.resolution`.
 """
 
 from __future__ import annotations
@@ -28,14 +31,15 @@ import rasterio
 import torch
 from affine import Affine
 from PIL import Image
-from rasterio.enums import Resampling
+from rasterio.enums import ColorInterp, Resampling
 from rasterio.errors import NotGeoreferencedWarning, RasterioError
+from rasterio.io import MemoryFile
 from rasterio.vrt import WarpedVRT
 from rasterio.warp import reproject
 from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError
-from osmseg.grid import ground_pixel_size, resolution_mismatch
+from osmseg.grid import ground_pixel_size
 from osmseg.output.atomic import atomic_path
 from osmseg.output.geotiff import cog_file, write_class_metadata
 from osmseg.output.manifest import refuse_busy
@@ -54,6 +58,14 @@ from training.infer import (
     error_reason,
     run_model,
 )
+from training.resolution import (
+    GroundPlace,
+    input_places,
+    known_resolution,
+    resolution_factor,
+    target_resolution,
+    warn_resolutions,
+)
 from training.runclasses import check_mask_folder
 from training.tiling import pixel_blocks
 
@@ -61,6 +73,7 @@ if TYPE_CHECKING:
     from training.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
+
 
 
 @contextmanager
@@ -112,63 +125,6 @@ def _open_source(src: Path) -> Iterator[tuple[Source, dict[str, Any]]]:
         yield RasterSource(dataset, str(src)), {"crs": dataset.crs, "transform": dataset.transform}
 
 
-def input_resolution(src: str | Path) -> float | None:
-    """Ground metres per pixel of an image file (geodesic, any CRS); None without georeferencing."""
-    path = Path(src)
-    if path.suffix.lower() in PIL_SUFFIXES:
-        return None
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(path) as ds:
-                return ground_pixel_size(ds.crs, ds.transform, ds.width, ds.height) if ds.crs else None
-    except RasterioError:
-        return None
-
-
-def resolution_factor(pixel_m: float | None, target_m: float | None) -> float:
-    """How much to enlarge an image with ``pixel_m`` pixels so they become ``target_m`` (1.0: leave it).
-
-    >>> resolution_factor(0.6, 0.3), resolution_factor(None, 0.3), resolution_factor(0.3, 0.31)
-    (2.0, 1.0, 1.0)
-    """
-    if pixel_m is None or target_m is None:
-        return 1.0
-    factor = pixel_m / target_m
-    return 1.0 if abs(factor - 1.0) < 0.05 else factor
-
-
-def target_resolution(asked: float | str | None, spec: ModelSpec) -> float | None:
-    """``--resolution``'s metres: a number, ``"model"`` (the training data's, from the checkpoint) or None."""
-    if asked is None or isinstance(asked, (int, float)):
-        return None if asked is None else float(asked)
-    if str(asked).strip().lower() == "model":
-        if spec.resolution_m is None:
-            raise ConfigError("--resolution model: this checkpoint does not record the ground resolution of its "
-                              "training data; give it in metres, e.g. --resolution 0.3")
-        return spec.resolution_m
-    try:
-        value = float(asked)
-    except ValueError:
-        raise ConfigError(f"--resolution {asked!r}: give metres per pixel (e.g. 0.3) or 'model'") from None
-    if not value > 0:
-        raise ConfigError(f"--resolution {asked!r}: must be > 0 metres per pixel")
-    return value
-
-
-def check_resolution(pixel_m: float | None, spec: ModelSpec, name: str, asked: float | None) -> None:
-    """Warn when an input's pixels are far (more than :data:`~osmseg.grid.RESOLUTION_MISMATCH`, 1.5x,
-    the threshold ``osmseg build`` warns at too) from the training data's and nothing resamples them."""
-    trained = spec.resolution_m
-    if asked is not None or pixel_m is None or trained is None:
-        return
-    factor = resolution_mismatch(pixel_m, trained)
-    if factor is not None:
-        logger.warning("%s has %.3g m pixels but the model was trained on %.3g m pixels: objects look %.1fx %s "
-                       "than it learnt them; pass --resolution model to resample the input first", name, pixel_m,
-                       trained, factor, "smaller" if pixel_m > trained else "larger")
-
-
 @dataclass(frozen=True)
 class PredictConfig:
     """What ``osmseg predict`` does: a checkpoint's model over ``inputs``, masks into ``out_dir``."""
@@ -208,6 +164,8 @@ def predict_files(config: PredictConfig, progress: Progress | None = None) -> li
     model, spec = model_from_checkpoint(config.checkpoint, device=config.device)
     check_mask_folder(config.out_dir, spec.table, config.checkpoint)  # never masks of one table among another's
     resolution_m = target_resolution(config.resolution, spec)
+    places = input_places(config.inputs)  # a dataset's images: placed by its manifest
+    warn_resolutions([(str(src), known_resolution(src, places.get(src))) for src in config.inputs], spec, resolution_m)
     config.out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for src in track(config.inputs, progress, "predict", unit="image"):  # each image's windows: its own task
@@ -215,7 +173,7 @@ def predict_files(config: PredictConfig, progress: Progress | None = None) -> li
         written.append(predict_file(model, spec, src, dst, colour_dst=colour, mode=config.mode, join=config.join,
                                     overlap=config.overlap, block_size=config.block_size, tta=config.tta,
                                     batch_size=config.batch_size, device=config.device, progress=progress,
-                                    resolution_m=resolution_m))
+                                    resolution_m=resolution_m, place=places.get(src), warn=False))
     return written
 
 
@@ -223,7 +181,8 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
                  colour_dst: str | Path | None = None, mode: str = "split-join", join: str = "blend",
                  overlap: int | tuple[int, int] | None = None, tta: bool = False, batch_size: int = 4,
                  device: str = "cpu", block_size: int | None = DEFAULT_BLOCK,
-                 progress: Progress | None = None, resolution_m: float | None = None) -> Path:
+                 progress: Progress | None = None, resolution_m: float | None = None,
+                 place: GroundPlace | None = None, warn: bool = True) -> Path:
     """Predict ``src`` (PNG/JPEG/GeoTIFF or any GDAL raster) into a class-id mask at ``dst``.
 
     ``dst`` ending in .png gets an 8-bit greyscale PNG of class ids (the whole mask is held in
@@ -233,8 +192,11 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
     ``colour_dst`` (.png, or .tif beside a .tif mask) gets an RGB picture in the class colours.
     ``resolution_m``: a georeferenced input is first resampled (bilinear, on the fly) to pixels of
     that ground size, predicted there, and the classes brought back onto the input's own grid
-    (nearest), so the mask always matches the input pixel for pixel. Writes are atomic.
-    Returns ``dst``.
+    (nearest), so the mask always matches the input pixel for pixel; ``place``: where an input lies
+    whose file does not say (:func:`predict_image`). ``warn``: say when the input
+    is far from the training data's resolution with nothing resampling it, or ``resolution_m``
+    cannot apply (False: the caller said it, once for all inputs: :func:`warn_resolutions`).
+    Writes are atomic. Returns ``dst``.
     """
     options = InferenceOptions(mode, join, overlap, tta, batch_size, device, block_size)
     src, dst = Path(src), Path(dst)
@@ -246,12 +208,12 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
         raise ConfigError(f"{dst}: the output would overwrite the input image; choose another path")
     lut = spec.palette()
     if out_kind == "png":
-        classes = predict_image(model, spec, src, options, resolution_m, progress)
+        classes = predict_image(model, spec, src, options, resolution_m, progress, place=place, warn=warn)
         with atomic_path(dst) as tmp:
             Image.fromarray(classes).save(tmp, format="PNG")
     else:
         with _open_source(src) as (source, georef):
-            factor = _factor(source, georef, spec, src, resolution_m, options)
+            factor, georef = _factor(source, georef, spec, src, resolution_m, options, place, warn)
             with _resampled(source, georef, factor) as (work, work_georef):
                 profile = {"driver": "GTiff", "height": work.height, "width": work.width, "count": 1,
                            "dtype": "uint8", "compress": "deflate", "tiled": True, "blockxsize": 256,
@@ -274,15 +236,18 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
 
 
 def predict_image(model: torch.nn.Module, spec: ModelSpec, src: str | Path, options: InferenceOptions,
-                  resolution_m: float | None = None, progress: Progress | None = None) -> np.ndarray:
+                  resolution_m: float | None = None, progress: Progress | None = None, *,
+                  place: GroundPlace | None = None, warn: bool = True) -> np.ndarray:
     """Class ids ``(H, W)`` uint8 of an image file, on the file's own grid, held in memory.
 
     What :func:`predict_file` writes as a PNG mask and what ``osmseg eval`` scores: the same
     resampling (a bilinear WarpedVRT to ``resolution_m``, GDAL's nearest neighbour back), so
     ``predict`` and ``eval`` of one image with one ``--resolution`` give the same classes.
+    ``place``: where the image lies when the file does not say (a dataset sample's PNG): it is
+    resampled as a GeoTIFF of that place would be. ``warn``: as :func:`predict_file`'s.
     """
     with _open_source(Path(src)) as (source, georef):
-        factor = _factor(source, georef, spec, Path(src), resolution_m, options)
+        factor, georef = _factor(source, georef, spec, Path(src), resolution_m, options, place, warn)
         with _resampled(source, georef, factor) as (work, work_georef):
             sink = ArraySink(work.height, work.width)
             run_model(model, spec, work, sink, options, progress)
@@ -295,16 +260,21 @@ def predict_image(model: torch.nn.Module, spec: ModelSpec, src: str | Path, opti
 
 
 def _factor(source: Source, georef: dict[str, Any], spec: ModelSpec, src: Path, resolution_m: float | None,
-            options: InferenceOptions) -> float:
-    """How much to enlarge ``source`` for ``resolution_m`` (warning when it is far from the training's)."""
+            options: InferenceOptions, place: GroundPlace | None = None, warn: bool = True,
+            ) -> tuple[float, dict[str, Any]]:
+    """How much to enlarge ``source`` for ``resolution_m``, and the georeferencing it is resampled
+    with: the file's own, else ``place``'s (``warn``: when the input is far from the training's
+    resolution, or cannot be resampled)."""
     pixel_m = (ground_pixel_size(georef["crs"], georef["transform"], source.width, source.height)
                if georef.get("crs") else None)
-    check_resolution(pixel_m, spec, str(src), resolution_m)
-    if resolution_m is not None and pixel_m is None:
-        logger.warning("%s is not georeferenced: --resolution cannot apply, predicted at its own pixel size", src)
+    if pixel_m is None and place is not None:  # measured on its place's grid as a GeoTIFF of that place would be
+        georef = place.georef(source.width, source.height)
+        pixel_m = ground_pixel_size(georef["crs"], georef["transform"], source.width, source.height) or place.pixel_m
+    if warn:
+        warn_resolutions([(str(src), pixel_m)], spec, resolution_m)
     factor = resolution_factor(pixel_m, resolution_m)
     logger.info("%s: %dx%d, %s, resampled x%.3g", src, source.width, source.height, options.mode, factor)
-    return factor
+    return factor, georef
 
 
 def _regrid(stage: Path, profile: dict[str, Any], spec: ModelSpec, block_size: int | None) -> None:
@@ -326,8 +296,16 @@ def _regrid(stage: Path, profile: dict[str, Any], spec: ModelSpec, block_size: i
 
 @contextmanager
 def _resampled(source: Source, georef: dict[str, Any], factor: float) -> Iterator[tuple[Source, dict[str, Any]]]:
-    """``source`` seen through a bilinear WarpedVRT enlarged ``factor`` times (itself when 1)."""
-    if factor == 1.0 or not isinstance(source, RasterSource):
+    """``source`` seen through a bilinear WarpedVRT enlarged ``factor`` times (itself when 1). A
+    PNG or JPEG placed by a :class:`GroundPlace` is first an in-memory GeoTIFF of its pixels."""
+    if factor == 1.0 or not georef.get("crs"):
+        yield source, georef
+        return
+    if isinstance(source, ArraySource):
+        with _raster_of(source, georef) as raster, _resampled(raster, georef, factor) as resampled:
+            yield resampled
+        return
+    if not isinstance(source, RasterSource):
         yield source, georef
         return
     width, height = max(1, round(source.width * factor)), max(1, round(source.height * factor))
@@ -336,6 +314,24 @@ def _resampled(source: Source, georef: dict[str, Any], factor: float) -> Iterato
     with WarpedVRT(source.dataset, crs=georef["crs"], transform=transform, width=width, height=height,
                    resampling=resampling) as vrt:
         yield RasterSource(vrt, source.name, source.rule), {"crs": georef["crs"], "transform": transform}
+
+
+@contextmanager
+def _raster_of(source: ArraySource, georef: dict[str, Any]) -> Iterator[RasterSource]:
+    """An image held in memory as an in-memory GeoTIFF at ``georef``: RGB, and its alpha as an alpha
+    band (the pixels it marks empty stay empty through the resampling)."""
+    whole = (0, source.height, 0, source.width)
+    bands = [*source.read(whole).transpose(2, 0, 1)]
+    if source.has_mask:
+        bands.append(np.where(source.valid(whole), 255, 0).astype(np.uint8))
+    with MemoryFile() as memory:
+        with memory.open(driver="GTiff", width=source.width, height=source.height, count=len(bands), dtype="uint8",
+                         photometric="RGB", **georef) as raster:
+            raster.write(np.stack(bands))
+            if len(bands) == 4:
+                raster.colorinterp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue, ColorInterp.alpha]
+        with memory.open() as raster:
+            yield RasterSource(raster, source.name)
 
 
 def _write_colour(mask: Path, colour: Path, lut: np.ndarray, block_size: int | None) -> None:

@@ -63,6 +63,8 @@ from training.splits import choose_splits, class_pixels, read_splits, sample_gro
 
 logger = logging.getLogger(__name__)
 
+#: What :func:`run` calls when it resumes a run: with its epochs done and the epochs asked.
+Resuming = Callable[[int, int], None]
 #: Settings that may change between an interrupted run and its resumption.
 RESUMABLE_CHANGES = {"loader_workers", "device", "tensorboard", "out_dir", "dataset"}
 #: settings added since runs began to record their recipe: what the runs made before them used
@@ -269,17 +271,19 @@ def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist,
     return splits
 
 
-def run(config: TrainConfig, progress: Progress | None = None) -> TrainResult:
+def run(config: TrainConfig, progress: Progress | None = None, resuming: Resuming | None = None) -> TrainResult:
     """Train (or resume) the run ``config`` describes; returns a summary of the best epoch.
 
     ``progress`` gets steps from rank 0 only: epochs (task ``train``, each with its losses,
     validation mIoU and seconds as values), and each epoch's training and validation batches
-    (the CLI draws them as bars on a terminal, and a line per epoch in a log).
+    (the CLI draws them as bars on a terminal, and a line per epoch in a log). ``resuming`` is
+    called once (rank 0) when the run folder holds a run with the same settings, before it goes
+    on: with its epochs done and ``config.epochs`` (equal: nothing is left to train).
     """
     d = setup(config.device)
     try:
         with ExitStack() as teardown:
-            return _run(config, d, teardown, progress)
+            return _run(config, d, teardown, progress, resuming)
     finally:
         cleanup()
 
@@ -391,7 +395,8 @@ def save_epoch(files_out: RunFiles, state: dict[str, Any], history: list[dict[st
     return best
 
 
-def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress | None = None) -> TrainResult:
+def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress | None = None,
+         resuming: Resuming | None = None) -> TrainResult:
     torch.manual_seed(config.seed)  # the same initial weights in every process
     refuse_busy(config.dataset)  # a folder a build is writing: its first build has no manifest to say so
     dataset_table, model_table, label_lut = run_tables(config.dataset, config.classes, config.model)
@@ -406,6 +411,8 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
     saved = load_checkpoint(last_path, map_location=d.device) if last_path.exists() else None
     if saved is not None:
         check_resumable(saved, config)  # before anything is written into someone else's run
+        if resuming is not None and d.is_main:  # said before the data are loaded, which takes a while
+            resuming(int(saved["epoch"]), config.epochs)
     init = read_init(config.init, spec) if saved is None else None  # a bad --init: refused before any output
     if d.is_main:  # only now: bad input above leaves no output folder behind
         config.out_dir.mkdir(parents=True, exist_ok=True)
@@ -435,8 +442,6 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
 
     files_out = RunFiles(config.out_dir, d, config.tensorboard)
     history, best, start = resumed(saved, model, optimizer, scheduler, scaler)
-    if saved is not None and d.is_main:
-        logger.info("resuming %s after epoch %d", config.out_dir, start)
 
     base_state = run_record(spec, config, splits, weights, saved, init)
     report(shown, "train", start, config.epochs, "epoch")

@@ -64,6 +64,7 @@ from localization.profile.search import ProfileConfig
 from osmseg import __version__
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.progress import Progress, track
+from osmseg.units import plural
 
 logger = logging.getLogger(__name__)
 
@@ -186,18 +187,20 @@ def load_pairs(folder: Path, config: PairsConfig = PairsConfig()) -> list[Pair]:
     names = sorted(set(aerial_files) & set(ground_files))
     lonely = sorted(set(aerial_files) ^ set(ground_files))
     if lonely:
-        logger.warning("%d landmark files have no partner on the other side and are skipped: %s", len(lonely),
-                       ", ".join(lonely[:5]))
+        logger.warning("%s no partner on the other side and %s skipped: %s",
+                       plural(len(lonely), "landmark file") + (" has" if len(lonely) == 1 else " have"),
+                       "is" if len(lonely) == 1 else "are", ", ".join(lonely[:5]))
     if not names:
         raise DatasetError(f"{folder}: no NAME has a landmark file (.txt/.csv/.npy) in both aerial/ and ground/")
     truths = _truths(folder)
     unknown = sorted(set(truths) - set(names))
     if unknown:
-        logger.warning("truth.csv names %d pairs that do not exist (%s); check its name column", len(unknown),
-                       ", ".join(unknown[:5]))
+        logger.warning("truth.csv names %s that %s not exist (%s); check its name column",
+                       plural(len(unknown), "pair"), "does" if len(unknown) == 1 else "do", ", ".join(unknown[:5]))
     if truths and len(unknown) < len(truths) and set(names) - set(truths):
-        logger.warning("%d pairs have no line in truth.csv: their truth is the aerial image's centre",
-                       len(set(names) - set(truths)))
+        untold = len(set(names) - set(truths))
+        logger.warning("%s no line in truth.csv: %s the aerial image's centre", plural(untold, "pair") +
+                       (" has" if untold == 1 else " have"), "its truth is" if untold == 1 else "their truth is")
     pairs = []
     for name in names:
         aw, ah = _size(aerial_images.get(name), config.aerial_size, aerial_files[name], "aerial")

@@ -93,6 +93,7 @@ from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.manifest import dataset_class_table, manifest_path, read_manifest, refuse_busy
 from osmseg.progress import Progress, track
+from osmseg.units import plural
 
 logger = logging.getLogger(__name__)
 
@@ -113,6 +114,7 @@ class Scene:
     table: ClassTable
     resolution_m: float
     bounds_3857: tuple[float, float, float, float] | None = None  # where it lies: for --renderer geometry
+    path: str = ""  # the mask file it was read from (messages name it)
 
 
 @dataclass(frozen=True)
@@ -225,7 +227,7 @@ def load_mask_scene(path: Path, table: ClassTable | str, resolution_m: float) ->
     tab = load_class_table(table) if isinstance(table, str) else table
     bounds = geotiff_bounds_3857(Path(path)) if Path(path).suffix.lower() in (".tif", ".tiff") else None
     return Scene(name=Path(path).stem, mask=_read_mask(Path(path)), table=tab, resolution_m=float(resolution_m),
-                 bounds_3857=bounds)
+                 bounds_3857=bounds, path=str(path))
 
 
 def load_dataset_scenes(folder: Path) -> list[Scene]:
@@ -241,7 +243,8 @@ def load_dataset_scenes(folder: Path) -> list[Scene]:
     if not samples:
         raise DatasetError(f"{folder}: the dataset has no samples")
     return [Scene(name, _read_mask(folder / "labels" / f"{name}.png"), table, res,
-                  tuple(float(v) for v in bounds) if bounds else None)  # type: ignore[arg-type]
+                  tuple(float(v) for v in bounds) if bounds else None,  # type: ignore[arg-type]
+                  str(folder / "labels" / f"{name}.png"))
             for name, res, bounds in samples]
 
 
@@ -270,23 +273,57 @@ def standable_ids(table: ClassTable, config: BenchConfig) -> list[int]:
 
 def place_viewpoints(mask: np.ndarray, ids: Sequence[int], n: int, margin_px: int,
                      rng: np.random.Generator) -> np.ndarray:
-    """``n`` distinct pixels ``(x, y)`` of classes ``ids``, at least ``margin_px`` from the border.
+    """``n`` distinct pixels ``(x, y)`` of classes ``ids``, at least ``margin_px`` from the border
+    (:func:`scene_viewpoints` says why when there are fewer such pixels).
 
     >>> m = np.zeros((10, 10), np.uint8); m[5, 2:8] = 2
     >>> xy = place_viewpoints(m, [2], 4, 3, np.random.default_rng(0))
     >>> sorted(xy[:, 0].tolist()), set(xy[:, 1].tolist())
     ([3, 4, 5, 6], {5})
     """
+    ys, xs = np.nonzero(_standable(mask, ids, margin_px))
+    if len(xs) < n:
+        raise ConfigError(f"only {len(xs)} standable pixels at least {margin_px} px from the border, {n} viewpoints "
+                          "asked")
+    pick = rng.choice(len(xs), size=n, replace=False)
+    return np.stack([xs[pick], ys[pick]], axis=1)
+
+
+def _standable(mask: np.ndarray, ids: Sequence[int], margin_px: int) -> np.ndarray:
+    """Where a viewpoint may stand: pixels of classes ``ids`` at least ``margin_px`` from the border."""
     ok = np.isin(mask, list(ids))
     h, w = mask.shape
     ok[:margin_px] = ok[h - margin_px:] = False
     ok[:, :margin_px] = ok[:, w - margin_px:] = False
-    ys, xs = np.nonzero(ok)
-    if len(xs) < n:
-        raise ConfigError(f"only {len(xs)} standable pixels at least {margin_px} px from the border, {n} viewpoints "
-                          "asked: lower --viewpoints or --margin, or use another mask")
-    pick = rng.choice(len(xs), size=n, replace=False)
-    return np.stack([xs[pick], ys[pick]], axis=1)
+    return ok
+
+
+def scene_viewpoints(scene: Scene, config: BenchConfig, n: int, rng: np.random.Generator,
+                     masks: int = 1) -> np.ndarray:
+    """``n`` of the ``config.viewpoints`` asked (spread over ``masks`` masks) placed on ``scene``
+    (:func:`place_viewpoints`), or a ConfigError that says why they do not fit, first what to
+    change: the mask holds no pixel of the classes viewpoints stand on (give ``--stand-on`` one it
+    holds, each named with its share), or too few of them lie ``--margin`` metres from its border."""
+    ids = standable_ids(scene.table, config)
+    names = ", ".join(scene.table.by_id[i].name for i in ids)
+    which = "--stand-on" if config.stand_on is not None else "standable"
+    where = scene.path or scene.name
+    counts = np.bincount(scene.mask.ravel(), minlength=256)
+    if not counts[list(ids)].any():
+        held = [(c.name, counts[c.id] / scene.mask.size) for c in scene.table.by_id.values()
+                if c.id < len(counts) and counts[c.id]]
+        shares = ", ".join(f"{name} ({share:.0%})" for name, share in sorted(held, key=lambda h: -h[1]))
+        raise ConfigError(f"no pixel of the {which} classes ({names}) in {where}: give --stand-on CLASS with a "
+                          f"class it holds: {shares or 'none'}")
+    margin_px = int(math.ceil(config.margin_m / scene.resolution_m))
+    room = int(_standable(scene.mask, ids, margin_px).sum())
+    if room < n:
+        spread = (f"{n} of the {plural(config.viewpoints, 'viewpoint')} asked, spread over {masks} masks"
+                  if masks > 1 else f"{plural(n, 'viewpoint')} asked")
+        raise ConfigError(f"{'only ' + plural(room, 'pixel') if room else 'no pixel'} of the {which} classes "
+                          f"({names}) at least {config.margin_m:g} m ({margin_px} px) from the border of {where}, "
+                          f"for {spread}: lower --margin or --viewpoints")
+    return place_viewpoints(scene.mask, ids, n, margin_px, rng)
 
 
 # --------------------------------------------------------------------------- the run
@@ -419,8 +456,7 @@ def run_bench(scenes: Sequence[Scene], config: BenchConfig, out_dir: Path, *, pr
     bench = _Bench(scenes, config)
     counts = [config.viewpoints // len(scenes) + (i < config.viewpoints % len(scenes)) for i in range(len(scenes))]
     place_rng = np.random.default_rng([config.seed, 0])
-    placements = [place_viewpoints(scene.mask, standable_ids(scene.table, config), count,
-                                   int(math.ceil(config.margin_m / scene.resolution_m)), place_rng)
+    placements = [scene_viewpoints(scene, config, count, place_rng, len(scenes))
                   if count else np.zeros((0, 2), dtype=np.int64) for scene, count in zip(scenes, counts)]
     # round-robin over the masks: viewpoint 0 on mask 0, 1 on mask 1, ...
     jobs = [(si, placements[si][i]) for i in range(max(counts)) for si in range(len(scenes)) if i < counts[si]]

@@ -45,7 +45,7 @@ from localization.common.inputs import SideOptions
 from osmseg.cli.common import output_options, parse_size, report_errors
 from osmseg.errors import ConfigError
 from osmseg.texttable import text_table
-from osmseg.units import degrees, metres, number, pixels, ratio
+from osmseg.units import degrees, metres, number, pixels, plural, ratio
 
 if TYPE_CHECKING:  # the command imports the pipeline only when it runs
     from localization.pipeline import LocalizeReport
@@ -246,13 +246,13 @@ def _say(report: LocalizeReport, *, as_json: bool, quiet: bool, hierarchical: bo
                 pose = f", camera {metres(h)} up, pitch {degrees(pitch)}, roll {degrees(roll)}"
             click.echo(f"profile method: heading {degrees(result.heading_deg)}{pose}, confidence "
                        f"{ratio(result.confidence)} (kappa {ratio(result.kappa)} against chance "
-                       f"{ratio(result.chance)}{alt}), {len(result.candidates)} positions at the finest level", err=True)
+                       f"{ratio(result.chance)}{alt}), {plural(len(result.candidates), 'position')} at the finest level", err=True)
         elif not result.unanswered:
             ties = f", {result.ties} tied at the top (broken as documented)" if result.ties > 1 else ""
             used = (f"windows {', '.join(str(lv.window) for lv in result.levels)} px (hierarchical)" if hierarchical
                     else f"window {result.window} px{' (auto)' if auto_window else ''}")
-            click.echo(f"{used}, ground window {result.query_window} px, {result.n_cliques} cliques, "
-                       f"{len(result.candidates)} candidates{ties}", err=True)
+            click.echo(f"{used}, ground window {result.query_window} px, {plural(result.n_cliques, 'clique')}, "
+                       f"{plural(len(result.candidates), 'candidate')}{ties}", err=True)
         if "map_lonlat" in report.summary:
             where = report.summary["map_lonlat"]
             click.echo(f"the answer in degrees (the aerial image's georeference): {where['lon']:.7f}, "

@@ -20,7 +20,7 @@ from osmseg.cli.common import output_options, report_errors
 from osmseg.cli.drawers import progress_drawer
 from osmseg.demo import DEMO_CASSETTE, demo_config
 from osmseg.progress import Progress
-from osmseg.units import ratio
+from osmseg.units import plural, ratio
 
 #: The demo's training run: the default network (SegNet with skips) at 1/8 of its width, by the
 #: default recipe (epochs of 50 steps of 16 random crops), long enough to learn the rendered
@@ -100,7 +100,7 @@ def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int, lo
     summary = run_build(demo_config(dataset), verbosity, drawn, env=env)
     if verbosity >= 0:
         click.echo(f"dataset in {dataset}/: images/, segmented/, labels/, geo/, manifest.json, DATASHEET.md, "
-                   f"overview.png ({summary.accepted} samples)", err=True)
+                   f"overview.png ({plural(summary.accepted, 'sample')})", err=True)
     with progress_drawer(drawn) as progress:
         if localize:
             demo_localization(dataset, out_dir, verbosity, progress)

@@ -28,7 +28,7 @@ from osmseg.cli.drawers import progress_drawer
 from osmseg.errors import ConfigError
 from osmseg.shard import Shard
 from osmseg.texttable import text_table
-from osmseg.units import degrees, metres, ratio
+from osmseg.units import degrees, metres, plural, ratio
 
 if TYPE_CHECKING:
     from localization.profile.search import ProfileConfig
@@ -207,7 +207,7 @@ def run_region(ctx: click.Context, ground: Path | None, region: RegionArgs, meth
             click.echo(f"heading of the answer: {degrees(result.best.heading_deg)}", err=True)
         if request.truth is not None:
             click.echo(f"error of the answer: {metres(distance_m(result.best, request.truth))}", err=True)
-        click.echo(f"{result.blocks} blocks of {config.size}x{config.size} tiles at zoom {config.zoom} searched "
+        click.echo(f"{plural(result.blocks, 'block')} of {config.size}x{config.size} tiles at zoom {config.zoom} searched "
                    f"({run.drawn} drawn from OSM, {run.cached} read from the cache)", err=True)
         if out_dir is not None:
             written = [f for f in ("region.geojson", "region.png") if (out_dir / f).is_file()]

@@ -47,6 +47,7 @@ from osmseg.output.stac import ITEMS_DIR, STAC_DIR
 from osmseg.output.writer import IMAGE_FORMATS
 from osmseg.processes import start_fork_server, sweep_owned
 from osmseg.progress import Progress, report
+from osmseg.units import noun, plural
 
 logger = logging.getLogger(__name__)
 
@@ -79,44 +80,64 @@ class BuildSummary:
     max_tries: int = 0  # --max-tries
     served_verdicts: bool = False  # the imagery's "no imagery here" comes from a server (asked again by a rerun)
     rechecked: int = 0  # finished slots built again because a server's "no imagery here" had rejected an attempt
+    built: int | None = None  # slots this run built (0: a rerun with nothing left to do; None: not counted)
+    sharded: bool = False  # this run builds one --shard of the samples
 
     def lines(self) -> list[str]:
+        """The closing summary, a line each; a rerun with every slot already finished says so first.
+
+        >>> BuildSummary(Path("ds"), accepted=1, osm_problems=1, overlapping=2, groups=1, dataset_accepted=1).lines()[0]
+        'accepted 1 sample; rejected 0 attempts (none)'
+        >>> print("\\n".join(BuildSummary(Path("ds"), accepted=2, built=0, osm_problems=1, finalized=True,
+        ...                                dataset_accepted=2).lines()))
+        nothing to do: every sample was already built
+        accepted 2 samples; rejected 0 attempts (none)
+        time 0.0 s
+        1 broken OSM object was repaired or skipped (listed per sample in manifest.json as osm_problems; -v prints it)
+        """
         reasons = ", ".join(f"{n} {r}" for r, n in sorted(self.rejected.items())) or "none"
         whole = (f"; the dataset holds {self.dataset_accepted}" if self.finalized
                  and self.dataset_accepted != self.accepted else "")
-        out = [
-            f"accepted {self.accepted} samples{whole}; rejected {sum(self.rejected.values())} attempts ({reasons})",
+        rejected = sum(self.rejected.values())
+        out = [] if self.built != 0 else [f"nothing to do: every sample{' of this shard' if self.sharded else ''} "
+                                          "was already built"]
+        out += [
+            f"accepted {plural(self.accepted, 'sample')}{whole}; rejected {plural(rejected, 'attempt')} ({reasons})",
             f"time {self.seconds:.1f} s",
         ]
         if self.unplaced:
-            out.append(f"warning: {self.unplaced} OSM objects that match a class were not drawn: none of their nodes "
-                       "has a location in the OSM data (an extract without its nodes?); see osm_problems in "
-                       "manifest.json, and check the --osm source")
+            out.append(f"warning: {plural(self.unplaced, 'OSM object')} that match{'es' if self.unplaced == 1 else ''} "
+                       f"a class {'was' if self.unplaced == 1 else 'were'} not drawn: none of "
+                       f"{'its' if self.unplaced == 1 else 'their'} nodes has a location in the OSM data (an extract "
+                       "without its nodes?); see osm_problems in manifest.json, and check the --osm source")
         if self.osm_problems:
-            out.append(f"{self.osm_problems} broken OSM objects were repaired or skipped "
-                       "(listed per sample in manifest.json as osm_problems; -v prints them)")
+            one = self.osm_problems == 1
+            out.append(f"{plural(self.osm_problems, 'broken OSM object')} {'was' if one else 'were'} repaired or skipped "
+                       f"(listed per sample in manifest.json as osm_problems; -v prints {'it' if one else 'them'})")
         if self.overlapping:
             repeat = f", {self.duplicates} of them the very tiles of another" if self.duplicates else ""
-            groups = f"{self.groups} spatial group{'s' if self.groups != 1 else ''}"
-            out.append(f"{self.overlapping} of {self.dataset_accepted} samples overlap another ({groups}{repeat}): training "
-                       "keeps each group in one split; --no-overlap draws samples that never overlap")
+            out.append(f"{self.overlapping} of {plural(self.dataset_accepted, 'sample')} overlap"
+                       f"{'s' if self.overlapping == 1 else ''} another ({plural(self.groups, 'spatial group')}"
+                       f"{repeat}): training keeps each group in one split; --no-overlap draws samples that never "
+                       "overlap")
         if self.finalized and 0 < self.dataset_accepted < self.asked:
             out.append(self.incomplete())
         else:
             if self.exhausted:
-                out.append(f"{self.exhausted} slots ran out of tile blocks of the area (--no-overlap gives every "
-                           "attempt its own): widen the area, or ask for fewer --samples")
+                out.append(f"{plural(self.exhausted, 'slot')} ran out of tile blocks of the area (--no-overlap gives "
+                           "every attempt its own): widen the area, or ask for fewer --samples")
             if self.gave_up - self.exhausted > 0:
-                out.append(f"{self.gave_up - self.exhausted} slots hit --max-tries without an accepted sample")
+                out.append(f"{plural(self.gave_up - self.exhausted, 'slot')} hit --max-tries without an accepted sample")
         if self.rechecked:
-            out.append(f"{self.rechecked} sample{'s were' if self.rechecked != 1 else ' was'} built again: an attempt "
-                       "had been rejected for tiles the server said had no imagery, which every run asks again")
+            out.append(f"{plural(self.rechecked, 'sample')} {'were' if self.rechecked != 1 else 'was'} built again: an "
+                       "attempt had been rejected for tiles the server said had no imagery, which every run asks again")
         if self.failed:
-            out.append(f"{len(self.failed)} samples could not be fetched (services kept failing through every retry); "
-                       "their reasons are in .osmseg-build/failures/")
+            out.append(f"{plural(len(self.failed), 'sample')} could not be fetched (services kept failing through every "
+                       "retry); their reasons are in .osmseg-build/failures/")
         pending = self.pending_other_shards - len(self.failed)
         if pending > 0:
-            out.append(f"{pending} slots belong to other shards and are not built yet")
+            out.append(f"{plural(pending, 'slot')} belong{'s' if pending == 1 else ''} to other shards and "
+                       f"{'is' if pending == 1 else 'are'} not built yet")
         return out
 
     def incomplete(self) -> str:
@@ -130,12 +151,11 @@ class BuildSummary:
         """
         missing = self.asked - self.dataset_accepted
         tries = self.gave_up - self.exhausted
-        causes = ([f"{tries} slot{'s' if tries != 1 else ''} gave up after --max-tries {self.max_tries} rejected "
-                   f"attempt{'s' if self.max_tries != 1 else ''}"] if tries else [])
+        causes = ([f"{plural(tries, 'slot')} gave up after --max-tries {self.max_tries} rejected "
+                   f"{noun(self.max_tries, 'attempt')}"] if tries else [])
         if self.exhausted:
-            causes.append(f"{self.exhausted} slot{'s' if self.exhausted != 1 else ''} ran out of tile blocks of the "
-                          "area (--no-overlap)")
-        why = " and ".join(causes) if causes and self.gave_up == missing else f"{missing} slots gave up"
+            causes.append(f"{plural(self.exhausted, 'slot')} ran out of tile blocks of the area (--no-overlap)")
+        why = " and ".join(causes) if causes and self.gave_up == missing else f"{plural(missing, 'slot')} gave up"
         more = "a higher --max-tries, looser filters or a larger area" if tries or not self.exhausted else "a larger area"
         absent = sum(self.rejected[r] for r in NO_IMAGERY_REASONS)
         if tries and absent:
@@ -209,6 +229,7 @@ def _build_slots(ctx: BuildContext, env: dict[str, str], progress: Progress | No
         _count(summary, outcome)
         if outcome.status == "accepted":
             first.accepted(slot)
+    summary.built, summary.sharded = len(todo), config.shard is not None
     regions = prepare_osm(config, pipe, mine, todo)
     finished = len(mine) - len(todo)
     report(progress, "build", finished, len(mine), "sample")

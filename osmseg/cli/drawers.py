@@ -21,7 +21,7 @@ import click
 from tqdm import tqdm
 
 from osmseg.progress import Progress, Step
-from osmseg.units import seconds
+from osmseg.units import noun, percent, seconds
 
 __all__ = ["PROGRESS_DEFAULT", "PROGRESS_HELP", "Mode", "ProgressBars", "ProgressLines", "progress_drawer", "progress_mode"]
 
@@ -112,11 +112,7 @@ def _units(unit: str, count: int) -> str:
     >>> _units("batch", 7), _units("epoch", 2), _units("image", 1), _units("it", 3)
     (' batches', ' epochs', ' image', '')
     """
-    if unit == "it":
-        return ""
-    if count == 1:
-        return f" {unit}"
-    return f" {unit}es" if unit.endswith(("s", "x", "sh", "tch")) else f" {unit}s"
+    return "" if unit == "it" else f" {noun(count, unit)}"
 
 
 @dataclass
@@ -178,14 +174,15 @@ class ProgressLines:
 
         >>> ProgressLines.line(Step("build", 3, 30, "sample", (("accepted", 3),)), 12.0, 3)
         'build: 3/30 samples (10%) in 12 s, about 1 min 48 s left; accepted 3'
+        >>> ProgressLines.line(Step("build", 8, 12, "sample"), 8.0, 8).split(" in ")[0]  # rounded, not floored
+        'build: 8/12 samples (67%)'
         >>> ProgressLines.line(Step("train", 2, 2, "epoch", (), (("train loss", 0.41234), ("epoch seconds", 1.5))), 3.1, 2)
         'train: 2/2 epochs (100%) in 3 s; train loss 0.4123, epoch 1.50 s'
         """
         if step.total is None:
             text = f"{step.task}: {step.done:,}{_units(step.unit, step.done)}"
         else:
-            share = 100 if step.total <= 0 else 100 * step.done // step.total
-            text = f"{step.task}: {step.done:,}/{step.total:,}{_units(step.unit, step.total)} ({share}%)"
+            text = f"{step.task}: {step.done:,}/{step.total:,}{_units(step.unit, step.total)} ({percent(step.done, step.total)})"
         text += f" in {duration(elapsed)}"
         if step.total is not None and not step.finished and counted > 0:
             text += f", about {duration(elapsed / counted * (step.total - step.done))} left"

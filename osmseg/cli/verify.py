@@ -10,6 +10,7 @@ import click
 from osmseg.cli.common import output_options, report_errors
 from osmseg.output import read_manifest, verify
 from osmseg.quality import dataset_alignment
+from osmseg.units import plural
 
 
 @click.command("verify")
@@ -35,4 +36,4 @@ def verify_command(ctx: click.Context, dataset: Path, align_class: str | None) -
         report["alignment"] = {"class": align_class, "offsets": offsets}
     click.echo(json.dumps(report, indent=2))
     if problems:
-        raise click.ClickException(f"{len(problems)} problems in {dataset}: first: {problems[0]}")
+        raise click.ClickException(f"{plural(len(problems), 'problem')} in {dataset}: first: {problems[0]}")
