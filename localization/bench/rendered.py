@@ -485,7 +485,7 @@ def draw_view(stem: Path, scene: Scene, view: RenderedView, graph: AerialGraph, 
                              image=scene.table.colorize(scene.mask), truth=view.truth, resolution=scene.resolution_m,
                              classes=drawn_classes(scene.table, scene.mask)),
             graph_png(stem.with_name(stem.name + "_panorama.png"), query, pano_graph, image=rgb[:, cols],
-                      title=f"{what} at ({view.truth[0]:.0f}, {view.truth[1]:.0f}): {len(query)} landmarks",
+                      title=f"{what} at ({view.truth[0]:.0f}, {view.truth[1]:.0f}): {plural(len(query), 'landmark')}",
                       colours=colours, classes=drawn_classes(view.panorama.table, view.panorama.labels[:, cols]))]
 
 
