@@ -1,7 +1,10 @@
 """Inference time and memory: split-join (blend, crop) and rescale, beside the bare window forwards.
 
 Run: ``.venv/bin/python benchmarks/bench_infer.py [--full-split-join]`` (prints, asserts
-nothing). The 1280x1280 image is a sample of the offline ``osmseg demo`` dataset (built in a
+nothing). First each network side by side (SegNet with skips at the CPU width 0.125, SegNet as
+published at width 1.0, unet-lite0): a bare forward of the whole 1280x1280 tile and
+``osmseg predict``'s default (split-join, blend), in seconds and tiles per second, and the
+process's RSS peak. The 1280x1280 image is a sample of the offline ``osmseg demo`` dataset (built in a
 temporary folder); the 2048x2048 one is ``../shared/data/oam-rgb/manila.tif`` (that part is
 skipped when ``../shared/data`` is absent). Every figure is measured in this run:
 
@@ -32,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import functools
 import json
 import logging
 import os
@@ -54,7 +58,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from training.infer import DEFAULT_OVERLAP_FRACTION, predict_array  # noqa: E402
-from training.model import SegNet, build_model, model_spec  # noqa: E402
+from training.model import Network, build_model, model_spec  # noqa: E402
 from training.predict import predict_file  # noqa: E402
 from training.spec import ModelSpec  # noqa: E402
 from training.tiling import WindowGrid  # noqa: E402
@@ -135,7 +139,7 @@ def window_batches(height: int, width: int, join: str, batch: int, block_size: i
 class Bare:
     """The network alone: forwards of random 360x480 batches already in memory."""
 
-    def __init__(self, model: SegNet) -> None:
+    def __init__(self, model: Network) -> None:
         self.model = model.eval()
         self.inputs: dict[int, torch.Tensor] = {}
 
@@ -158,7 +162,7 @@ def line(label: str, windows: int, r: Result, bare: tuple[float, float] | None, 
     print(f"  {label:<26}{windows:3d} windows {r.seconds:6.2f} s   {beside}   {r.memory(rise)}", flush=True)
 
 
-def bench(model: SegNet, height: int, width: int, batch: int, modes: list[tuple[str, str]],
+def bench(model: Network, height: int, width: int, batch: int, modes: list[tuple[str, str]],
           run: Callable[[str, str], Result], rise: bool = False) -> None:
     """Each (mode, join) measured by ``run`` beside the bare forwards of the same batches.
 
@@ -186,18 +190,18 @@ def median(runs: list[T]) -> T:
     return sorted(runs, key=lambda r: r.seconds if isinstance(r, Result) else r[0])[len(runs) // 2]  # type: ignore[index]
 
 
-def params(model: SegNet) -> str:
+def params(model: Network) -> str:
     return f"{sum(p.numel() for p in model.parameters()) / 1e6:.2f} M params"
 
 
 # ------------------------------------------------------------------------------ GeoTIFF
-def tiny_model() -> tuple[SegNet, ModelSpec]:
+def tiny_model() -> tuple[Network, ModelSpec]:
     torch.manual_seed(0)
     spec = model_spec("airsegnet13", 0.125)
     return build_model(spec), spec
 
 
-def geotiff_run(model: SegNet, spec: ModelSpec, out: Path, mode: str, join: str, batch: int,
+def geotiff_run(model: Network, spec: ModelSpec, out: Path, mode: str, join: str, batch: int,
                 block: int | None) -> Result:
     return measure(lambda: predict_file(model, spec, MANILA, out, mode=mode, join=join, batch_size=batch,
                                         block_size=block))
@@ -219,6 +223,38 @@ def in_child(args: argparse.Namespace, out: Path, mode: str, join: str, block: i
            "--batch-size", str(args.batch_size), "--block-size", str(block or 0), "--threads", str(args.threads)]
     done = subprocess.run(cmd, capture_output=True, text=True, check=True)
     return Result(**json.loads(done.stdout.strip().splitlines()[-1]))
+
+
+# ------------------------------------------------------------------------ architectures
+#: the networks side by side (issue 32): SegNet as trained on a CPU, as published, and unet-lite0
+ARCHITECTURES = (("segnet-skip", 0.125), ("segnet", 1.0), ("unet-lite0", 1.0))
+
+
+def architectures(rgb: np.ndarray, batch: int) -> None:
+    """Each network on the 1280x1280 image: one bare forward of the whole tile (median of 3),
+    and ``predict_array`` split-join blend (the default of ``osmseg predict``), as tiles per
+    second and seconds per tile, with the RSS peak of the prediction."""
+    print(f"{rgb.shape[1]}x{rgb.shape[0]} per network: a bare forward of the whole tile, and predict_array "
+          "split-join blend (osmseg predict's default):")
+    whole = torch.randn(1, 3, *rgb.shape[:2]).contiguous(memory_format=torch.channels_last)
+    for arch, width in ARCHITECTURES:
+        torch.manual_seed(0)
+        spec = model_spec("airsegnet13", width, arch=arch)
+        model = build_model(spec).eval()
+        with torch.inference_mode():
+            model(whole)  # warm-up
+            forwards = []
+            for _ in range(REPEAT_SINGLE):
+                start = time.perf_counter()
+                model(whole)
+                forwards.append(time.perf_counter() - start)
+        predict_array(model, rgb[:SIZE[0], :SIZE[1]], spec)  # first-call costs out of the timing
+        predict = functools.partial(predict_array, model, rgb, spec, "split-join", join="blend", batch_size=batch,
+                                    block_size=None)
+        r = median([measure(predict) for _ in range(REPEAT_SINGLE)])
+        print(f"  {arch:<12} width {width:<5g} ({params(model)}): forward {median(forwards):5.2f} s; predict "
+              f"{r.seconds:5.2f} s a tile = {1 / r.seconds:5.2f} tiles/s, RSS peak {r.rss_peak:5.0f} MB", flush=True)
+        del model
 
 
 # --------------------------------------------------------------------------------- main
@@ -258,10 +294,11 @@ def main() -> None:
             rgb = np.asarray(im.convert("RGB"))
         height, width = rgb.shape[:2]
 
-        def array(model: SegNet, spec: ModelSpec) -> Callable[[str, str], Result]:
+        def array(model: Network, spec: ModelSpec) -> Callable[[str, str], Result]:
             return lambda mode, join: measure(lambda: predict_array(model, rgb, spec, mode, join=join,
                                                                     batch_size=batch, block_size=None))
 
+        architectures(rgb, batch)
         predict_array(tiny, rgb[:SIZE[0], :SIZE[1]], tiny_spec)  # first-call costs out of the timings
         print(f"{width}x{height} {args.image.name}, predict_array, width 0.125 ({params(tiny)}):")
         bench(tiny, height, width, batch, MODES, array(tiny, tiny_spec))

@@ -10,7 +10,7 @@ What it does:
 
 1. Builds a CamVid-layout dataset from the complete z21 block of Kampala tiles
    (``kampala.py``): the **west 7 columns** are train (three 7x2-tile strips) and validation
-   (one strip, drawn with ``--seed``), the **east 5 columns** the test split (two 5x4-tile
+   (one strip, drawn with the seed), the **east 5 columns** the test split (two 5x4-tile
    mosaics); a second 4x4-tile block 450 m south-west is a fourth training mosaic. No tile is
    in two splits, and the test area is a separate part of the town.
    GeoTIFFs in EPSG:3857 (~0.0744 m ground pixels); labels are the OSM footprints rasterised
@@ -43,7 +43,7 @@ the predictions about half an hour, three to four times that when another job sh
 CPUs)::
 
     .venv/bin/python benchmarks/bench_real_heldout.py [--out DIR] [--json results.json]
-        [--png results.png] [--train-args "--crop 256 --batch-size 4" ...] [--seed 0]
+        [--png results.png] [--train-args "--crop 256 --batch-size 4" ...] [--seeds 0 1 2]
 
 Prints a markdown table; ``--json`` writes every figure, the settings and the seeds;
 ``--png`` shows image | labels | network (best.pt, last.pt) of the first variant | balanced
@@ -82,8 +82,10 @@ from osmseg.grid import ground_pixel_size  # noqa: E402
 from training.data import PATCH_SIZE, dataset_resolution, discover_camvid, patch_boxes  # noqa: E402
 from training.recipe import recipe_named  # noqa: E402
 
-DEFAULT_VARIANTS = ("", "--class-weights median-frequency", "--width 0.25", "--arch segnet",
-                    "--recipe paper --arch segnet")
+#: the networks side by side: SegNet with skips and its recipe (random weights), the
+#: dissertation's SegNet and recipe, and unet-lite0 from its ImageNet weights (its own recipe)
+DEFAULT_VARIANTS = ("--arch segnet-skip", "--recipe paper --arch segnet",
+                    "--arch unet-lite0 --init imagenet --width 1.0")
 NEEDED = ("kampala-oam/tiles", "kampala-oam/osm-buildings.geojson", "inria-austin/image.tif",
           "inria-austin/buildings.tif")
 Pairs = list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # (prediction, truth, valid) per image
@@ -129,7 +131,7 @@ def option(args: list[str], name: str) -> str | None:
     return found
 
 
-def variant_args(variant: str, a: argparse.Namespace, grid_patches: int) -> list[str]:
+def variant_args(variant: str, a: argparse.Namespace, grid_patches: int, seed: int) -> list[str]:
     """The variant's training options: the bench's budget, then its own (which win)."""
     extra = shlex.split(variant)
     epochs = a.epochs
@@ -137,7 +139,7 @@ def variant_args(variant: str, a: argparse.Namespace, grid_patches: int) -> list
         osm = recipe_named("osmseg")  # an epoch of the grid is every patch once, whatever the batch size
         budget = a.epochs * a.steps_per_epoch * osm.batch_size * osm.crop ** 2
         epochs = max(1, round(budget / (grid_patches * PATCH_SIZE[0] * PATCH_SIZE[1])))
-    return ["--model", "buildings", "--width", str(a.width), "--device", "cpu", "--seed", str(a.seed),
+    return ["--model", "buildings", "--width", str(a.width), "--device", "cpu", "--seed", str(seed),
             "--epochs", str(epochs), "--steps-per-epoch", str(a.steps_per_epoch), *extra]
 
 
@@ -159,29 +161,53 @@ def score_checkpoint(checkpoint: Path, dataset: Path, austin: Path, out: Path, l
 
 
 def train_and_score(variant: str, dataset: Path, run: Path, a: argparse.Namespace, grid_patches: int,
-                    austin: Path) -> list[dict[str, Any]]:
-    """Train one variant with the CLI; score its best.pt (best validation mIoU) and last.pt."""
+                    austin: Path, seed: int) -> list[dict[str, Any]]:
+    """Train one variant with the CLI; score the checkpoint it hands on (model.pt), last.pt and
+    best.pt (best validation mIoU; scored only when it is another epoch than the last)."""
     if run.exists():
         sys.exit(f"{run} exists: give a new --out (a rerun would resume that run, not time a new one)")
     log = run.parent / f"{run.name}.log"
-    args = variant_args(variant, a, grid_patches)
+    args = variant_args(variant, a, grid_patches, seed)
     began = time.monotonic()
     osmseg(["train", str(dataset), "--out", str(run), *args], log)
     seconds = time.monotonic() - began
     with (run / "log.csv").open(encoding="utf-8") as f:
         history = list(csv.DictReader(f))
     best = max(history, key=lambda r: float(r["val_miou"] or "-inf"))  # the epoch best.pt holds
-    common = {"variant": variant or "default", "train_args": args, "train_seconds": round(seconds, 1),
+    common = {"variant": variant or "default", "seed": seed, "train_args": args, "train_seconds": round(seconds, 1),
               "epochs_run": len(history), "val_miou_by_epoch": [float(r["val_miou"] or "nan") for r in history]}
-    rows = [dict(common, checkpoint=f"best.pt (epoch {best['epoch']})",
-                 **score_checkpoint(run / "best.pt", dataset, austin, run / "pred-best", log))]
+    model = dict(common, checkpoint="model.pt", **score_checkpoint(run / "model.pt", dataset, austin,
+                                                                   run / "pred-model", log))
+    rows = [model, dict(common, checkpoint="last.pt", **score_checkpoint(run / "last.pt", dataset, austin,
+                                                                         run / "pred-last", log))]
     if int(best["epoch"]) != len(history):
-        rows.append(dict(common, checkpoint=f"last.pt (epoch {len(history)})",
-                         **score_checkpoint(run / "last.pt", dataset, austin, run / "pred-last", log)))
+        rows.append(dict(common, checkpoint="best.pt", best_epoch=int(best["epoch"]),
+                         **score_checkpoint(run / "best.pt", dataset, austin, run / "pred-best", log)))
+    else:  # the last epoch's weights of the kind model.pt holds: the same file's content
+        rows.append(dict(model, checkpoint="best.pt", best_epoch=int(best["epoch"])))
     return rows
 
 
-def baselines(dataset: Path, austin: Path, a: argparse.Namespace, resolution: float) -> list[dict[str, Any]]:
+def summary(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Rows of the same variant and checkpoint over seeds: mean, min and max of every figure."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["variant"], r.get("checkpoint", "")), []).append(r)
+    out = []
+    for (variant, checkpoint), members in groups.items():
+        entry: dict[str, Any] = {"variant": variant, "checkpoint": checkpoint, "seeds": [m["seed"] for m in members]}
+        for key in ("train_seconds",):
+            values = [float(m[key]) for m in members]
+            entry[key] = {"mean": float(np.mean(values)), "min": min(values), "max": max(values)}
+        for where in ("kampala", "austin"):
+            entry[where] = {k: {"mean": float(np.mean([m[where][k] for m in members])),
+                                "min": min(m[where][k] for m in members), "max": max(m[where][k] for m in members)}
+                            for k in ("building_iou", "pixel_accuracy")}
+        out.append(entry)
+    return out
+
+
+def baselines(dataset: Path, austin: Path, a: argparse.Namespace, resolution: float, seed: int) -> list[dict[str, Any]]:
     """Fit the pixel baseline (balanced, unweighted) on Kampala train; score Kampala test and Austin."""
     splits = discover_camvid(dataset)
     labels = [read_band(f.label) for f in splits["train"]]
@@ -197,11 +223,11 @@ def baselines(dataset: Path, austin: Path, a: argparse.Namespace, resolution: fl
     for balanced in (True, False):
         began = time.monotonic()
         model: Fitted = fit_baseline(images, [lab == BUILDING for lab in labels], [lab != UNLABELED for lab in labels],
-                                     a.baseline_samples, a.seed, balanced)
+                                     a.baseline_samples, seed, balanced)
         seconds = time.monotonic() - began
         kampala = [(model.predict(rgb), lab == BUILDING, lab != UNLABELED) for rgb, lab in tests]
         austin_pred = back_to_grid(model.predict(upsampled), austin_truth.shape)
-        out.append({"variant": "baseline " + ("balanced" if balanced else "unweighted"), "train_seconds":
+        out.append({"variant": "baseline " + ("balanced" if balanced else "unweighted"), "seed": seed, "train_seconds":
                     round(seconds, 1), "samples": model.samples, "building_share_of_samples": model.positive_share,
                     "austin_scale": round(scale, 4), "kampala": pooled(kampala),
                     "austin": pooled([(austin_pred, austin_truth, np.ones_like(austin_truth))]),
@@ -209,13 +235,21 @@ def baselines(dataset: Path, austin: Path, a: argparse.Namespace, resolution: fl
     return out
 
 
+def spread(figure: dict[str, float], digits: int = 3) -> str:
+    """``mean (min-max)`` of a figure over seeds; the mean alone for one seed."""
+    if figure["min"] == figure["max"]:
+        return f"{figure['mean']:.{digits}f}"
+    return f"{figure['mean']:.{digits}f} ({figure['min']:.{digits}f}-{figure['max']:.{digits}f})"
+
+
 def table(rows: list[dict[str, Any]]) -> str:
-    lines = ["| dataset | method | building IoU | pixel accuracy | train s |", "|---|---|---|---|---|"]
-    for where, title in (("kampala", "Kampala test (east 5 columns)"), ("austin", "Inria Austin")):
-        for r in rows:
-            method = r["variant"] if "checkpoint" not in r else f"network: {r['variant']}, {r['checkpoint']}"
-            lines.append(f"| {title} | {method} | {r[where]['building_iou']:.3f} | {r[where]['pixel_accuracy']:.3f} "
-                         f"| {r['train_seconds']:.0f} |")
+    """Markdown: one line per variant and checkpoint, mean (min-max) over the seeds."""
+    lines = ["| method | checkpoint | Kampala building IoU | Austin building IoU | Kampala pixel accuracy | "
+             "Austin pixel accuracy | train s |", "|---|---|---|---|---|---|---|"]
+    for r in summary(rows):
+        lines.append(f"| {r['variant']} | {r['checkpoint'] or '-'} | {spread(r['kampala']['building_iou'])} | "
+                     f"{spread(r['austin']['building_iou'])} | {spread(r['kampala']['pixel_accuracy'])} | "
+                     f"{spread(r['austin']['pixel_accuracy'])} | {spread(r['train_seconds'], 0)} |")
     return "\n".join(lines)
 
 
@@ -267,9 +301,11 @@ def main() -> None:
     p.add_argument("--steps-per-epoch", type=int, default=30)
     p.add_argument("--width", type=float, default=0.125)
     p.add_argument("--baseline-samples", type=int, default=200_000, help="training pixels the baseline fits on")
-    p.add_argument("--seed", type=int, default=0, help="validation strip, training, baseline subsample")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0],
+                   help="one whole run per seed (validation strip, training, baseline subsample); figures are "
+                        "reported as mean (min-max) over them")
     p.add_argument("--json", type=Path, help="write every figure, the settings and seeds here")
-    p.add_argument("--png", type=Path, help="write the picture here")
+    p.add_argument("--png", type=Path, help="write the picture here (the first seed's runs)")
     a = p.parse_args()
     missing = [n for n in NEEDED if not (a.shared_data / n).exists()]
     if missing:
@@ -278,38 +314,48 @@ def main() -> None:
     variants = a.train_args or list(DEFAULT_VARIANTS)
     out = (a.out or Path(tempfile.mkdtemp(prefix="bench-real-heldout-"))).resolve()  # the trainer runs elsewhere
     try:
-        dataset = out / "kampala-z21"
-        built = build_kampala(a.shared_data, dataset, a.seed)
-        for m in built["mosaics"]:  # read back from the written files, independently of the builder
-            lab = np.asarray(Image.open(dataset / f"{m['split']}annot" / f"{m['name']}.tif"))
-            m["building_pixels_read_back"] = int((lab == BUILDING).sum())
-            print(f"{m['split']:5} {m['name']} {m['width']}x{m['height']}: building {m['building_fraction']:.3f} "
-                  f"of labelled pixels, unlabeled {m['unlabeled_fraction']:.4f}", file=sys.stderr)
-        files = discover_camvid(dataset)
-        resolution = dataset_resolution(dataset, files["train"]) or 0.0746
-        grid = sum(len(patch_boxes(m["height"], m["width"])) for m in built["mosaics"] if m["split"] == "train")
+        rows: list[dict[str, Any]] = []
+        datasets = {}
         austin = a.shared_data / "inria-austin"
-        (out / "runs").mkdir(exist_ok=True)
-        rows = []
-        for i, variant in enumerate(variants):
-            slug = "-".join(shlex.split(variant)).strip("-").replace("--", "") or "default"
-            print(f"training {variant or 'default'} ...", file=sys.stderr)
-            for r in train_and_score(variant, dataset, out / "runs" / f"{i}-{slug}", a, grid, austin):
-                rows.append(r)
-                print(f"  trained in {r['train_seconds']:.0f} s; {r['checkpoint']}: Kampala IoU "
-                      f"{r['kampala']['building_iou']:.3f}, Austin IoU {r['austin']['building_iou']:.3f}",
+        for seed in a.seeds:
+            dataset = out / f"kampala-z21-seed{seed}"
+            built = build_kampala(a.shared_data, dataset, seed)
+            datasets[seed] = built
+            for m in built["mosaics"]:  # read back from the written files, independently of the builder
+                lab = np.asarray(Image.open(dataset / f"{m['split']}annot" / f"{m['name']}.tif"))
+                m["building_pixels_read_back"] = int((lab == BUILDING).sum())
+                print(f"seed {seed}: {m['split']:5} {m['name']} {m['width']}x{m['height']}: building "
+                      f"{m['building_fraction']:.3f} of labelled pixels, unlabeled {m['unlabeled_fraction']:.4f}",
                       file=sys.stderr)
-        rows += baselines(dataset, austin, a, resolution)
+            files = discover_camvid(dataset)
+            resolution = dataset_resolution(dataset, files["train"]) or 0.0746
+            grid = sum(len(patch_boxes(m["height"], m["width"])) for m in built["mosaics"] if m["split"] == "train")
+            (out / "runs").mkdir(exist_ok=True)
+            for i, variant in enumerate(variants):
+                slug = "-".join(shlex.split(variant)).strip("-").replace("--", "") or "default"
+                print(f"seed {seed}: training {variant or 'default'} ...", file=sys.stderr)
+                for r in train_and_score(variant, dataset, out / "runs" / f"seed{seed}-{i}-{slug}", a, grid, austin,
+                                         seed):
+                    rows.append(r)
+                    print(f"  trained in {r['train_seconds']:.0f} s; {r['checkpoint']}: Kampala IoU "
+                          f"{r['kampala']['building_iou']:.3f}, Austin IoU {r['austin']['building_iou']:.3f}",
+                          file=sys.stderr)
+            rows += baselines(dataset, austin, a, resolution, seed)
         print(table(rows))
         if a.png:
-            picture(a.png, dataset, austin, [r for r in rows if r["variant"] == rows[0]["variant"]],
-                    next(r for r in rows if r["variant"] == "baseline balanced"))
+            first = a.seeds[0]
+            picture(a.png, out / f"kampala-z21-seed{first}", austin,
+                    [r for r in rows if r["variant"] == rows[0]["variant"] and r["seed"] == first
+                     and r["checkpoint"] != "best.pt"],
+                    next(r for r in rows if r["variant"] == "baseline balanced" and r["seed"] == first))
         if a.json:
             settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
-            report = {"settings": dict(settings, train_args=variants), "seeds": {
-                "validation_strip": a.seed, "training": a.seed, "baseline_subsample_and_fit": a.seed},
-                "training_resolution_m": resolution, "dataset": built,
-                "results": [{k: v for k, v in r.items() if k != "_masks"} for r in rows]}
+            report = {"settings": dict(settings, train_args=variants),
+                      "seeds": {"each": "validation strip, training and baseline subsample of one run",
+                                "used": a.seeds},
+                      "training_resolution_m": resolution, "datasets": {str(k): v for k, v in datasets.items()},
+                      "summary": summary(rows),
+                      "results": [{k: v for k, v in r.items() if k != "_masks"} for r in rows]}
             a.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     finally:
         if a.out is None:

@@ -17,6 +17,7 @@ unless ``--dataset`` names one). Every figure is measured in this run, beside a 
 
 Configurations: the CPU config (width 0.125, default recipe: 16 crops of 128x128 a batch,
 ``training/configs/cpu.yaml``), the same width by ``--recipe paper`` (4 patches of 360x480),
+unet-lite0 by its recipe (4 crops of 256x256, the loop with its moving average of the weights),
 and the paper's network (width 1.0, batch 2 and only ``--full-steps`` steps on a CPU); with
 CUDA, also width 1.0 at batch 4 with AMP + channels_last (``training/configs/gpu.yaml``).
 Peak RSS is the main process's high-water mark during each configuration (reset between
@@ -50,10 +51,11 @@ from training.config import TrainConfig  # noqa: E402
 from training.data import PatchDataset, dataset_class_table, discover, validate, weights_from_histograms  # noqa: E402
 from training.distributed import Dist  # noqa: E402
 from training.engine import StepOptions, train_one_epoch  # noqa: E402
+from training.fitting import SegmentationLoss, make_optimizer, make_scheduler, weight_average  # noqa: E402
 from training.model import build_model, model_spec  # noqa: E402
 from training.runclasses import model_classes  # noqa: E402
 from training.sampling import RandomCrops  # noqa: E402
-from training.train import make_optimizer, make_scheduler, seeded_loader  # noqa: E402
+from training.train import seeded_loader  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -68,6 +70,7 @@ class Case:
     recipe: str = "osmseg"
     amp: bool = False
     channels_last: bool = False
+    arch: str = "segnet-skip"
 
 
 # ------------------------------------------------------------------------------ memory
@@ -136,12 +139,12 @@ def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> dict[str,
     if case.device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(case.device)
     config = TrainConfig(dataset=dataset, out_dir=dataset, width=case.width,  # out_dir: nothing is written
-                         recipe=case.recipe, batch_size=case.batch, loader_workers=workers, seed=seed, amp=case.amp,
+                         recipe=case.recipe, arch=case.arch, batch_size=case.batch, loader_workers=workers, seed=seed, amp=case.amp,
                          channels_last=case.channels_last, max_steps_per_epoch=case.steps + 1)
     recipe = config.settings
     dataset_table = dataset_class_table(dataset)
     table, lut = model_classes(config.model, dataset_table)
-    spec = model_spec(config.model, case.width, class_table=table, input_size=config.patch_size)
+    spec = model_spec(config.model, case.width, class_table=table, input_size=config.patch_size, arch=case.arch)
     files = discover(dataset)
     hist = validate(files, dataset_table.num_classes)
     if lut is not None:  # dataset ids -> model ids before counting, as the trainer does
@@ -164,8 +167,9 @@ def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> dict[str,
     if case.channels_last:
         model = model.to(memory_format=torch.channels_last)
     params = sum(p.numel() for p in model.parameters())
-    criterion = nn.CrossEntropyLoss(weight=None if weights is None else weights.to(case.device),
-                                    ignore_index=-100 if spec.ignore_index is None else spec.ignore_index)
+    criterion = SegmentationLoss(weight=None if weights is None else weights.to(case.device),
+                                 ignore_index=-100 if spec.ignore_index is None else spec.ignore_index, dice=recipe.dice)
+    average = weight_average(model, recipe.ema)  # the loop pays for the moving average, the bare steps do not
     optimizer = make_optimizer(model, recipe)
     scheduler = make_scheduler(optimizer, recipe, config.epochs * (case.steps + 1))
     scaler = torch.amp.GradScaler(case.device.type, enabled=case.amp)
@@ -178,7 +182,8 @@ def measure(case: Case, dataset: Path, workers: int, seed: int = 0) -> dict[str,
 
     ends: list[float] = []  # wall clock at the end of each step (loss.item() has synchronised)
     train_one_epoch(model, criterion, optimizer, scheduler, scaler, loader, opts, epoch=1,
-                    on_step=lambda step, loss: ends.append(time.perf_counter()))
+                    on_step=lambda step, loss: ends.append(time.perf_counter()), freeze_bn=recipe.freeze_bn,
+                    after_step=None if average is None else lambda: average.update_parameters(model))
     loop_time = ends[-1] - ends[0]  # steps 1..steps, after the warm-up step 0
     del loader  # shut the (persistent) workers down before the bare steps
     gc.collect()
@@ -233,7 +238,8 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     cpu = torch.device("cpu")
     cases = [Case("CPU config: width 0.125, CPU", 0.125, 16, args.steps, cpu),
-             Case("width 0.125, CPU, --recipe paper", 0.125, 4, args.steps, cpu, recipe="paper")]
+             Case("width 0.125, CPU, --recipe paper", 0.125, 4, args.steps, cpu, recipe="paper"),
+             Case("unet-lite0, lite0 recipe, CPU", 1.0, 4, args.steps, cpu, recipe="lite0", arch="unet-lite0")]
     if not args.skip_full:
         cases.append(Case("paper's network: width 1.0, CPU", 1.0, 2, args.full_steps, cpu, recipe="paper"))
 

@@ -175,7 +175,8 @@ def test_training_in_a_log_prints_one_line_per_epoch(tmp_path: Path) -> None:
                 f"val mIoU {float(row['val_miou']):.4g}, epoch ") in line, line
         assert re.search(r", epoch [\d.,]+ s$", line), line
     assert all(" min " in line for line in lines if "batch" in line), "batches shown before a minute passed"
-    assert lines[-1].startswith("best epoch "), lines
+    assert lines[-2].startswith("final epoch 2: val mIoU ") and " best epoch " in lines[-2], lines
+    assert lines[-1].startswith(f"use {run / 'model.pt'} "), lines
 
 
 def test_a_log_gets_a_line_per_tenth_per_minute_and_per_result() -> None:

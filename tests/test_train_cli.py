@@ -37,7 +37,7 @@ TINYSEG = TEST_DATA / "tinyseg"
 CONFIGS = TEST_DATA / "train"
 NAMES = sorted(p.stem for p in (TINYSEG / "images").glob("*.png"))
 EPOCHS = 3  # tiny.yaml says 5: every run here overrides it with --epochs
-RUN_FILES = {"best.pt", "last.pt", "log.csv", "curves.png", "splits.json"}
+RUN_FILES = {"model.pt", "best.pt", "last.pt", "log.csv", "curves.png", "splits.json"}
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -107,7 +107,8 @@ def test_train_writes_a_complete_run_and_the_command_line_wins_over_the_file(tra
     run, result = trained
     assert {p.name for p in run.iterdir()} == RUN_FILES  # and no temp files left behind
     assert json.loads(result.stdout.strip().splitlines()[-1]) == {
-        "best": str(run / "best.pt"), "last": str(run / "last.pt"), "log": str(run / "log.csv")}
+        "model": str(run / "model.pt"), "best": str(run / "best.pt"), "last": str(run / "last.pt"),
+        "log": str(run / "log.csv")}
 
     rows = log_rows(run)
     assert [int(r["epoch"]) for r in rows] == list(range(1, EPOCHS + 1))  # --epochs 3 beat the file's 5
@@ -116,6 +117,10 @@ def test_train_writes_a_complete_run_and_the_command_line_wins_over_the_file(tra
     assert last["config"]["epochs"] == EPOCHS and last["config"]["width"] == 0.125  # the rest from the file
     assert last["spec"]["num_classes"] == 5 and last["spec"]["input_size"] == (64, 80)
     assert [float(r["train_loss"]) for r in rows] == [h["train_loss"] for h in last["history"]]
+
+    handed = load_checkpoint(run / "model.pt")  # the default recipe keeps no average: the final weights
+    assert handed["epoch"] == EPOCHS and "optimizer" not in handed and "final epoch" in handed["checkpoint_choice"]
+    assert all(torch.equal(handed["model"][k], last["model"][k]) for k in last["model"])
 
     best = load_checkpoint(run / "best.pt")
     best_miou = max(float(r["val_miou"]) for r in rows)
@@ -361,7 +366,7 @@ def test_a_killed_run_resumes_to_the_same_weights(trained: tuple[Path, Result], 
     assert finish.returncode == 0, finish.stderr.decode()[-2000:]
     said = [line for line in finish.stderr.decode().splitlines() if not line.startswith("WARNING")]
     assert said[0] == f"resuming {run} after epoch {killed_after} of {EPOCHS}", said  # once, before anything else
-    assert sum("resuming" in line for line in said) == 1 and said[1].startswith("best epoch "), said
+    assert sum("resuming" in line for line in said) == 1 and said[1].startswith("final epoch "), said
 
     a, b = load_checkpoint(reference / "last.pt"), load_checkpoint(run / "last.pt")
     assert b["epoch"] == EPOCHS
@@ -494,7 +499,7 @@ def test_a_finished_run_run_again_says_it_has_nothing_to_do(trained: tuple[Path,
     result = CliRunner().invoke(cli, ["--no-progress", *(str(a) for a in train_args(run))])
     assert result.exit_code == 0, result.output
     said = [line for line in result.stderr.splitlines() if not line.startswith("WARNING")]
-    assert said[0] == f"nothing to do: {run} has trained its {EPOCHS} epochs" and said[1].startswith("best epoch "), said
+    assert said[0] == f"nothing to do: {run} has trained its {EPOCHS} epochs" and said[1].startswith("final epoch "), said
     assert osmseg(*train_args(run)).stderr == ""  # -q: nothing
 
 

@@ -36,7 +36,8 @@ from osmseg.errors import ConfigError
 from osmseg.processes import interrupts_deferred
 from training.distributed import pick_device
 from training.errors import CheckpointError
-from training.model import SegNet, build_model, load_encoder_weights, read_encoder_weights
+from training.lite0 import UNetLite0, lite0_weights, load_imagenet_encoder
+from training.model import Network, build_model, load_encoder_weights, read_encoder_weights
 from training.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
@@ -108,17 +109,34 @@ def save_checkpoint(path: Path, state: Mapping[str, Any]) -> None:
         raise
 
 
+#: the checkpoint a run hands on, which a run folder stands for
+MODEL_FILE = "model.pt"
+
+
+def run_checkpoint(path: Path) -> Path:
+    """``path``, or for a training run's folder the checkpoint it hands on (``model.pt``).
+
+    CheckpointError when a folder holds none (runs of osmseg before 0.6 wrote only
+    ``best.pt`` and ``last.pt``: they are named then)."""
+    if not path.is_dir():
+        return path
+    if (path / MODEL_FILE).is_file():
+        return path / MODEL_FILE
+    others = sorted(p.name for p in path.glob("*.pt"))
+    raise CheckpointError(f"{path} is a folder without {MODEL_FILE}" + (
+        f"; give one of its checkpoints: {', '.join(str(path / n) for n in others)}" if others else
+        "; give a checkpoint file, or the folder of an osmseg train run"))
+
+
 def load_checkpoint(path: Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
     """Read and check a checkpoint written by :func:`save_checkpoint` (``"spec"`` stays a dict).
 
     Raises CheckpointError (one line) if the file is missing, corrupt or truncated, holds
     anything but plain data, or is not an osmseg checkpoint of a version this code reads.
     """
-    path = Path(path)
+    path = run_checkpoint(Path(path))
     if not path.exists():
         raise CheckpointError(f"checkpoint {path} not found")
-    if path.is_dir():
-        raise CheckpointError(f"{path} is a folder, not a checkpoint file; give the .pt file inside it")
     corrupt = f"{path} is not a checkpoint (corrupt or truncated); train again or restore it"
     try:
         with path.open("rb") as f:  # torch.save always writes a zip; a cut one lacks its directory
@@ -159,12 +177,13 @@ def _strip_wrappers(weights: Mapping[str, Tensor]) -> dict[str, Tensor]:
     return out
 
 
-def model_from_checkpoint(path: Path, device: str | torch.device = "cpu") -> tuple[SegNet, ModelSpec]:
+def model_from_checkpoint(path: Path, device: str | torch.device = "cpu") -> tuple[Network, ModelSpec]:
     """The checkpoint's model, with its weights, on ``device`` in eval mode, and its spec.
 
     CheckpointError (one line) if the stored weights do not fit the stored spec.
     """
 
+    path = run_checkpoint(Path(path))
     state = load_checkpoint(path, map_location="cpu")
     spec = ModelSpec.from_dict(state["spec"])
     model = build_model(spec)
@@ -222,12 +241,15 @@ class InitWeights:
     record: dict[str, Any]
     weights: Mapping[str, Tensor] | None = None
     keep_classifier: bool = True
-    encoder: Mapping[str, Tensor] | None = None  # a vgg16_bn file's weights, read by read_init
+    encoder: Mapping[str, Tensor] | None = None  # a vgg16_bn file's weights, or unet-lite0's, read by read_init
 
-    def apply(self, model: SegNet) -> None:
+    def apply(self, model: Network) -> None:
         """Initialise ``model`` (freshly built from the run's spec) from these weights."""
         if self.weights is None:
-            load_encoder_weights(model, self.encoder if self.encoder is not None else self.source)
+            if isinstance(model, UNetLite0):
+                load_imagenet_encoder(model, self.encoder)
+            else:
+                load_encoder_weights(model, self.encoder if self.encoder is not None else self.source)
             return
         expected = model.state_dict()
         wanted = {k: v for k, v in self.weights.items() if self.keep_classifier or not k.startswith("classifier.")}
@@ -253,10 +275,16 @@ def read_init(source: str, spec: ModelSpec) -> InitWeights | None:
     """
     if source == "random":
         return None
+    if spec.arch == "unet-lite0" and source == "imagenet":  # the weights installed with osmseg: no download
+        weights, packaged = lite0_weights()
+        return InitWeights(source, {**packaged, "reused": "the encoder (EfficientNet-Lite0, ImageNet)"}, encoder=weights)
     path = Path(source).expanduser()
     if source != "imagenet" and not path.is_file():
         raise ConfigError(f"--init {source}: no such file; give random, imagenet, a checkpoint of an osmseg run "
                           "(best.pt, last.pt) or a vgg16_bn .pth")
+    if spec.arch == "unet-lite0" and not looks_like_checkpoint(path):
+        raise ConfigError(f"--init {source}: unet-lite0 starts from imagenet (its EfficientNet-Lite0 weights, installed "
+                          "with osmseg), random, or a checkpoint of an osmseg unet-lite0 run (best.pt, last.pt)")
     if source == "imagenet" or not looks_like_checkpoint(path):
         encoder = None
         if source != "imagenet":  # read now: a file that is neither is refused before the run begins

@@ -30,6 +30,8 @@ from osmseg.cli.common import (
 from osmseg.cli.drawers import progress_drawer
 from osmseg.errors import ConfigError
 from osmseg.units import plural, ratio
+from training.recipe import RECIPES
+from training.spec import ARCHS
 
 
 def _default(name: str) -> object:
@@ -49,10 +51,8 @@ def _recipes_default(name: str) -> str:
     """What ``--help`` shows as the default of a recipe setting: each shipped recipe's value.
 
     >>> _recipes_default("lr")
-    "the recipe's (osmseg 0.01, paper 0.1)"
+    "the recipe's (osmseg 0.01, paper 0.1, lite0 0.001)"
     """
-    from training.recipe import RECIPES
-
     return "the recipe's (" + ", ".join(f"{r.name} {getattr(r, name)}" for r in RECIPES.values()) + ")"
 
 
@@ -70,19 +70,24 @@ def _recipes_default(name: str) -> str:
               help="Class table TOML of the labels when the dataset has no manifest.json or classes.toml; with one, "
                    "the table the model learns: the dataset's, or one mapping it (classes6.toml on 13 classes).")
 @click.option("--width", type=float, default=_default("width"),
-              help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU.")
-@click.option("--arch", type=click.Choice(["segnet-skip", "segnet"]), default=_default("arch"),
+              help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU (unet-lite0: its "
+                   "decoder's channels).")
+@click.option("--arch", type=click.Choice(list(ARCHS)), default=_default("arch"),
               help="segnet-skip: SegNet whose decoder also adds each encoder stage's features (no extra weights; "
-                   "learns fine detail at small widths) | segnet: as published, the dissertation's network.")
+                   "learns fine detail at small widths) | segnet: as published, the dissertation's network | "
+                   "unet-lite0: a U-Net decoder on EfficientNet-Lite0, whose ImageNet weights install with osmseg.")
 @click.option("--init", default=_default("init"),
-              help="First weights: random (as the dissertation) | imagenet (downloads) or a vgg16_bn PATH.pth "
+              help="First weights: random (as the dissertation) | imagenet (SegNet: torchvision's VGG16-BN, "
+                   "downloaded; unet-lite0: the installed EfficientNet-Lite0 weights) or a vgg16_bn PATH.pth "
                    "(the encoder, width 1.0) | an osmseg run's best.pt/last.pt (fine-tuning at its width: the whole "
                    "network, or all but the classifier when the classes differ).")
 @click.option("--epochs", type=click.IntRange(min=1), default=_default("epochs"))
-@click.option("--recipe", type=click.Choice(["osmseg", "paper"]), default=_default("recipe"),
-              help="How the network learns: osmseg (AdamW, cosine, random crops, no class weights; for "
-                   "small data and CPUs) | paper (the dissertation's SegNet recipe: SGD lr 0.1 poly, median-frequency "
-                   "weights, fixed 360x480 patches). docs/training.md compares them.")
+@click.option("--recipe", type=click.Choice(["auto", *RECIPES]), default=_default("recipe"),
+              help="How the network learns: auto (the --arch's own: osmseg for SegNet, lite0 for unet-lite0) | osmseg "
+                   "(AdamW lr 0.01, cosine, 16 random 128x128 crops, no class weights; for small data and CPUs) | paper "
+                   "(the dissertation's SegNet recipe: SGD lr 0.1 poly, median-frequency weights, fixed 360x480 "
+                   "patches) | lite0 (fine-tuning: AdamW lr 0.001, warm-up, 4 crops of 256, weights averaged). "
+                   "docs/training.md compares them.")
 @click.option("--batch-size", type=click.IntRange(min=1), show_default=_recipes_default("batch_size"))
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), show_default=_recipes_default("lr"),
               help="Peak learning rate (after the warm-up; the schedule decays it).")
@@ -95,6 +100,14 @@ def _recipes_default(name: str) -> str:
 @click.option("--balanced-crops", type=click.FloatRange(0, 1), show_default=_recipes_default("balanced_crops"),
               help="Share of the random crops centred on a pixel of one class, drawn uniformly from the classes the "
                    "training labels hold: rare classes are seen as often as common ones (recipe osmseg).")
+@click.option("--encoder-lr", type=click.FloatRange(0, 10), show_default=_recipes_default("encoder_lr"),
+              help="The encoder's learning rate as a multiple of --lr (below 1: pretrained features change less).")
+@click.option("--freeze-bn/--train-bn", "freeze_bn", default=None, show_default=_recipes_default("freeze_bn"),
+              help="Keep the encoder's BatchNorm statistics as initialised (their scale and shift still learn).")
+@click.option("--ema", type=click.FloatRange(0, 1, max_open=True), show_default=_recipes_default("ema"),
+              help="Decay per step of the moving average of the weights that model.pt holds (0: the final weights).")
+@click.option("--dice", type=click.FloatRange(min=0), show_default=_recipes_default("dice"),
+              help="Weight of a soft Dice loss added to the cross-entropy (0: none).")
 @click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=not _default("ignore_unlabeled"),
               help="Train 'unlabeled' as a class instead of ignoring it (labels of one other class only always "
                    "do: it is their background).")
@@ -131,11 +144,12 @@ def train_command(ctx: click.Context, /, dataset: Path, out_dir: Path, config_fi
     if summary.rank != 0:  # under torchrun only rank 0 reports, as only it writes
         return
     if summary.best is not None and ctx.obj["verbosity"] >= 0:
-        b = summary.best
-        click.echo(f"best epoch {b['epoch']}: val mIoU {ratio(b['val_miou'])}, val pixel accuracy "
-                   f"{ratio(b['val_pixel_accuracy'])}; checkpoints in {out_dir}/ (best.pt, last.pt)", err=True)
-    click.echo(json.dumps({"best": str(out_dir / "best.pt"), "last": str(out_dir / "last.pt"),
-                           "log": str(out_dir / "log.csv")}))
+        b, last = summary.best, summary.last
+        final = f"final epoch {last['epoch']}: val mIoU {ratio(last['val_miou'])}; " if last is not None else ""
+        click.echo(f"{final}best epoch {b['epoch']}: val mIoU {ratio(b['val_miou'])} (best.pt)", err=True)
+        click.echo(f"use {out_dir / 'model.pt'} (osmseg predict {out_dir} ...): {summary.choice}", err=True)
+    click.echo(json.dumps({"model": str(out_dir / "model.pt"), "best": str(out_dir / "best.pt"),
+                           "last": str(out_dir / "last.pt"), "log": str(out_dir / "log.csv")}))
 
 
 def inference_options(func: F) -> F:
@@ -163,7 +177,7 @@ def inference_options(func: F) -> F:
 
 @click.command("predict")
 @output_options
-@click.argument("checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("checkpoint", type=click.Path(exists=True, path_type=Path))
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Folder for the masks: NAME.png (class ids) and NAME_color.png for PNG/JPEG inputs; "
@@ -194,7 +208,7 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
 
 @click.command("eval")
 @output_options
-@click.argument("checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("checkpoint", type=click.Path(exists=True, path_type=Path))
 @click.argument("dataset", required=False, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--pair", "pairs", nargs=2, multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),
               metavar="IMAGE LABEL", help="Evaluate on this image and label file instead of a dataset (repeatable).")

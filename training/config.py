@@ -1,7 +1,8 @@
 """Training configuration: one dataclass, read from YAML/TOML, overridden from the command line.
 
-*How* the network learns is a named :class:`~training.recipe.Recipe` (``recipe``: ``osmseg``,
-the default, or ``paper``, the dissertation's SegNet recipe); every setting of it (``lr``,
+*How* the network learns is a named :class:`~training.recipe.Recipe` (``recipe``: by default
+the network's own, ``osmseg`` for SegNet and ``lite0`` for unet-lite0, or ``paper``, the
+dissertation's SegNet recipe); every setting of it (``lr``,
 ``batch_size``, ``class_weights`` ...) may be overridden one by one, and a setting left at None
 is the recipe's. The rest (data, model, width, epochs, device) is the run's own.
 :attr:`TrainConfig.settings` is the resolved recipe, which the trainer uses and every
@@ -13,8 +14,10 @@ predictor) for 19 epochs, at 0.1 it started learning by epoch 7; the ``osmseg`` 
 choices are measured in ``docs/training.md``.
 
 >>> c = TrainConfig(dataset=Path("d"), out_dir=Path("o"))
->>> c.recipe, c.settings.optimizer, c.settings.lr, c.settings.schedule
+>>> c.recipe_name, c.settings.optimizer, c.settings.lr, c.settings.schedule
 ('osmseg', 'adamw', 0.01, 'cosine')
+>>> TrainConfig(dataset=Path("d"), out_dir=Path("o"), arch="unet-lite0").to_dict()["recipe"]
+'lite0'
 >>> p = TrainConfig(dataset=Path("d"), out_dir=Path("o"), recipe="paper", lr=0.05)
 >>> p.settings.optimizer, p.settings.lr, p.settings.batch_size, p.to_dict()["lr"]
 ('sgd', 0.05, 4, 0.05)
@@ -34,7 +37,7 @@ from typing import Any
 import tomllib
 
 from osmseg.errors import ConfigError
-from training.recipe import RECIPE_FIELDS, Recipe, recipe_named
+from training.recipe import ARCH_RECIPES, RECIPE_FIELDS, RECIPES, Recipe, recipe_named
 from training.spec import ARCHS
 
 logger = logging.getLogger(__name__)
@@ -58,7 +61,7 @@ class TrainConfig:
     patch_height: int = 360  # the grid patches of sampling "grid", and the window predict and eval use
     patch_width: int = 480
     epochs: int = 100
-    recipe: str = "osmseg"  # osmseg | paper: see training/recipe.py; the settings below override it one by one
+    recipe: str = "auto"  # auto (the arch's) | osmseg | paper | lite0: training/recipe.py; the settings below override it
     optimizer: str | None = None  # adamw | sgd
     batch_size: int | None = None
     lr: float | None = None
@@ -72,6 +75,10 @@ class TrainConfig:
     crop: int | None = None  # side of a random crop
     steps_per_epoch: int | None = None  # random sampling: batches per epoch (None: cover the pixels once, >= 50)
     balanced_crops: float | None = None  # random sampling: share of crops centred on a uniformly drawn class
+    encoder_lr: float | None = None  # the encoder's learning rate as a multiple of lr
+    freeze_bn: bool | None = None  # the encoder's BatchNorm statistics stay as initialised
+    ema: float | None = None  # decay per step of the weights' moving average (0: none)
+    dice: float | None = None  # weight of a soft Dice loss beside the cross-entropy
     augment: bool = True
     test_fraction: float = 1 / 3
     val_fraction: float = 0.15
@@ -100,6 +107,7 @@ class TrainConfig:
             (self.patch_height >= 32 and self.patch_width >= 32, "patches must be at least 32x32"),
             (self.split_by in ("groups", "image"), "split_by must be groups or image"),
             (self.arch in ARCHS, f"arch must be one of {', '.join(ARCHS)}"),
+            (self.recipe == "auto" or self.recipe in RECIPES, f"recipe must be auto or one of {', '.join(RECIPES)}"),
         ]
         for ok, message in checks:
             if not ok:
@@ -110,14 +118,19 @@ class TrainConfig:
         return (self.patch_height, self.patch_width)
 
     @property
+    def recipe_name(self) -> str:
+        """The recipe's name: ``recipe``, or for ``auto`` the network's own (``training.recipe.ARCH_RECIPES``)."""
+        return ARCH_RECIPES[self.arch] if self.recipe == "auto" else self.recipe
+
+    @property
     def settings(self) -> Recipe:
         """The recipe this run learns by: ``recipe`` with the settings given here."""
-        return recipe_named(self.recipe, **{k: getattr(self, k) for k in RECIPE_FIELDS})
+        return recipe_named(self.recipe_name, **{k: getattr(self, k) for k in RECIPE_FIELDS})
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form (paths as strings) for checkpoints and logs; the recipe's settings resolved."""
-        resolved = self.settings.to_dict()
-        return {k: (str(v) if isinstance(v, Path) else resolved[k] if k in RECIPE_FIELDS else v)
+        resolved = dict(self.settings.to_dict(), recipe=self.recipe_name)
+        return {k: (str(v) if isinstance(v, Path) else resolved[k] if k in (*RECIPE_FIELDS, "recipe") else v)
                 for k, v in asdict(self).items()}
 
 

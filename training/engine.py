@@ -20,6 +20,7 @@ from torch import nn
 from osmseg.progress import Progress, track
 from osmseg.units import plural
 from training.distributed import all_reduce_sum, is_distributed
+from training.fitting import freeze_encoder_bn
 from training.metrics import ConfusionMatrix
 
 logger = logging.getLogger(__name__)
@@ -71,13 +72,17 @@ def train_one_epoch(
     epoch: int,
     on_step: Callable[[int, float], None] | None = None,
     progress: Progress | None = None,
+    freeze_bn: bool = False,
+    after_step: Callable[[], None] | None = None,
 ) -> float | None:
     """Train for one epoch; returns the mean training loss over all processes (None when no
     batch had a labelled pixel).
 
     The scheduler steps once per batch (poly decay is defined per iteration). ``on_step(step,
-    loss)`` after each batch that trained; ``progress`` gets a step per batch (task ``epoch N
-    train``).
+    loss)`` after each batch that trained; ``after_step()`` after each optimiser step (the
+    weights' moving average); ``progress`` gets a step per batch (task ``epoch N train``).
+    ``freeze_bn``: the encoder's BatchNorm layers stay in evaluation mode
+    (:func:`training.fitting.freeze_encoder_bn`).
 
     A batch whose pixels are all ``criterion.ignore_index`` (a crop inside an OSM gap) has no
     loss: cross-entropy's mean over zero pixels is 0/0 = NaN. Its gradient is zero, yet an
@@ -91,6 +96,8 @@ def train_one_epoch(
     a zero loss.
     """
     model.train()
+    if freeze_bn:
+        freeze_encoder_bn(getattr(model, "module", model))  # the model inside a DDP wrapper
     ignore = getattr(criterion, "ignore_index", None)  # nn.CrossEntropyLoss's; -100 matches no id
     total = torch.zeros(2, dtype=torch.float64, device=opts.device)  # loss sum, batches
     skipped = 0
@@ -114,6 +121,8 @@ def train_one_epoch(
         scaler.step(optimizer)
         scaler.update()
         scheduler.step()
+        if after_step is not None:
+            after_step()
         if here:
             total += torch.tensor([loss.item(), 1.0], dtype=torch.float64, device=opts.device)
             if on_step is not None:

@@ -37,7 +37,7 @@ from osmseg.output.atomic import atomic_write_bytes
 from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress, track
 from osmseg.units import plural
-from training.checkpoint import load_checkpoint, model_from_checkpoint
+from training.checkpoint import load_checkpoint, model_from_checkpoint, run_checkpoint
 from training.data import SampleFiles, discover_dataset
 from training.figures import checkpoint_curves_png, confusion_matrix_png, per_class_iou_png, qualitative_panels
 from training.infer import InferenceOptions
@@ -149,6 +149,7 @@ def run_eval(checkpoint_path: Path, dataset: Path | None, out_dir: Path, opts: E
     """Evaluate a checkpoint and write metrics and pictures into ``out_dir`` (``progress``: a
     step per image evaluated)."""
     refuse_busy(dataset, *(path for pair in pairs for path in pair))  # a build is writing them
+    checkpoint_path = run_checkpoint(checkpoint_path)  # a run's folder: its model.pt
     checkpoint = load_checkpoint(checkpoint_path)
     model, spec = model_from_checkpoint(checkpoint_path, device=opts.device)
     # the labels' class table against the model's, before anything is predicted: refused when

@@ -50,6 +50,7 @@ from torch import Tensor, nn
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from training.config import PRESET_NAMES
+from training.lite0 import UNetLite0
 from training.spec import ARCHS, IMAGENET_MEAN, IMAGENET_STD, ModelSpec
 
 logger = logging.getLogger(__name__)
@@ -188,10 +189,16 @@ class SegNet(nn.Module):
         return cast("Tensor", self.classifier(x))
 
 
-def build_model(spec: ModelSpec) -> SegNet:
+#: A network osmseg builds: SegNet (``segnet``, ``segnet-skip``) or :class:`~training.lite0.UNetLite0`.
+Network = SegNet | UNetLite0
+
+
+def build_model(spec: ModelSpec) -> Network:
     """A freshly initialised network for ``spec`` (weights come from a checkpoint or training)."""
     if spec.arch not in ARCHS:
         raise ConfigError(f"unknown architecture {spec.arch!r}; use one of {', '.join(ARCHS)}")
+    if spec.arch == "unet-lite0":
+        return UNetLite0(num_classes=spec.num_classes, width=spec.width)
     return SegNet(num_classes=spec.num_classes, width=spec.width, skips=spec.arch == "segnet-skip")
 
 

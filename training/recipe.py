@@ -56,7 +56,13 @@ class Recipe:
     ``sampling="grid"`` cuts each image into the run's fixed patches (``--patch-*``).
     ``balanced_crops``: the share of random crops centred on a pixel of one class, the class
     drawn uniformly from those the training labels hold (rare-class sampling), so a class of a
-    few thousand pixels is seen as often as the rest without weighting its loss."""
+    few thousand pixels is seen as often as the rest without weighting its loss.
+    ``encoder_lr``: the encoder's learning rate as a multiple of ``lr`` (below 1 keeps pretrained
+    features closer to where they started). ``freeze_bn``: the encoder's BatchNorm layers keep
+    their statistics (running mean and variance; their scale and shift still learn), as
+    fine-tuning on small batches often does. ``ema``: the decay per step of an exponential
+    moving average of the weights (0: none), the weights ``model.pt`` holds. ``dice``: the
+    weight of a soft Dice loss added to the cross-entropy (0: cross-entropy alone)."""
 
     name: str
     optimizer: str
@@ -72,6 +78,10 @@ class Recipe:
     steps_per_epoch: int | None
     batch_size: int
     balanced_crops: float = 0.0
+    encoder_lr: float = 1.0
+    freeze_bn: bool = False
+    ema: float = 0.0
+    dice: float = 0.0
 
     def __post_init__(self) -> None:
         checks = [
@@ -87,6 +97,9 @@ class Recipe:
             (self.batch_size >= 1, "batch_size must be >= 1"),
             (0 <= self.balanced_crops <= 1, "balanced_crops must be a share of the crops in [0, 1]"),
             (self.balanced_crops == 0 or self.sampling == "random", "balanced_crops needs sampling random"),
+            (0 <= self.encoder_lr <= 10, "encoder_lr must be a multiple of lr in [0, 10]"),
+            (0 <= self.ema < 1, "ema must be a decay per step in [0, 1)"),
+            (self.dice >= 0, "dice must be a loss weight >= 0"),
         ]
         for ok, message in checks:
             if not ok:
@@ -107,7 +120,13 @@ RECIPES: dict[str, Recipe] = {
     "paper": Recipe(name="paper", optimizer="sgd", lr=0.1, weight_decay=5e-4, momentum=0.9, schedule="poly",
                     warmup=0.0, poly_power=0.9, class_weights="median-frequency", sampling="grid", crop=128,
                     steps_per_epoch=None, batch_size=4),
+    "lite0": Recipe(name="lite0", optimizer="adamw", lr=1e-3, weight_decay=1e-4, momentum=0.9, schedule="cosine",
+                    warmup=0.05, poly_power=0.9, class_weights="none", sampling="random", crop=256,
+                    steps_per_epoch=None, batch_size=4, ema=0.99),
 }
+
+#: the recipe a network learns by when the run names none
+ARCH_RECIPES = {"segnet-skip": "osmseg", "segnet": "osmseg", "unet-lite0": "lite0"}
 
 #: the settings a recipe decides (a run's config may override each)
 RECIPE_FIELDS = tuple(f.name for f in fields(Recipe) if f.name != "name")

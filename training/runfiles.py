@@ -2,7 +2,7 @@
 
 :class:`RunFiles` writes them from rank 0 only (the other processes of a torchrun hold the same
 history): the log is rewritten whole from the history, so a resumed run's log has no gaps, and
-the checkpoints' paths (``last.pt``, ``best.pt``) are named here once.
+the checkpoints' paths (``last.pt``, ``best.pt``, ``model.pt``) are named here once.
 
 Imports: osmseg core, training.distributed and (for curves.png) training.figures.
 """
@@ -48,6 +48,10 @@ class RunFiles:
     @property
     def best(self) -> Path:
         return self.out / "best.pt"
+
+    @property
+    def model(self) -> Path:
+        return self.out / "model.pt"
 
     def write_log(self, history: list[dict[str, Any]]) -> None:
         """Rewrite log.csv from the whole history (so a resumed run's log has no gaps)."""

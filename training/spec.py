@@ -23,9 +23,11 @@ IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
 
 
 #: the networks osmseg builds: SegNet as published (``segnet``: the decoder gets the encoder's
-#: pooling indices only) and SegNet with additive skips (``segnet-skip``: each unpooled decoder
-#: input plus the encoder features of that stage, as LinkNet adds them; the same weights)
-ARCHS = ("segnet-skip", "segnet")
+#: pooling indices only), SegNet with additive skips (``segnet-skip``: each unpooled decoder
+#: input plus the encoder features of that stage, as LinkNet adds them; the same weights), and a
+#: U-Net decoder on EfficientNet-Lite0 (``unet-lite0``: ImageNet-pretrained weights that install
+#: with osmseg; :mod:`training.lite0`)
+ARCHS = ("segnet-skip", "segnet", "unet-lite0")
 
 
 @dataclass(frozen=True)

@@ -3,8 +3,11 @@
 Reads the dataset, splits it by image (``splits.json``), trains with validation every epoch,
 and writes into the output folder, from rank 0 only:
 
-* ``last.pt`` after every epoch (everything needed to resume exactly) and ``best.pt`` (best
-  validation mIoU) — both usable by ``osmseg predict`` / ``osmseg eval`` on their own;
+* ``model.pt`` after every epoch: the checkpoint to use (``osmseg predict RUN`` takes it),
+  the final weights, averaged over the last steps when the recipe keeps a moving average
+  (``ema``; :func:`choice_note` says why not the best epoch);
+* ``last.pt`` (everything needed to resume exactly) and ``best.pt`` (best validation mIoU of the
+  weights ``model.pt`` holds) — all three usable by ``osmseg predict`` / ``osmseg eval``;
 * ``log.csv`` (one row per epoch), ``curves.png`` and TensorBoard events when installed.
 
 Rerunning the same command resumes from ``last.pt``: data order and augmentations depend only
@@ -33,6 +36,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 from torch.nn.parallel import DistributedDataParallel
+from torch.optim.swa_utils import AveragedModel
 from torch.utils.data import DataLoader, DistributedSampler
 
 from osmseg.errors import ConfigError, DatasetError
@@ -52,9 +56,10 @@ from training.data import (
 )
 from training.distributed import Dist, barrier, cleanup, setup
 from training.engine import StepOptions, evaluate, train_one_epoch
+from training.fitting import SegmentationLoss, make_optimizer, make_scheduler, weight_average
 from training.metrics import ConfusionMatrix, Metrics
 from training.model import build_model, model_spec, unlabeled_as_background
-from training.recipe import RECIPES, Recipe, lr_factor, steps_per_epoch
+from training.recipe import RECIPES, Recipe, steps_per_epoch
 from training.runclasses import run_tables
 from training.runfiles import RunFiles
 from training.sampling import RandomCrops, crop_sampler
@@ -68,7 +73,8 @@ Resuming = Callable[[int, int], None]
 #: Settings that may change between an interrupted run and its resumption.
 RESUMABLE_CHANGES = {"loader_workers", "device", "tensorboard", "out_dir", "dataset"}
 #: settings added since runs began to record their recipe: what the runs made before them used
-SETTINGS_ADDED = {"balanced_crops": 0.0, "arch": "segnet"}
+SETTINGS_ADDED = {"balanced_crops": 0.0, "arch": "segnet", "encoder_lr": 1.0, "freeze_bn": False, "ema": 0.0,
+                  "dice": 0.0}
 
 
 def dataset_fingerprint(root: Path) -> str | None:
@@ -98,6 +104,7 @@ class TrainResult:
     history: tuple[EpochRow, ...]
     best: EpochRow | None
     rank: int = 0
+    choice: str = ""  # which weights model.pt holds, and why
 
     @property
     def epochs(self) -> int:
@@ -111,27 +118,6 @@ class TrainResult:
 def rounded(loss: float | None, digits: int = 6) -> float | None:
     """A loss for log.csv and the log: None (an empty cell) when no batch had a labelled pixel."""
     return None if loss is None else round(loss, digits)
-
-
-def poly_lambda(total_steps: int, power: float) -> Callable[[int], float]:
-    """Learning-rate factor ``(1 - step / total) ** power``, never below 0 (no warm-up)."""
-    return lambda step: lr_factor(step, total_steps, 0, "poly", power)
-
-
-def make_optimizer(model: nn.Module, recipe: Recipe) -> torch.optim.Optimizer:
-    """The recipe's optimiser over ``model``'s parameters."""
-    if recipe.optimizer == "adamw":
-        return torch.optim.AdamW(model.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
-    return torch.optim.SGD(model.parameters(), lr=recipe.lr, momentum=recipe.momentum, weight_decay=recipe.weight_decay)
-
-
-def make_scheduler(optimizer: torch.optim.Optimizer, recipe: Recipe,
-                   total_steps: int) -> torch.optim.lr_scheduler.LambdaLR:
-    """Per-step rate: the recipe's warm-up (a fraction of ``total_steps``), then its schedule."""
-    warmup = round(recipe.warmup * total_steps)
-    return torch.optim.lr_scheduler.LambdaLR(
-        optimizer, functools.partial(lr_factor, total=total_steps, warmup=warmup, schedule=recipe.schedule,
-                                     power=recipe.poly_power))
 
 
 def seeded_loader(dataset: PatchDataset, config: TrainConfig, d: Dist, shuffle: bool) -> DataLoader[Any]:
@@ -343,8 +329,8 @@ def placed_model(spec: ModelSpec, init: InitWeights | None, config: TrainConfig,
     return model, net, opts
 
 
-def resumed(saved: dict[str, Any] | None, model: nn.Module, optimizer: Any, scheduler: Any, scaler: Any
-            ) -> tuple[list[dict[str, Any]], float, int]:
+def resumed(saved: dict[str, Any] | None, model: nn.Module, optimizer: Any, scheduler: Any, scaler: Any,
+            average: AveragedModel | None = None) -> tuple[list[dict[str, Any]], float, int]:
     """``(history, best val mIoU, epochs done)`` of a saved run, its states loaded; nothing done for a new one."""
     if saved is None:
         return [], -math.inf, 0
@@ -352,6 +338,8 @@ def resumed(saved: dict[str, Any] | None, model: nn.Module, optimizer: Any, sche
     optimizer.load_state_dict(saved["optimizer"])
     scheduler.load_state_dict(saved["scheduler"])
     scaler.load_state_dict(saved["scaler"])
+    if average is not None:
+        average.load_state_dict(saved["average"])
     history = list(saved["history"])
     best = max((h["val_miou"] for h in history if h.get("val_miou") is not None), default=-math.inf)
     return history, best, int(saved["epoch"])
@@ -382,17 +370,32 @@ def validated(model: nn.Module, criterion: nn.Module, val_loader: DataLoader[Any
                     progress=shown, task=f"epoch {epoch + 1} validate")
 
 
-def save_epoch(files_out: RunFiles, state: dict[str, Any], history: list[dict[str, Any]], metrics: Metrics,
-               best: float) -> float:
-    """An epoch's files: best.pt when its mIoU beats ``best``, log.csv, then last.pt; returns the new best."""
+def save_epoch(files_out: RunFiles, state: dict[str, Any], chosen: dict[str, Any], history: list[dict[str, Any]],
+               metrics: Metrics, best: float) -> float:
+    """An epoch's files: best.pt when its mIoU beats ``best``, model.pt, log.csv, then last.pt;
+    returns the new best. ``state`` is everything a resumption needs; ``chosen`` the weights the
+    run hands on (the moving average when the recipe keeps one, else the model's)."""
+    handed = {k: v for k, v in state.items() if k not in ("optimizer", "scheduler", "scaler", "average")}
+    handed["model"] = chosen
     if metrics["miou"] is not None and metrics["miou"] > best:
         best = metrics["miou"]
-        save_checkpoint(files_out.best, state)
+        save_checkpoint(files_out.best, handed)
+    save_checkpoint(files_out.model, handed)
     files_out.write_log(history)
-    # last.pt is the commit point of an epoch, written after best.pt and log.csv: a run
-    # killed in between redoes the epoch on resume and rewrites all three.
+    # last.pt is the commit point of an epoch, written after the others: a run killed in
+    # between redoes the epoch on resume and rewrites them all.
     save_checkpoint(files_out.last, state)
     return best
+
+
+def choice_note(recipe: Recipe) -> str:
+    """Which weights ``model.pt`` holds, and why (recorded in every checkpoint, said by ``osmseg train``)."""
+    if recipe.ema:
+        return (f"model.pt holds the final weights averaged over the last ~{round(1 / (1 - recipe.ema))} steps "
+                f"(ema {recipe.ema:g}): an average smooths the noise of the last steps without asking a small "
+                "validation split to choose an epoch")
+    return ("model.pt holds the final epoch's weights: the epoch a small validation split calls best (best.pt) is "
+            "mostly noise")
 
 
 def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress | None = None,
@@ -430,8 +433,8 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
     weights = class_weights(recipe, train_class_pixels, spec)
     model, net, opts = placed_model(spec, init, config, d)
     shown = progress if d.is_main else None  # one process reports
-    criterion = nn.CrossEntropyLoss(weight=None if weights is None else weights.to(d.device),
-                                    ignore_index=-100 if spec.ignore_index is None else spec.ignore_index)
+    criterion = SegmentationLoss(weight=None if weights is None else weights.to(d.device),
+                                 ignore_index=-100 if spec.ignore_index is None else spec.ignore_index, dice=recipe.dice)
     optimizer = make_optimizer(model, recipe)
     train_loader = seeded_loader(train_set, config, d, shuffle=True)
     val_loader = seeded_loader(val_set, config, d, shuffle=False)
@@ -441,7 +444,9 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
     scaler = torch.amp.GradScaler(d.device.type, enabled=opts.amp)
 
     files_out = RunFiles(config.out_dir, d, config.tensorboard)
-    history, best, start = resumed(saved, model, optimizer, scheduler, scaler)
+    average = weight_average(model, recipe.ema)  # what model.pt holds (None: the model's own weights)
+    history, best, start = resumed(saved, model, optimizer, scheduler, scaler, average)
+    handed = model if average is None else average.module  # validated, and written to best.pt and model.pt
 
     base_state = run_record(spec, config, splits, weights, saved, init)
     report(shown, "train", start, config.epochs, "epoch")
@@ -452,8 +457,9 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
             train_loader.sampler.set_epoch(epoch)
         lr = optimizer.param_groups[0]["lr"]
         train_loss = train_one_epoch(net, criterion, optimizer, scheduler, scaler, train_loader, opts, epoch + 1,
-                                     progress=shown)
-        val_loss, matrix = validated(model, criterion, val_loader, opts, spec, d, shown, epoch)
+                                     progress=shown, freeze_bn=recipe.freeze_bn,
+                                     after_step=None if average is None else lambda: average.update_parameters(model))
+        val_loss, matrix = validated(handed, criterion, val_loader, opts, spec, d, shown, epoch)
         metrics = matrix.compute(spec.class_names)  # by id, never by list position
         row = {"epoch": epoch + 1, "lr": lr, "train_loss": rounded(train_loss), "val_loss": rounded(val_loss),
                "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
@@ -464,8 +470,10 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
         if d.is_main:
             state = dict(base_state, model=model.state_dict(), optimizer=optimizer.state_dict(),
                          scheduler=scheduler.state_dict(), scaler=scaler.state_dict(), epoch=epoch + 1,
-                         history=history, val_metrics=metrics)
-            best = save_epoch(files_out, state, history, metrics, best)
+                         history=history, val_metrics=metrics, checkpoint_choice=choice_note(recipe))
+            if average is not None:
+                state["average"] = average.state_dict()
+            best = save_epoch(files_out, state, handed.state_dict(), history, metrics, best)
             logger.info("epoch %d/%d: train loss %s, val loss %s, val mIoU %s", epoch + 1, config.epochs,
                         rounded(train_loss, 4), rounded(val_loss, 4), metrics["miou"])
         barrier()
@@ -473,4 +481,4 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
     rows = tuple(cast("EpochRow", h) for h in history)
     best_row = max((h for h in rows if h.get("val_miou") is not None), key=lambda h: h.get("val_miou") or 0.0,
                    default=None)
-    return TrainResult(out_dir=config.out_dir, history=rows, best=best_row, rank=d.rank)
+    return TrainResult(out_dir=config.out_dir, history=rows, best=best_row, rank=d.rank, choice=choice_note(recipe))

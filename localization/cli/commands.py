@@ -80,9 +80,9 @@ def _table(result: Any) -> str:
 @click.option("--ground-table", show_default="the dictionary's own", help="Class table of the ground mask.")
 @click.option("--aerial-size", show_default="an image beside it", help="WIDTHxHEIGHT of the aerial landmark file's image.")
 @click.option("--ground-size", help="WIDTHxHEIGHT of the ground landmark file's image, e.g. 1232x224.")
-@click.option("--aerial-checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+@click.option("--aerial-checkpoint", type=click.Path(exists=True, path_type=Path),
               help="Segment the aerial RGB image with this checkpoint first (needs PyTorch).")
-@click.option("--ground-checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+@click.option("--ground-checkpoint", type=click.Path(exists=True, path_type=Path),
               help="Segment the ground RGB image with this checkpoint first (needs PyTorch).")
 @click.option("--panorama/--no-panorama", default=True, show_default=True,
               help="The ground image is a 360-degree panorama (x wraps around); --no-panorama for an aerial crop.")
@@ -123,7 +123,7 @@ def _table(result: Any) -> str:
               help="Reduce the features first (umap needs umap-learn). PCA centres them: with 2 landmarks their cosine distance is 2, so nothing is dropped.")
 @click.option("--feature-components", type=click.IntRange(min=1), default=8, show_default=True,
               help="Dimensions --feature-reduce keeps.")
-@click.option("--feature-checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+@click.option("--feature-checkpoint", type=click.Path(exists=True, path_type=Path),
               show_default="the side's --aerial-checkpoint/--ground-checkpoint",
               help="Checkpoint whose encoder gives the features.")
 @click.option("--conventions", type=click.Choice(["osmseg", "authors"]), default="osmseg", show_default=True,

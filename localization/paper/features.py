@@ -64,10 +64,11 @@ def _model(model: Any, device: str) -> tuple[Any, Any]:
     if isinstance(model, (str, Path)):
         from training.checkpoint import model_from_checkpoint
 
-        return model_from_checkpoint(Path(model), device=device)
+        model = model_from_checkpoint(Path(model), device=device)
     net, spec = model
     if not hasattr(getattr(net, "encoder", None), "features"):
-        raise ConfigError(f"{type(net).__name__} has no SegNet encoder (encoder.features); give a SegNet checkpoint")
+        raise ConfigError(f"{type(net).__name__} has no SegNet encoder (encoder.features): landmark features are the "
+                          "paper's SegNet encoder's; give a checkpoint of an --arch segnet or segnet-skip run")
     return net, spec
 
 
