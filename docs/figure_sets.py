@@ -277,9 +277,8 @@ def recipes(ws: Workspace) -> dict[str, Figure]:
             return f"cover the training pixels once, at least {MIN_STEPS_PER_EPOCH}"
         return "-" if value is None else str(value)
 
-    osmseg, paper = RECIPES["osmseg"].to_dict(), RECIPES["paper"].to_dict()
-    rows = [[f"`{k}`", shown(k, osmseg[k]), shown(k, paper[k])] for k in osmseg if k != "name"]
-    rows = [r for r in rows if not (r[0] in ("`crop`", "`steps_per_epoch`") and r[2] == r[1])] + \
-        [[f"`{k}`", shown(k, osmseg[k]), "(grid: 360x480 patches)"] for k in ("crop", "steps_per_epoch")
-         if osmseg[k] == paper[k]]
-    return {"recipes.table": F(table(["setting", "osmseg (default)", "paper"], rows))}
+    recipes = [r.to_dict() for r in RECIPES.values()]
+    grid = "(grid: 360x480 patches)"
+    rows = [[f"`{k}`", *(grid if r["sampling"] == "grid" and k in ("crop", "steps_per_epoch") else shown(k, r[k])
+                          for r in recipes)] for k in recipes[0] if k != "name"]
+    return {"recipes.table": F(table(["setting", *(f"{r['name']}" for r in recipes)], rows))}

@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import statistics
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from figure_sets import MASK_THRESHOLD, TIMING_COLUMN, F, by_classes, of, px_stats, span, table
 from figures import REPO_ROOT, Figure, Workspace, figure_set, transcript
@@ -158,6 +158,8 @@ def sensitivity(ws: Workspace) -> str:
 def benchmark(ws: Workspace, script: str, *args: str) -> dict[str, Any]:
     """``python benchmarks/SCRIPT ARGS --json FILE``: the figures it printed."""
     out = ws.root / (Path(script).stem + ".json")
+    if ws.reuse and out.is_file():  # figures.py --keep DIR --reuse: written by an earlier run in DIR
+        return cast("dict[str, Any]", json.loads(out.read_text(encoding="utf-8")))
     ws.run(str(REPO_ROOT / "benchmarks" / script), *args, "--json", str(out), python=True)
     return json.loads(out.read_text(encoding="utf-8"))
 
@@ -348,14 +350,49 @@ def spread(figure: dict[str, float], show: Any = ratio) -> str:
     return f"{show(figure['mean'])} ({show(figure['min'])}–{show(figure['max'])})"
 
 
-def heldout_rows(report: dict[str, Any], checkpoints: tuple[str, ...] = ("model.pt", "last.pt", "best.pt")
-                 ) -> list[list[str]]:
+#: bench_real_heldout.py's variants by name (the first whose options all appear in a variant's)
+VARIANT_NAMES = (("--arch unet-lite0 --init random", "unet-lite0, random weights"),
+                 ("--arch unet-lite0", "unet-lite0 from ImageNet, `lite0` recipe"),
+                 ("--recipe paper --arch segnet", "SegNet as published, the dissertation's recipe"),
+                 ("--arch segnet-skip", "SegNet with skips (width 0.125), `osmseg` recipe"))
+
+
+def variant_name(variant: str) -> str:
+    words = variant.split()
+    for options, name in VARIANT_NAMES:
+        if all(w in words for w in options.split()):
+            return name
+    return f"`{variant}`"
+
+
+def checkpoint_names(report: dict[str, Any]) -> dict[tuple[str, str], str]:
+    """What each (variant, checkpoint) holds, read off the scores: ``model.pt`` is the moving average
+    where its masks differ from ``last.pt``'s in some seed, else the final weights (one row)."""
+    scores: dict[tuple[str, str, int], tuple[float, ...]] = {}
+    for r in report["results"]:
+        if r.get("checkpoint"):
+            scores[(r["variant"], r["checkpoint"], r["seed"])] = tuple(
+                r[w][k] for w in ("kampala", "austin") for k in ("building_iou", "pixel_accuracy"))
+    names = {}
+    for variant in {v for v, _, _ in scores}:
+        seeds = {s for v, _, s in scores if v == variant}
+        averaged = any(scores[(variant, "model.pt", s)] != scores[(variant, "last.pt", s)] for s in seeds)
+        names[(variant, "model.pt")] = "weights averaged (`--ema 0.99`)" if averaged else "final weights (model.pt)"
+        names[(variant, "last.pt")] = "final weights (last.pt; model.pt without --ema)" if averaged else ""
+        names[(variant, "best.pt")] = "best validation epoch (best.pt)"
+    return names
+
+
+def heldout_rows(report: dict[str, Any], checkpoints: tuple[str, ...] = ("model.pt", "last.pt", "best.pt"),
+                 rename: Any = variant_name) -> list[list[str]]:
+    names = checkpoint_names(report)
     rows = []
     for r in report["summary"]:
-        if r["checkpoint"] and r["checkpoint"] not in checkpoints:
+        which = names.get((r["variant"], r["checkpoint"]), "") if r["checkpoint"] else ""
+        if r["checkpoint"] and (r["checkpoint"] not in checkpoints or not which):
             continue
-        which = f", {r['checkpoint']}" if r["checkpoint"] else ""
-        rows.append([f"`{r['variant']}`{which}", spread(r["kampala"]["building_iou"]),
+        label = rename(r["variant"]) if r["checkpoint"] else f"per-pixel {r['variant']}"
+        rows.append([f"{label}: {which}" if which else label, spread(r["kampala"]["building_iou"]),
                      spread(r["austin"]["building_iou"]), spread(r["kampala"]["pixel_accuracy"]),
                      spread(r["austin"]["pixel_accuracy"]), spread(r["train_seconds"], seconds)])
     return rows
@@ -365,7 +402,15 @@ HELDOUT_HEADER = ["trained by", "Kampala building IoU", "Austin building IoU", "
                   "Austin pixel accuracy", "training"]
 #: the recipe ablation of unet-lite0 (docs/training.md): each row the lite0 recipe with one change,
 #: at half the held-out bench's steps (10 epochs of 20), three seeds
+LITE0 = "--arch unet-lite0 --init imagenet --width 1.0 --ema 0.99"
 LITE0_ABLATION = ("", "--freeze-bn", "--encoder-lr 0.1", "--dice 1", "--init random")
+
+
+def ablation_name(variant: str) -> str:
+    """A row of the ablation by its change to the lite0 recipe (the base options dropped)."""
+    words = [w for w in variant.split() if w not in LITE0.split() or w == "random"]
+    change = " ".join(w for w in words if w != "random") if "random" not in words else "--init random"
+    return f"`{change}`" if change else "the `lite0` recipe"
 
 
 @figure_set("heldout", "expensive", needs="shared data")
@@ -373,21 +418,20 @@ def heldout(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_real_heldout.py --seeds 0 1 2: buildings on Kampala z21 samples apart from training, and on Inria Austin, SegNet and unet-lite0 beside a per-pixel baseline"""
     picture = REPO_ROOT / "docs" / "img" / "heldout.png"
     picture.parent.mkdir(exist_ok=True)
-    report = benchmark(ws, "bench_real_heldout.py", "--out", "heldout", "--png", str(picture), "--seeds", "0", "1", "2")
+    variants = ("--arch segnet-skip", "--recipe paper --arch segnet", LITE0)
+    report = benchmark(ws, "bench_real_heldout.py", "--out", "heldout", "--png", str(picture), "--seeds", "0", "1", "2",
+                       *(x for v in variants for x in ("--train-args", v)))
     return {"heldout.table": F(table(HELDOUT_HEADER, heldout_rows(report)), r"\d[\d.,]* s\b")}
 
 
-@figure_set("lite0-ablation", "expensive", needs="shared data")
+@figure_set("lite0", "expensive", needs="shared data")
 def lite0_ablation(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_real_heldout.py --seeds 0 1 2 --epochs 10 --steps-per-epoch 20: the lite0 recipe, one change a row"""
-    variants = [f"--arch unet-lite0 --init imagenet --width 1.0 {v}".strip() for v in LITE0_ABLATION]
+    variants = [f"{LITE0} {v}".strip() for v in LITE0_ABLATION]
     report = benchmark(ws, "bench_real_heldout.py", "--out", "ablation", "--seeds", "0", "1", "2", "--epochs", "10",
                        "--steps-per-epoch", "20", *(x for v in variants for x in ("--train-args", v)))
-    for r in report["summary"]:
-        r["variant"] = r["variant"].replace("--arch unet-lite0 --init imagenet --width 1.0", "").strip() or (
-            "lite0 recipe" if r["checkpoint"] else r["variant"])
-    return {"lite0.ablation": F(table(HELDOUT_HEADER, heldout_rows(report, ("model.pt", "last.pt"))),
-                                r"\d[\d.,]* s\b")}
+    return {"lite0.ablation": F(table(HELDOUT_HEADER, heldout_rows(report, ("model.pt", "last.pt"),
+                                                                   rename=ablation_name)), r"\d[\d.,]* s\b")}
 
 
 # --------------------------------------------------------------------------- Kotka: both renderers, a region

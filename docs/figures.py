@@ -106,6 +106,7 @@ class Workspace:
     root: Path
     pairs: Path | None = None
     shared: Path = REPO_ROOT.parent / "shared" / "data"
+    reuse: bool = False  # a benchmark's JSON already in root is read, not measured again
     _runs: dict[tuple[str, ...], tuple[str, str]] = field(default_factory=dict)
 
     def env(self) -> dict[str, str]:
@@ -241,12 +242,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairs", type=Path, help="the authors' annotated pairs (aerial/, ground/)")
     parser.add_argument("--check", action="store_true", help="write nothing; exit 1 when a figure differs")
     parser.add_argument("--keep", type=Path, help="run in this folder and keep it (default: a temporary one)")
+    parser.add_argument("--reuse", action="store_true",
+                        help="with --keep: read the JSON a benchmark left in that folder (its settings are in it) "
+                             "instead of running it again; to write its figures anew after a change of wording")
     args = parser.parse_args(argv)
     names = args.only or [n for n, s in SETS.items() if s.cost == "cheap" or not args.cheap]
     with tempfile.TemporaryDirectory(prefix="osmseg-figures-") as tmp:
         root = args.keep or Path(tmp)
         root.mkdir(parents=True, exist_ok=True)
-        figures = measure(names, Workspace(root, args.pairs))
+        figures = measure(names, Workspace(root, args.pairs, reuse=args.reuse and args.keep is not None))
     if args.check:
         problems = differences(figures)
         print("\n".join(problems) or f"{len(figures)} figures, as the docs say")

@@ -68,5 +68,5 @@ def test_demo_trains_and_evaluates_after_the_build(tmp_path: Path) -> None:
         assert (out / "eval" / picture).stat().st_size > 1000
     metrics = json.loads((out / "eval" / "metrics.json").read_text())
     assert "test" in metrics["evaluated"]["images"] and 0 <= metrics["pixel_accuracy"] <= 1
-    assert "panels.png" in result.stderr and (out / "run" / "best.pt").is_file()
+    assert "panels.png" in result.stderr and (out / "run" / "model.pt").is_file()
     assert not (out / "localize").exists()

@@ -115,12 +115,12 @@ def test_imagenet_init_loads_the_installed_weights_and_records_their_hash(tmp_pa
 
 
 def test_trains_with_its_recipe_and_hands_on_the_averaged_weights(tmp_path: Path) -> None:
-    """The lite0 recipe by default; model.pt is the moving average (not last.pt's weights),
+    """The lite0 recipe by default; with --ema model.pt is the moving average (not last.pt's weights),
     the summary says so, predict and eval take the run's folder; --freeze-bn and --encoder-lr
     do what they say."""
     run = tmp_path / "run"
     result = osmseg("train", TINYSEG, "--out", run, "--config", TINY, "--epochs", 2, *LITE0, "--init", "imagenet",
-                    "--freeze-bn", "--encoder-lr", "0.1", "--dice", "1")
+                    "--freeze-bn", "--encoder-lr", "0.1", "--dice", "1", "--ema", "0.99")
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout.strip().splitlines()[-1])["model"] == str(run / "model.pt")
     last, handed = load_checkpoint(run / "last.pt"), load_checkpoint(run / "model.pt")
@@ -182,7 +182,7 @@ def test_a_killed_run_resumes_to_the_same_average(tmp_path: Path) -> None:
 
     def command(run: Path) -> list[str]:
         return [sys.executable, "-m", "osmseg", "-q", "train", str(TINYSEG), "--out", str(run), "--config", str(TINY),
-                "--epochs", "2", *LITE0, "--init", "imagenet"]
+                "--epochs", "2", *LITE0, "--init", "imagenet", "--ema", "0.9"]
 
     reference = tmp_path / "reference"
     subprocess.run(command(reference), env=env, check=True, capture_output=True, timeout=600)

@@ -31,7 +31,7 @@ from conftest import REPO_ROOT, SHARED_DATA
 README = REPO_ROOT / "README.md"
 #: the README's Kampala build example and its training block are found by these
 BUILD_MARK = "kampala-oam/tiles"
-CHAIN_MARK = "osmseg eval runs/kampala/best.pt data/kampala"
+CHAIN_MARK = "osmseg eval runs/kampala/model.pt data/kampala"
 
 
 def sh_blocks() -> list[list[str]]:
@@ -173,6 +173,6 @@ def test_the_readme_chain_runs_as_written_on_real_data(tmp_path: Path) -> None:
     assert 0.0 <= austin["pixel_accuracy"] <= 1.0 and "building" in austin["per_class"]
 
     # again into the same folders: every command succeeds, the dataset and checkpoint stay as they are
-    before = {p: md5(p) for p in [*sorted(data.rglob("*.png")), work / "runs" / "kampala" / "best.pt"]}
+    before = {p: md5(p) for p in [*sorted(data.rglob("*.png")), work / "runs" / "kampala" / "model.pt"]}
     run_chain(work, commands, logs, env)
     assert {p: md5(p) for p in before} == before

@@ -77,7 +77,7 @@ def _recipes_default(name: str) -> str:
                    "learns fine detail at small widths) | segnet: as published, the dissertation's network | "
                    "unet-lite0: a U-Net decoder on EfficientNet-Lite0, whose ImageNet weights install with osmseg.")
 @click.option("--init", default=_default("init"),
-              help="First weights: random (as the dissertation) | imagenet (SegNet: torchvision's VGG16-BN, "
+              help="First weights: auto (unet-lite0: imagenet; SegNet: random) | random (as the dissertation) | imagenet (SegNet: torchvision's VGG16-BN, "
                    "downloaded; unet-lite0: the installed EfficientNet-Lite0 weights) or a vgg16_bn PATH.pth "
                    "(the encoder, width 1.0) | an osmseg run's best.pt/last.pt (fine-tuning at its width: the whole "
                    "network, or all but the classifier when the classes differ).")

@@ -42,6 +42,11 @@ from training.spec import ARCHS
 
 logger = logging.getLogger(__name__)
 
+#: where a network's first weights come from when the run names none: SegNet from random weights, as the
+#: dissertation trained it (torchvision's ImageNet VGG16-BN is a download); unet-lite0 from the ImageNet
+#: weights installed with osmseg
+ARCH_INITS = {"segnet-skip": "random", "segnet": "random", "unet-lite0": "imagenet"}
+
 #: the AirSegNet presets (training.model.PRESETS gives their class tables)
 PRESET_NAMES = ("airsegnet6", "airsegnet13")
 
@@ -56,7 +61,7 @@ class TrainConfig:
     classes: str | None = None  # class table TOML; default: the dataset's manifest, else the model's
     width: float = 1.0  # channel multiplier; 1.0 is the paper's network
     arch: str = "segnet-skip"  # segnet-skip | segnet (the paper's: no skips); training.spec.ARCHS
-    init: str = "random"  # random | imagenet | PATH to a vgg16_bn .pth | an osmseg checkpoint (fine-tuning)
+    init: str = "auto"  # auto (the arch's: ARCH_INITS) | random | imagenet | PATH to a vgg16_bn .pth | an osmseg checkpoint
     ignore_unlabeled: bool = True  # unlabeled (0) ignored in loss and metrics
     patch_height: int = 360  # the grid patches of sampling "grid", and the window predict and eval use
     patch_width: int = 480
@@ -118,6 +123,11 @@ class TrainConfig:
         return (self.patch_height, self.patch_width)
 
     @property
+    def init_source(self) -> str:
+        """Where the first weights come from: ``init``, or for ``auto`` the network's own (:data:`ARCH_INITS`)."""
+        return ARCH_INITS[self.arch] if self.init == "auto" else self.init
+
+    @property
     def recipe_name(self) -> str:
         """The recipe's name: ``recipe``, or for ``auto`` the network's own (``training.recipe.ARCH_RECIPES``)."""
         return ARCH_RECIPES[self.arch] if self.recipe == "auto" else self.recipe
@@ -129,8 +139,8 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form (paths as strings) for checkpoints and logs; the recipe's settings resolved."""
-        resolved = dict(self.settings.to_dict(), recipe=self.recipe_name)
-        return {k: (str(v) if isinstance(v, Path) else resolved[k] if k in (*RECIPE_FIELDS, "recipe") else v)
+        resolved = dict(self.settings.to_dict(), recipe=self.recipe_name, init=self.init_source)
+        return {k: (str(v) if isinstance(v, Path) else resolved[k] if k in (*RECIPE_FIELDS, "recipe", "init") else v)
                 for k, v in asdict(self).items()}
 
 

@@ -122,7 +122,7 @@ RECIPES: dict[str, Recipe] = {
                     steps_per_epoch=None, batch_size=4),
     "lite0": Recipe(name="lite0", optimizer="adamw", lr=1e-3, weight_decay=1e-4, momentum=0.9, schedule="cosine",
                     warmup=0.05, poly_power=0.9, class_weights="none", sampling="random", crop=256,
-                    steps_per_epoch=None, batch_size=4, ema=0.99),
+                    steps_per_epoch=None, batch_size=4),
 }
 
 #: the recipe a network learns by when the run names none

@@ -388,14 +388,24 @@ def save_epoch(files_out: RunFiles, state: dict[str, Any], chosen: dict[str, Any
     return best
 
 
+def training_states(model: nn.Module, optimizer: Any, scheduler: Any, scaler: Any, average: AveragedModel | None
+                    ) -> dict[str, Any]:
+    """The states a resumption loads (:func:`resumed`): weights, optimiser, schedule, scaler, the average."""
+    states = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+              "scaler": scaler.state_dict()}
+    if average is not None:
+        states["average"] = average.state_dict()
+    return states
+
+
 def choice_note(recipe: Recipe) -> str:
     """Which weights ``model.pt`` holds, and why (recorded in every checkpoint, said by ``osmseg train``)."""
     if recipe.ema:
         return (f"model.pt holds the final weights averaged over the last ~{round(1 / (1 - recipe.ema))} steps "
                 f"(ema {recipe.ema:g}): an average smooths the noise of the last steps without asking a small "
                 "validation split to choose an epoch")
-    return ("model.pt holds the final epoch's weights: the epoch a small validation split calls best (best.pt) is "
-            "mostly noise")
+    return ("model.pt holds the final weights, the learning rate annealed: the epoch a small validation split calls "
+            "best (best.pt) is mostly noise, and on held-out imagery a moving average of the weights did no better")
 
 
 def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress | None = None,
@@ -416,7 +426,7 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
         check_resumable(saved, config)  # before anything is written into someone else's run
         if resuming is not None and d.is_main:  # said before the data are loaded, which takes a while
             resuming(int(saved["epoch"]), config.epochs)
-    init = read_init(config.init, spec) if saved is None else None  # a bad --init: refused before any output
+    init = read_init(config.init_source, spec) if saved is None else None  # a bad --init: refused before any output
     if d.is_main:  # only now: bad input above leaves no output folder behind
         config.out_dir.mkdir(parents=True, exist_ok=True)
         for litter in config.out_dir.glob(".*.tmp"):  # a checkpoint save cut short by a kill
@@ -447,7 +457,6 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
     average = weight_average(model, recipe.ema)  # what model.pt holds (None: the model's own weights)
     history, best, start = resumed(saved, model, optimizer, scheduler, scaler, average)
     handed = model if average is None else average.module  # validated, and written to best.pt and model.pt
-
     base_state = run_record(spec, config, splits, weights, saved, init)
     report(shown, "train", start, config.epochs, "epoch")
     for epoch in range(start, config.epochs):
@@ -465,14 +474,11 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
                "val_miou": metrics["miou"], "val_pixel_accuracy": metrics["pixel_accuracy"],
                "seconds": round(time.monotonic() - began, 2)}
         history.append(row)
-        measured = {"train loss": row["train_loss"], "val loss": row["val_loss"], "val mIoU": row["val_miou"]}
-        report(shown, "train", epoch + 1, config.epochs, "epoch", {**measured, "epoch seconds": row["seconds"]})
+        report(shown, "train", epoch + 1, config.epochs, "epoch", {"train loss": row["train_loss"], "val loss":
+               row["val_loss"], "val mIoU": row["val_miou"], "epoch seconds": row["seconds"]})
         if d.is_main:
-            state = dict(base_state, model=model.state_dict(), optimizer=optimizer.state_dict(),
-                         scheduler=scheduler.state_dict(), scaler=scaler.state_dict(), epoch=epoch + 1,
+            state = dict(base_state, **training_states(model, optimizer, scheduler, scaler, average), epoch=epoch + 1,
                          history=history, val_metrics=metrics, checkpoint_choice=choice_note(recipe))
-            if average is not None:
-                state["average"] = average.state_dict()
             best = save_epoch(files_out, state, handed.state_dict(), history, metrics, best)
             logger.info("epoch %d/%d: train loss %s, val loss %s, val mIoU %s", epoch + 1, config.epochs,
                         rounded(train_loss, 4), rounded(val_loss, 4), metrics["miou"])

@@ -42,9 +42,9 @@ def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, pro
     summary = run(make_config(dataset, run_dir, None, settings), progress=progress)
     seconds = sum(h["seconds"] for h in summary.history)
     if verbosity >= 0:
-        click.echo(f"evaluating {run_dir / 'best.pt'} on the test split into {eval_dir}/", err=True)
+        click.echo(f"evaluating {run_dir / 'model.pt'} on the test split into {eval_dir}/", err=True)
     opts = EvalOptions(split="test", device="cpu")
-    metrics = run_eval(run_dir / "best.pt", dataset, eval_dir, opts, progress=progress)
+    metrics = run_eval(run_dir / "model.pt", dataset, eval_dir, opts, progress=progress)
     if verbosity >= 0:
         click.echo(f"test mIoU {ratio(metrics['miou'])}, pixel accuracy {ratio(metrics['pixel_accuracy'])} on the "
                    f"held-out image ({epochs} epochs, {seconds:.0f} s of training on the CPU)", err=True)
