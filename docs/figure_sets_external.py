@@ -365,36 +365,49 @@ def variant_name(variant: str) -> str:
     return f"`{variant}`"
 
 
-def checkpoint_names(report: dict[str, Any]) -> dict[tuple[str, str], str]:
-    """What each (variant, checkpoint) holds, read off the scores: ``model.pt`` is the moving average
-    where its masks differ from ``last.pt``'s in some seed, else the final weights (one row)."""
-    scores: dict[tuple[str, str, int], tuple[float, ...]] = {}
-    for r in report["results"]:
-        if r.get("checkpoint"):
-            scores[(r["variant"], r["checkpoint"], r["seed"])] = tuple(
-                r[w][k] for w in ("kampala", "austin") for k in ("building_iou", "pixel_accuracy"))
-    names = {}
-    for variant in {v for v, _, _ in scores}:
-        seeds = {s for v, _, s in scores if v == variant}
-        averaged = any(scores[(variant, "model.pt", s)] != scores[(variant, "last.pt", s)] for s in seeds)
-        names[(variant, "model.pt")] = "weights averaged (`--ema 0.99`)" if averaged else "final weights (model.pt)"
-        names[(variant, "last.pt")] = "final weights (last.pt; model.pt without --ema)" if averaged else ""
-        names[(variant, "best.pt")] = "best validation epoch (best.pt)"
-    return names
+def _scores(r: dict[str, Any]) -> tuple[float, ...]:
+    return tuple(r[w][k] for w in ("kampala", "austin") for k in ("building_iou", "pixel_accuracy"))
+
+
+def _stats(values: list[float]) -> dict[str, float]:
+    return {"mean": statistics.fmean(values), "min": min(values), "max": max(values)}
 
 
 def heldout_rows(report: dict[str, Any], checkpoints: tuple[str, ...] = ("model.pt", "last.pt", "best.pt"),
                  rename: Any = variant_name) -> list[list[str]]:
-    names = checkpoint_names(report)
+    """A row per method and checkpoint, mean (min–max) over the seeds of bench_real_heldout.py's runs.
+
+    What ``model.pt`` holds is read off the scores: the moving average where its masks differ from
+    ``last.pt``'s (only those seeds count), else the final weights (one row with ``last.pt``)."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in report["results"]:
+        groups.setdefault((r["variant"], r.get("checkpoint", "")), []).append(r)
+    seeds_of = {r["seed"] for r in report["results"]}
     rows = []
-    for r in report["summary"]:
-        which = names.get((r["variant"], r["checkpoint"]), "") if r["checkpoint"] else ""
-        if r["checkpoint"] and (r["checkpoint"] not in checkpoints or not which):
+    for (variant, checkpoint), members in groups.items():
+        if checkpoint and checkpoint not in checkpoints:
             continue
-        label = rename(r["variant"]) if r["checkpoint"] else f"per-pixel {r['variant']}"
-        rows.append([f"{label}: {which}" if which else label, spread(r["kampala"]["building_iou"]),
-                     spread(r["austin"]["building_iou"]), spread(r["kampala"]["pixel_accuracy"]),
-                     spread(r["austin"]["pixel_accuracy"]), spread(r["train_seconds"], seconds)])
+        last = {m["seed"]: _scores(m) for m in groups.get((variant, "last.pt"), [])}
+        averaged = [m for m in groups.get((variant, "model.pt"), []) if _scores(m) != last.get(m["seed"])]
+        if checkpoint == "model.pt" and averaged:
+            members, which = averaged, "weights averaged (`--ema 0.99`)"
+        elif checkpoint == "model.pt":
+            which = "final weights (model.pt)"
+        elif checkpoint == "last.pt":
+            if not averaged:
+                continue  # the same weights as model.pt's row
+            which = "final weights (last.pt; model.pt without --ema)"
+        else:
+            which = "best validation epoch (best.pt)" if checkpoint else ""
+        seeds = sorted(m["seed"] for m in members)
+        if checkpoint and set(seeds) != seeds_of:
+            which += f", seeds {', '.join(map(str, seeds))} only"
+        label = rename(variant) if checkpoint else f"per-pixel {variant}"
+        rows.append([f"{label}: {which}" if which else label,
+                     *(spread(_stats([m[w][k] for m in members])) for w, k in (
+                         ("kampala", "building_iou"), ("austin", "building_iou"), ("kampala", "pixel_accuracy"),
+                         ("austin", "pixel_accuracy"))),
+                     spread(_stats([float(m["train_seconds"]) for m in members]), seconds)])
     return rows
 
 
@@ -421,7 +434,34 @@ def heldout(ws: Workspace) -> dict[str, Figure]:
     variants = ("--arch segnet-skip", "--recipe paper --arch segnet", LITE0)
     report = benchmark(ws, "bench_real_heldout.py", "--out", "heldout", "--png", str(picture), "--seeds", "0", "1", "2",
                        *(x for v in variants for x in ("--train-args", v)))
-    return {"heldout.table": F(table(HELDOUT_HEADER, heldout_rows(report)), r"\d[\d.,]* s\b")}
+    lite0, skip = "--arch unet-lite0", "--arch segnet-skip"
+
+    def iou(variant: str, checkpoint: str, where: str, averaged: bool = False, show: str = "mean") -> str:
+        """A network's (or baseline's) building IoU over the seeds: final weights, or (``averaged``) the
+        seeds whose model.pt holds a moving average."""
+        runs = [r for r in report["results"] if r.get("checkpoint", "") == checkpoint and
+                all(w in r["variant"].split() for w in variant.split())]
+        if averaged or checkpoint == "last.pt":
+            last = {r["seed"]: _scores(r) for r in report["results"] if r["variant"] in {m["variant"] for m in runs}
+                    and r.get("checkpoint") == "last.pt"}
+            if averaged:
+                runs = [r for r in runs if _scores(r) != last.get(r["seed"])]
+        values = _stats([r[where]["building_iou"] for r in runs])
+        return f"{ratio(values['min'])} to {ratio(values['max'])}" if show == "range" else ratio(values["mean"])
+
+    return {"heldout.table": F(table(HELDOUT_HEADER, heldout_rows(report)), r"\d[\d.,]* s\b"),
+            "heldout.lite0.austin": F(iou(lite0, "last.pt", "austin")),
+            "heldout.lite0.austin.range": F(iou(lite0, "last.pt", "austin", show="range")),
+            "heldout.lite0.kampala": F(iou(lite0, "last.pt", "kampala")),
+            "heldout.lite0.ema": F(f"{iou(lite0, 'model.pt', 'kampala', averaged=True)} against "
+                                   f"{iou(lite0, 'last.pt', 'kampala')} on Kampala, "
+                                   f"{iou(lite0, 'model.pt', 'austin', averaged=True)} against "
+                                   f"{iou(lite0, 'last.pt', 'austin')} on Austin"),
+            "heldout.skip.austin": F(iou(skip, "model.pt", "austin")),
+            "heldout.skip.kampala": F(iou(skip, "model.pt", "kampala")),
+            "heldout.skip.best": F(f"{iou(skip, 'best.pt', 'kampala')} against {iou(skip, 'model.pt', 'kampala')}"),
+            "heldout.baselines.austin": F(f"{iou('baseline balanced', '', 'austin')} balanced and "
+                                          f"{iou('baseline unweighted', '', 'austin')} unweighted")}
 
 
 @figure_set("lite0", "expensive", needs="shared data")
