@@ -17,17 +17,15 @@ What it does:
    on each mosaic's transform, transparent drone pixels unlabeled (ignored).
 2. Trains each variant through the real command line, ``python -m osmseg train DATASET --out
    RUN --model buildings --width 0.125 --device cpu --seed S --epochs E --steps-per-epoch N``
-   (E=20, N=30 by default), then the variant's own ``--train-args`` (default: the default
-   recipe and network; the same with median-frequency class weights, which on a two-class
-   problem only balance building against background; the default with twice the channels,
-   ``--width 0.25``, still well inside a 15-minute CPU budget; the default recipe on SegNet
-   as published, ``--arch segnet``; and the dissertation's recipe and network, ``--recipe
-   paper --arch segnet``). A variant on the paper's fixed 360x480 grid (``--recipe paper``,
+   (E=20, N=30 by default), then the variant's own ``--train-args`` (default: SegNet with
+   skips and its recipe, ``--arch segnet-skip``; the dissertation's recipe and network,
+   ``--recipe paper --arch segnet``; and unet-lite0 from its ImageNet weights at width 1.0,
+   ``--arch unet-lite0 --init imagenet --width 1.0``). A variant on the paper's fixed 360x480 grid (``--recipe paper``,
    which ignores ``--steps-per-epoch``) gets, unless its arguments say ``--epochs``,
    as many epochs as see the same number of training pixels as E x N steps of the default
    recipe (16 crops of 128x128 a step). Wall time of each training is measured.
-3. Scores ``RUN/best.pt`` (best validation mIoU, on one strip: it can be an early epoch) and,
-   when it is another epoch, ``RUN/last.pt`` with ``osmseg predict`` on the Kampala test
+3. Scores ``RUN/model.pt`` (the checkpoint the run hands on), ``RUN/last.pt`` and, when it is
+   another epoch, ``RUN/best.pt`` (best validation mIoU, on one strip) with ``osmseg predict`` on the Kampala test
    mosaics and on ``inria-austin/image.tif`` with ``--resolution model`` (resampled to the
    training data's 0.0744 m, mask back on Austin's 0.3 m grid), reading the written masks
    with rasterio: building IoU and pixel accuracy (building vs the rest) over labelled
@@ -45,7 +43,9 @@ CPUs)::
     .venv/bin/python benchmarks/bench_real_heldout.py [--out DIR] [--json results.json]
         [--png results.png] [--train-args "--crop 256 --batch-size 4" ...] [--seeds 0 1 2]
 
-Prints a markdown table; ``--json`` writes every figure, the settings and the seeds;
+With ``--seeds S ...`` all of it runs once per seed (validation strip, training, baseline
+sample); the table gives mean (min-max) over the seeds. Prints a markdown table; ``--json``
+writes every figure, the settings and the seeds;
 ``--png`` shows image | labels | network (best.pt, last.pt) of the first variant | balanced
 baseline, for Kampala and Austin. Without ``--out`` everything goes into a temporary folder
 that is removed at the end. Exits with code 1 and one line when ``../shared/data``

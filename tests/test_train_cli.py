@@ -119,7 +119,7 @@ def test_train_writes_a_complete_run_and_the_command_line_wins_over_the_file(tra
     assert [float(r["train_loss"]) for r in rows] == [h["train_loss"] for h in last["history"]]
 
     handed = load_checkpoint(run / "model.pt")  # the default recipe keeps no average: the final weights
-    assert handed["epoch"] == EPOCHS and "optimizer" not in handed and "final epoch" in handed["checkpoint_choice"]
+    assert handed["epoch"] == EPOCHS and "optimizer" not in handed and "final weights" in handed["checkpoint_choice"]
     assert all(torch.equal(handed["model"][k], last["model"][k]) for k in last["model"])
 
     best = load_checkpoint(run / "best.pt")
