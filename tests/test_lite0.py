@@ -99,13 +99,15 @@ def test_the_network_takes_any_image_size() -> None:
 
 
 def test_imagenet_init_loads_the_installed_weights_and_records_their_hash(tmp_path: Path) -> None:
-    """No step trained (``--max-steps-per-epoch 0``): model.pt's encoder is the packaged weights,
+    """No step trained (``--max-steps-per-epoch 0``), no --init: model.pt's encoder is the packaged weights,
     the run records their file and sha256, and --freeze-bn keeps their statistics."""
     run = tmp_path / "run"
-    result = osmseg("train", TINYSEG, "--out", run, "--config", TINY, "--epochs", 1, *LITE0, "--init", "imagenet",
+    result = osmseg("train", TINYSEG, "--out", run, "--config", TINY, "--epochs", 1, *LITE0,  # --init auto
                     "--max-steps-per-epoch", 0)
     assert result.exit_code == 0, result.output
-    init = load_checkpoint(run / "model.pt")["init"]
+    handed = load_checkpoint(run / "model.pt")
+    assert (handed["config"]["init"], handed["config"]["recipe"]) == ("imagenet", "lite0")
+    init = handed["init"]
     assert init["sha256"] == sha256(weights_file()) and init["path"] == str(weights_file())
     model, spec = model_from_checkpoint(run)  # the run's folder stands for its model.pt
     assert spec.arch == "unet-lite0"
