@@ -304,9 +304,24 @@ def ablation_row(v: dict[str, Any]) -> list[str]:
             ratio(v["test_pixel_accuracy_bn_batch"])]
 
 
+@figure_set("demotrain", "expensive", needs="torch")
+def demotrain(ws: Workspace) -> dict[str, Figure]:
+    """osmseg demo's training and evaluation (osmseg demo --no-localize)"""
+    _, printed = ws.run("demo", "--out", "demo-train", "--no-localize")
+    demo = json.loads((ws.root / "demo-train" / "eval" / "metrics.json").read_text(encoding="utf-8"))
+    with (ws.root / "demo-train" / "run" / "log.csv").open(encoding="utf-8") as f:
+        demo_seconds = sum(float(line.split(",")[-1]) for line in f.readlines()[1:])
+    return {
+        "demotrain.result": F(f"{ratio(demo['pixel_accuracy'])} pixel accuracy, mIoU {ratio(demo['miou'])}, after "
+                              f"{seconds(demo_seconds)} of training", r"\d[\d.,]* s\b"),
+        "demotrain.transcript": F(transcript((("demo", "--out", "demo-train", "--no-localize"), printed)),
+                                  r"\d[\d.,]* s\b|time \S+"),
+    }
+
+
 @figure_set("training", "expensive", needs="torch")
 def training(ws: Workspace) -> dict[str, Figure]:
-    """benchmarks/bench_recipe.py on the demo dataset (every recipe variant), osmseg demo's training, bench_train.py"""
+    """benchmarks/bench_recipe.py on the demo dataset (every recipe variant), bench_train.py"""
     dataset = ws.demo_dataset()
     picture = REPO_ROOT / "docs" / "img" / "recipe-ablation.png"
     picture.parent.mkdir(exist_ok=True)
@@ -314,10 +329,6 @@ def training(ws: Workspace) -> dict[str, Figure]:
                   "--png", str(picture))
     v = {r["name"]: r for r in a["variants"]}
     w = a["weights"]
-    _, printed = ws.run("demo", "--out", "demo-train", "--no-localize")
-    demo = json.loads((ws.root / "demo-train" / "eval" / "metrics.json").read_text(encoding="utf-8"))
-    with (ws.root / "demo-train" / "run" / "log.csv").open(encoding="utf-8") as f:
-        demo_seconds = sum(float(line.split(",")[-1]) for line in f.readlines()[1:])
     loop = benchmark(ws, "bench_train.py", "--skip-full", "--steps", "8")
     cpu = loop["CPU config: width 0.125, CPU"]
     timing = r"\d[\d.,]* s\b|\| \d[\d.,]* \|(?= 0\.)"
@@ -332,10 +343,6 @@ def training(ws: Workspace) -> dict[str, Figure]:
         "training.steps": F(count(int(ABLATION_STEPS))),
         **{f"training.{name}": F(f"{ratio(r['test_pixel_accuracy'])} test pixel accuracy, mIoU {ratio(r['test_miou'])}")
            for name, r in v.items()},
-        "training.demo": F(f"{ratio(demo['pixel_accuracy'])} pixel accuracy, mIoU {ratio(demo['miou'])}, after "
-                           f"{seconds(demo_seconds)} of training", r"\d[\d.,]* s\b"),
-        "training.demo.transcript": F(transcript((("demo", "--out", "demo-train", "--no-localize"), printed)),
-                                      r"\d[\d.,]* s\b|time \S+"),
         "training.loop": F(f"{factor(cpu['ratio'])} (loop {number(cpu['loop_images_per_s'], 'rate')} crops/s, bare "
                            f"forward + backward + step {number(cpu['bare_images_per_s'], 'rate')})",
                            r"[\d.]+"),
