@@ -237,6 +237,7 @@ class _RequestHandler(BaseHTTPRequestHandler):
             arrived=time.monotonic(),
         )
         scripted = owner._begin(seen)
+        ended = False
         try:
             if isinstance(scripted, Reply):
                 reply = scripted
@@ -247,9 +248,14 @@ class _RequestHandler(BaseHTTPRequestHandler):
                     owner.handler_errors.append(exc)
                     reply = Reply(500, f"route handler failed: {exc!r}\n")
             owner._sleep(reply.delay)
+            # out of flight before the reply leaves: a client that has read it may send its next
+            # request before this thread runs again, and must not be counted twice
+            owner._end()
+            ended = True
             self._send(reply)
         finally:
-            owner._end()
+            if not ended:
+                owner._end()
 
     def _send(self, reply: Reply) -> None:
         data = reply.data
