@@ -23,7 +23,6 @@ Imports: osmseg core, torch, training.recipe.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F
@@ -32,13 +31,7 @@ from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from training.recipe import Recipe, lr_factor
 
-__all__ = ["SegmentationLoss", "freeze_encoder_bn", "make_optimizer", "make_scheduler", "poly_lambda",
-           "weight_average"]
-
-
-def poly_lambda(total_steps: int, power: float) -> Callable[[int], float]:
-    """Learning-rate factor ``(1 - step / total) ** power``, never below 0 (no warm-up)."""
-    return lambda step: lr_factor(step, total_steps, 0, "poly", power)
+__all__ = ["SegmentationLoss", "freeze_encoder_bn", "make_optimizer", "make_scheduler", "weight_average"]
 
 
 def _encoder(model: nn.Module) -> nn.Module | None:
