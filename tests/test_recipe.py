@@ -264,3 +264,62 @@ def test_validation_on_tiles_smaller_than_the_patch_runs_on_patches_the_size_of_
     with (tmp_path / "run" / "log.csv").open(encoding="utf-8") as f:
         (row,) = list(csv.DictReader(f))
     assert 0.0 <= float(row["val_pixel_accuracy"]) <= 1.0 and row["val_miou"] != ""
+
+
+def striped_dataset(root: Path) -> Path:
+    """Two 256x256 samples of vertical stripes 16 px wide: class 1 grey, class 2 red."""
+    from PIL import Image
+
+    label = np.broadcast_to((1 + (np.arange(256) // 16) % 2).astype(np.uint8), (256, 256))
+    rgb = np.where((label == 2)[..., None], np.array([255, 0, 0], np.uint8), np.array([128, 128, 128], np.uint8))
+    for name in ("a", "b"):
+        for folder, array in (("images", rgb), ("labels", label)):
+            (root / folder).mkdir(parents=True, exist_ok=True)
+            Image.fromarray(np.ascontiguousarray(array)).save(root / folder / f"{name}.png")
+    return root
+
+
+def test_zoomed_out_crops_see_more_ground_at_the_crop_size_with_labels_under_their_pixels(tmp_path: Path) -> None:
+    """--crop-scale 2: a 64-px crop spans 64 to 128 image pixels, so it holds up to twice the
+    stripes of a plain crop; it is still 64 px, and away from the stripes' edges (which the
+    antialiased resampling blurs) red pixels are exactly those labelled red."""
+    from training.augment import AugmentConfig
+
+    files = discover(striped_dataset(tmp_path))
+
+    def stripes(scale: float) -> list[float]:
+        crops = RandomCrops(files, 64, 64, seed=5, augment=AugmentConfig.overhead(0.0, scale), mean=(0, 0, 0),
+                            std=(1, 1, 1))
+        widths = []
+        for index in range(len(crops)):
+            x, y = crops[index]
+            assert x.shape == (3, 64, 64) and y.shape == (64, 64)
+            lab = y.numpy()
+            inner = np.ones_like(lab, bool)  # the label is the same two pixels away on every side
+            for axis in (0, 1):
+                for shift in (-2, -1, 1, 2):
+                    inner &= np.roll(lab, shift, axis) == lab
+            inner[:2], inner[-2:], inner[:, :2], inner[:, -2:] = False, False, False, False
+            red = (x[0] - x[1] > 0.3).numpy()
+            assert inner.sum() > 1000 and np.array_equal(red[inner], lab[inner] == 2), index
+            changes = max(int((lab[:, 1:] != lab[:, :-1]).sum(axis=1).max()),
+                          int((lab[1:] != lab[:-1]).sum(axis=0).max()))  # stripes turned or not
+            widths.append(64 / (changes + 1))
+        return widths
+
+    plain, zoomed = stripes(1.0), stripes(2.0)
+    assert min(plain) >= 12.8  # at most 5 stripes of 16 px in 64
+    assert 8 <= np.mean(zoomed) < 0.85 * np.mean(plain) and min(zoomed) >= 6.4  # up to twice as many
+
+
+def test_zoom_and_colour_jitter_are_recipe_settings_recorded_in_the_run(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    result = osmseg("train", TINYSEG, "--out", run, "--config", TINY, "--epochs", 1, "--crop-scale", 1.5,
+                    "--jitter", 0)
+    assert result.exit_code == 0, result.output
+    config = load_checkpoint(run / "last.pt")["config"]
+    assert (config["crop_scale"], config["jitter"], config["crop"]) == (1.5, 0.0, 64)
+    refused = osmseg("train", TINYSEG, "--out", tmp_path / "paper", "--config", TINY, "--recipe", "paper",
+                     "--crop-scale", 1.5)
+    assert refused.exit_code == 2 and "crop_scale needs sampling random" in refused.output, refused.output
+    assert not (tmp_path / "paper").exists()

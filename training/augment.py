@@ -3,7 +3,10 @@
 An aerial photo has no "up": a roof seen upside down or mirrored is still a roof. So the
 geometric part draws one of the eight symmetries of the square (flips and quarter turns),
 applied to the image *and* the mask; the photometric part (mild brightness, contrast and
-saturation jitter, ~10 %) touches the image only. Street-level data (CamVid) has an up and a
+saturation jitter, ~10 %) touches the image only. Random crops may also be *zoomed out*
+(``scale``): a crop of ``crop * s`` pixels, ``s`` uniform in [1, scale], resized to ``crop``, so
+the network sees the ground at up to ``scale`` times coarser pixels than the data's, as imagery
+of another source often is (:func:`zoom_out`). Street-level data (CamVid) has an up and a
 sky: use :data:`STREET` (horizontal flips and colour jitter only).
 
 Quarter turns and non-square images
@@ -43,7 +46,9 @@ from osmseg.errors import ConfigError
 @dataclass(frozen=True)
 class AugmentConfig:
     """Which augmentations to draw. Jitter amounts are the half-width of a factor range
-    around 1 (``0.1``: factors uniform in [0.9, 1.1]); 0 turns that jitter off."""
+    around 1 (``0.1``: factors uniform in [0.9, 1.1]); 0 turns that jitter off. ``scale``: the
+    largest zoom-out of a random crop (1: none; only :class:`~training.sampling.RandomCrops`
+    zooms, a fixed patch grid cannot)."""
 
     hflip: bool = True
     vflip: bool = True
@@ -51,12 +56,25 @@ class AugmentConfig:
     brightness: float = 0.1
     contrast: float = 0.1
     saturation: float = 0.1
+    scale: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("brightness", "contrast", "saturation"):
             value = getattr(self, name)
             if not 0 <= value < 1:
                 raise ConfigError(f"augmentation {name} must be in [0, 1), got {value}")
+        if not 1 <= self.scale <= 4:
+            raise ConfigError(f"augmentation scale must be in [1, 4], got {self.scale}")
+
+    @classmethod
+    def overhead(cls, jitter: float = 0.1, scale: float = 1.0) -> AugmentConfig:
+        """Overhead imagery's augmentation with colour jitter ``jitter`` (brightness, contrast
+        and saturation alike) and zoom-out up to ``scale``.
+
+        >>> AugmentConfig.overhead() == OVERHEAD
+        True
+        """
+        return cls(brightness=jitter, contrast=jitter, saturation=jitter, scale=scale)
 
 
 #: Overhead imagery (the default): all eight square symmetries and mild colour jitter.
@@ -105,6 +123,20 @@ def draw(config: AugmentConfig, rng: np.random.Generator, square: bool) -> Draw:
         contrast=1.0 + float(c) * config.contrast,
         saturation=1.0 + float(s) * config.saturation,
     )
+
+
+def zoom_out(config: AugmentConfig, seed: int, epoch: int, index: int) -> float:
+    """The zoom-out factor of crop ``index`` in ``epoch``: uniform in [1, ``config.scale``].
+    Drawn from a stream of its own, so a run without zoom draws everything else as before.
+
+    >>> zoom_out(OVERHEAD, 0, 0, 0)
+    1.0
+    >>> 1.0 <= zoom_out(AugmentConfig(scale=1.5), 0, 0, 0) <= 1.5
+    True
+    """
+    if config.scale == 1.0:
+        return 1.0
+    return 1.0 + float(np.random.default_rng([seed, epoch, index, 4]).random()) * (config.scale - 1.0)
 
 
 def orient(array: np.ndarray, d: Draw) -> np.ndarray:

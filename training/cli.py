@@ -86,7 +86,7 @@ def _recipes_default(name: str) -> str:
               help="How the network learns: auto (the --arch's own: osmseg for SegNet, lite0 for unet-lite0) | osmseg "
                    "(AdamW lr 0.01, cosine, 16 random 128x128 crops, no class weights; for small data and CPUs) | paper "
                    "(the dissertation's SegNet recipe: SGD lr 0.1 poly, median-frequency weights, fixed 360x480 "
-                   "patches) | lite0 (fine-tuning: AdamW lr 0.001, warm-up, 4 crops of 256, weights averaged). "
+                   "patches) | lite0 (fine-tuning: AdamW lr 0.001, warm-up, 4 crops of 256). "
                    "docs/training.md compares them.")
 @click.option("--batch-size", type=click.IntRange(min=1), show_default=_recipes_default("batch_size"))
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), show_default=_recipes_default("lr"),
@@ -108,6 +108,11 @@ def _recipes_default(name: str) -> str:
               help="Decay per step of the moving average of the weights that model.pt holds (0: the final weights).")
 @click.option("--dice", type=click.FloatRange(min=0), show_default=_recipes_default("dice"),
               help="Weight of a soft Dice loss added to the cross-entropy (0: none).")
+@click.option("--crop-scale", type=click.FloatRange(1, 4), show_default=_recipes_default("crop_scale"),
+              help="Zoom random crops out by a factor drawn in [1, CROP_SCALE]: crops of up to --crop x CROP_SCALE "
+                   "pixels resized to --crop, so the network also sees coarser ground pixels (1: none).")
+@click.option("--jitter", type=click.FloatRange(0, 1, max_open=True), show_default=_recipes_default("jitter"),
+              help="Colour jitter: brightness, contrast and saturation factors drawn in 1 +- JITTER (0: none).")
 @click.option("--keep-unlabeled/--ignore-unlabeled", "keep_unlabeled", default=not _default("ignore_unlabeled"),
               help="Train 'unlabeled' as a class instead of ignoring it (labels of one other class only always "
                    "do: it is their background).")

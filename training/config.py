@@ -84,6 +84,8 @@ class TrainConfig:
     freeze_bn: bool | None = None  # the encoder's BatchNorm statistics stay as initialised
     ema: float | None = None  # decay per step of the weights' moving average (0: none)
     dice: float | None = None  # weight of a soft Dice loss beside the cross-entropy
+    crop_scale: float | None = None  # random crops zoomed out by up to this factor (1: none)
+    jitter: float | None = None  # colour jitter: brightness/contrast/saturation factors in 1 +- jitter
     augment: bool = True
     test_fraction: float = 1 / 3
     val_fraction: float = 0.15

@@ -62,7 +62,10 @@ class Recipe:
     their statistics (running mean and variance; their scale and shift still learn), as
     fine-tuning on small batches often does. ``ema``: the decay per step of an exponential
     moving average of the weights (0: none), the weights ``model.pt`` holds. ``dice``: the
-    weight of a soft Dice loss added to the cross-entropy (0: cross-entropy alone)."""
+    weight of a soft Dice loss added to the cross-entropy (0: cross-entropy alone).
+    ``crop_scale``: random crops are zoomed out by a factor uniform in [1, crop_scale] (a crop
+    of ``crop * s`` pixels resized to ``crop``; 1: none). ``jitter``: the colour jitter
+    (brightness, contrast, saturation factors uniform in [1 - jitter, 1 + jitter])."""
 
     name: str
     optimizer: str
@@ -82,6 +85,8 @@ class Recipe:
     freeze_bn: bool = False
     ema: float = 0.0
     dice: float = 0.0
+    crop_scale: float = 1.0
+    jitter: float = 0.1
 
     def __post_init__(self) -> None:
         checks = [
@@ -100,6 +105,9 @@ class Recipe:
             (0 <= self.encoder_lr <= 10, "encoder_lr must be a multiple of lr in [0, 10]"),
             (0 <= self.ema < 1, "ema must be a decay per step in [0, 1)"),
             (self.dice >= 0, "dice must be a loss weight >= 0"),
+            (1 <= self.crop_scale <= 4, "crop_scale must be a zoom-out factor in [1, 4]"),
+            (self.crop_scale == 1 or self.sampling == "random", "crop_scale needs sampling random"),
+            (0 <= self.jitter < 1, "jitter must be in [0, 1)"),
         ]
         for ok, message in checks:
             if not ok:

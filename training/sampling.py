@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from osmseg.errors import DatasetError
-from training.augment import draw, item_rng, orient
+from training.augment import draw, item_rng, orient, zoom_out
 from training.data import PatchDataset, SampleFiles
 
 #: crops drawn from one image before the next is chosen (a batch of 16 decodes 4 images)
@@ -88,9 +88,28 @@ class RandomCrops(PatchDataset):
         if self.augment is not None:
             d = draw(self.augment, rng, square=image.shape[0] == image.shape[1])
             image, label = orient(image, d), orient(label, d)
-        top = int(rng.integers(0, image.shape[0] - self.crop + 1))
-        left = int(rng.integers(0, image.shape[1] - self.crop + 1))
-        return self.tensors(image, label, (slice(top, top + self.crop), slice(left, left + self.crop)), d)
+        side = self.side(index, image.shape)
+        top = int(rng.integers(0, image.shape[0] - side + 1))
+        left = int(rng.integers(0, image.shape[1] - side + 1))
+        return self.zoomed(*self.tensors(image, label, (slice(top, top + side), slice(left, left + side)), d))
+
+    def side(self, index: int, shape: tuple[int, ...]) -> int:
+        """Side in image pixels of crop ``index``: ``crop``, or zoomed out by the augmentation's
+        ``scale`` (at most the image's shorter side)."""
+        if self.augment is None or self.augment.scale == 1.0:
+            return self.crop
+        return min(round(self.crop * zoom_out(self.augment, self.seed, self.epoch, index)), shape[0], shape[1])
+
+    def zoomed(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A zoomed-out crop brought to ``crop`` pixels: the image by area-weighted bilinear
+        resampling (antialiased, as coarser imagery looks), the labels by nearest neighbour."""
+        side = x.shape[-1]
+        if side == self.crop:
+            return x, y
+        x = torch.nn.functional.interpolate(x[None], size=(self.crop, self.crop), mode="bilinear",
+                                            align_corners=False, antialias=True)[0]
+        at = torch.from_numpy(((np.arange(self.crop) + 0.5) * side / self.crop).astype(np.int64))  # pixel centres
+        return x, y[at][:, at]
 
 
     #: pixels of a class remembered per image to centre crops on (a seeded sample of them)
@@ -117,13 +136,14 @@ class RandomCrops(PatchDataset):
         if len(pixels) == 0:  # the histogram promised this class: labels changed under the run
             raise DatasetError(f"{self.files[fi].label}: holds no pixel of class {c} any more; was it rewritten?")
         y, x = divmod(int(pixels[int(rng.integers(len(pixels)))]), label.shape[1])
-        top = min(max(0, y - self.crop // 2), label.shape[0] - self.crop)
-        left = min(max(0, x - self.crop // 2), label.shape[1] - self.crop)
-        window = (slice(top, top + self.crop), slice(left, left + self.crop))
+        side = self.side(index, label.shape)
+        top = min(max(0, y - side // 2), label.shape[0] - side)
+        left = min(max(0, x - side // 2), label.shape[1] - side)
+        window = (slice(top, top + side), slice(left, left + side))
         image, label = image[window], label[window]
         if d is not None:
             image, label = orient(image, d), orient(label, d)
-        return self.tensors(image, label, (slice(None), slice(None)), d)
+        return self.zoomed(*self.tensors(image, label, (slice(None), slice(None)), d))
 
 
 def crop_sampler(per_process: int, rank: int, world_size: int) -> range:

@@ -286,7 +286,7 @@ def split_warning(splits: Mapping[str, Sequence[str]], info: Mapping[str, Any], 
     tried = info.get("candidates", 1)
     return (f"validation ({len(splits['val'])} image{'s' if len(splits['val']) != 1 else ''}) does not represent "
             f"the training classes: {'; '.join(parts)} — the closest of {tried} seeded draw{'s' if tried != 1 else ''}; "
-            "best.pt is chosen on it: add samples, or raise val_fraction in a --config file")
+            "val mIoU and best.pt rest on it: add samples, or raise val_fraction in a --config file")
 
 
 def sample_groups(root: Path, names: Iterable[str], images: Mapping[str, Path] | None = None) -> dict[str, int]:

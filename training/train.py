@@ -42,6 +42,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.manifest import refuse_busy
 from osmseg.progress import Progress, report
+from training.augment import AugmentConfig
 from training.checkpoint import InitWeights, load_checkpoint, read_init, save_checkpoint
 from training.config import TrainConfig
 from training.data import (
@@ -74,7 +75,7 @@ Resuming = Callable[[int, int], None]
 RESUMABLE_CHANGES = {"loader_workers", "device", "tensorboard", "out_dir", "dataset"}
 #: settings added since runs began to record their recipe: what the runs made before them used
 SETTINGS_ADDED = {"balanced_crops": 0.0, "arch": "segnet", "encoder_lr": 1.0, "freeze_bn": False, "ema": 0.0,
-                  "dice": 0.0}
+                  "dice": 0.0, "crop_scale": 1.0, "jitter": 0.1}
 
 
 def dataset_fingerprint(root: Path) -> str | None:
@@ -286,14 +287,15 @@ def datasets(config: TrainConfig, d: Dist, spec: ModelSpec, files: list[SampleFi
     train_pixels = int(histograms[[index[f.name] for f in train_files]].sum())
     train_class_pixels = np.stack([pixels[f.name] for f in train_files])  # (files, model classes)
     train_set: PatchDataset
+    augment = AugmentConfig.overhead(recipe.jitter, recipe.crop_scale) if config.augment else False
     if recipe.sampling == "random":
         per_process = steps_per_epoch(recipe, train_pixels, d.world_size) * recipe.batch_size
         train_set = RandomCrops(train_files, recipe.crop, per_process * d.world_size, mean=spec.mean, std=spec.std,
-                                ignore_index=spec.ignore_index, seed=config.seed, augment=config.augment,
+                                ignore_index=spec.ignore_index, seed=config.seed, augment=augment,
                                 num_classes=num_classes, label_lut=label_lut,
                                 balance=recipe.balanced_crops, class_pixels=train_class_pixels)
     else:
-        train_set = patches(train_files, config.patch_size, augment=config.augment)
+        train_set = patches(train_files, config.patch_size, augment=augment)
     val_set = patches(val_files, fitted_patch(config.patch_size, val_files), augment=False)  # 256-px tiles too
     if len(train_set) == 0:
         raise DatasetError(f"{config.dataset}: no training patches of {config.patch_size}; are the images smaller?")
