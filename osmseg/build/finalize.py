@@ -45,7 +45,7 @@ from osmseg.output import (
 from osmseg.output.manifest import FORMAT, FORMAT_VERSION, Summary, config_entry
 from osmseg.output.stac import write_stac
 from osmseg.overlap import overlap_groups
-from osmseg.processes import owner
+from osmseg.processes import deferred_termination, owner
 
 __all__ = ["ENTRIES_PREFIX", "RejectionEntries", "SampleEntries", "SlotRecords", "finalize"]
 
@@ -63,8 +63,18 @@ class SlotRecords:
 
     def __init__(self, state: BuildState, slots: int) -> None:
         self.state = state
-        # beside the records, named by its owner: the next run sweeps it when a kill left it
-        self._folder = tempfile.TemporaryDirectory(prefix=f"{ENTRIES_PREFIX}{owner()}-", dir=state.root)
+        # beside the records, named by its owner: the next run sweeps it when a kill left it; made and
+        # remembered before a SIGTERM may unwind, and removed when reading the records does not finish
+        with deferred_termination():
+            self._folder = tempfile.TemporaryDirectory(prefix=f"{ENTRIES_PREFIX}{owner()}-", dir=state.root)
+        try:
+            self._read(slots)
+        except BaseException:
+            self._folder.cleanup()
+            raise
+
+    def _read(self, slots: int) -> None:
+        """Copy the slots' entries into the folder's two files; count what the summary needs."""
         folder = Path(self._folder.name)
         self.files = {"samples": folder / "samples.jsonl", "rejected": folder / "rejected.jsonl"}
         self.offsets: dict[str, list[int]] = {"samples": [], "rejected": []}  # where each entry's line starts
