@@ -151,10 +151,14 @@ def write_geotiff(path: Path, bands: np.ndarray, transform: Any) -> None:
         dst.write(array.transpose(2, 0, 1))
 
 
-def build_kampala(shared_data: Path, out: Path, seed: int = 0) -> dict[str, Any]:
+def build_kampala(shared_data: Path, out: Path, seed: int = 0, fit_test: bool = False) -> dict[str, Any]:
     """Write the CamVid-layout dataset into ``out`` (``train/`` + ``trainannot/``, ``val/`` +
     ``valannot/``, ``test/`` + ``testannot/``, ``classes.toml``); returns what was written, per
-    mosaic: split, tiles, size and class fractions (counted on the arrays written)."""
+    mosaic: split, tiles, size and class fractions (counted on the arrays written).
+
+    ``fit_test``: a ceiling, not a benchmark: each test mosaic is *also* a training mosaic
+    (``train/fit-NAME.tif``), so a network is scored on ground it learnt from; what it reaches
+    there bounds what the held-out split can show with these labels and this budget."""
     source = Path(shared_data) / "kampala-oam"
     polygons = footprints_3857(source / "osm-buildings.geojson")
     out.mkdir(parents=True, exist_ok=True)
@@ -163,10 +167,13 @@ def build_kampala(shared_data: Path, out: Path, seed: int = 0) -> dict[str, Any]
     for mosaic in layout(seed):
         rgba = read_mosaic(source / "tiles", mosaic)
         labels = mosaic_labels(mosaic, polygons, rgba[:, :, 3])
-        for folder in (mosaic.split, f"{mosaic.split}annot"):
-            (out / folder).mkdir(exist_ok=True)
-        write_geotiff(out / mosaic.split / f"{mosaic.name}.tif", rgba[:, :, :3], mosaic.transform)
-        write_geotiff(out / f"{mosaic.split}annot" / f"{mosaic.name}.tif", labels, mosaic.transform)
+        copies = [(mosaic.split, mosaic.name)] + ([("train", f"fit-{mosaic.name}")] if fit_test and
+                                                   mosaic.split == "test" else [])
+        for split, name in copies:
+            for folder in (split, f"{split}annot"):
+                (out / folder).mkdir(exist_ok=True)
+            write_geotiff(out / split / f"{name}.tif", rgba[:, :, :3], mosaic.transform)
+            write_geotiff(out / f"{split}annot" / f"{name}.tif", labels, mosaic.transform)
         labelled = labels != UNLABELED
         written.append({
             "name": mosaic.name, "split": mosaic.split, "tiles": [[t.x, t.y, t.z] for t in mosaic.tiles],

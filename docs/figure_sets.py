@@ -265,6 +265,7 @@ def visible(ws: Workspace) -> dict[str, Figure]:
 
 
 import figure_sets_external  # noqa: E402,F401  (registers the pairs, benchmark and shared-data sets)
+import figure_sets_heldout  # noqa: E402,F401  (registers the held-out training sets)
 
 
 @figure_set("recipes", "cheap", needs="torch")

@@ -1,6 +1,7 @@
 """The figure sets of ``docs/figures.py`` that need what osmseg does not ship, or take minutes:
 the authors' annotated pairs, the benchmarks' timings, and the real data of ``../shared/data``.
-(The sets on the demo's own masks are in :mod:`figure_sets`, with the helpers both use.)
+(The sets on the demo's own masks are in :mod:`figure_sets`, with the helpers both use; the
+trainer on real held-out imagery in :mod:`figure_sets_heldout`.)
 """
 
 from __future__ import annotations
@@ -155,9 +156,10 @@ def sensitivity(ws: Workspace) -> str:
 # --------------------------------------------------------------------------- benchmarks (timings: never the same twice)
 
 
-def benchmark(ws: Workspace, script: str, *args: str) -> dict[str, Any]:
-    """``python benchmarks/SCRIPT ARGS --json FILE``: the figures it printed."""
-    out = ws.root / (Path(script).stem + ".json")
+def benchmark(ws: Workspace, script: str, *args: str, name: str | None = None) -> dict[str, Any]:
+    """``python benchmarks/SCRIPT ARGS --json FILE``: the figures it printed. ``FILE`` is
+    ``NAME.json`` in the workspace (default: the script's name), so that ``--reuse`` finds it."""
+    out = ws.root / ((name or Path(script).stem) + ".json")
     if ws.reuse and out.is_file():  # figures.py --keep DIR --reuse: written by an earlier run in DIR
         return cast("dict[str, Any]", json.loads(out.read_text(encoding="utf-8")))
     ws.run(str(REPO_ROOT / "benchmarks" / script), *args, "--json", str(out), python=True)
@@ -347,138 +349,6 @@ def training(ws: Workspace) -> dict[str, Figure]:
                            f"forward + backward + step {number(cpu['bare_images_per_s'], 'rate')})",
                            r"[\d.]+"),
     }
-
-
-# --------------------------------------------------------------------------- real held-out imagery (minutes of CPU)
-
-
-def spread(figure: dict[str, float], show: Any = ratio) -> str:
-    """``mean (min–max)`` over seeds, as bench_real_heldout.py's summary gives them."""
-    return f"{show(figure['mean'])} ({show(figure['min'])}–{show(figure['max'])})"
-
-
-#: bench_real_heldout.py's variants by name (the first whose options all appear in a variant's)
-VARIANT_NAMES = (("--arch unet-lite0 --init random", "unet-lite0, random weights"),
-                 ("--arch unet-lite0", "unet-lite0 from ImageNet, `lite0` recipe"),
-                 ("--recipe paper --arch segnet", "SegNet as published, the dissertation's recipe"),
-                 ("--arch segnet-skip", "SegNet with skips (width 0.125), `osmseg` recipe"))
-
-
-def variant_name(variant: str) -> str:
-    words = variant.split()
-    for options, name in VARIANT_NAMES:
-        if all(w in words for w in options.split()):
-            return name
-    return f"`{variant}`"
-
-
-def _scores(r: dict[str, Any]) -> tuple[float, ...]:
-    return tuple(r[w][k] for w in ("kampala", "austin") for k in ("building_iou", "pixel_accuracy"))
-
-
-def _stats(values: list[float]) -> dict[str, float]:
-    return {"mean": statistics.fmean(values), "min": min(values), "max": max(values)}
-
-
-def heldout_rows(report: dict[str, Any], checkpoints: tuple[str, ...] = ("model.pt", "last.pt", "best.pt"),
-                 rename: Any = variant_name) -> list[list[str]]:
-    """A row per method and checkpoint, mean (min–max) over the seeds of bench_real_heldout.py's runs.
-
-    What ``model.pt`` holds is read off the scores: the moving average where its masks differ from
-    ``last.pt``'s (only those seeds count), else the final weights (one row with ``last.pt``)."""
-    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    for r in report["results"]:
-        groups.setdefault((r["variant"], r.get("checkpoint", "")), []).append(r)
-    seeds_of = {r["seed"] for r in report["results"]}
-    rows = []
-    for (variant, checkpoint), members in groups.items():
-        if checkpoint and checkpoint not in checkpoints:
-            continue
-        last = {m["seed"]: _scores(m) for m in groups.get((variant, "last.pt"), [])}
-        averaged = [m for m in groups.get((variant, "model.pt"), []) if _scores(m) != last.get(m["seed"])]
-        if checkpoint == "model.pt" and averaged:
-            members, which = averaged, "weights averaged (`--ema 0.99`)"
-        elif checkpoint == "model.pt":
-            which = "final weights (model.pt)"
-        elif checkpoint == "last.pt":
-            if not averaged:
-                continue  # the same weights as model.pt's row
-            which = "final weights (last.pt; model.pt without --ema)"
-        else:
-            which = "best validation epoch (best.pt)" if checkpoint else ""
-        seeds = sorted(m["seed"] for m in members)
-        if checkpoint and set(seeds) != seeds_of:
-            which += f", seeds {', '.join(map(str, seeds))} only"
-        label = rename(variant) if checkpoint else f"per-pixel {variant}"
-        rows.append([f"{label}: {which}" if which else label,
-                     *(spread(_stats([m[w][k] for m in members])) for w, k in (
-                         ("kampala", "building_iou"), ("austin", "building_iou"), ("kampala", "pixel_accuracy"),
-                         ("austin", "pixel_accuracy"))),
-                     spread(_stats([float(m["train_seconds"]) for m in members]), seconds)])
-    return rows
-
-
-HELDOUT_HEADER = ["trained by", "Kampala building IoU", "Austin building IoU", "Kampala pixel accuracy",
-                  "Austin pixel accuracy", "training"]
-#: the recipe ablation of unet-lite0 (docs/training.md): each row the lite0 recipe with one change,
-#: at half the held-out bench's steps (10 epochs of 20), three seeds
-LITE0 = "--arch unet-lite0 --init imagenet --width 1.0 --ema 0.99"
-LITE0_ABLATION = ("", "--freeze-bn", "--encoder-lr 0.1", "--dice 1", "--init random")
-
-
-def ablation_name(variant: str) -> str:
-    """A row of the ablation by its change to the lite0 recipe (the base options dropped)."""
-    words = [w for w in variant.split() if w not in LITE0.split() or w == "random"]
-    change = " ".join(w for w in words if w != "random") if "random" not in words else "--init random"
-    return f"`{change}`" if change else "the `lite0` recipe"
-
-
-@figure_set("heldout", "expensive", needs="shared data")
-def heldout(ws: Workspace) -> dict[str, Figure]:
-    """benchmarks/bench_real_heldout.py --seeds 0 1 2: buildings on Kampala z21 samples apart from training, and on Inria Austin, SegNet and unet-lite0 beside a per-pixel baseline"""
-    picture = REPO_ROOT / "docs" / "img" / "heldout.png"
-    picture.parent.mkdir(exist_ok=True)
-    variants = ("--arch segnet-skip", "--recipe paper --arch segnet", LITE0)
-    report = benchmark(ws, "bench_real_heldout.py", "--out", "heldout", "--png", str(picture), "--seeds", "0", "1", "2",
-                       *(x for v in variants for x in ("--train-args", v)))
-    lite0, skip = "--arch unet-lite0", "--arch segnet-skip"
-
-    def iou(variant: str, checkpoint: str, where: str, averaged: bool = False, show: str = "mean") -> str:
-        """A network's (or baseline's) building IoU over the seeds: final weights, or (``averaged``) the
-        seeds whose model.pt holds a moving average."""
-        runs = [r for r in report["results"] if r.get("checkpoint", "") == checkpoint and
-                all(w in r["variant"].split() for w in variant.split())]
-        if averaged or checkpoint == "last.pt":
-            last = {r["seed"]: _scores(r) for r in report["results"] if r["variant"] in {m["variant"] for m in runs}
-                    and r.get("checkpoint") == "last.pt"}
-            if averaged:
-                runs = [r for r in runs if _scores(r) != last.get(r["seed"])]
-        values = _stats([r[where]["building_iou"] for r in runs])
-        return f"{ratio(values['min'])} to {ratio(values['max'])}" if show == "range" else ratio(values["mean"])
-
-    return {"heldout.table": F(table(HELDOUT_HEADER, heldout_rows(report)), r"\d[\d.,]* s\b"),
-            "heldout.lite0.austin": F(iou(lite0, "last.pt", "austin")),
-            "heldout.lite0.austin.range": F(iou(lite0, "last.pt", "austin", show="range")),
-            "heldout.lite0.kampala": F(iou(lite0, "last.pt", "kampala")),
-            "heldout.lite0.ema": F(f"{iou(lite0, 'model.pt', 'kampala', averaged=True)} against "
-                                   f"{iou(lite0, 'last.pt', 'kampala')} on Kampala, "
-                                   f"{iou(lite0, 'model.pt', 'austin', averaged=True)} against "
-                                   f"{iou(lite0, 'last.pt', 'austin')} on Austin"),
-            "heldout.skip.austin": F(iou(skip, "model.pt", "austin")),
-            "heldout.skip.kampala": F(iou(skip, "model.pt", "kampala")),
-            "heldout.skip.best": F(f"{iou(skip, 'best.pt', 'kampala')} against {iou(skip, 'model.pt', 'kampala')}"),
-            "heldout.baselines.austin": F(f"{iou('baseline balanced', '', 'austin')} balanced and "
-                                          f"{iou('baseline unweighted', '', 'austin')} unweighted")}
-
-
-@figure_set("lite0", "expensive", needs="shared data")
-def lite0_ablation(ws: Workspace) -> dict[str, Figure]:
-    """benchmarks/bench_real_heldout.py --seeds 0 1 2 --epochs 10 --steps-per-epoch 20: the lite0 recipe, one change a row"""
-    variants = [f"{LITE0} {v}".strip() for v in LITE0_ABLATION]
-    report = benchmark(ws, "bench_real_heldout.py", "--out", "ablation", "--seeds", "0", "1", "2", "--epochs", "10",
-                       "--steps-per-epoch", "20", *(x for v in variants for x in ("--train-args", v)))
-    return {"lite0.ablation": F(table(HELDOUT_HEADER, heldout_rows(report, ("model.pt", "last.pt"),
-                                                                   rename=ablation_name)), r"\d[\d.,]* s\b")}
 
 
 # --------------------------------------------------------------------------- Kotka: both renderers, a region

@@ -122,6 +122,26 @@ def test_kampala_splits_are_disjoint_west_and_east(kampala_dataset: tuple[Path, 
     assert len(west) == 7 * 8 + 4 * 4 and len(east) == 5 * 8
 
 
+def test_the_ceiling_dataset_trains_on_the_test_mosaics_too(tmp_path: Path,
+                                                            kampala_dataset: tuple[Path, dict]) -> None:
+    """--fit-test: every test mosaic is also in train/ (same pixels, same labels, same place), the
+    held-out dataset's splits otherwise unchanged."""
+    from training.data import discover_camvid
+
+    root, _ = kampala_dataset
+    fitted = tmp_path / "fit"
+    kampala.build_kampala(shared_path("kampala-oam").parent, fitted, seed=0, fit_test=True)
+    splits = discover_camvid(fitted)
+    assert {s: len(f) for s, f in splits.items()} == {"train": 6, "val": 1, "test": 2}
+    for test in discover_camvid(root)["test"]:
+        copy = fitted / "train" / f"fit-{test.image.name}"
+        for a, b in ((test.image, copy), (test.label, fitted / "trainannot" / copy.name)):
+            with rasterio.open(a) as x, rasterio.open(b) as y:
+                assert x.transform == y.transform and np.array_equal(x.read(), y.read())
+    held_out = {f.image.name for f in discover_camvid(root)["train"]}
+    assert held_out < {f.image.name for f in splits["train"]}
+
+
 def test_kampala_pixels_are_about_75_mm_on_the_ground(kampala_dataset: tuple[Path, dict]) -> None:
     from osmseg.grid import ground_pixel_size
     from training.data import dataset_resolution, discover_camvid
