@@ -117,8 +117,8 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 
 def localize(scene: dict[str, Path], ground: str, *extra: str) -> Result:
-    return run("localize", "--aerial", str(scene["aerial"]), "--aerial-table", "classes13.toml", "--resolution", "0.3",
-               "--ground", str(scene[ground]), "--ground-classes", "aerial13", "--ground-table", str(scene["table"]),
+    return run("localize", "--aerial", str(scene["aerial"]), "--aerial-table", "classes13.toml", "--aerial-resolution", "0.3",
+               "--ground", str(scene[ground]), "--ground-landmarks", "aerial13", "--ground-table", str(scene["table"]),
                *extra)
 
 
@@ -150,10 +150,10 @@ def test_localize_bench_refuses_portrait_panoramas(tmp_path: Path, scene: dict[s
         (pairs / side).mkdir(parents=True)
         (pairs / side / "a.txt").write_text(text)
     result = run("localize-pairs", str(pairs), "--out", str(tmp_path / "out"), "--aerial-size", "750x750",
-                 "--ground-size", "224x1232", "--method", "paper")
+                 "--ground-size", "224x1232", "--methods", "paper")
     assert result.exit_code == 2 and "224x1232 pixels, which cannot be a 360° panorama" in error_line(result)
-    rendered = run("localize-bench", str(scene["aerial"]), "--resolution", "0.3", "--out", str(tmp_path / "r"),
-                   "-n", "1", "--width", "224", "--height", "1232")
+    rendered = run("localize-bench", str(scene["aerial"]), "--aerial-resolution", "0.3", "--out", str(tmp_path / "r"),
+                   "--viewpoints", "1", "--pano-width", "224", "--pano-height", "1232")
     assert rendered.exit_code == 2 and "cannot be a 360° panorama" in error_line(rendered)
 
 

@@ -322,7 +322,7 @@ def test_the_recorded_command_reads_back_as_the_same_build(args: list[str], tmp_
 
     def parse(argv: list[str]):
         ctx = build_command.make_context("build", [*argv, "--out", str(tmp_path / "out")])
-        return build_config(BuildOptions(**ctx.params))
+        return build_config(BuildOptions.from_params(ctx.params))
 
     config = parse(args)
     line = command_line(recorded_command(config))

@@ -95,10 +95,10 @@ def commands(data: Path, inputs: dict[str, Path], out: Path) -> dict[str, list[o
         "predict": ["predict", model, image, "--out", out, "--device", "cpu"],
         "predict --out": ["predict", model, TEST_DATA / "tinyseg" / "images" / "tinyseg_005.png", "--out",
                           data / "labels", "--device", "cpu"],
-        "localize": ["localize", "--aerial", label, "--ground", query, "--ground-classes", "aerial13",
-                     "--ground-table", "classes13.toml", "--resolution", 0.5, "--out", out],
+        "localize": ["localize", "--aerial", label, "--ground", query, "--ground-landmarks", "aerial13",
+                     "--ground-table", "classes13.toml", "--aerial-resolution", 0.5, "--out", out],
         "localize-bench": ["localize-bench", data, "--out", out, "--viewpoints", 2, "--no-plots"],
-        "localize-bench MASK": ["localize-bench", label, "--resolution", 0.5, "--out", out, "--viewpoints", 2,
+        "localize-bench MASK": ["localize-bench", label, "--aerial-resolution", 0.5, "--out", out, "--viewpoints", 2,
                                 "--no-plots"],
         "verify": ["verify", data],
     }

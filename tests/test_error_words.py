@@ -188,7 +188,7 @@ def test_a_region_search_over_an_area_the_osm_file_does_not_cover_says_so(tmp_pa
     view[112:] = 2
     view[60:112, 100:300] = view[60:112, 700:900] = 1
     Image.fromarray(view).save(tmp_path / "query.png")
-    args = ["localize", "--ground", tmp_path / "query.png", "--ground-classes", "aerial13", "--ground-table",
+    args = ["localize", "--ground", tmp_path / "query.png", "--ground-landmarks", "aerial13", "--ground-table",
             "classes13.toml", "--osm", TINYCITY, "--cache-dir", tmp_path / "cache", "--out", tmp_path / "out"]
     result = run(*args, "--bbox", "10.0,50.0,10.003,50.002")  # Germany; the file is of Helsinki
     assert result.exit_code == 2, result.output  # was: exit 0, "no block of the region holds a place that fits"

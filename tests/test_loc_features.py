@@ -164,7 +164,7 @@ def write_scene(tmp_path: Path) -> dict[str, str]:
     Image.fromarray(patches_image()).save(tmp_path / "aerial.png")
     (tmp_path / "ground.txt").write_text("100 40 Building\n300 40 Building\n200 80 Road\n")
     return {"--aerial": str(tmp_path / "aerial_mask.png"), "--aerial-table": "classes6.toml",
-            "--aerial-classes": "airsegnet6", "--ground": str(tmp_path / "ground.txt"), "--ground-size": "616x112",
+            "--aerial-landmarks": "airsegnet6", "--ground": str(tmp_path / "ground.txt"), "--ground-size": "616x112",
             "--window": "400"}
 
 

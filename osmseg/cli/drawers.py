@@ -23,13 +23,10 @@ from tqdm import tqdm
 from osmseg.progress import Progress, Step
 from osmseg.units import noun, percent, seconds
 
-__all__ = ["PROGRESS_DEFAULT", "PROGRESS_HELP", "Mode", "ProgressBars", "ProgressLines", "progress_drawer", "progress_mode"]
+__all__ = ["PROGRESS_DEFAULT", "Mode", "ProgressBars", "ProgressLines", "progress_drawer", "progress_mode"]
 
 #: how a command shows progress: bars on a terminal, lines in a log, or nothing
 Mode = Literal["bars", "lines"]
-#: what ``--progress/--no-progress`` says in every command's --help
-PROGRESS_HELP = ("Show long work on stderr: bars on a terminal; in a log (a file, a pipe) a plain line per tenth of a "
-                 "task or per minute, and per epoch of training")
 PROGRESS_DEFAULT = "on, unless -q"
 
 
