@@ -102,10 +102,11 @@ def _is_package_of(package: str, module: str) -> bool:
 
 
 def source_figures(root: Path, package: str) -> dict[str, object]:
-    """Counted from the source text: ``Any``, private names imported from another module, the longest function."""
+    """Counted from the source text: ``Any``, private names imported from another module, the longest
+    function, and the function with the most parameters."""
     any_count = dict_any = 0
     private: list[str] = []
-    longest = (0, "")
+    longest = widest = (0, "")
     for path in sorted((root / package).rglob("*.py")):
         text = path.read_text()
         any_count += len(re.findall(r"\bAny\b", text)) - len(re.findall(r"^from typing import.*\bAny\b", text, re.M))
@@ -121,7 +122,12 @@ def source_figures(root: Path, package: str) -> dict[str, object]:
                 n = (node.end_lineno or node.lineno) - node.lineno + 1
                 if n > longest[0]:
                     longest = (n, f"{path.relative_to(root)}:{node.lineno} {node.name}")
-    return {"any": any_count, "dict_any": dict_any, "private": private, "longest": longest}
+                a = node.args
+                width = len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs) - (a.args[:1] != [] and
+                                                                               a.args[0].arg in ("self", "cls"))
+                if width > widest[0]:
+                    widest = (width, f"{path.relative_to(root)}:{node.lineno} {node.name}")
+    return {"any": any_count, "dict_any": dict_any, "private": private, "longest": longest, "widest": widest}
 
 
 def wings(graph: grimp.ImportGraph, package: str) -> collections.Counter[tuple[str, str]]:
@@ -175,9 +181,11 @@ def main(root: Path) -> None:
         private = cast("list[str]", figures["private"])
         across = [line for line in private if _wing(line.split(" <- ")[0]) != _wing(line.split(" <- ")[1])]
         lines, where = cast("tuple[int, str]", figures["longest"])
+        params, wide = cast("tuple[int, str]", figures["widest"])
         print(f"{package}: {len(modules)} modules on {floors(graph, package)} import floors; private names imported "
               f"from another module {len(private)} (from another wing {len(across)}); Any {figures['any']} "
-              f"(dict[str, Any] {figures['dict_any']}); longest function {lines} lines ({where})")
+              f"(dict[str, Any] {figures['dict_any']}); longest function {lines} lines ({where}); most parameters "
+              f"{params} ({wide})")
         for line in across:
             print(f"  private across wings: {line}")
         between = wings(graph, package)

@@ -36,12 +36,12 @@ import click
 
 __all__ = ["DECLARED", "Declared", "DeclaredOption", "MovedOption", "declare", "moved"]
 
-F = TypeVar("F", bound=Callable[..., Any])
+F = TypeVar("F", bound=Callable[..., object])
 
 #: every flag of every declared option (``--freeze-bn`` and ``--train-bn`` both) -> its declaration
 DECLARED: dict[str, Declared] = {}
 
-_UNSET: Any = object()
+_UNSET = object()
 
 
 @dataclass(frozen=True)
@@ -54,7 +54,7 @@ class Declared:
     flags: tuple[str, ...]
     dest: str
     help: str
-    type: Any = None
+    type: object = None
     metavar: str | None = None
     is_flag: bool = False
     multiple: bool = False
@@ -67,8 +67,8 @@ class Declared:
         """Every spelling a user may type (both sides of an ``--x/--no-x`` pair)."""
         return tuple(n.strip() for f in self.flags for n in f.split("/") if n.strip())
 
-    def __call__(self, *, default: Any = _UNSET, required: bool = False, show_default: bool | str | None = None,
-                 detail: str = "", dest: str | None = None, callback: Callable[..., Any] | None = None,
+    def __call__(self, *, default: object = _UNSET, required: bool = False, show_default: bool | str | None = None,
+                 detail: str = "", dest: str | None = None, callback: Callable[..., object] | None = None,
                  expose_value: bool = True) -> Callable[[F], F]:
         """The decorator adding this option to a command. ``detail`` is appended to the help
         (what the option does in that command); ``dest`` renames the parameter the command's
@@ -77,14 +77,16 @@ class Declared:
                                 callback=callback, expose_value=expose_value)
         return click.option(*self.flags, dest or self.dest, cls=DeclaredOption, declared=self, **kwargs)
 
-    def option(self, **settings: Any) -> DeclaredOption:
-        """The click option itself (for a decorator that adds its parameters by hand), with the
-        settings :meth:`__call__` takes."""
-        return DeclaredOption([*self.flags, settings.pop("dest", None) or self.dest], declared=self,
-                              **self._settings(**settings))
+    def option(self, *, default: object = _UNSET, show_default: bool | str | None = None,
+               callback: Callable[..., object] | None = None, expose_value: bool = True) -> DeclaredOption:
+        """The click option itself, for a decorator that adds its parameters by hand (the output
+        options every command takes after its name)."""
+        return DeclaredOption([*self.flags, self.dest], declared=self,
+                              **self._settings(default=default, show_default=show_default, callback=callback,
+                                               expose_value=expose_value))
 
-    def _settings(self, default: Any = _UNSET, required: bool = False, show_default: bool | str | None = None,
-                  detail: str = "", callback: Callable[..., Any] | None = None,
+    def _settings(self, default: object = _UNSET, required: bool = False, show_default: bool | str | None = None,
+                  detail: str = "", callback: Callable[..., object] | None = None,
                   expose_value: bool = True) -> dict[str, Any]:
         text = (self.help.rstrip(".") + detail) if detail else self.help
         kwargs: dict[str, Any] = {"help": text if text.endswith((".", "?", "!")) else text + ".", "required": required, "show_default": show_default,
@@ -118,7 +120,7 @@ class MovedOption(click.Option):
         super().__init__(*args, **kwargs)
 
 
-def declare(*flags: str, dest: str | None = None, help: str, type: Any = None, metavar: str | None = None,
+def declare(*flags: str, dest: str | None = None, help: str, type: object = None, metavar: str | None = None,
             is_flag: bool = False, multiple: bool = False, count: bool = False, nargs: int = 1) -> Declared:
     """Declare an option once; ValueError when one of its flags is already another option's."""
     module = sys._getframe(1).f_globals.get("__name__", "")
@@ -138,7 +140,7 @@ def declare(*flags: str, dest: str | None = None, help: str, type: Any = None, m
 def moved(old: str, message: str) -> Callable[[F], F]:
     """A hidden ``old`` flag that refuses in one line: ``message`` says what to type now."""
 
-    def refuse(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
+    def refuse(ctx: click.Context, param: click.Parameter, value: object) -> object:
         if value is not None:
             raise click.UsageError(message, ctx)
         return value
@@ -150,8 +152,8 @@ def moved(old: str, message: str) -> Callable[[F], F]:
 # ------------------------------------------------------------------------------------------ every layer's
 
 
-def _folder(**kwargs: Any) -> click.Path:
-    return click.Path(file_okay=False, path_type=Path, **kwargs)
+def _folder() -> click.Path:
+    return click.Path(file_okay=False, path_type=Path)
 
 
 OUT = declare("--out", dest="out_dir", type=_folder(), help="Output folder")
