@@ -285,7 +285,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         if args.image is None:
-            from osmseg.build.builder import build
+            from osmseg.builder.run import build
             from osmseg.demo import demo_config
 
             build(demo_config(work / "demo"), env=dict(os.environ, BING_MAPS_KEY="demo-key-not-secret"))

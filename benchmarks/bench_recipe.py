@@ -84,7 +84,7 @@ VARIANTS = (
 
 def demo_dataset(folder: Path) -> Path:
     """The ``osmseg demo`` dataset, built offline from its recorded fixtures."""
-    from osmseg.build.builder import build
+    from osmseg.builder.run import build
     from osmseg.demo import demo_config
 
     out = folder / "dataset"

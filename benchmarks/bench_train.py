@@ -119,7 +119,7 @@ def worker_peak_rss_mb() -> float:
 # ------------------------------------------------------------------------------- data
 def demo_dataset(folder: Path) -> Path:
     """The 4-sample 1280x1280 ``osmseg demo`` dataset, built offline from its recorded fixtures."""
-    from osmseg.build.builder import build
+    from osmseg.builder.run import build
     from osmseg.demo import demo_config
 
     out = folder / "dataset"

@@ -51,7 +51,7 @@ def by_classes(results: dict[str, Any], kind: str) -> str:
 @figure_set("zoom", "cheap")
 def zoom(ws: Workspace) -> dict[str, Figure]:
     """ground pixel size and sample span at the default zoom (osmseg.grid.ground_resolution, the city presets)"""
-    from osmseg.build.builder import DEFAULT_ZOOM
+    from osmseg.builder.run import DEFAULT_ZOOM
     from osmseg.grid import ground_resolution, sample_grid
     from osmseg.places import find_preset
 

@@ -239,10 +239,10 @@ def build_speed(ws: Workspace) -> dict[str, Figure]:
 
 @figure_set("contrast", "cheap", needs="shared data")
 def contrast(ws: Workspace) -> dict[str, Figure]:
-    """grey-level standard deviation of the real aerial images in ../shared/data (osmseg.build.filters.grey_std)"""
+    """grey-level standard deviation of the real aerial images in ../shared/data (osmseg.builder.filters.grey_std)"""
     import rasterio
 
-    from osmseg.build.filters import FilterConfig, grey_std
+    from osmseg.builder.filters import FilterConfig, grey_std
 
     def stds(path: Path, side: int = 1280, step: int = 256) -> list[float]:
         with rasterio.open(path) as src:

@@ -3,7 +3,7 @@
 Kept free of everything but the standard library, so that the command line can start the fork
 server before it imports the builder (:mod:`osmseg.cli.launch`): the server then imports
 osmseg (about 0.7 s) while the command does the same, instead of after it, and the workers of
-``osmseg build`` start that much sooner. :mod:`osmseg.build.workers` makes its pools from
+``osmseg build`` start that much sooner. :mod:`osmseg.builder.workers` makes its pools from
 :func:`worker_context`, the same server.
 
 Why a fork server (``spawn`` where the platform has none): a plain ``fork`` of a process that
@@ -71,7 +71,7 @@ _FORK_SERVER_SOCKET = "/pymp-abcdefgh/listener-abcdefgh"
 _SOCKET_PATH_MAX = 100
 
 #: Modules the fork server imports once, so that each worker starts without importing them.
-PRELOAD = ["osmseg.build.slots"]
+PRELOAD = ["osmseg.builder.slots"]
 
 
 def available_cores() -> int:

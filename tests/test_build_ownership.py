@@ -42,7 +42,7 @@ from training.splits import sample_groups
 STARTER = """
 import os, sys, time
 from pathlib import Path
-import osmseg.cli.main, osmseg.build.builder  # everything imported before the common start
+import osmseg.cli.main, osmseg.builder.run  # everything imported before the common start
 folder = Path(sys.argv[1])
 sys.argv = ["osmseg", *sys.argv[2:]]
 (folder / f"ready-{os.getpid()}").touch()
@@ -179,7 +179,7 @@ def test_while_a_build_holds_its_folder_other_commands_refuse_at_once(tmp_path: 
 
 def test_a_build_reads_the_folder_it_holds_itself(tmp_path: Path) -> None:
     """Only other processes' builds make a folder busy: the process holding it may read it."""
-    from osmseg.build.state import BuildState
+    from osmseg.builder.state import BuildState
     from osmseg.output.manifest import read_manifest
 
     (tmp_path / "manifest.json").write_text("{}")

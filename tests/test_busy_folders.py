@@ -4,7 +4,7 @@ Issue 31, item 4: the README says a command reading a dataset is refused while a
 but only ``verify`` was (through ``manifest.json``, which a first build writes last): ``train``
 read 2 of 6 images and failed naming options it does not have, ``eval``, ``predict``,
 ``localize`` and ``localize-bench`` read half-written files. Here another process holds the
-folder exactly as a running build does (:meth:`osmseg.build.state.BuildState.claim`, the OS
+folder exactly as a running build does (:meth:`osmseg.builder.state.BuildState.claim`, the OS
 lock of :mod:`osmseg.folderlock`), the folder holding what a first build has written so far
 (images and labels, no manifest yet), and each command is run as a user runs it.
 """
@@ -32,7 +32,7 @@ torch = pytest.importorskip("torch")
 HOLDER = """
 import sys
 from pathlib import Path
-from osmseg.build.state import BuildState
+from osmseg.builder.state import BuildState
 state = BuildState(Path(sys.argv[1]))
 state.claim({"seed": 1}, "osmseg build --seed 1 --out " + sys.argv[1])
 print("holding", flush=True)

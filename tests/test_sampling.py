@@ -1,7 +1,7 @@
 """Honest samples and splits: overlap reported, sampling that never overlaps, splits by area.
 
 Overlap is checked here with shapely on the manifest's EPSG:3857 boxes, independently of
-``osmseg.build.sampling``. The builds use a GeoJSON source with one large grass polygon (every
+``osmseg.builder.sampling``. The builds use a GeoJSON source with one large grass polygon (every
 sample has a label) and an empty tile folder as imagery (no tile at all: the filters are
 opened for it), so a build of a few samples takes a second.
 """
@@ -18,7 +18,7 @@ import shapely
 from click.testing import CliRunner, Result
 from conftest import TEST_DATA
 
-from osmseg.build.sampling import block_centre, candidate_blocks
+from osmseg.builder.sampling import block_centre, candidate_blocks
 from osmseg.cli.main import cli
 from osmseg.grid import LngLatBBox, sample_grid
 from osmseg.overlap import overlap_groups

@@ -1,7 +1,7 @@
 """``osmseg build``: make a segmentation dataset from OpenStreetMap and aerial imagery.
 
 The options land in :class:`BuildOptions`, the one table of what each option is: the
-:class:`~osmseg.build.config.BuildConfig` is made from it (:func:`build_config`), the command
+:class:`~osmseg.builder.config.BuildConfig` is made from it (:func:`build_config`), the command
 recorded in the manifest reads each content option back from the config through it
 (:func:`content_options`, :func:`recorded_command`, flags spelled as click knows them), and
 the options that never change what is built are its plain fields (:data:`NOT_CONTENT`), so
@@ -20,8 +20,8 @@ from typing import Any
 
 import click
 
-from osmseg.build.builder import DEFAULT_ZOOM, NO_IMAGERY_REASONS, SAMPLE_TILES, BuildConfig, BuildSummary, Shard, build
-from osmseg.build.filters import FilterConfig
+from osmseg.builder.filters import FilterConfig
+from osmseg.builder.run import DEFAULT_ZOOM, NO_IMAGERY_REASONS, SAMPLE_TILES, BuildConfig, BuildSummary, Shard, build
 from osmseg.cli.common import command_line_of, default_cache_dir, output_options, report_errors
 from osmseg.cli.drawers import Mode, progress_drawer
 from osmseg.cli.options import BBOX, CACHE_DIR, CLASSES, LAT, LON, OSM, OUT, RADIUS_KM, SEED, SHARD, ZOOM, declare

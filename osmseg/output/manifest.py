@@ -52,7 +52,7 @@ SAMPLE_KEYS = (
     "imagery", "osm", "class_histogram", "files",
 )
 
-#: Why the builder rejects a sample, in the order its filters check (:mod:`osmseg.build.filters`):
+#: Why the builder rejects a sample, in the order its filters check (:mod:`osmseg.builder.filters`):
 #: the manifest lists the rejected attempts by these reasons.
 REASONS: tuple[str, ...] = ("unlabeled", "single_class", "placeholder_imagery", "missing_imagery", "low_contrast")
 

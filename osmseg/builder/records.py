@@ -3,7 +3,7 @@
 A build fills *slots* (one per requested sample); each slot tries seeded centres, one
 :class:`Attempt` each, until one is accepted. The slot's :class:`SlotOutcome` is what the
 manifest, the datasheet and the summary are made from. Both are stored in ``.osmseg-build/``
-as JSON by :class:`osmseg.build.state.BuildState` through :meth:`to_json`/:meth:`from_json`, in the
+as JSON by :class:`osmseg.builder.state.BuildState` through :meth:`to_json`/:meth:`from_json`, in the
 shape earlier osmseg releases wrote, so a folder begun by one still resumes (and a resumed
 build ends byte-identical to an uninterrupted one).
 

@@ -2,10 +2,10 @@
 
 :func:`build` checks the sources and the output folder, cuts the OSM data every sample needs
 from a local file in one pass, then builds the slots that are not finished yet
-(:func:`osmseg.build.slots.run_slot`: one attempt after another until a sample is accepted) in this
-process or on worker processes (:mod:`osmseg.build.workers`), and finally writes the dataset-level
+(:func:`osmseg.builder.slots.run_slot`: one attempt after another until a sample is accepted) in this
+process or on worker processes (:mod:`osmseg.builder.workers`), and finally writes the dataset-level
 files from the finished slots (:func:`finalize`): ``manifest.json``, ``DATASHEET.md``,
-``ATTRIBUTION.md``, the STAC catalog, pictures and, if asked, a zip. See :mod:`osmseg.build.state` for
+``ATTRIBUTION.md``, the STAC catalog, pictures and, if asked, a zip. See :mod:`osmseg.builder.state` for
 why slots make a build resumable, shardable and independent of the number of workers.
 """
 
@@ -20,11 +20,11 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from osmseg.build.config import DEFAULT_ZOOM, SAMPLE_TILES, BuildConfig, Shard, sampling_box
-from osmseg.build.finalize import ENTRIES_PREFIX, finalize
-from osmseg.build.records import SlotOutcome
-from osmseg.build.sampling import check_room
-from osmseg.build.slots import (
+from osmseg.builder.config import DEFAULT_ZOOM, SAMPLE_TILES, BuildConfig, Shard, sampling_box
+from osmseg.builder.finalize import ENTRIES_PREFIX, finalize
+from osmseg.builder.records import SlotOutcome
+from osmseg.builder.sampling import check_room
+from osmseg.builder.slots import (
     BuildContext,
     Pipeline,
     attempt_grid,
@@ -33,8 +33,8 @@ from osmseg.build.slots import (
     osm_regions,
     warn_upsampling,
 )
-from osmseg.build.state import STATE_SUBDIRS, BuildState
-from osmseg.build.workers import FirstSamples, SlotRunner
+from osmseg.builder.state import STATE_SUBDIRS, BuildState
+from osmseg.builder.workers import FirstSamples, SlotRunner
 from osmseg.errors import ConfigError
 from osmseg.folderlock import STATE_DIR
 from osmseg.grid import LngLatBBox, ground_resolution, pad_bbox

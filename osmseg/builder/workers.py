@@ -1,6 +1,6 @@
 """Build a dataset's slots on several processes: every core busy, the bytes of one process.
 
-A slot's outcome depends only on the seed, the slot number and the data (:mod:`osmseg.build.state`),
+A slot's outcome depends only on the seed, the slot number and the data (:mod:`osmseg.builder.state`),
 never on which process builds it or when, so :class:`SlotRunner` hands slots to worker
 processes in slot order and the dataset is byte-identical whatever ``--workers`` is; a build
 interrupted at any moment resumes from its state folder like a single-process one, and
@@ -13,7 +13,7 @@ How the workers are made and kept in line:
   read a PBF would inherit libosmium's thread pool without its threads, and hang. The fork
   server imports osmseg once; each worker then starts in milliseconds. ``osmseg build``
   starts the server before it imports the builder (:mod:`osmseg.cli.launch`).
-* **One pipeline per worker**, opened once (:func:`osmseg.build.slots.open_pipeline`): its own HTTP
+* **One pipeline per worker**, opened once (:func:`osmseg.builder.slots.open_pipeline`): its own HTTP
   client, imagery provider (a local GeoTIFF stays open) and OSM source, on the region file the
   parent cut before starting them.
 * **Polite HTTP across workers**: the workers' clients share their per-host limits and
@@ -56,10 +56,10 @@ from typing import Any
 
 import cv2
 
-from osmseg.build.config import BuildConfig
-from osmseg.build.records import SlotOutcome
-from osmseg.build.slots import BuildContext, http_config, open_pipeline, run_slot
-from osmseg.build.state import BuildState
+from osmseg.builder.config import BuildConfig
+from osmseg.builder.records import SlotOutcome
+from osmseg.builder.slots import BuildContext, http_config, open_pipeline, run_slot
+from osmseg.builder.state import BuildState
 from osmseg.errors import DatasetError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient

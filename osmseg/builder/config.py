@@ -1,7 +1,7 @@
 """What decides a build, as frozen values: :class:`BuildConfig`, :class:`Shard` and the sampling box.
 
-Kept apart from :mod:`osmseg.build.builder` so that the code run for one slot (:mod:`osmseg.build.slots`),
-the worker processes (:mod:`osmseg.build.workers`) and the build itself share one definition
+Kept apart from :mod:`osmseg.builder.run` so that the code run for one slot (:mod:`osmseg.builder.slots`),
+the worker processes (:mod:`osmseg.builder.workers`) and the build itself share one definition
 without importing each other. Imports: osmseg core below it (places, grid, filters, redact,
 sampling, processes, errors).
 """
@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
-from osmseg.build.filters import FilterConfig
+from osmseg.builder.filters import FilterConfig
 from osmseg.grid import TILE_SIZE, LngLatBBox, ground_resolution, pad_bbox
 from osmseg.places import Area, normalise_name
 from osmseg.processes import available_cores
@@ -62,7 +62,7 @@ class BuildConfig:
     http_retry_delay: float = 0.5  # --retry-delay: seconds before the first retry; doubles with each
     cassette: Path | None = None  # --record/--replay FILE
     cassette_mode: str = "replay"
-    no_overlap: bool = False  # --no-overlap: every attempt gets its own tile block (osmseg.build.sampling)
+    no_overlap: bool = False  # --no-overlap: every attempt gets its own tile block (osmseg.builder.sampling)
     workers: int = 0  # --workers N: processes building samples; 0 = every available core
     tile_size: int | None = None  # --tile-size: px of a tile server's tiles (None: as the provider says)
 

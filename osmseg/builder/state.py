@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 from typing import Any, cast
 
-from osmseg.build.records import Attempt, SlotOutcome
+from osmseg.builder.records import Attempt, SlotOutcome
 from osmseg.errors import DatasetError
 from osmseg.folderlock import STATE_DIR, FolderLock
 from osmseg.output.atomic import atomic_write_text

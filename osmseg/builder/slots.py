@@ -6,10 +6,10 @@ The pipeline for one attempt (see :func:`run_attempt`):
                              \\--osm-------> OSM file --features--> polygons --rasterize--> labels
     (RGB, labels) --filters--> accepted: images/, segmented/, labels/, geo/   |  rejected: reason
 
-:func:`run_slot` tries a slot's centres until one is accepted (see :mod:`osmseg.build.state` for
+:func:`run_slot` tries a slot's centres until one is accepted (see :mod:`osmseg.builder.state` for
 why slots make a build resumable and shardable). Everything here depends only on the
-:class:`~osmseg.build.config.BuildConfig`, the slot number and the data, never on which
-process runs it or in what order: that is what lets :mod:`osmseg.build.workers` spread slots over
+:class:`~osmseg.builder.config.BuildConfig`, the slot number and the data, never on which
+process runs it or in what order: that is what lets :mod:`osmseg.builder.workers` spread slots over
 processes and still write the bytes of a single-process build. Imports: osmseg core below it.
 """
 
@@ -22,11 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from osmseg.build.config import BuildConfig, sampling_box
-from osmseg.build.filters import FilterConfig, check_imagery, check_labels
-from osmseg.build.records import Attempt, SlotOutcome
-from osmseg.build.sampling import block_attempt_centre
-from osmseg.build.state import BuildState
+from osmseg.builder.config import BuildConfig, sampling_box
+from osmseg.builder.filters import FilterConfig, check_imagery, check_labels
+from osmseg.builder.records import Attempt, SlotOutcome
+from osmseg.builder.sampling import block_attempt_centre
+from osmseg.builder.state import BuildState
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import RetriesExhausted
 from osmseg.grid import (

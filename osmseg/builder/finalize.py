@@ -27,9 +27,9 @@ from typing import IO, Any, overload
 import numpy as np
 
 from osmseg import __version__
-from osmseg.build.config import BuildConfig
-from osmseg.build.records import SlotOutcome
-from osmseg.build.state import BuildState
+from osmseg.builder.config import BuildConfig
+from osmseg.builder.records import SlotOutcome
+from osmseg.builder.state import BuildState
 from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from osmseg.output import (
