@@ -273,7 +273,7 @@ def test_a_worker_that_cannot_open_its_sources_says_why_in_one_line(tmp_path: Pa
     from osmseg.builder.workers import WorkerSetup, _build_slot, _start_worker
     from osmseg.errors import ConfigError
     from osmseg.places import Area
-    from osmseg.processes import worker_context
+    from osmseg.runtime.processes import worker_context
 
     config = BuildConfig(out_dir=tmp_path / "ds", area=Area("t", LAT, LON, 0.08),
                          imagery=f"geotiff:{tmp_path / 'gone.tif'}", osm=str(TINYCITY), samples=1,

@@ -5,7 +5,7 @@ but only ``verify`` was (through ``manifest.json``, which a first build writes l
 read 2 of 6 images and failed naming options it does not have, ``eval``, ``predict``,
 ``localize`` and ``localize-bench`` read half-written files. Here another process holds the
 folder exactly as a running build does (:meth:`osmseg.builder.state.BuildState.claim`, the OS
-lock of :mod:`osmseg.folderlock`), the folder holding what a first build has written so far
+lock of :mod:`osmseg.runtime.folderlock`), the folder holding what a first build has written so far
 (images and labels, no manifest yet), and each command is run as a user runs it.
 """
 

@@ -200,7 +200,7 @@ def test_a_sigterm_while_a_checkpoint_is_written_lets_the_write_finish_then_stop
     ("unexpected pos") with a traceback, instead of the command's one line and exit 143."""
     import signal
 
-    from osmseg.processes import Terminated, terminate_by_exception
+    from osmseg.runtime.processes import Terminated, terminate_by_exception
 
     model, _ = trained
     real_save = torch.save

@@ -25,7 +25,7 @@ from torch import nn
 
 from osmseg.errors import ConfigError, ImageryError
 from osmseg.output.geotiff import read_class_table
-from osmseg.progress import Step
+from osmseg.runtime.progress import Step
 from training.infer import predict_array
 from training.predict import predict_file
 from training.spec import ModelSpec

@@ -460,7 +460,7 @@ def test_a_sigterm_just_after_a_temporary_file_is_created_still_removes_it(
 
     from osmseg.builder import workers
     from osmseg.output import atomic
-    from osmseg.processes import Terminated, terminate_by_exception
+    from osmseg.runtime.processes import Terminated, terminate_by_exception
 
     create = atomic.temp_path_for
 

@@ -33,7 +33,7 @@ import torch
 from torch import Tensor
 
 from osmseg.errors import ConfigError
-from osmseg.processes import interrupts_deferred
+from osmseg.runtime.processes import interrupts_deferred
 from training.distributed import pick_device
 from training.errors import CheckpointError
 from training.lite0 import UNetLite0, lite0_weights, load_imagenet_encoder

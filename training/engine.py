@@ -17,7 +17,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from osmseg.progress import Progress, track
+from osmseg.runtime.progress import Progress, track
 from osmseg.units import plural
 from training.distributed import all_reduce_sum, is_distributed
 from training.fitting import freeze_encoder_bn

@@ -35,7 +35,7 @@ from osmseg.errors import DatasetError
 from osmseg.images import read_label, read_rgb
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.output.manifest import refuse_busy
-from osmseg.progress import Progress, track
+from osmseg.runtime.progress import Progress, track
 from osmseg.units import plural
 from training.checkpoint import load_checkpoint, model_from_checkpoint, run_checkpoint
 from training.data import SampleFiles, discover_dataset

@@ -49,7 +49,7 @@ from rasterio.windows import Window
 
 from osmseg.errors import ConfigError, ImageryError
 from osmseg.images import PixelRule, as_rgb, pixel_rule
-from osmseg.progress import Progress, report
+from osmseg.runtime.progress import Progress, report
 from training.distributed import pick_device
 from training.tiling import Box, WindowGrid, blend_weight, letterbox, nearest_index, pixel_blocks
 

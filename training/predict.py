@@ -44,7 +44,7 @@ from osmseg.output.atomic import atomic_path
 from osmseg.output.geotiff import cog_file, write_class_metadata
 from osmseg.output.manifest import refuse_busy
 from osmseg.output.style import qml_style, style_path
-from osmseg.progress import Progress, track
+from osmseg.runtime.progress import Progress, track
 from training.checkpoint import model_from_checkpoint
 from training.infer import (
     DEFAULT_BLOCK,

@@ -41,7 +41,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.manifest import refuse_busy
-from osmseg.progress import Progress, report
+from osmseg.runtime.progress import Progress, report
 from training.augment import AugmentConfig
 from training.checkpoint import InitWeights, load_checkpoint, read_init, save_checkpoint
 from training.config import TrainConfig

@@ -63,7 +63,7 @@ from localization.profile.method import profile_index, run_profile
 from localization.profile.search import ProfileConfig
 from osmseg import __version__
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.progress import Progress, track
+from osmseg.runtime.progress import Progress, track
 from osmseg.units import plural
 
 logger = logging.getLogger(__name__)

@@ -92,7 +92,7 @@ from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.manifest import dataset_class_table, manifest_path, read_manifest, refuse_busy
-from osmseg.progress import Progress, track
+from osmseg.runtime.progress import Progress, track
 from osmseg.units import plural
 
 logger = logging.getLogger(__name__)

@@ -20,7 +20,7 @@ from osmseg.cli.common import output_options, report_errors
 from osmseg.cli.drawers import progress_drawer
 from osmseg.cli.options import OUT, declare
 from osmseg.demo import DEMO_CASSETTE, demo_config
-from osmseg.progress import Progress
+from osmseg.runtime.progress import Progress
 from osmseg.units import plural, ratio
 from training.cli import EPOCHS
 

@@ -27,7 +27,7 @@ from osmseg.cli.common import default_cache_dir, parse_size
 from osmseg.cli.drawers import progress_drawer
 from osmseg.cli.options import BBOX, CACHE_DIR, LAT, LON, OSM, RADIUS_KM, SHARD, ZOOM
 from osmseg.errors import ConfigError
-from osmseg.shard import Shard
+from osmseg.runtime.shard import Shard
 from osmseg.texttable import text_table
 from osmseg.units import degrees, metres, plural, ratio
 

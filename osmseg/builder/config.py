@@ -16,9 +16,9 @@ from typing import Any, cast
 from osmseg.builder.filters import FilterConfig
 from osmseg.grid import TILE_SIZE, LngLatBBox, ground_resolution, pad_bbox
 from osmseg.places import Area, normalise_name
-from osmseg.processes import available_cores
 from osmseg.redact import redact
-from osmseg.shard import Shard
+from osmseg.runtime.processes import available_cores
+from osmseg.runtime.shard import Shard
 
 __all__ = ["DEFAULT_ZOOM", "SAMPLE_TILES", "BuildConfig", "Shard", "available_cores", "sampling_box"]
 

@@ -45,7 +45,7 @@ from osmseg.output import (
 from osmseg.output.manifest import FORMAT, FORMAT_VERSION, Summary, config_entry
 from osmseg.output.stac import write_stac
 from osmseg.overlap import overlap_groups
-from osmseg.processes import deferred_termination, owner
+from osmseg.runtime.processes import deferred_termination, owner
 
 __all__ = ["ENTRIES_PREFIX", "RejectionEntries", "SampleEntries", "SlotRecords", "finalize"]
 

@@ -36,7 +36,6 @@ from osmseg.builder.slots import (
 from osmseg.builder.state import STATE_SUBDIRS, BuildState
 from osmseg.builder.workers import FirstSamples, SlotRunner
 from osmseg.errors import ConfigError
-from osmseg.folderlock import STATE_DIR
 from osmseg.grid import LngLatBBox, ground_resolution, pad_bbox
 from osmseg.imagery.base import ServedVerdicts
 from osmseg.net.http import HttpClient
@@ -45,8 +44,9 @@ from osmseg.output.atomic import sweep_temp_files as sweep_temp
 from osmseg.output.manifest import SAMPLE_DIRS
 from osmseg.output.stac import ITEMS_DIR, STAC_DIR
 from osmseg.output.writer import IMAGE_FORMATS
-from osmseg.processes import start_fork_server, sweep_owned
-from osmseg.progress import Progress, report
+from osmseg.runtime.folderlock import STATE_DIR
+from osmseg.runtime.processes import start_fork_server, sweep_owned
+from osmseg.runtime.progress import Progress, report
 from osmseg.units import noun, plural
 
 logger = logging.getLogger(__name__)
@@ -178,7 +178,7 @@ def build(
 ) -> BuildSummary:
     """Build (or resume) the dataset described by ``config`` in ``config.out_dir``.
 
-    ``progress`` gets a :class:`~osmseg.progress.Step` per finished slot of this shard, with
+    ``progress`` gets a :class:`~osmseg.runtime.progress.Step` per finished slot of this shard, with
     the accepted, rejected and failed counts so far (the CLI draws its bar with it).
     ``command_line`` is recorded in the manifest; pass it without secrets. ``env`` (default:
     this process's environment) supplies keys; worker processes get it through their pipe.

@@ -9,7 +9,7 @@ command redoes nothing finished and ends byte-identical to an uninterrupted one,
 build split with ``--shard K/N`` (slots ``i % N == K-1``) gives the same dataset as one run.
 
 A build holds its folder for its whole life (:meth:`BuildState.claim`, an OS lock that the
-shards of the same build share: :mod:`osmseg.folderlock`), so a command with other options
+shards of the same build share: :mod:`osmseg.runtime.folderlock`), so a command with other options
 started at the same moment is refused at once instead of writing its samples among ours.
 """
 
@@ -21,8 +21,8 @@ from typing import Any, cast
 
 from osmseg.builder.records import Attempt, SlotOutcome
 from osmseg.errors import DatasetError
-from osmseg.folderlock import STATE_DIR, FolderLock
 from osmseg.output.atomic import atomic_write_text
+from osmseg.runtime.folderlock import STATE_DIR, FolderLock
 
 #: The build state's folders of records and pictures (besides ``osm/`` and temporary ones).
 STATE_SUBDIRS = ("attempts", "slots", "failures", "thumbnails", "holders")

@@ -9,7 +9,7 @@ interrupted at any moment resumes from its state folder like a single-process on
 How the workers are made and kept in line:
 
 * **Processes from a fork server** (``spawn`` where there is none;
-  :func:`osmseg.processes.worker_context`): a plain ``fork`` of a process that has already
+  :func:`osmseg.runtime.processes.worker_context`): a plain ``fork`` of a process that has already
   read a PBF would inherit libosmium's thread pool without its threads, and hang. The fork
   server imports osmseg once; each worker then starts in milliseconds. ``osmseg build``
   starts the server before it imports the builder (:mod:`osmseg.cli.launch`).
@@ -65,7 +65,7 @@ from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
 from osmseg.osm.base import RegionSource
 from osmseg.output.overview import OVERVIEW_SAMPLES
-from osmseg.processes import interrupts_deferred, stop_unless_deferred, worker_context
+from osmseg.runtime.processes import interrupts_deferred, stop_unless_deferred, worker_context
 
 __all__ = ["FirstSamples", "SlotRunner", "WorkerSetup"]
 

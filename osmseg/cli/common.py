@@ -21,8 +21,8 @@ from osmseg.cli.drawers import PROGRESS_DEFAULT, progress_mode
 from osmseg.cli.options import PROGRESS, QUIET, VERBOSE
 from osmseg.errors import ConfigError, OsmsegError
 from osmseg.output.manifest import command_line
-from osmseg.processes import INTERRUPTED, TERMINATED, Terminated
 from osmseg.redact import RedactingFilter
+from osmseg.runtime.processes import INTERRUPTED, TERMINATED, Terminated
 
 F = TypeVar("F", bound=Callable[..., Any])
 

@@ -22,7 +22,7 @@ build goes on as before: the recorded options still refuse a different build tha
 Readers of a dataset (:func:`osmseg.output.manifest.read_manifest`: ``verify``, ``train``,
 ``localize-bench``...) ask :meth:`FolderLock.busy` first, and refuse a folder a build holds:
 its files and manifest are still being written. POSIX only (``fcntl``); elsewhere there is
-no lock. Imports: :mod:`osmseg.processes` and the standard library only (the dataset readers
+no lock. Imports: :mod:`osmseg.runtime.processes` and the standard library only (the dataset readers
 below the builder import it).
 """
 
@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from osmseg.processes import owner, owner_gone
+from osmseg.runtime.processes import owner, owner_gone
 
 try:
     import fcntl
