@@ -71,8 +71,8 @@ def zoom(ws: Workspace) -> dict[str, Figure]:
 
 @figure_set("model", "cheap", needs="torch")
 def model(ws: Workspace) -> dict[str, Figure]:
-    """parameters of AirSegNet13 at width 1.0 (training.model)"""
-    from training.model import build_model, model_spec
+    """parameters of AirSegNet13 at width 1.0 (training.models.networks)"""
+    from training.models.networks import build_model, model_spec
 
     net = build_model(model_spec("airsegnet13", 1.0))
     return {"model.parameters": F(count(sum(p.numel() for p in net.parameters())))}
@@ -269,8 +269,8 @@ import figure_sets_external  # noqa: E402,F401  (registers the pairs, benchmark 
 
 @figure_set("recipes", "cheap", needs="torch")
 def recipes(ws: Workspace) -> dict[str, Figure]:
-    """the settings of the shipped training recipes (training.recipe.RECIPES)"""
-    from training.recipe import MIN_STEPS_PER_EPOCH, RECIPES
+    """the settings of the shipped training recipes (training.run.recipe.RECIPES)"""
+    from training.run.recipe import MIN_STEPS_PER_EPOCH, RECIPES
 
     def shown(name: str, value: Any) -> str:
         if name == "steps_per_epoch" and value is None:

@@ -312,8 +312,8 @@ def test_build_reads_16_bit_and_paletted_geotiffs_as_their_8_bit_colours(tmp_pat
 
 def test_predict_reads_16_bit_and_paletted_geotiffs_as_build_does(tmp_path: Path, imagery_tif: Path) -> None:
     torch = pytest.importorskip("torch")
-    from training.checkpoint import save_checkpoint
-    from training.model import build_model, model_spec
+    from training.models.checkpoint import save_checkpoint
+    from training.models.networks import build_model, model_spec
 
     tifs = variants(imagery_tif, tmp_path / "tifs", Window(900, 900, 200, 160))
     torch.manual_seed(0)  # an untrained network: any colour change changes its classes somewhere
@@ -339,7 +339,7 @@ def test_build_and_predict_see_the_same_colours_of_16_bit_and_paletted_rasters(t
     from osmseg.grid import sample_grid
     from osmseg.imagery.geotiff import GeoTiffProvider
     from osmseg.images import read_rgb
-    from training.infer import RasterSource
+    from training.inference.windows import RasterSource
 
     grid = sample_grid(LON, LAT, 18, size=1)  # a 256x256 raster on the sample's grid: the warp is the identity
     with rasterio.open(imagery_tif) as src:

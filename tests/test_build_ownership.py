@@ -34,7 +34,7 @@ from test_build_workers import build_args, descendants, one_worker, run_cli, tre
 
 from osmseg.errors import DatasetBusy, DatasetError
 from osmseg.runtime.processes import INTERRUPTED, TERMINATED, owner
-from training.splits import sample_groups
+from training.datasets.splits import sample_groups
 
 #: Starts ``osmseg ARGS`` at a common instant: once its imports are done it says so (a file
 #: ``READY_DIR/ready-PID``), then waits for ``READY_DIR/go`` to name the instant, and busy-waits

@@ -66,8 +66,8 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """A tiny checkpoint of tinyseg's classes and a ground panorama mask (classes13, sky 14)."""
     import json
 
-    from training.checkpoint import save_checkpoint
-    from training.model import build_model, model_spec
+    from training.models.checkpoint import save_checkpoint
+    from training.models.networks import build_model, model_spec
 
     folder = tmp_path_factory.mktemp("inputs")
     torch.manual_seed(0)

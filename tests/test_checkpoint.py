@@ -15,10 +15,10 @@ import torch
 import torch.nn.functional as F
 
 from osmseg.errors import ConfigError
-from training.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
 from training.errors import CheckpointError
-from training.model import SegNet, build_model, model_spec
-from training.spec import ModelSpec
+from training.models.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
+from training.models.networks import SegNet, build_model, model_spec
+from training.models.spec import ModelSpec
 
 
 @pytest.fixture(autouse=True)

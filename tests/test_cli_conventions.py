@@ -113,7 +113,7 @@ def test_train_loader_workers_are_named_apart_from_build_workers(tmp_path: Path)
 
 def test_a_config_file_with_the_old_workers_key_is_read_with_a_warning(tmp_path: Path,
                                                                         caplog: pytest.LogCaptureFixture) -> None:
-    from training.config import make_config
+    from training.run.config import make_config
 
     file = tmp_path / "old.toml"
     file.write_text("workers = 3\nepochs = 2\n")
@@ -143,8 +143,8 @@ def test_help_shows_every_default(name: str) -> None:
 
 
 def test_train_help_shows_the_training_defaults() -> None:
-    from training.config import FIELDS
-    from training.recipe import RECIPES
+    from training.run.config import FIELDS
+    from training.run.recipe import RECIPES
 
     text = " ".join(CliRunner().invoke(cli, ["train", "--help"], terminal_width=400).output.split())
     for option, field in [("--batch-size", "batch_size"), ("--lr", "lr"), ("--class-weights", "class_weights")]:

@@ -85,8 +85,8 @@ def scene(tmp_path_factory: pytest.TempPathFactory, imagery_tif: Path) -> dict[s
     dataset, a 3-sample dataset whose samples overlap, and a file that is no cassette."""
     torch = pytest.importorskip("torch")
     from osmseg.classes import load_class_table
-    from training.checkpoint import save_checkpoint
-    from training.model import build_model, model_spec
+    from training.models.checkpoint import save_checkpoint
+    from training.models.networks import build_model, model_spec
 
     root = tmp_path_factory.mktemp("scene")
     torch.manual_seed(0)
@@ -159,7 +159,7 @@ CASES = [
 @pytest.mark.parametrize(("command", "line", "status"), [pytest.param(*c[1:], id=c[0]) for c in CASES])
 def test_every_error_names_only_what_the_command_has(scene: dict[str, Path], tmp_path: Path, command: str, line,
                                                      status: int) -> None:
-    from training.config import FIELDS
+    from training.run.config import FIELDS
 
     result = run(*line(scene, tmp_path))
     assert result.exit_code == status, result.output

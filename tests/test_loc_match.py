@@ -559,8 +559,8 @@ def test_cli_bad_input_is_one_line(tmp_path, case: str, code: int, words: str) -
 
 def test_cli_segments_an_rgb_image_with_a_checkpoint(tmp_path) -> None:
     torch = pytest.importorskip("torch")
-    from training.checkpoint import save_checkpoint
-    from training.model import build_model, model_spec
+    from training.models.checkpoint import save_checkpoint
+    from training.models.networks import build_model, model_spec
 
     spec = model_spec("airsegnet6", 0.0625, input_size=(64, 96))
     model = build_model(spec)

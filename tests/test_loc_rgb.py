@@ -48,7 +48,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 
 def test_camvid_layout_trains_with_void_11_ignored(trained: dict[str, Path]) -> None:
-    from training.checkpoint import model_from_checkpoint
+    from training.models.checkpoint import model_from_checkpoint
 
     _, spec = model_from_checkpoint(trained["ground_run"])
     assert spec.num_classes == 12 and spec.ignore_index == 11

@@ -223,7 +223,7 @@ def test_samples_that_all_overlap_cannot_be_split_honestly(tmp_path: Path, grass
 
 
 def test_splits_of_a_dataset_without_footprints_are_by_image() -> None:
-    from training.splits import make_splits, sample_groups
+    from training.datasets.splits import make_splits, sample_groups
 
     names = [f"tinyseg_{i:03d}" for i in range(12)]
     groups = sample_groups(TEST_DATA / "tinyseg", names)  # its manifest has no bounds
@@ -236,7 +236,7 @@ def test_georeferenced_images_without_a_manifest_are_grouped_by_their_extents(tm
     import rasterio
     from rasterio.transform import from_origin
 
-    from training.splits import sample_groups
+    from training.datasets.splits import sample_groups
 
     paths = {}
     for name, x0 in (("a", 400000.0), ("b", 400150.0), ("c", 401000.0)):  # a and b overlap by half

@@ -30,19 +30,19 @@ from osmseg.cli.drawers import progress_drawer
 from osmseg.cli.options import CLASSES, DEVICE, OUT, SEED, declare, moved
 from osmseg.errors import ConfigError
 from osmseg.units import plural, ratio
-from training.recipe import RECIPES
-from training.spec import ARCHS
+from training.models.spec import ARCHS
+from training.run.recipe import RECIPES
 
 
 def _default(name: str) -> object:
     """The training setting ``name``'s default, which ``osmseg train --help`` shows (read from
-    :class:`training.config.TrainConfig`, which imports no torch). Only the options typed on the
+    :class:`training.run.config.TrainConfig`, which imports no torch). Only the options typed on the
     command line override a --config file, so a default here never hides the file's value.
 
     >>> _default("epochs"), _default("loader_workers")
     (100, 2)
     """
-    from training.config import FIELDS
+    from training.run.config import FIELDS
 
     return FIELDS[name].default
 
@@ -151,8 +151,8 @@ def train_command(ctx: click.Context, /, dataset: Path, out_dir: Path, config_fi
                   keep_unlabeled: bool, **options: object) -> None:
     """Train a SegNet on DATASET (a folder made by `osmseg build`, or images/ + labels/)."""
     require_torch()
-    from training.config import find_config_file, make_config
-    from training.train import run
+    from training.run.config import find_config_file, make_config
+    from training.run.train import run
 
     typed = typed_options(ctx)  # defaults shown in --help must not override the --config file
     overrides = {k: v for k, v in options.items() if k in typed}
@@ -210,7 +210,7 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
                     batch_size: int, device: str) -> None:
     """Write a class mask (and a colour mask) for every INPUT image."""
     require_torch()
-    from training.predict import PredictConfig, predict_files
+    from training.inference.predict import PredictConfig, predict_files
 
     config = PredictConfig(checkpoint, inputs, out_dir, mode=mode, join=join, overlap=overlap, block_size=block_size,
                            tta=tta, resolution=resolution, batch_size=batch_size, device=device)
@@ -240,8 +240,8 @@ def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pai
         raise ConfigError("give a DATASET folder or --pair IMAGE LABEL (one of the two), e.g. "
                           "osmseg eval run/best.pt data/berlin --out eval/")
     require_torch()
-    from training.evaluate import EvalOptions, run_eval
-    from training.metrics import format_table
+    from training.evaluation.evaluate import EvalOptions, run_eval
+    from training.evaluation.metrics import format_table
 
     opts = EvalOptions(mode=mode, join=join, tta=tta, split=split, mapping=mapping, panels=panels, device=device,
                        resolution_m=resolution)

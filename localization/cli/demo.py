@@ -32,9 +32,9 @@ DEMO_TRAINING = {"model": "airsegnet13", "width": 0.125, "epochs": 8, "loader_wo
 
 def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, progress: Progress | None) -> None:
     """Train the demo model briefly on the demo dataset, then evaluate it on its test split."""
-    from training.config import make_config
-    from training.evaluate import EvalOptions, run_eval
-    from training.train import run
+    from training.evaluation.evaluate import EvalOptions, run_eval
+    from training.run.config import make_config
+    from training.run.train import run
 
     run_dir, eval_dir = out_dir / "run", out_dir / "eval"
     settings = dict(DEMO_TRAINING, epochs=epochs, device="cpu")

@@ -1,6 +1,6 @@
 """How far long work has got, told through a callback: the library reports, the caller draws.
 
-A long-running function (``build``, ``training.train.run``, ``run_eval``, ``predict_files``,
+A long-running function (``build``, ``training.run.train.run``, ``run_eval``, ``predict_files``,
 ``run_bench`` ...) takes ``progress: Progress | None`` and calls it with a :class:`Step` after
 each unit of work. The command line turns steps into tqdm bars on a terminal and into a plain
 line every tenth of a task or every minute in a log (:mod:`osmseg.cli.drawers`); a notebook or a

@@ -1,7 +1,7 @@
 """What a training step does besides the loops: the optimiser and its schedule, the loss, the
 encoder's BatchNorm, and the moving average of the weights that ``model.pt`` holds.
 
-Each follows a setting of the run's :class:`~training.recipe.Recipe`:
+Each follows a setting of the run's :class:`~training.run.recipe.Recipe`:
 
 * ``encoder_lr``: the encoder's parameters (``model.encoder``, SegNet's and unet-lite0's alike)
   in a parameter group of their own at ``encoder_lr`` x ``lr``; the schedule scales both groups.
@@ -17,7 +17,7 @@ Each follows a setting of the run's :class:`~training.recipe.Recipe`:
   tiles for every variant). An average over the last few hundred steps smooths the noise of the
   last ones without asking validation to choose.
 
-Imports: osmseg core, torch, training.recipe.
+Imports: osmseg core, torch, training.run.recipe.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-from training.recipe import Recipe, lr_factor
+from training.run.recipe import Recipe, lr_factor
 
 __all__ = ["SegmentationLoss", "freeze_encoder_bn", "make_optimizer", "make_scheduler", "weight_average"]
 
@@ -43,7 +43,7 @@ def parameter_groups(model: nn.Module, recipe: Recipe) -> list[dict[str, object]
     """The optimiser's groups: the encoder at ``encoder_lr`` x ``lr``, the rest at ``lr`` (one group
     when the multiple is 1 or the model has no ``encoder``).
 
-    >>> from training.recipe import recipe_named
+    >>> from training.run.recipe import recipe_named
     >>> net = nn.Sequential()
     >>> net.encoder, net.head = nn.Linear(2, 2), nn.Linear(2, 1)
     >>> [(len(g["params"]), g["lr"]) for g in parameter_groups(net, recipe_named("osmseg", encoder_lr=0.1))]

@@ -37,16 +37,26 @@ from osmseg.output.atomic import atomic_write_bytes
 from osmseg.output.manifest import refuse_busy
 from osmseg.runtime.progress import Progress, track
 from osmseg.units import plural
-from training.checkpoint import load_checkpoint, model_from_checkpoint, run_checkpoint
-from training.data import SampleFiles, discover_dataset
-from training.figures import checkpoint_curves_png, confusion_matrix_png, per_class_iou_png, qualitative_panels
-from training.infer import InferenceOptions
-from training.metrics import ConfusionMatrix, EvalMetrics, Metrics, format_table, load_class_mapping
-from training.predict import predict_image
-from training.resolution import GroundPlace, dataset_places, known_resolution, target_resolution, warn_resolutions
-from training.runclasses import eval_correspondence
-from training.spec import ModelSpec
-from training.train import dataset_fingerprint
+from training.datasets.classes import eval_correspondence
+from training.datasets.patches import SampleFiles, dataset_fingerprint, discover_dataset
+from training.evaluation.figures import (
+    checkpoint_curves_png,
+    confusion_matrix_png,
+    per_class_iou_png,
+    qualitative_panels,
+)
+from training.evaluation.metrics import ConfusionMatrix, EvalMetrics, Metrics, format_table, load_class_mapping
+from training.inference.predict import predict_image
+from training.inference.resolution import (
+    GroundPlace,
+    dataset_places,
+    known_resolution,
+    target_resolution,
+    warn_resolutions,
+)
+from training.inference.windows import InferenceOptions
+from training.models.checkpoint import load_checkpoint, model_from_checkpoint, run_checkpoint
+from training.models.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
 
@@ -95,13 +105,13 @@ def evaluate_images(model: torch.nn.Module, spec: ModelSpec, files: Sequence[Sam
                     ) -> tuple[Metrics, list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], dict[str, Any]]:
     """Metrics over ``files``, the first panels' arrays, and the table they were computed in.
 
-    ``match`` (:func:`training.runclasses.eval_correspondence`) says how the labels' ids and the
+    ``match`` (:func:`training.datasets.classes.eval_correspondence`) says how the labels' ids and the
     model's are compared: the labels mapped onto the model's classes (a 13-class dataset for
     AirSegNet6), or the outputs onto the labels' (AirSegNet13 on a 6-class dataset); None: the
     labels are in the model's ids. ``places`` (:func:`dataset_places`, by sample name) place the
     images whose files do not say where they lie, for ``opts.resolution_m``. How far the images'
     ground resolution is from the training data's is said once for all of them
-    (:func:`training.predict.warn_resolutions`), before the first is predicted.
+    (:func:`training.inference.predict.warn_resolutions`), before the first is predicted.
     """
     places = places or {}
     names = spec.class_names  # by output id: the table lists classes in rule order, not id order

@@ -1,6 +1,6 @@
 """Training configuration: one dataclass, read from YAML/TOML, overridden from the command line.
 
-*How* the network learns is a named :class:`~training.recipe.Recipe` (``recipe``: by default
+*How* the network learns is a named :class:`~training.run.recipe.Recipe` (``recipe``: by default
 the network's own, ``osmseg`` for SegNet and ``lite0`` for unet-lite0, or ``paper``, the
 dissertation's SegNet recipe); every setting of it (``lr``,
 ``batch_size``, ``class_weights`` ...) may be overridden one by one, and a setting left at None
@@ -37,8 +37,8 @@ from typing import Any
 import tomllib
 
 from osmseg.errors import ConfigError
-from training.recipe import ARCH_RECIPES, RECIPE_FIELDS, RECIPES, Recipe, recipe_named
-from training.spec import ARCHS
+from training.models.spec import ARCHS, PRESET_NAMES
+from training.run.recipe import ARCH_RECIPES, RECIPE_FIELDS, RECIPES, Recipe, recipe_named
 
 logger = logging.getLogger(__name__)
 
@@ -47,8 +47,7 @@ logger = logging.getLogger(__name__)
 #: weights installed with osmseg
 ARCH_INITS = {"segnet-skip": "random", "segnet": "random", "unet-lite0": "imagenet"}
 
-#: the AirSegNet presets (training.model.PRESETS gives their class tables)
-PRESET_NAMES = ("airsegnet6", "airsegnet13")
+#: the AirSegNet presets (training.models.networks.PRESETS gives their class tables)
 
 
 @dataclass(frozen=True)
@@ -60,13 +59,13 @@ class TrainConfig:
     model: str = "airsegnet13"  # airsegnet6 | airsegnet13 | any name with --classes
     classes: str | None = None  # class table TOML; default: the dataset's manifest, else the model's
     width: float = 1.0  # channel multiplier; 1.0 is the paper's network
-    arch: str = "segnet-skip"  # segnet-skip | segnet (the paper's: no skips); training.spec.ARCHS
+    arch: str = "segnet-skip"  # segnet-skip | segnet (the paper's: no skips); training.models.spec.ARCHS
     init: str = "auto"  # auto (the arch's: ARCH_INITS) | random | imagenet | PATH to a vgg16_bn .pth | an osmseg checkpoint
     ignore_unlabeled: bool = True  # unlabeled (0) ignored in loss and metrics
     patch_height: int = 360  # the grid patches of sampling "grid", and the window predict and eval use
     patch_width: int = 480
     epochs: int = 100
-    recipe: str = "auto"  # auto (the arch's) | osmseg | paper | lite0: training/recipe.py; the settings below override it
+    recipe: str = "auto"  # auto (the arch's) | osmseg | paper | lite0: training/run/recipe.py; the settings below override it
     optimizer: str | None = None  # adamw | sgd
     batch_size: int | None = None
     lr: float | None = None
@@ -131,7 +130,7 @@ class TrainConfig:
 
     @property
     def recipe_name(self) -> str:
-        """The recipe's name: ``recipe``, or for ``auto`` the network's own (``training.recipe.ARCH_RECIPES``)."""
+        """The recipe's name: ``recipe``, or for ``auto`` the network's own (``training.run.recipe.ARCH_RECIPES``)."""
         return ARCH_RECIPES[self.arch] if self.recipe == "auto" else self.recipe
 
     @property
@@ -153,7 +152,7 @@ RENAMED = {"workers": "loader_workers"}
 
 
 #: the settings files shipped with osmseg (``--config cpu.yaml`` finds them from any folder)
-CONFIGS_DIR = Path(__file__).resolve().parent / "configs"
+CONFIGS_DIR = Path(__file__).resolve().parent.parent / "configs"
 
 
 def find_config_file(value: str | Path) -> Path:

@@ -1,7 +1,7 @@
 """Training recipes: how the network is optimised, as one named, recorded value.
 
 A :class:`Recipe` is everything about *how* a run learns (optimiser, learning rate and its
-schedule, class weights, how patches are drawn, batch size); :class:`~training.config.TrainConfig`
+schedule, class weights, how patches are drawn, batch size); :class:`~training.run.config.TrainConfig`
 names one (``--recipe``) and may override any of its settings. Two are shipped:
 
 ``osmseg`` (the default)

@@ -3,15 +3,15 @@
 :func:`predict_file` reads a PNG/JPEG or any GDAL raster and writes the class ids as an 8-bit
 PNG or as a Cloud-Optimized GeoTIFF with the source's CRS and transform and the class metadata
 every osmseg GeoTIFF carries (:mod:`osmseg.output.geotiff`), block by block for big rasters
-(:mod:`training.infer` runs the model). With a target ground resolution the input is seen
+(:mod:`training.inference.windows` runs the model). With a target ground resolution the input is seen
 through a bilinear WarpedVRT at that pixel size and the classes are brought back onto the
 input's own grid with nearest neighbour, so a 0.1 m drone mosaic reaches a model trained on
 0.3 m pixels at the size it learnt objects. An image that does not say where it lies (a dataset's
-PNG or JPEG) is resampled the same way when its :class:`~training.resolution.GroundPlace` is
-known (a dataset's manifest records each sample's); :mod:`training.resolution` also says once,
+PNG or JPEG) is resampled the same way when its :class:`~training.inference.resolution.GroundPlace` is
+known (a dataset's manifest records each sample's); :mod:`training.inference.resolution` also says once,
 for all the inputs, which are far from the training data's resolution with nothing resampling
-them, or cannot be resampled. Imports: osmseg core, :mod:`training.infer` and
-:mod:`training.resolution`.
+them, or cannot be resampled. Imports: osmseg core, :mod:`training.inference.windows` and
+:mod:`training.inference.resolution`.
 """
 
 from __future__ import annotations
@@ -45,8 +45,17 @@ from osmseg.output.geotiff import cog_file, write_class_metadata
 from osmseg.output.manifest import refuse_busy
 from osmseg.output.style import qml_style, style_path
 from osmseg.runtime.progress import Progress, track
-from training.checkpoint import model_from_checkpoint
-from training.infer import (
+from training.datasets.classes import check_mask_folder
+from training.inference.resolution import (
+    GroundPlace,
+    input_places,
+    known_resolution,
+    resolution_factor,
+    target_resolution,
+    warn_resolutions,
+)
+from training.inference.tiling import pixel_blocks
+from training.inference.windows import (
     DEFAULT_BLOCK,
     PIL_SUFFIXES,
     ArraySink,
@@ -58,19 +67,10 @@ from training.infer import (
     error_reason,
     run_model,
 )
-from training.resolution import (
-    GroundPlace,
-    input_places,
-    known_resolution,
-    resolution_factor,
-    target_resolution,
-    warn_resolutions,
-)
-from training.runclasses import check_mask_folder
-from training.tiling import pixel_blocks
+from training.models.checkpoint import model_from_checkpoint
 
 if TYPE_CHECKING:
-    from training.spec import ModelSpec
+    from training.models.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
 

@@ -19,9 +19,9 @@ from torch import nn
 
 from osmseg.runtime.progress import Progress, track
 from osmseg.units import plural
-from training.distributed import all_reduce_sum, is_distributed
-from training.fitting import freeze_encoder_bn
-from training.metrics import ConfusionMatrix
+from training.devices import all_reduce_sum, is_distributed
+from training.evaluation.metrics import ConfusionMatrix
+from training.run.fitting import freeze_encoder_bn
 
 logger = logging.getLogger(__name__)
 
@@ -82,7 +82,7 @@ def train_one_epoch(
     loss)`` after each batch that trained; ``after_step()`` after each optimiser step (the
     weights' moving average); ``progress`` gets a step per batch (task ``epoch N train``).
     ``freeze_bn``: the encoder's BatchNorm layers stay in evaluation mode
-    (:func:`training.fitting.freeze_encoder_bn`).
+    (:func:`training.run.fitting.freeze_encoder_bn`).
 
     A batch whose pixels are all ``criterion.ignore_index`` (a crop inside an OSM gap) has no
     loss: cross-entropy's mean over zero pixels is 0/0 = NaN. Its gradient is zero, yet an

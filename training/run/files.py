@@ -4,7 +4,7 @@
 history): the log is rewritten whole from the history, so a resumed run's log has no gaps, and
 the checkpoints' paths (``last.pt``, ``best.pt``, ``model.pt``) are named here once.
 
-Imports: osmseg core, training.distributed and (for curves.png) training.figures.
+Imports: osmseg core, training.devices and (for curves.png) training.evaluation.figures.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from osmseg.output.atomic import atomic_write_bytes
-from training.distributed import Dist
+from training.devices import Dist
 
 logger = logging.getLogger(__name__)
 
@@ -70,7 +70,7 @@ class RunFiles:
                     self.writer.add_scalar(key, row[key], row["epoch"])
             self.writer.flush()
         try:
-            from training.figures import training_curves_png
+            from training.evaluation.figures import training_curves_png
 
             training_curves_png(history, self.out / "curves.png")
         except ImportError:  # matplotlib is part of the train extra; never fail a run over a picture

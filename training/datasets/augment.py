@@ -47,7 +47,7 @@ from osmseg.errors import ConfigError
 class AugmentConfig:
     """Which augmentations to draw. Jitter amounts are the half-width of a factor range
     around 1 (``0.1``: factors uniform in [0.9, 1.1]); 0 turns that jitter off. ``scale``: the
-    largest zoom-out of a random crop (1: none; only :class:`~training.sampling.RandomCrops`
+    largest zoom-out of a random crop (1: none; only :class:`~training.datasets.sampling.RandomCrops`
     zooms, a fixed patch grid cannot)."""
 
     hflip: bool = True

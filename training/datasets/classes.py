@@ -16,7 +16,7 @@ So every command that puts a model's classes beside labels asks here first, and 
 * ``osmseg predict`` (:func:`check_mask_folder`): masks written into a dataset folder must be in
   its classes.
 
-The rules are :func:`osmseg.classmatch.correspondence`'s. Imports: osmseg core and training.data.
+The rules are :func:`osmseg.classmatch.correspondence`'s. Imports: osmseg core and training.datasets.patches.
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ from osmseg.classes import ClassTable, load_class_table
 from osmseg.classmatch import Correspondence, correspondence, difference, same_classes, shipped_mapped_tables, within
 from osmseg.errors import ClassTablesDiffer, ConfigError, DatasetError
 from osmseg.images import is_tiff
-from training.data import dataset_class_table
-from training.model import PRESETS
+from training.datasets.patches import dataset_class_table
+from training.models.networks import PRESETS
 
 __all__ = ["has_class_table", "run_tables", "model_classes", "eval_correspondence", "check_mask_folder"]
 

@@ -115,7 +115,7 @@ def class_pixels(histograms: np.ndarray, names: Sequence[str], num_classes: int,
     """Pixels per model class of each sample: name -> ``(num_classes,)`` int64.
 
     ``histograms`` are the per-sample counts of the dataset's label ids (one row per name, as
-    :func:`training.data.validate` returns them); ``label_lut`` maps those ids to the model's
+    :func:`training.datasets.patches.validate` returns them); ``label_lut`` maps those ids to the model's
     (AirSegNet6 on a 13-class dataset) before counting.
 
     >>> class_pixels(np.array([[5, 1, 2]]), ["a"], 2, label_lut=np.array([0, 1, 1]))

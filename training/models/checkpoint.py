@@ -34,11 +34,11 @@ from torch import Tensor
 
 from osmseg.errors import ConfigError
 from osmseg.runtime.processes import interrupts_deferred
-from training.distributed import pick_device
+from training.devices import pick_device
 from training.errors import CheckpointError
-from training.lite0 import UNetLite0, lite0_weights, load_imagenet_encoder
-from training.model import Network, build_model, load_encoder_weights, read_encoder_weights
-from training.spec import ModelSpec
+from training.models.lite0 import UNetLite0, lite0_weights, load_imagenet_encoder
+from training.models.networks import Network, build_model, load_encoder_weights, read_encoder_weights
+from training.models.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
 
@@ -233,7 +233,7 @@ class InitWeights:
     ``weights`` (an osmseg checkpoint's, by parameter name) are copied onto the new network by
     :meth:`apply`, all of them or all but the classifier's (``keep_classifier`` False); without
     them ``source`` is ``imagenet`` or a vgg16_bn file (its weights, read, in ``encoder``) for
-    :func:`training.model.load_encoder_weights`. ``record`` is what the run's checkpoints store
+    :func:`training.models.networks.load_encoder_weights`. ``record`` is what the run's checkpoints store
     under ``"init"``.
     """
 

@@ -1,7 +1,7 @@
 """What a model is (:class:`ModelSpec`): enough to rebuild it and to feed it and read its output.
 
-Its own module so that :mod:`training.model` (which builds a network from a spec) and
-:mod:`training.checkpoint` (which stores the spec beside the weights and rebuilds the model)
+Its own module so that :mod:`training.models.networks` (which builds a network from a spec) and
+:mod:`training.models.checkpoint` (which stores the spec beside the weights and rebuilds the model)
 depend on it, and not on each other. Imports: osmseg core only.
 """
 
@@ -17,6 +17,9 @@ import numpy as np
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
 
+#: the dissertation's networks by name: 6 and 13 classes (``--model``)
+PRESET_NAMES = ("airsegnet6", "airsegnet13")
+
 #: ImageNet statistics (0..1 scale), the default input normalisation.
 IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
 IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
@@ -26,7 +29,7 @@ IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
 #: pooling indices only), SegNet with additive skips (``segnet-skip``: each unpooled decoder
 #: input plus the encoder features of that stage, as LinkNet adds them; the same weights), and a
 #: U-Net decoder on EfficientNet-Lite0 (``unet-lite0``: ImageNet-pretrained weights that install
-#: with osmseg; :mod:`training.lite0`)
+#: with osmseg; :mod:`training.models.lite0`)
 ARCHS = ("segnet-skip", "segnet", "unet-lite0")
 
 

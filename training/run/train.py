@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
 import logging
 import math
 import signal
@@ -42,12 +41,12 @@ from torch.utils.data import DataLoader, DistributedSampler
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.manifest import refuse_busy
 from osmseg.runtime.progress import Progress, report
-from training.augment import AugmentConfig
-from training.checkpoint import InitWeights, load_checkpoint, read_init, save_checkpoint
-from training.config import TrainConfig
-from training.data import (
+from training.datasets.augment import AugmentConfig
+from training.datasets.classes import run_tables
+from training.datasets.patches import (
     PatchDataset,
     SampleFiles,
+    dataset_fingerprint,
     dataset_resolution,
     discover_dataset,
     files_by_name,
@@ -55,17 +54,25 @@ from training.data import (
     validate,
     weights_from_histograms,
 )
-from training.distributed import Dist, barrier, cleanup, setup
-from training.engine import StepOptions, evaluate, train_one_epoch
-from training.fitting import SegmentationLoss, make_optimizer, make_scheduler, weight_average
-from training.metrics import ConfusionMatrix, Metrics
-from training.model import build_model, model_spec, unlabeled_as_background
-from training.recipe import RECIPES, Recipe, steps_per_epoch
-from training.runclasses import run_tables
-from training.runfiles import RunFiles
-from training.sampling import RandomCrops, crop_sampler
-from training.spec import ModelSpec
-from training.splits import choose_splits, class_pixels, read_splits, sample_groups, split_warning, write_splits
+from training.datasets.sampling import RandomCrops, crop_sampler
+from training.datasets.splits import (
+    choose_splits,
+    class_pixels,
+    read_splits,
+    sample_groups,
+    split_warning,
+    write_splits,
+)
+from training.devices import Dist, barrier, cleanup, setup
+from training.evaluation.metrics import ConfusionMatrix, Metrics
+from training.models.checkpoint import InitWeights, load_checkpoint, read_init, save_checkpoint
+from training.models.networks import build_model, model_spec, unlabeled_as_background
+from training.models.spec import ModelSpec
+from training.run.config import TrainConfig
+from training.run.engine import StepOptions, evaluate, train_one_epoch
+from training.run.files import RunFiles
+from training.run.fitting import SegmentationLoss, make_optimizer, make_scheduler, weight_average
+from training.run.recipe import RECIPES, Recipe, steps_per_epoch
 
 logger = logging.getLogger(__name__)
 
@@ -76,12 +83,6 @@ RESUMABLE_CHANGES = {"loader_workers", "device", "tensorboard", "out_dir", "data
 #: settings added since runs began to record their recipe: what the runs made before them used
 SETTINGS_ADDED = {"balanced_crops": 0.0, "arch": "segnet", "encoder_lr": 1.0, "freeze_bn": False, "ema": 0.0,
                   "dice": 0.0, "crop_scale": 1.0, "jitter": 0.1}
-
-
-def dataset_fingerprint(root: Path) -> str | None:
-    """sha256 of the dataset's manifest.json (recorded in checkpoints), None without one."""
-    manifest = root / "manifest.json"
-    return hashlib.sha256(manifest.read_bytes()).hexdigest() if manifest.is_file() else None
 
 
 class EpochRow(TypedDict):
@@ -124,7 +125,7 @@ def rounded(loss: float | None, digits: int = 6) -> float | None:
 def seeded_loader(dataset: PatchDataset, config: TrainConfig, d: Dist, shuffle: bool) -> DataLoader[Any]:
     """A loader whose order depends only on (seed, epoch) and the number of processes.
 
-    Random crops (:class:`~training.sampling.RandomCrops`) are taken in order, each process
+    Random crops (:class:`~training.datasets.sampling.RandomCrops`) are taken in order, each process
     its own block: the draws are random already, and neighbours share an image. A grid of
     patches is shuffled with a DistributedSampler (which pads the last round with repeated
     items so that every process takes the same number of steps). The validation loader
@@ -188,7 +189,7 @@ def _without_dropped_handovers(previous: Callable[..., Any]) -> Callable[..., An
 def binary_if_one_class(spec: ModelSpec, pixels: dict[str, np.ndarray], names: Iterable[str], d: Dist,
                         where: str) -> ModelSpec:
     """``spec`` with unlabeled as background when the labels of samples ``names`` hold one class
-    besides it (:func:`training.model.unlabeled_as_background`); rank 0 logs the warning."""
+    besides it (:func:`training.models.networks.unlabeled_as_background`); rank 0 logs the warning."""
     total = np.zeros(spec.num_classes, dtype=np.int64)
     for name in names:
         total += pixels[name]
@@ -225,7 +226,7 @@ def prepare_splits(config: TrainConfig, files: list[SampleFiles], d: Dist,
     With ``pixels`` (per sample, by the classes of ``spec``) the draw whose validation class
     mix is closest to training's is kept, the class shares are recorded in ``splits.json``,
     and a validation that still cannot represent the training classes is reported
-    (:func:`training.splits.choose_splits`)."""
+    (:func:`training.datasets.splits.choose_splits`)."""
     path = config.out_dir / "splits.json"
     if path.exists():
         return read_splits(path)

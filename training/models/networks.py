@@ -10,7 +10,7 @@ the mirrored convolutions.  As in the authors' Caffe model, the last decoder sta
 softmax is the per-pixel classifier.  At width 1.0 the network has about 29.4 M parameters,
 the paper's 29.5 M.
 
-``segnet-skip`` (:data:`~training.spec.ARCHS`) is the same network whose decoder also adds, to
+``segnet-skip`` (:data:`~training.models.spec.ARCHS`) is the same network whose decoder also adds, to
 each unpooled input, the features the encoder stage had before pooling them (LinkNet's
 additive skips, Chaurasia and Culurciello 2017): no weights are added, so checkpoints and
 encoder weights load alike, but the decoder no longer has to rebuild every pixel's detail from
@@ -49,9 +49,8 @@ from torch import Tensor, nn
 
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from training.config import PRESET_NAMES
-from training.lite0 import UNetLite0
-from training.spec import ARCHS, IMAGENET_MEAN, IMAGENET_STD, ModelSpec
+from training.models.lite0 import UNetLite0
+from training.models.spec import ARCHS, IMAGENET_MEAN, IMAGENET_STD, PRESET_NAMES, ModelSpec
 
 logger = logging.getLogger(__name__)
 
@@ -189,7 +188,7 @@ class SegNet(nn.Module):
         return cast("Tensor", self.classifier(x))
 
 
-#: A network osmseg builds: SegNet (``segnet``, ``segnet-skip``) or :class:`~training.lite0.UNetLite0`.
+#: A network osmseg builds: SegNet (``segnet``, ``segnet-skip``) or :class:`~training.models.lite0.UNetLite0`.
 Network = SegNet | UNetLite0
 
 

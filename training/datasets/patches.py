@@ -13,7 +13,7 @@ Patches
     (100 px top and bottom, 160 px left and right) rather than all lost on one side.
 
 Splits
-    By area, never by patch or image: see :mod:`training.splits`.
+    By area, never by patch or image: see :mod:`training.datasets.splits`.
 
 Loading speed
     Decoding a 1280x1280 PNG takes ~50 ms, six times the label's decode and much more than
@@ -27,6 +27,7 @@ Loading speed
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import warnings
 from collections import OrderedDict
@@ -47,7 +48,7 @@ from osmseg.grid import ground_pixel_size
 from osmseg.images import image_size, is_tiff, read_label, read_rgb
 from osmseg.output.manifest import manifest_path, read_manifest
 from osmseg.units import plural
-from training.augment import OVERHEAD, AugmentConfig, Draw, draw, item_rng, jitter, orient
+from training.datasets.augment import OVERHEAD, AugmentConfig, Draw, draw, item_rng, jitter, orient
 
 logger = logging.getLogger(__name__)
 
@@ -326,8 +327,8 @@ class PatchDataset(Dataset[tuple[torch.Tensor, torch.Tensor]]):
 
     ``boxes_or_patch_size``: a patch size ``(H, W)`` (the grid of :func:`patch_boxes` of each
     image), a list of ``(top, left, H, W)`` boxes used in every image, or None for one item
-    per whole image. ``augment``: False, True (:data:`~training.augment.OVERHEAD`) or an
-    :class:`~training.augment.AugmentConfig`; the draws depend only on (``seed``, epoch,
+    per whole image. ``augment``: False, True (:data:`~training.datasets.augment.OVERHEAD`) or an
+    :class:`~training.datasets.augment.AugmentConfig`; the draws depend only on (``seed``, epoch,
     index), so call :meth:`set_epoch` before each epoch. ``num_classes``: when given, each
     label is checked (ids < num_classes) the first time it is decoded. ``label_lut``: a
     lookup array applied to label ids after that check (e.g. ``classes6.lookup_from_base()``
@@ -436,3 +437,9 @@ class PatchDataset(Dataset[tuple[torch.Tensor, torch.Tensor]]):
             for fi, (top, left, height, width) in self.items:
                 yield self.load(fi)[1][top:top + height, left:left + width]
         return median_frequency_weights(masks(), num_classes, self.ignore_index)
+
+
+def dataset_fingerprint(root: Path) -> str | None:
+    """sha256 of the dataset's manifest.json (recorded in checkpoints), None without one."""
+    manifest = root / "manifest.json"
+    return hashlib.sha256(manifest.read_bytes()).hexdigest() if manifest.is_file() else None

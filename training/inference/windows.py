@@ -24,7 +24,7 @@ windows, rotated ones) after undoing each transform.  When the checkpoint ignore
 training (``spec.ignore_index``, normally 0 = unlabeled) that class is never predicted: its
 logit was never trained.
 
-Big rasters are processed in blocks (:meth:`training.tiling.WindowGrid.blocks`): each block
+Big rasters are processed in blocks (:meth:`training.inference.tiling.WindowGrid.blocks`): each block
 reads its windows plus halo through a rasterio window and writes its part of a tiled
 GeoTIFF, so memory is bounded by the block (about ``num_classes * block_size**2 * 4`` bytes
 for blending) whatever the raster's size, and the result equals whole-image processing.
@@ -50,11 +50,11 @@ from rasterio.windows import Window
 from osmseg.errors import ConfigError, ImageryError
 from osmseg.images import PixelRule, as_rgb, pixel_rule
 from osmseg.runtime.progress import Progress, report
-from training.distributed import pick_device
-from training.tiling import Box, WindowGrid, blend_weight, letterbox, nearest_index, pixel_blocks
+from training.devices import pick_device
+from training.inference.tiling import Box, WindowGrid, blend_weight, letterbox, nearest_index, pixel_blocks
 
 if TYPE_CHECKING:
-    from training.spec import ModelSpec
+    from training.models.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ of the ``efficientnet_pytorch`` project (``_conv_stem``, ``_blocks.N``, ``_conv_
   SegNet's so fine-tuning with another class table replaces it alike) gives the logits. Any
   input size works: each step is resized to its skip's exact size.
 * **Input**: RGB normalised with ImageNet's mean and standard deviation, the weights' own
-  (:data:`training.spec.IMAGENET_MEAN`, the default of every osmseg model).
+  (:data:`training.models.spec.IMAGENET_MEAN`, the default of every osmseg model).
 
 Imports: osmseg core (errors, output.atomic), torch and timm.
 """

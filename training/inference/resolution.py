@@ -30,7 +30,7 @@ from osmseg.grid import ground_pixel_size, resolution_mismatch
 from osmseg.output.manifest import manifest_path, read_manifest
 
 if TYPE_CHECKING:
-    from training.spec import ModelSpec
+    from training.models.spec import ModelSpec
 
 logger = logging.getLogger(__name__)
 

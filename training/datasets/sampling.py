@@ -5,7 +5,7 @@ sample), so a run over 2 samples sees the same 12 views, augmented by flips and 
 ``osmseg`` recipe draws crops anywhere instead (:class:`RandomCrops`), which on small data is
 what makes more steps worth taking (``docs/training.md`` has the measurements).
 
-Every draw of item ``index`` in epoch ``epoch`` comes from :func:`training.augment.item_rng`
+Every draw of item ``index`` in epoch ``epoch`` comes from :func:`training.datasets.augment.item_rng`
 (``seed``, ``epoch``, ``index``): which image (in proportion to its pixels), which of the
 square's symmetries, where the crop lies. So a resumed run, any number of loader workers and
 any order of loading give the same crops. Consecutive indices share an image
@@ -32,8 +32,8 @@ import numpy as np
 import torch
 
 from osmseg.errors import DatasetError
-from training.augment import draw, item_rng, orient, zoom_out
-from training.data import PatchDataset, SampleFiles
+from training.datasets.augment import draw, item_rng, orient, zoom_out
+from training.datasets.patches import PatchDataset, SampleFiles
 
 #: crops drawn from one image before the next is chosen (a batch of 16 decodes 4 images)
 CROPS_PER_IMAGE = 4
@@ -42,7 +42,7 @@ CROPS_PER_IMAGE = 4
 class RandomCrops(PatchDataset):
     """``length`` random ``crop`` x ``crop`` training pairs of ``files`` (see the module docstring).
 
-    Keyword arguments are :class:`~training.data.PatchDataset`'s (normalisation, augmentation,
+    Keyword arguments are :class:`~training.datasets.patches.PatchDataset`'s (normalisation, augmentation,
     seed, label checks and mapping, decoded-image cache).
     """
 
