@@ -70,8 +70,8 @@ ROOT = Path(__file__).resolve().parents[1]
 R = TypeVar("R")
 sys.path.insert(0, str(ROOT))
 
-from osmseg.build.config import BuildConfig, available_cores  # noqa: E402
-from osmseg.build.slots import attempt_grid  # noqa: E402
+from osmseg.builder.config import BuildConfig, available_cores  # noqa: E402
+from osmseg.builder.slots import attempt_grid  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 from osmseg.grid import pad_bbox  # noqa: E402
 from osmseg.imagery.remap import source_pixels, warp_bilinear  # noqa: E402

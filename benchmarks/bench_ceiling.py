@@ -2,7 +2,7 @@
 ``localize-bench`` run, each set beside the best score near the truth.
 
 Run: ``.venv/bin/python benchmarks/bench_ceiling.py BENCH_DIR MASK [--resolution M] [--right 25]
-[--json PATH]``, where BENCH_DIR is the ``--out`` of ``osmseg localize-bench MASK --method profile
+[--json PATH]``, where BENCH_DIR is the ``--out`` of ``osmseg localize-bench MASK --methods profile
 --save-panoramas N ...`` (N at least its ``--viewpoints``).
 
 Each saved view is localized again with the run's settings, and the place within ``--right``
@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("bench", type=Path, help="a localize-bench --out folder (--method profile, --save-panoramas)")
     ap.add_argument("mask", type=Path, help="the mask file the bench localized in")
-    ap.add_argument("--table", default="classes13.toml", help="its class table (as localize-bench's --table)")
+    ap.add_argument("--table", default="classes13.toml", help="its class table (as localize-bench's --classes)")
     ap.add_argument("--resolution", type=float, help="its m/px [the bench's]")
     ap.add_argument("--right", type=float, default=25.0, help="an answer within this many metres is right")
     ap.add_argument("--json", type=Path, help="also write every figure here")

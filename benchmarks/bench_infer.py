@@ -21,10 +21,10 @@ skipped when ``../shared/data`` is absent). Every figure is measured in this run
   are not traced); ``RSS peak`` is the process's high-water mark during the call (VmHWM, reset
   before it after handing freed heap back to the OS).
 
-1280x1280: :func:`training.infer.predict_array` with the CPU config's width 0.125 in all
+1280x1280: :func:`training.inference.windows.predict_array` with the CPU config's width 0.125 in all
 modes, and the paper's width 1.0 in rescale mode (one window); its split-join (20 windows,
 seconds each on a CPU) only with ``--full-split-join``. 2048x2048: the GeoTIFF path,
-:func:`training.predict.predict_file` GeoTIFF -> GeoTIFF mask, whole raster in one block in all
+:func:`training.inference.predict.predict_file` GeoTIFF -> GeoTIFF mask, whole raster in one block in all
 modes, then blend block by block (``--block-size``, default 1280: four blocks): the two blend
 runs each in a fresh process, so that their RSS peaks (and rises over the process with the
 model loaded) compare without one run's leftovers in the other's. Models have random
@@ -57,11 +57,11 @@ from PIL import Image
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from training.infer import DEFAULT_OVERLAP_FRACTION, predict_array  # noqa: E402
-from training.model import Network, build_model, model_spec  # noqa: E402
-from training.predict import predict_file  # noqa: E402
-from training.spec import ModelSpec  # noqa: E402
-from training.tiling import WindowGrid  # noqa: E402
+from training.inference.predict import predict_file  # noqa: E402
+from training.inference.tiling import WindowGrid  # noqa: E402
+from training.inference.windows import DEFAULT_OVERLAP_FRACTION, predict_array  # noqa: E402
+from training.models.networks import Network, build_model, model_spec  # noqa: E402
+from training.models.spec import ModelSpec  # noqa: E402
 
 MANILA = ROOT.parent / "shared" / "data" / "oam-rgb" / "manila.tif"
 SIZE = (360, 480)
@@ -285,7 +285,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         if args.image is None:
-            from osmseg.build.builder import build
+            from osmseg.builder.run import build
             from osmseg.demo import demo_config
 
             build(demo_config(work / "demo"), env=dict(os.environ, BING_MAPS_KEY="demo-key-not-secret"))

@@ -81,8 +81,8 @@ from kampala import BUILDING, UNLABELED, build_kampala  # noqa: E402
 from pixel_baseline import Fitted, back_to_grid, building_scores, fit_baseline, resample  # noqa: E402
 
 from osmseg.grid import ground_pixel_size  # noqa: E402
-from training.data import PATCH_SIZE, dataset_resolution, discover_camvid, patch_boxes  # noqa: E402
-from training.recipe import recipe_named  # noqa: E402
+from training.datasets.patches import PATCH_SIZE, dataset_resolution, discover_camvid, patch_boxes  # noqa: E402
+from training.run.recipe import recipe_named  # noqa: E402
 
 #: the networks side by side: SegNet with skips and its recipe (random weights), the
 #: dissertation's SegNet and recipe, and unet-lite0 from its ImageNet weights (its own recipe)

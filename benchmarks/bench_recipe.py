@@ -7,12 +7,12 @@ offline ``osmseg demo`` dataset (4 rendered 1280x1280 samples of central Helsink
 1 validation, 1 test) into a temporary folder. Rerun with the same ``--out`` after a stop: the
 variants that finished are read back, the one cut short resumes where its trainer stopped.
 
-For each variant: :func:`training.train.run` with the ``osmseg`` recipe changed in one setting
+For each variant: :func:`training.run.train.run` with the ``osmseg`` recipe changed in one setting
 (or the ``paper`` recipe), width 0.125 on the CPU, for the same number of training pixels:
 ``--steps`` of the default recipe (16 crops of 128x128 a step), as many steps of a variant as
 see the same pixels (4 patches of 360x480 are 2.6 times as many a step: 2.6 times fewer
 steps), so that every run does about the same arithmetic; the grid sampling has its own
-batches per epoch, so its epochs are chosen to give that many steps. Then :func:`training.evaluate.run_eval` of the *last*
+batches per epoch, so its epochs are chosen to give that many steps. Then :func:`training.evaluation.evaluate.run_eval` of the *last*
 checkpoint (not ``best.pt``: a choice among epochs on one validation image would add noise) on
 the test split. Columns:
 
@@ -50,10 +50,16 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from training.config import make_config  # noqa: E402
-from training.data import dataset_class_table, discover_dataset, files_by_name, validate, weights_from_histograms  # noqa: E402
-from training.evaluate import EvalOptions, run_eval  # noqa: E402
-from training.train import run  # noqa: E402
+from training.datasets.patches import (  # noqa: E402
+    dataset_class_table,
+    discover_dataset,
+    files_by_name,
+    validate,
+    weights_from_histograms,
+)
+from training.evaluation.evaluate import EvalOptions, run_eval  # noqa: E402
+from training.run.config import make_config  # noqa: E402
+from training.run.train import run  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -84,7 +90,7 @@ VARIANTS = (
 
 def demo_dataset(folder: Path) -> Path:
     """The ``osmseg demo`` dataset, built offline from its recorded fixtures."""
-    from osmseg.build.builder import build
+    from osmseg.builder.run import build
     from osmseg.demo import demo_config
 
     out = folder / "dataset"
@@ -94,7 +100,7 @@ def demo_dataset(folder: Path) -> Path:
 
 def steps_per_epoch_of(run_dir: Path) -> int:
     """Optimiser steps per epoch of a finished run, from its checkpoint's scheduler."""
-    from training.checkpoint import load_checkpoint
+    from training.models.checkpoint import load_checkpoint
 
     last = load_checkpoint(run_dir / "last.pt")
     return int(last["scheduler"]["last_epoch"]) // int(last["epoch"])
@@ -106,7 +112,7 @@ def batch_stat_accuracy(checkpoint: Path, dataset: Path) -> float:
     from torchvision.transforms.v2 import functional as F
 
     from osmseg.images import read_label, read_rgb
-    from training.checkpoint import load_checkpoint, model_from_checkpoint
+    from training.models.checkpoint import load_checkpoint, model_from_checkpoint
 
     model, spec = model_from_checkpoint(checkpoint, device="cpu")
     model.train()
@@ -145,7 +151,7 @@ def train_variant(variant: Variant, dataset: Path, out: Path, default_steps: int
     steps = max(1, round(default_steps * pixels_per_step(default) / pixels_per_step(probe)))
     per_epoch = 50 if steps >= 100 else max(1, steps // 4)
     if probe.settings.sampling == "grid":  # the grid's batches per epoch
-        from training.data import PatchDataset
+        from training.datasets.patches import PatchDataset
 
         files, _ = discover_dataset(dataset)
         split = json.loads((out / "splits.json").read_text())["splits"]["train"]

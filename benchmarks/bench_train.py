@@ -4,8 +4,8 @@ Run: ``.venv/bin/python benchmarks/bench_train.py [--dataset DIR] [--steps 4] [-
 (prints, asserts nothing; builds the offline ``osmseg demo`` dataset in a temporary folder
 unless ``--dataset`` names one). Every figure is measured in this run, beside a bare baseline:
 
-* loop: :func:`training.engine.train_one_epoch` through the trainer's own parts
-  (:func:`training.train.seeded_loader` over the recipe's augmented training set — random
+* loop: :func:`training.run.engine.train_one_epoch` through the trainer's own parts
+  (:func:`training.run.train.seeded_loader` over the recipe's augmented training set — random
   crops for the ``osmseg`` recipe, the grid of 360x480 patches for ``paper`` — its loss (class
   weights where the recipe has them), optimiser and schedule, GradScaler), timed over ``steps``
   batches after one warm-up batch (which also pays for starting the loader workers);
@@ -47,15 +47,15 @@ from torch import nn
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from training.config import TrainConfig  # noqa: E402
-from training.data import PatchDataset, dataset_class_table, discover, validate, weights_from_histograms  # noqa: E402
-from training.distributed import Dist  # noqa: E402
-from training.engine import StepOptions, train_one_epoch  # noqa: E402
-from training.fitting import SegmentationLoss, make_optimizer, make_scheduler, weight_average  # noqa: E402
-from training.model import build_model, model_spec  # noqa: E402
-from training.runclasses import model_classes  # noqa: E402
-from training.sampling import RandomCrops  # noqa: E402
-from training.train import seeded_loader  # noqa: E402
+from training.datasets.classes import model_classes  # noqa: E402
+from training.datasets.patches import PatchDataset, dataset_class_table, discover, validate, weights_from_histograms  # noqa: E402
+from training.datasets.sampling import RandomCrops  # noqa: E402
+from training.devices import Dist  # noqa: E402
+from training.models.networks import build_model, model_spec  # noqa: E402
+from training.run.config import TrainConfig  # noqa: E402
+from training.run.engine import StepOptions, train_one_epoch  # noqa: E402
+from training.run.fitting import SegmentationLoss, make_optimizer, make_scheduler, weight_average  # noqa: E402
+from training.run.train import seeded_loader  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -119,7 +119,7 @@ def worker_peak_rss_mb() -> float:
 # ------------------------------------------------------------------------------- data
 def demo_dataset(folder: Path) -> Path:
     """The 4-sample 1280x1280 ``osmseg demo`` dataset, built offline from its recorded fixtures."""
-    from osmseg.build.builder import build
+    from osmseg.builder.run import build
     from osmseg.demo import demo_config
 
     out = folder / "dataset"

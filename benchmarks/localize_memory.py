@@ -27,8 +27,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OSM = ROOT.parent / "shared" / "data" / "helsinki-osm" / "kotka.osm.pbf"
 OSMSEG = [sys.executable, "-m", "osmseg"]
-TABLES = ["--aerial-classes", "aerial13", "--aerial-table", "classes13.toml",
-          "--ground-classes", "aerial13", "--ground-table", "classes13.toml"]
+TABLES = ["--aerial-landmarks", "aerial13", "--aerial-table", "classes13.toml",
+          "--ground-landmarks", "aerial13", "--ground-table", "classes13.toml"]
 
 
 def measured(cmd: list[str]) -> tuple[float, float]:
@@ -47,8 +47,8 @@ def measured(cmd: list[str]) -> tuple[float, float]:
 def query_of(mask: Path, resolution: str, work: Path) -> Path:
     """A rendered panorama of ``mask``'s first seeded viewpoint (class ids of the aerial table plus sky)."""
     bench = work / f"bench-{mask.stem}"
-    subprocess.run([*OSMSEG, "-q", "localize-bench", str(mask), "--out", str(bench), "--resolution", resolution,
-                    "--viewpoints", "1", "--method", "profile", "--no-negatives", "--no-plots",
+    subprocess.run([*OSMSEG, "-q", "localize-bench", str(mask), "--out", str(bench), "--aerial-resolution", resolution,
+                    "--viewpoints", "1", "--methods", "profile", "--no-negatives", "--no-plots",
                     "--save-panoramas", "1"], check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
     return next((bench / "panoramas").glob("0000_*.png"))  # class ids, sky included: a query mask as saved
 
@@ -79,7 +79,7 @@ def main() -> None:
         pixels = (256 * tiles) ** 2
         for method in ("profile", "paper"):
             mb, seconds = measured([*OSMSEG, "-q", "localize", "--ground", str(query), "--aerial", str(mask),
-                                    "--resolution", resolution, "--method", method, *TABLES,
+                                    "--aerial-resolution", resolution, "--method", method, *TABLES,
                                     "--out", str(work / f"loc-{tiles}-{method}")])
             print(f"{256 * tiles:>7} px² {method:>8} {mb:>6.0f} MB {mb - base_mb:>8.0f} MB "
                   f"{(mb - base_mb) * 2**20 / pixels:>9.1f} {seconds:>6.1f}s", flush=True)

@@ -51,7 +51,7 @@ def by_classes(results: dict[str, Any], kind: str) -> str:
 @figure_set("zoom", "cheap")
 def zoom(ws: Workspace) -> dict[str, Figure]:
     """ground pixel size and sample span at the default zoom (osmseg.grid.ground_resolution, the city presets)"""
-    from osmseg.build.builder import DEFAULT_ZOOM
+    from osmseg.builder.run import DEFAULT_ZOOM
     from osmseg.grid import ground_resolution, sample_grid
     from osmseg.places import find_preset
 
@@ -71,8 +71,8 @@ def zoom(ws: Workspace) -> dict[str, Figure]:
 
 @figure_set("model", "cheap", needs="torch")
 def model(ws: Workspace) -> dict[str, Figure]:
-    """parameters of AirSegNet13 at width 1.0 (training.model)"""
-    from training.model import build_model, model_spec
+    """parameters of AirSegNet13 at width 1.0 (training.models.networks)"""
+    from training.models.networks import build_model, model_spec
 
     net = build_model(model_spec("airsegnet13", 1.0))
     return {"model.parameters": F(count(sum(p.numel() for p in net.parameters())))}
@@ -104,12 +104,12 @@ def providers(ws: Workspace) -> dict[str, Figure]:
 
 
 #: the benchmark the README and docs/localization.md quote: both methods on 40 views of the demo masks
-DEMO40 = ("localize-bench", "demo/dataset", "--out", "bench/", "--viewpoints", "40", "--method", "paper,profile")
+DEMO40 = ("localize-bench", "demo/dataset", "--out", "bench/", "--viewpoints", "40", "--methods", "paper,profile")
 
 
 @figure_set("demo40", "cheap")
 def demo40(ws: Workspace) -> dict[str, Figure]:
-    """osmseg demo --no-train --no-localize, then localize-bench demo/dataset --viewpoints 40 --method paper,profile"""
+    """osmseg demo --no-train --no-localize, then localize-bench demo/dataset --viewpoints 40 --methods paper,profile"""
     ws.demo_dataset()
     built, _ = ws.run(*DEMO_BUILD)
     printed, r = ws.bench(*DEMO40[1:])
@@ -173,10 +173,10 @@ NOISE = ("--confusion", "0.1", "--miss-prob", "0.2", "--offset", "2", "--height-
 #: the rows of docs/localization.md's "Methods side by side": (label, options added to DEMO40)
 SETTINGS = (
     ("panoramas, heading known (default)", ()),
-    ("`--heading unknown`", ("--heading", "unknown")),
+    ("`--view-heading unknown`", ("--view-heading", "unknown")),
     ("noise: `" + " ".join(NOISE) + "`", NOISE),
-    ("the same noise, `--heading unknown`", (*NOISE, "--heading", "unknown")),
-    ("90° photos, `--fov 90 --heading unknown`", ("--fov", "90", "--heading", "unknown")),
+    ("the same noise, `--view-heading unknown`", (*NOISE, "--view-heading", "unknown")),
+    ("90° photos, `--fov 90 --view-heading unknown`", ("--fov", "90", "--view-heading", "unknown")),
 )
 #: the profile method's default "not in this image" kappa threshold for an aerial mask (localization.profile.search)
 MASK_THRESHOLD = 0.6
@@ -184,7 +184,7 @@ MASK_THRESHOLD = 0.6
 
 @figure_set("settings", "expensive")
 def settings(ws: Workspace) -> dict[str, Figure]:
-    """localize-bench demo/dataset --viewpoints 40 --method paper,profile under five settings; the profile weights off"""
+    """localize-bench demo/dataset --viewpoints 40 --methods paper,profile under five settings; the profile weights off"""
     ws.demo_dataset()
     rows, runs = [], []
     for i, (label, extra) in enumerate(SETTINGS):
@@ -239,19 +239,19 @@ def profile_weights(ws: Workspace) -> dict[tuple[str, str], float]:
 #: the rows of the perfect-correspondence table: (aerial landmarks, view range, options)
 VISIBLE = (
     ("centroid", "100 m", ()),
-    ("grid, stride 50", "100 m", ("--mode", "grid", "--grid-stride", "50")),
-    ("grid, stride 50", "40 m", ("--mode", "grid", "--grid-stride", "50", "--max-range", "40")),
-    ("component", "100 m", ("--mode", "component")),
+    ("grid, stride 50", "100 m", ("--landmark-mode", "grid", "--grid-stride", "50")),
+    ("grid, stride 50", "40 m", ("--landmark-mode", "grid", "--grid-stride", "50", "--max-range", "40")),
+    ("component", "100 m", ("--landmark-mode", "component")),
 )
 
 
 @figure_set("visible", "expensive")
 def visible(ws: Workspace) -> dict[str, Figure]:
-    """localize-bench demo/dataset --viewpoints 40 --method paper --query-landmarks visible --no-subsets, four landmark modes"""
+    """localize-bench demo/dataset --viewpoints 40 --methods paper --query-landmarks visible --no-subsets, four landmark modes"""
     ws.demo_dataset()
     rows, factors = [], []
     for i, (landmarks, reach, extra) in enumerate(VISIBLE):
-        _, r = ws.bench("demo/dataset", "--out", f"visible-{i}/", "--viewpoints", "40", "--method", "paper",
+        _, r = ws.bench("demo/dataset", "--out", f"visible-{i}/", "--viewpoints", "40", "--methods", "paper",
                         "--query-landmarks", "visible", "--no-subsets", *extra)
         s, b = r["summary"], r["baselines"]
         rows.append([landmarks, reach, metres(s["median_error"]), ratio(s["recall_at"]["25"]),
@@ -270,8 +270,8 @@ import figure_sets_heldout  # noqa: E402,F401  (registers the held-out training 
 
 @figure_set("recipes", "cheap", needs="torch")
 def recipes(ws: Workspace) -> dict[str, Figure]:
-    """the settings of the shipped training recipes (training.recipe.RECIPES)"""
-    from training.recipe import MIN_STEPS_PER_EPOCH, RECIPES
+    """the settings of the shipped training recipes (training.run.recipe.RECIPES)"""
+    from training.run.recipe import MIN_STEPS_PER_EPOCH, RECIPES
 
     def shown(name: str, value: Any) -> str:
         if name == "steps_per_epoch" and value is None:

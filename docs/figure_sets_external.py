@@ -30,11 +30,11 @@ def pairs_run(ws: Workspace, out: str, *extra: str) -> tuple[tuple[str, ...], st
 @figure_set("pairs", "expensive", needs="pairs")
 def pairs(ws: Workspace) -> dict[str, Figure]:
     """localize-pairs on the authors' 15 annotated CVUSA pairs: both methods, heading known and unknown, their conventions"""
-    paper_args, printed, paper = pairs_run(ws, "pairs/", "--method", "paper")
-    _, _, known = pairs_run(ws, "pairs-known/", "--resolution", "0.25", "--method", "paper,profile")
-    _, _, unknown = pairs_run(ws, "pairs-unknown/", "--resolution", "0.25", "--method", "paper,profile",
-                              "--heading", "unknown")
-    _, _, authors = pairs_run(ws, "pairs-authors/", "--method", "paper", "--conventions", "authors")
+    paper_args, printed, paper = pairs_run(ws, "pairs/", "--methods", "paper")
+    _, _, known = pairs_run(ws, "pairs-known/", "--aerial-resolution", "0.25", "--methods", "paper,profile")
+    _, _, unknown = pairs_run(ws, "pairs-unknown/", "--aerial-resolution", "0.25", "--methods", "paper,profile",
+                              "--view-heading", "unknown")
+    _, _, authors = pairs_run(ws, "pairs-authors/", "--methods", "paper", "--conventions", "authors")
     n = len(paper["viewpoints"])
     s, b = paper["summary"], paper["baselines"]
     rows = []
@@ -241,10 +241,10 @@ def build_speed(ws: Workspace) -> dict[str, Figure]:
 
 @figure_set("contrast", "cheap", needs="shared data")
 def contrast(ws: Workspace) -> dict[str, Figure]:
-    """grey-level standard deviation of the real aerial images in ../shared/data (osmseg.build.filters.grey_std)"""
+    """grey-level standard deviation of the real aerial images in ../shared/data (osmseg.builder.filters.grey_std)"""
     import rasterio
 
-    from osmseg.build.filters import FilterConfig, grey_std
+    from osmseg.builder.filters import FilterConfig, grey_std
 
     def stds(path: Path, side: int = 1280, step: int = 256) -> list[float]:
         with rasterio.open(path) as src:
@@ -357,11 +357,11 @@ KOTKA = ("helsinki-osm", "kotka.osm.pbf")
 #: the rows of docs/localization.md's two-renderer table: (label, localize-bench options)
 QUERY_KINDS = (
     ("panoramas, heading known", ()),
-    ("panoramas, `--heading unknown`", ("--heading", "unknown")),
-    ("90° photos, `--fov 90 --heading unknown`", ("--fov", "90", "--heading", "unknown")),
-    ("60° photos, `--fov 60 --heading unknown`", ("--fov", "60", "--heading", "unknown")),
-    ("noise `--confusion 0.1 --miss-prob 0.2 --offset 2`, `--heading unknown`",
-     ("--confusion", "0.1", "--miss-prob", "0.2", "--offset", "2", "--heading", "unknown")),
+    ("panoramas, `--view-heading unknown`", ("--view-heading", "unknown")),
+    ("90° photos, `--fov 90 --view-heading unknown`", ("--fov", "90", "--view-heading", "unknown")),
+    ("60° photos, `--fov 60 --view-heading unknown`", ("--fov", "60", "--view-heading", "unknown")),
+    ("noise `--confusion 0.1 --miss-prob 0.2 --offset 2`, `--view-heading unknown`",
+     ("--confusion", "0.1", "--miss-prob", "0.2", "--offset", "2", "--view-heading", "unknown")),
 )
 
 
@@ -375,8 +375,8 @@ def renderers(ws: Workspace) -> dict[str, Figure]:
     for i, (label, extra) in enumerate(QUERY_KINDS):
         for renderer in ("mask", "geometry"):
             more = ("--renderer", "geometry", "--osm", osm) if renderer == "geometry" else ()
-            _, r = ws.bench("kotka.tif", "--out", f"kotka-{renderer}-{i}/", "--resolution", res.strip(),
-                            "--viewpoints", "40", "--method", "profile", "--no-negatives", *more, *extra)
+            _, r = ws.bench("kotka.tif", "--out", f"kotka-{renderer}-{i}/", "--aerial-resolution", res.strip(),
+                            "--viewpoints", "40", "--methods", "profile", "--no-negatives", *more, *extra)
             m = r["methods"]["profile"]
             pooled[renderer] += [v["methods"]["profile"] for v in r["viewpoints"]]
             rows.append([label if renderer == "mask" else "", renderer, metres(m["median_error"]),
@@ -417,7 +417,7 @@ def ceiling(ws: Workspace) -> dict[str, Figure]:
         for renderer in ("mask", "geometry"):
             more = ("--renderer", "geometry", "--osm", osm) if renderer == "geometry" else ()
             out = f"ceiling-{renderer}-{i}"
-            ws.bench("kotka.tif", "--out", f"{out}/", "--resolution", res.strip(), "--viewpoints", "40", "--method",
+            ws.bench("kotka.tif", "--out", f"{out}/", "--aerial-resolution", res.strip(), "--viewpoints", "40", "--methods",
                      "profile", "--no-negatives", "--save-panoramas", "40", *more, *extra)
             c = benchmark(ws, "bench_ceiling.py", str(ws.root / out), str(ws.root / "kotka.tif"), "--right", f"{right:g}")
             found[(i, renderer)] = c

@@ -2,6 +2,7 @@
 
     python docs/import_graph.py            # this checkout
     git worktree add /tmp/old <commit> && python docs/import_graph.py /tmp/old   # another one
+    python docs/import_graph.py --png docs/img/architecture.png   # and draw it (docs/architecture.md)
 
 Imports between the three packages and between the wings (sub-packages) of each, import
 cycles, and per package: modules, import floors (the longest chain of imports inside it),
@@ -102,10 +103,11 @@ def _is_package_of(package: str, module: str) -> bool:
 
 
 def source_figures(root: Path, package: str) -> dict[str, object]:
-    """Counted from the source text: ``Any``, private names imported from another module, the longest function."""
+    """Counted from the source text: ``Any``, private names imported from another module, the longest
+    function, and the function with the most parameters."""
     any_count = dict_any = 0
     private: list[str] = []
-    longest = (0, "")
+    longest = widest = (0, "")
     for path in sorted((root / package).rglob("*.py")):
         text = path.read_text()
         any_count += len(re.findall(r"\bAny\b", text)) - len(re.findall(r"^from typing import.*\bAny\b", text, re.M))
@@ -121,7 +123,12 @@ def source_figures(root: Path, package: str) -> dict[str, object]:
                 n = (node.end_lineno or node.lineno) - node.lineno + 1
                 if n > longest[0]:
                     longest = (n, f"{path.relative_to(root)}:{node.lineno} {node.name}")
-    return {"any": any_count, "dict_any": dict_any, "private": private, "longest": longest}
+                a = node.args
+                width = len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs) - (a.args[:1] != [] and
+                                                                               a.args[0].arg in ("self", "cls"))
+                if width > widest[0]:
+                    widest = (width, f"{path.relative_to(root)}:{node.lineno} {node.name}")
+    return {"any": any_count, "dict_any": dict_any, "private": private, "longest": longest, "widest": widest}
 
 
 def wings(graph: grimp.ImportGraph, package: str) -> collections.Counter[tuple[str, str]]:
@@ -151,7 +158,65 @@ def wings(graph: grimp.ImportGraph, package: str) -> collections.Counter[tuple[s
     return edges
 
 
-def main(root: Path) -> None:
+def picture(graph: grimp.ImportGraph, path: Path) -> None:
+    """The layers as rows (core at the bottom), each package's wings as boxes with their module
+    counts, and a line per pair of wings that import each other, as thick as the importing modules
+    are many: what docs/architecture.md shows."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    where: dict[tuple[str, str], tuple[float, float]] = {}
+    sizes: collections.Counter[tuple[str, str]] = collections.Counter()
+    for module in graph.modules:
+        package = module.split(".")[0]
+        sizes[(package, wing_of(graph, package, module))] += 1
+    fig, ax = plt.subplots(figsize=(13, 7.5))
+    colours = {"osmseg": "#4c72b0", "training": "#dd8452", "localization": "#55a868"}
+    for row, package in enumerate(PACKAGES):
+        names = sorted(w for p, w in sizes if p == package)
+        for i, name in enumerate(names):
+            x = (i + 0.5) / len(names)
+            where[(package, name)] = (x, row)
+            ax.text(x, row, f"{name}\n{sizes[(package, name)]} modules", ha="center", va="center", fontsize=9,
+                    bbox={"boxstyle": "round", "fc": colours[package], "alpha": 0.25, "ec": colours[package]})
+        ax.text(-0.07, row, package, ha="right", va="center", fontsize=12, weight="bold", color=colours[package])
+    edges: collections.Counter[tuple[tuple[str, str], tuple[str, str]]] = collections.Counter()
+    for module in graph.modules:
+        a = (module.split(".")[0], wing_of(graph, module.split(".")[0], module))
+        for imported in graph.find_modules_directly_imported_by(module):
+            b = (imported.split(".")[0], wing_of(graph, imported.split(".")[0], imported))
+            if a != b:
+                edges[(a, b)] += 1
+    for (a, b), n in edges.items():
+        (x0, y0), (x1, y1) = where[a], where[b]
+        ax.annotate("", xy=(x1, y1 + (0.12 if y1 < y0 else -0.12 if y1 > y0 else 0)), xytext=(x0, y0),
+                    arrowprops={"arrowstyle": "->", "lw": 0.4 + 0.25 * n ** 0.5, "alpha": 0.35,
+                                "color": "#b00" if PACKAGES.index(b[0]) > PACKAGES.index(a[0]) else "#444",
+                                "connectionstyle": "arc3,rad=0.15" if y0 == y1 else "arc3,rad=0.0"})
+    ax.set_xlim(-0.25, 1.02)
+    ax.set_ylim(-0.6, len(PACKAGES) - 0.4)
+    ax.axis("off")
+    ax.set_title("osmseg's packages as layers (bottom: the core) and their wings; an arrow from the importer to "
+                 "what it imports,\nthicker for more importing modules (a red arrow would import upward: there is "
+                 "none). Drawn by docs/import_graph.py --png", fontsize=10)
+    fig.savefig(path, dpi=90, bbox_inches="tight")
+    plt.close(fig)
+
+
+def wing_of(graph: grimp.ImportGraph, package: str, module: str) -> str:
+    """The wing of ``module`` in ``package``: its sub-package, ``(rooms)`` for the top-level modules
+    of a package with more than a few, the module itself otherwise (as :func:`wings` groups them)."""
+    top = {m.split(".")[1] for m in graph.modules if m.startswith(package + ".")}
+    packages = {name for name in top if any(m.startswith(f"{package}.{name}.") for m in graph.modules)}
+    if module == package:
+        return "(rooms)" if len(top - packages) > 5 else "__init__"
+    name = module.split(".")[1]
+    return "(rooms)" if len(top - packages) > 5 and name not in packages else name
+
+
+def main(root: Path, png: Path | None = None) -> None:
     sys.path.insert(0, str(root))
     graph = grimp.build_graph(*PACKAGES, cache_dir=None)
     edges: collections.Counter[tuple[str, str]] = collections.Counter()
@@ -175,9 +240,11 @@ def main(root: Path) -> None:
         private = cast("list[str]", figures["private"])
         across = [line for line in private if _wing(line.split(" <- ")[0]) != _wing(line.split(" <- ")[1])]
         lines, where = cast("tuple[int, str]", figures["longest"])
+        params, wide = cast("tuple[int, str]", figures["widest"])
         print(f"{package}: {len(modules)} modules on {floors(graph, package)} import floors; private names imported "
               f"from another module {len(private)} (from another wing {len(across)}); Any {figures['any']} "
-              f"(dict[str, Any] {figures['dict_any']}); longest function {lines} lines ({where})")
+              f"(dict[str, Any] {figures['dict_any']}); longest function {lines} lines ({where}); most parameters "
+              f"{params} ({wide})")
         for line in across:
             print(f"  private across wings: {line}")
         between = wings(graph, package)
@@ -185,6 +252,9 @@ def main(root: Path) -> None:
             print(f"  imports between {package}'s wings (importer -> imported: modules importing):")
             for (a, b), n in sorted(between.items()):
                 print(f"    {a:12} -> {b:12} {n:3}")
+    if png is not None:
+        picture(graph, png)
+        print(f"drew {png}")
 
 
 def _wing(name: str) -> str:
@@ -194,4 +264,10 @@ def _wing(name: str) -> str:
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1] if len(sys.argv) > 1 else Path(__file__).resolve().parent.parent).resolve())
+    args = sys.argv[1:]
+    drawn = None
+    if "--png" in args:
+        at = args.index("--png")
+        drawn = Path(args[at + 1]).resolve()
+        del args[at:at + 2]
+    main(Path(args[0] if args else Path(__file__).resolve().parent.parent).resolve(), drawn)

@@ -5,7 +5,7 @@ Class ids mean nothing without their table: id 3 is "grass" in ``classes13.toml`
 class's pixels as another's, with numbers that look fine. :func:`correspondence` says how two
 tables compare (the same ids, or through a mapped table such as ``classes6.toml``, whose ``base``
 is ``classes13.toml``), or refuses in one line naming both. ``osmseg train``, ``eval`` and
-``predict`` ask it (:mod:`training.runclasses`). Imports: osmseg.classes, osmseg.datafiles, osmseg.errors.
+``predict`` ask it (:mod:`training.datasets.classes`). Imports: osmseg.classes, osmseg.datafiles, osmseg.errors.
 
 >>> t13, t6 = load_class_table("classes13.toml"), load_class_table("classes6.toml")
 >>> same_classes(t13, t13), within(t6, t13)

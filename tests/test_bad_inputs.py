@@ -117,8 +117,8 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 
 def localize(scene: dict[str, Path], ground: str, *extra: str) -> Result:
-    return run("localize", "--aerial", str(scene["aerial"]), "--aerial-table", "classes13.toml", "--resolution", "0.3",
-               "--ground", str(scene[ground]), "--ground-classes", "aerial13", "--ground-table", str(scene["table"]),
+    return run("localize", "--aerial", str(scene["aerial"]), "--aerial-table", "classes13.toml", "--aerial-resolution", "0.3",
+               "--ground", str(scene[ground]), "--ground-landmarks", "aerial13", "--ground-table", str(scene["table"]),
                *extra)
 
 
@@ -150,10 +150,10 @@ def test_localize_bench_refuses_portrait_panoramas(tmp_path: Path, scene: dict[s
         (pairs / side).mkdir(parents=True)
         (pairs / side / "a.txt").write_text(text)
     result = run("localize-pairs", str(pairs), "--out", str(tmp_path / "out"), "--aerial-size", "750x750",
-                 "--ground-size", "224x1232", "--method", "paper")
+                 "--ground-size", "224x1232", "--methods", "paper")
     assert result.exit_code == 2 and "224x1232 pixels, which cannot be a 360° panorama" in error_line(result)
-    rendered = run("localize-bench", str(scene["aerial"]), "--resolution", "0.3", "--out", str(tmp_path / "r"),
-                   "-n", "1", "--width", "224", "--height", "1232")
+    rendered = run("localize-bench", str(scene["aerial"]), "--aerial-resolution", "0.3", "--out", str(tmp_path / "r"),
+                   "--viewpoints", "1", "--pano-width", "224", "--pano-height", "1232")
     assert rendered.exit_code == 2 and "cannot be a 360° panorama" in error_line(rendered)
 
 
@@ -312,8 +312,8 @@ def test_build_reads_16_bit_and_paletted_geotiffs_as_their_8_bit_colours(tmp_pat
 
 def test_predict_reads_16_bit_and_paletted_geotiffs_as_build_does(tmp_path: Path, imagery_tif: Path) -> None:
     torch = pytest.importorskip("torch")
-    from training.checkpoint import save_checkpoint
-    from training.model import build_model, model_spec
+    from training.models.checkpoint import save_checkpoint
+    from training.models.networks import build_model, model_spec
 
     tifs = variants(imagery_tif, tmp_path / "tifs", Window(900, 900, 200, 160))
     torch.manual_seed(0)  # an untrained network: any colour change changes its classes somewhere
@@ -339,7 +339,7 @@ def test_build_and_predict_see_the_same_colours_of_16_bit_and_paletted_rasters(t
     from osmseg.grid import sample_grid
     from osmseg.imagery.geotiff import GeoTiffProvider
     from osmseg.images import read_rgb
-    from training.infer import RasterSource
+    from training.inference.windows import RasterSource
 
     grid = sample_grid(LON, LAT, 18, size=1)  # a 256x256 raster on the sample's grid: the warp is the identity
     with rasterio.open(imagery_tif) as src:

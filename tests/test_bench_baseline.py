@@ -108,7 +108,7 @@ def tiles_of(path: Path) -> set[tuple[int, int]]:
 
 
 def test_kampala_splits_are_disjoint_west_and_east(kampala_dataset: tuple[Path, dict]) -> None:
-    from training.data import discover_camvid
+    from training.datasets.patches import discover_camvid
 
     root, _ = kampala_dataset
     splits = discover_camvid(root)  # as the trainer reads the folder
@@ -144,7 +144,7 @@ def test_the_ceiling_dataset_trains_on_the_test_mosaics_too(tmp_path: Path,
 
 def test_kampala_pixels_are_about_75_mm_on_the_ground(kampala_dataset: tuple[Path, dict]) -> None:
     from osmseg.grid import ground_pixel_size
-    from training.data import dataset_resolution, discover_camvid
+    from training.datasets.patches import dataset_resolution, discover_camvid
 
     root, _ = kampala_dataset
     for image in sorted(root.glob("*/*.tif")):

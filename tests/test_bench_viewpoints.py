@@ -61,7 +61,7 @@ def test_a_mask_without_standable_classes_says_so_and_names_stand_on(kampala: Pa
 
 
 def test_the_advice_works_and_a_margin_too_wide_is_said_in_metres(kampala: Path, tmp_path: Path) -> None:
-    ok = osmseg("-q", "localize-bench", kampala, "--viewpoints", 4, "--stand-on", "unlabeled", "--method", "profile",
+    ok = osmseg("-q", "localize-bench", kampala, "--viewpoints", 4, "--stand-on", "unlabeled", "--methods", "profile",
                 "--no-negatives", "--no-plots", "--out", tmp_path / "b")
     assert ok.exit_code == 0, ok.output
     # the samples are 768 px of 7.5 cm: 57 m; 30 m from every border leaves no room
@@ -70,6 +70,6 @@ def test_the_advice_works_and_a_margin_too_wide_is_said_in_metres(kampala: Path,
     assert "at least 30 m (" in line and "from the border of" in line
     assert "5 of the 40 viewpoints asked, spread over 8 masks" in line and "lower --margin" in line
     mask = kampala / "labels" / "bbox_00000.png"
-    line = error_line(osmseg("localize-bench", mask, "--resolution", 0.075, "--viewpoints", 1_000_000, "--stand-on",
+    line = error_line(osmseg("localize-bench", mask, "--aerial-resolution", 0.075, "--viewpoints", 1_000_000, "--stand-on",
                              "unlabeled", "--out", tmp_path / "d"))
     assert line.startswith("Error: only ") and "1,000,000 viewpoints asked" in line and f"border of {mask}" in line

@@ -213,8 +213,8 @@ def test_a_folder_with_no_accepted_sample_is_taken_over_by_the_corrected_command
 def test_a_build_stops_when_another_command_takes_its_folder_over(tmp_path: Path) -> None:
     """Two commands with other options on one folder (say, shards started with a typo): the one
     that lost the folder stops at its next record instead of mixing its samples in."""
-    from osmseg.build.records import Attempt
-    from osmseg.build.state import BuildState
+    from osmseg.builder.records import Attempt
+    from osmseg.builder.state import BuildState
     from osmseg.errors import DatasetError
 
     rejected = Attempt.rejected({"center": {"lon": 0, "lat": 0}, "reason": "unlabeled", "detail": "all unlabeled"})
@@ -322,7 +322,7 @@ def test_the_recorded_command_reads_back_as_the_same_build(args: list[str], tmp_
 
     def parse(argv: list[str]):
         ctx = build_command.make_context("build", [*argv, "--out", str(tmp_path / "out")])
-        return build_config(BuildOptions(**ctx.params))
+        return build_config(BuildOptions.from_params(ctx.params))
 
     config = parse(args)
     line = command_line(recorded_command(config))

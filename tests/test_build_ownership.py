@@ -33,8 +33,8 @@ import pytest
 from test_build_workers import build_args, descendants, one_worker, run_cli, tree_bytes, wait_gone  # noqa: F401
 
 from osmseg.errors import DatasetBusy, DatasetError
-from osmseg.processes import INTERRUPTED, TERMINATED, owner
-from training.splits import sample_groups
+from osmseg.runtime.processes import INTERRUPTED, TERMINATED, owner
+from training.datasets.splits import sample_groups
 
 #: Starts ``osmseg ARGS`` at a common instant: once its imports are done it says so (a file
 #: ``READY_DIR/ready-PID``), then waits for ``READY_DIR/go`` to name the instant, and busy-waits
@@ -42,7 +42,7 @@ from training.splits import sample_groups
 STARTER = """
 import os, sys, time
 from pathlib import Path
-import osmseg.cli.main, osmseg.build.builder  # everything imported before the common start
+import osmseg.cli.main, osmseg.builder.run  # everything imported before the common start
 folder = Path(sys.argv[1])
 sys.argv = ["osmseg", *sys.argv[2:]]
 (folder / f"ready-{os.getpid()}").touch()
@@ -179,7 +179,7 @@ def test_while_a_build_holds_its_folder_other_commands_refuse_at_once(tmp_path: 
 
 def test_a_build_reads_the_folder_it_holds_itself(tmp_path: Path) -> None:
     """Only other processes' builds make a folder busy: the process holding it may read it."""
-    from osmseg.build.state import BuildState
+    from osmseg.builder.state import BuildState
     from osmseg.output.manifest import read_manifest
 
     (tmp_path / "manifest.json").write_text("{}")
@@ -337,7 +337,7 @@ def held_back(fd, op):
             time.sleep(0.01)
     return real(fd, op)
 fcntl.flock = held_back
-from osmseg.processes import use_private_temp_dir
+from osmseg.runtime.processes import use_private_temp_dir
 private = use_private_temp_dir()
 print(private is not None and os.path.isdir(private), flush=True)
 """
@@ -367,7 +367,7 @@ def test_a_run_starting_while_another_sweeps_keeps_its_folder(tmp_path: Path) ->
 #: A signal whose handler runs inside a finalizer (here a ``__del__``), where Python drops its exception.
 STOP_IN_A_FINALIZER = """
 import os, signal, sys, time
-from osmseg.processes import Terminated, terminate_by_exception
+from osmseg.runtime.processes import Terminated, terminate_by_exception
 # a Ctrl-C as a command in a terminal gets it, whatever this test's process passed on: a SIGINT it
 # ignored or held blocked is inherited across exec (once, in the parallel suite, this child
 # never saw its own SIGINT and "went on")
@@ -402,7 +402,7 @@ def test_a_ctrl_c_or_sigterm_whose_handler_runs_in_a_finalizer_still_stops_the_c
 def test_a_ctrl_c_or_sigterm_while_signals_are_held_arrives_as_the_block_ends() -> None:
     """What the command line's imports run under (the exit status of a Ctrl-C in a compiled
     module's start, above): the signal is neither lost nor delivered inside the block."""
-    from osmseg.processes import Terminated, signals_held, terminate_by_exception
+    from osmseg.runtime.processes import Terminated, signals_held, terminate_by_exception
 
     before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
     terminate_by_exception()

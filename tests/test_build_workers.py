@@ -269,11 +269,11 @@ def test_a_worker_that_cannot_open_its_sources_says_why_in_one_line(tmp_path: Pa
     the source's own one-line error in the build, not "a worker process died"."""
     from concurrent.futures import ProcessPoolExecutor
 
-    from osmseg.build.config import BuildConfig
-    from osmseg.build.workers import WorkerSetup, _build_slot, _start_worker
+    from osmseg.builder.config import BuildConfig
+    from osmseg.builder.workers import WorkerSetup, _build_slot, _start_worker
     from osmseg.errors import ConfigError
     from osmseg.places import Area
-    from osmseg.processes import worker_context
+    from osmseg.runtime.processes import worker_context
 
     config = BuildConfig(out_dir=tmp_path / "ds", area=Area("t", LAT, LON, 0.08),
                          imagery=f"geotiff:{tmp_path / 'gone.tif'}", osm=str(TINYCITY), samples=1,
@@ -293,7 +293,7 @@ import importlib.abc, os, sys
 seen = {}
 class Watch(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path, target=None):
-        if name == "osmseg.build.builder" and "children" not in seen:  # the builder is about to be imported
+        if name == "osmseg.builder.run" and "children" not in seen:  # the builder is about to be imported
             pid = os.getpid()
             seen["children"] = [open(f"/proc/{c}/cmdline", "rb").read().decode(errors="replace")
                                 for t in os.listdir(f"/proc/{pid}/task")
@@ -333,6 +333,6 @@ def test_the_executable_imports_nothing_heavy_before_it_starts_the_server() -> N
     very server start it exists for."""
     code = ("import sys; import osmseg.cli.launch; "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numpy', 'click', 'rasterio', 'pyproj', "
-            "'cv2', 'osmium', 'requests') or m in ('osmseg.build.builder', 'osmseg.cli.main')))")
+            "'cv2', 'osmium', 'requests') or m in ('osmseg.builder.run', 'osmseg.cli.main')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"

@@ -4,8 +4,8 @@ Issue 31, item 4: the README says a command reading a dataset is refused while a
 but only ``verify`` was (through ``manifest.json``, which a first build writes last): ``train``
 read 2 of 6 images and failed naming options it does not have, ``eval``, ``predict``,
 ``localize`` and ``localize-bench`` read half-written files. Here another process holds the
-folder exactly as a running build does (:meth:`osmseg.build.state.BuildState.claim`, the OS
-lock of :mod:`osmseg.folderlock`), the folder holding what a first build has written so far
+folder exactly as a running build does (:meth:`osmseg.builder.state.BuildState.claim`, the OS
+lock of :mod:`osmseg.runtime.folderlock`), the folder holding what a first build has written so far
 (images and labels, no manifest yet), and each command is run as a user runs it.
 """
 
@@ -32,7 +32,7 @@ torch = pytest.importorskip("torch")
 HOLDER = """
 import sys
 from pathlib import Path
-from osmseg.build.state import BuildState
+from osmseg.builder.state import BuildState
 state = BuildState(Path(sys.argv[1]))
 state.claim({"seed": 1}, "osmseg build --seed 1 --out " + sys.argv[1])
 print("holding", flush=True)
@@ -66,8 +66,8 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """A tiny checkpoint of tinyseg's classes and a ground panorama mask (classes13, sky 14)."""
     import json
 
-    from training.checkpoint import save_checkpoint
-    from training.model import build_model, model_spec
+    from training.models.checkpoint import save_checkpoint
+    from training.models.networks import build_model, model_spec
 
     folder = tmp_path_factory.mktemp("inputs")
     torch.manual_seed(0)
@@ -95,10 +95,10 @@ def commands(data: Path, inputs: dict[str, Path], out: Path) -> dict[str, list[o
         "predict": ["predict", model, image, "--out", out, "--device", "cpu"],
         "predict --out": ["predict", model, TEST_DATA / "tinyseg" / "images" / "tinyseg_005.png", "--out",
                           data / "labels", "--device", "cpu"],
-        "localize": ["localize", "--aerial", label, "--ground", query, "--ground-classes", "aerial13",
-                     "--ground-table", "classes13.toml", "--resolution", 0.5, "--out", out],
+        "localize": ["localize", "--aerial", label, "--ground", query, "--ground-landmarks", "aerial13",
+                     "--ground-table", "classes13.toml", "--aerial-resolution", 0.5, "--out", out],
         "localize-bench": ["localize-bench", data, "--out", out, "--viewpoints", 2, "--no-plots"],
-        "localize-bench MASK": ["localize-bench", label, "--resolution", 0.5, "--out", out, "--viewpoints", 2,
+        "localize-bench MASK": ["localize-bench", label, "--aerial-resolution", 0.5, "--out", out, "--viewpoints", 2,
                                 "--no-plots"],
         "verify": ["verify", data],
     }

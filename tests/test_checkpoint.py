@@ -15,10 +15,10 @@ import torch
 import torch.nn.functional as F
 
 from osmseg.errors import ConfigError
-from training.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
 from training.errors import CheckpointError
-from training.model import SegNet, build_model, model_spec
-from training.spec import ModelSpec
+from training.models.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
+from training.models.networks import SegNet, build_model, model_spec
+from training.models.spec import ModelSpec
 
 
 @pytest.fixture(autouse=True)
@@ -200,7 +200,7 @@ def test_a_sigterm_while_a_checkpoint_is_written_lets_the_write_finish_then_stop
     ("unexpected pos") with a traceback, instead of the command's one line and exit 143."""
     import signal
 
-    from osmseg.processes import Terminated, terminate_by_exception
+    from osmseg.runtime.processes import Terminated, terminate_by_exception
 
     model, _ = trained
     real_save = torch.save

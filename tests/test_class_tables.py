@@ -61,8 +61,8 @@ def error_line(result: Result) -> str:
 
 def checkpoint(path: Path, name: str, table: str | dict[str, object] | None = None) -> Path:
     """An untrained tiny checkpoint of model ``name`` predicting ``table``'s classes."""
-    from training.checkpoint import save_checkpoint
-    from training.model import build_model, model_spec
+    from training.models.checkpoint import save_checkpoint
+    from training.models.networks import build_model, model_spec
 
     torch.manual_seed(0)
     spec = model_spec(name, 0.0625, class_table=table, input_size=(64, 96))
@@ -217,7 +217,7 @@ def test_train_refuses_a_class_table_that_misreads_the_dataset_labels(tmp_path: 
     result = osmseg("train", datasets["13"], "--out", tmp_path / "run6", "--config", TINY_YAML, "--epochs", 1,
                     "--model", "mine", "--classes", "classes6.toml", "--split-by", "image")
     assert result.exit_code == 0, result.output
-    from training.checkpoint import load_checkpoint
+    from training.models.checkpoint import load_checkpoint
 
     assert load_checkpoint(tmp_path / "run6" / "last.pt")["spec"]["class_table"]["name"] == "osm6"
     # without a table of its own, --classes says what a folder's labels mean, and a preset learns through the mapping

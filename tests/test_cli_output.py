@@ -24,7 +24,7 @@ from click.testing import CliRunner
 from conftest import TEST_DATA
 
 from osmseg.cli.main import cli
-from osmseg.progress import Step
+from osmseg.runtime.progress import Step
 
 TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
 TINYSEG = TEST_DATA / "tinyseg"

@@ -1,4 +1,4 @@
-"""training.data / training.augment: pairing, checks, patches, splits, augmentation, weights."""
+"""training.datasets.patches / training.datasets.augment: pairing, checks, patches, splits, augmentation, weights."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from PIL import Image
 from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from osmseg.images import read_label, read_rgb
-from training.augment import GEOMETRIC, OVERHEAD, STREET, Draw, orient
-from training.data import (
+from training.datasets.augment import GEOMETRIC, OVERHEAD, STREET, Draw, orient
+from training.datasets.patches import (
     PatchDataset,
     SampleFiles,
     dataset_class_table,
@@ -30,7 +30,7 @@ from training.data import (
     validate,
     weights_from_histograms,
 )
-from training.splits import make_splits, read_splits, write_splits
+from training.datasets.splits import make_splits, read_splits, write_splits
 
 torch.set_num_threads(1)
 TINY = TEST_DATA / "tinyseg"

@@ -85,8 +85,8 @@ def scene(tmp_path_factory: pytest.TempPathFactory, imagery_tif: Path) -> dict[s
     dataset, a 3-sample dataset whose samples overlap, and a file that is no cassette."""
     torch = pytest.importorskip("torch")
     from osmseg.classes import load_class_table
-    from training.checkpoint import save_checkpoint
-    from training.model import build_model, model_spec
+    from training.models.checkpoint import save_checkpoint
+    from training.models.networks import build_model, model_spec
 
     root = tmp_path_factory.mktemp("scene")
     torch.manual_seed(0)
@@ -159,7 +159,7 @@ CASES = [
 @pytest.mark.parametrize(("command", "line", "status"), [pytest.param(*c[1:], id=c[0]) for c in CASES])
 def test_every_error_names_only_what_the_command_has(scene: dict[str, Path], tmp_path: Path, command: str, line,
                                                      status: int) -> None:
-    from training.config import FIELDS
+    from training.run.config import FIELDS
 
     result = run(*line(scene, tmp_path))
     assert result.exit_code == status, result.output
@@ -188,7 +188,7 @@ def test_a_region_search_over_an_area_the_osm_file_does_not_cover_says_so(tmp_pa
     view[112:] = 2
     view[60:112, 100:300] = view[60:112, 700:900] = 1
     Image.fromarray(view).save(tmp_path / "query.png")
-    args = ["localize", "--ground", tmp_path / "query.png", "--ground-classes", "aerial13", "--ground-table",
+    args = ["localize", "--ground", tmp_path / "query.png", "--ground-landmarks", "aerial13", "--ground-table",
             "classes13.toml", "--osm", TINYCITY, "--cache-dir", tmp_path / "cache", "--out", tmp_path / "out"]
     result = run(*args, "--bbox", "10.0,50.0,10.003,50.002")  # Germany; the file is of Helsinki
     assert result.exit_code == 2, result.output  # was: exit 0, "no block of the region holds a place that fits"

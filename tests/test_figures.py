@@ -15,7 +15,7 @@ from PIL import Image
 from osmseg.classes import load_class_table
 from osmseg.errors import DatasetError
 from osmseg.output.plotting import figure
-from training.figures import (
+from training.evaluation.figures import (
     checkpoint_curves,
     checkpoint_curves_png,
     confusion_matrix_png,
@@ -25,7 +25,7 @@ from training.figures import (
     qualitative_panels,
     training_curves_png,
 )
-from training.metrics import metrics_from_matrix
+from training.evaluation.metrics import metrics_from_matrix
 
 TABLE = {
     "name": "tiny",
@@ -207,7 +207,7 @@ def test_eval_curves_of_best_pt_draw_the_whole_run_when_its_log_is_beside_it(tmp
                 "val_pixel_accuracy": 0.05 + 0.1 * e, "seconds": 1.0} for e in range(1, 9)]
     run = tmp_path / "run"
     run.mkdir()
-    with (run / "log.csv").open("w", newline="") as f:  # as training.runfiles writes it
+    with (run / "log.csv").open("w", newline="") as f:  # as training.run.files writes it
         writer = csv.DictWriter(f, fieldnames=list(history[0]), lineterminator="\n")
         writer.writeheader()
         writer.writerows(history)

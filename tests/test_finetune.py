@@ -24,7 +24,7 @@ torch = pytest.importorskip("torch")
 from conftest import TEST_DATA  # noqa: E402
 
 from osmseg.cli.main import cli  # noqa: E402
-from training.checkpoint import load_checkpoint  # noqa: E402
+from training.models.checkpoint import load_checkpoint  # noqa: E402
 
 TINYSEG = TEST_DATA / "tinyseg"
 TINY = TEST_DATA / "train" / "tiny.yaml"

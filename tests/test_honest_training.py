@@ -33,10 +33,10 @@ torch = pytest.importorskip("torch")
 from conftest import TEST_DATA, shared_path  # noqa: E402
 
 from osmseg.cli.main import cli  # noqa: E402
-from training.checkpoint import load_checkpoint  # noqa: E402
-from training.engine import StepOptions, train_one_epoch  # noqa: E402
-from training.model import SegNet  # noqa: E402
-from training.splits import make_splits  # noqa: E402
+from training.datasets.splits import make_splits  # noqa: E402
+from training.models.checkpoint import load_checkpoint  # noqa: E402
+from training.models.networks import SegNet  # noqa: E402
+from training.run.engine import StepOptions, train_one_epoch  # noqa: E402
 
 TINYSEG = TEST_DATA / "tinyseg"
 TINY = TEST_DATA / "train" / "tiny.yaml"

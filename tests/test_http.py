@@ -647,7 +647,7 @@ def test_secret_headers_cover_requests_caches_own_list():
 def test_a_build_from_local_files_never_imports_the_http_cache_or_vcrpy():
     """The command line starts without requests-cache and vcrpy (half a second of every start-up
     and of every build worker's); they come with the first cached request or cassette."""
-    code = ("import sys, osmseg.cli.main, osmseg.build.slots, osmseg.build.workers; "
+    code = ("import sys, osmseg.cli.main, osmseg.builder.slots, osmseg.builder.workers; "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('requests_cache', 'vcr', 'aiohttp')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"

@@ -25,11 +25,11 @@ from torch import nn
 
 from osmseg.errors import ConfigError, ImageryError
 from osmseg.output.geotiff import read_class_table
-from osmseg.progress import Step
-from training.infer import predict_array
-from training.predict import predict_file
-from training.spec import ModelSpec
-from training.tiling import WindowGrid, blend_weight, letterbox
+from osmseg.runtime.progress import Step
+from training.inference.predict import predict_file
+from training.inference.tiling import WindowGrid, blend_weight, letterbox
+from training.inference.windows import predict_array
+from training.models.spec import ModelSpec
 
 torch.set_num_threads(1)
 
@@ -276,7 +276,7 @@ def test_tta_makes_a_direction_sensitive_model_flip_equivariant(size: tuple[int,
 
 
 def test_segnet_integration() -> None:
-    from training.model import SegNet
+    from training.models.networks import SegNet
 
     spec = ModelSpec("segnet", "tiny", NUM_CLASSES, 0.0625, make_spec().class_table, 0)
     torch.manual_seed(0)

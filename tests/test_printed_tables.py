@@ -58,7 +58,7 @@ def check_method_tables(printed: str, results: dict, unit: str) -> None:
 
 def test_localize_bench_prints_the_methods_one_label_per_column(demo_dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "bench"
-    result = CliRunner().invoke(cli, ["localize-bench", str(demo_dataset), "--viewpoints", "3", "--method",
+    result = CliRunner().invoke(cli, ["localize-bench", str(demo_dataset), "--viewpoints", "3", "--methods",
                                       "paper,profile", "--no-plots", "--out", str(out)])
     assert result.exit_code == 0, result.output
     results = json.loads((out / "results.json").read_text())
@@ -73,7 +73,7 @@ def test_localize_bench_says_its_counts_and_the_candidate_baseline_in_words(demo
     rendered panoramas', '1 subsets'); the paper method's random-candidate baseline says what it is
     beside the method's own median (it said 'paper method, a random candidate: median ...')."""
     out = tmp_path / "bench"
-    result = CliRunner().invoke(cli, ["--no-progress", "localize-bench", str(demo_dataset), "--viewpoints", "1", "--method",
+    result = CliRunner().invoke(cli, ["--no-progress", "localize-bench", str(demo_dataset), "--viewpoints", "1", "--methods",
                                       "paper,profile", "--no-plots", "--out", str(out)])
     assert result.exit_code == 0, result.output
     results = json.loads((out / "results.json").read_text())
@@ -92,7 +92,7 @@ def test_localize_pairs_without_truth_makes_up_no_centre_baseline(tmp_path: Path
     baseline there (it would score 0), so the summary leaves it out and says why."""
     for truth, out in ((False, tmp_path / "guessed"), (True, tmp_path / "known")):
         folder = write_pairs(tmp_path / f"pairs-{truth}", truth=truth)
-        result = CliRunner().invoke(cli, ["localize-pairs", str(folder), "--method", "paper", "--no-plots",
+        result = CliRunner().invoke(cli, ["localize-pairs", str(folder), "--methods", "paper", "--no-plots",
                                           "--out", str(out)])
         assert result.exit_code == 0, result.output
         results = json.loads((out / "results.json").read_text())

@@ -55,7 +55,7 @@ def test_a_dataset_built_from_osm_is_benched_with_views_drawn_from_that_osm(
     out = tmp_path / "bench"
     bench = CliRunner().invoke(cli, [
         "-q", "localize-bench", str(data), "--renderer", "geometry", "--osm", str(pbf), "--fov", "90",
-        "--heading", "unknown", "--viewpoints", "4", "--method", "profile", "--save-panoramas", "1",
+        "--view-heading", "unknown", "--viewpoints", "4", "--methods", "profile", "--save-panoramas", "1",
         "--out", str(out)])
 
     assert bench.exit_code == 0, bench.output
@@ -86,7 +86,7 @@ def test_a_dataset_whose_class_table_file_is_gone_says_so_in_one_line(kotka_imag
 
     bench = CliRunner().invoke(cli, [
         "localize-bench", str(data), "--renderer", "geometry", "--osm", str(pbf), "--viewpoints", "2",
-        "--method", "profile", "--out", str(tmp_path / "bench")])
+        "--methods", "profile", "--out", str(tmp_path / "bench")])
 
     assert bench.exit_code == 2, bench.output
     assert "Traceback" not in bench.output

@@ -22,11 +22,11 @@ from conftest import TEST_DATA  # noqa: E402
 from osmseg.cli.main import cli  # noqa: E402
 from osmseg.errors import ConfigError, DatasetError  # noqa: E402
 from osmseg.images import read_label  # noqa: E402
-from training.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
-from training.config import TrainConfig  # noqa: E402
-from training.data import discover  # noqa: E402
-from training.recipe import RECIPE_FIELDS  # noqa: E402
-from training.sampling import CROPS_PER_IMAGE, RandomCrops  # noqa: E402
+from training.datasets.patches import discover  # noqa: E402
+from training.datasets.sampling import CROPS_PER_IMAGE, RandomCrops  # noqa: E402
+from training.models.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
+from training.run.config import TrainConfig  # noqa: E402
+from training.run.recipe import RECIPE_FIELDS  # noqa: E402
 
 TINYSEG = TEST_DATA / "tinyseg"
 TINY = TEST_DATA / "train" / "tiny.yaml"
@@ -213,7 +213,7 @@ def test_the_network_is_chosen_recorded_and_rebuilt_from_the_checkpoint(tmp_path
     """--arch segnet (the dissertation's network) and the default segnet-skip: the checkpoint's
     spec says which, predict rebuilds that one, and a run resumes only as the network it is
     (a run from before --arch existed is a segnet, and the refusal says so)."""
-    from training.checkpoint import model_from_checkpoint
+    from training.models.checkpoint import model_from_checkpoint
 
     runs = {}
     for arch in ("segnet", "segnet-skip"):
@@ -242,7 +242,7 @@ def test_validation_on_tiles_smaller_than_the_patch_runs_on_patches_the_size_of_
     validates on 256x256 patches, every labelled pixel of the validation tile counted."""
     from PIL import Image
 
-    from training.data import fitted_patch
+    from training.datasets.patches import fitted_patch
 
     rng = np.random.default_rng(0)
     for i in range(4):
@@ -283,7 +283,7 @@ def test_zoomed_out_crops_see_more_ground_at_the_crop_size_with_labels_under_the
     """--crop-scale 2: a 64-px crop spans 64 to 128 image pixels, so it holds up to twice the
     stripes of a plain crop; it is still 64 px, and away from the stripes' edges (which the
     antialiased resampling blurs) red pixels are exactly those labelled red."""
-    from training.augment import AugmentConfig
+    from training.datasets.augment import AugmentConfig
 
     files = discover(striped_dataset(tmp_path))
 

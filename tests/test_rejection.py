@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import shared_path
 
-from osmseg.build.filters import FilterConfig, check_imagery, check_labels, check_sample, grey_std
+from osmseg.builder.filters import FilterConfig, check_imagery, check_labels, check_sample, grey_std
 from osmseg.errors import ConfigError
 from osmseg.output.manifest import REASONS, Rejection
 

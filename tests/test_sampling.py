@@ -1,7 +1,7 @@
 """Honest samples and splits: overlap reported, sampling that never overlaps, splits by area.
 
 Overlap is checked here with shapely on the manifest's EPSG:3857 boxes, independently of
-``osmseg.build.sampling``. The builds use a GeoJSON source with one large grass polygon (every
+``osmseg.builder.sampling``. The builds use a GeoJSON source with one large grass polygon (every
 sample has a label) and an empty tile folder as imagery (no tile at all: the filters are
 opened for it), so a build of a few samples takes a second.
 """
@@ -18,7 +18,7 @@ import shapely
 from click.testing import CliRunner, Result
 from conftest import TEST_DATA
 
-from osmseg.build.sampling import block_centre, candidate_blocks
+from osmseg.builder.sampling import block_centre, candidate_blocks
 from osmseg.cli.main import cli
 from osmseg.grid import LngLatBBox, sample_grid
 from osmseg.overlap import overlap_groups
@@ -223,7 +223,7 @@ def test_samples_that_all_overlap_cannot_be_split_honestly(tmp_path: Path, grass
 
 
 def test_splits_of_a_dataset_without_footprints_are_by_image() -> None:
-    from training.splits import make_splits, sample_groups
+    from training.datasets.splits import make_splits, sample_groups
 
     names = [f"tinyseg_{i:03d}" for i in range(12)]
     groups = sample_groups(TEST_DATA / "tinyseg", names)  # its manifest has no bounds
@@ -236,7 +236,7 @@ def test_georeferenced_images_without_a_manifest_are_grouped_by_their_extents(tm
     import rasterio
     from rasterio.transform import from_origin
 
-    from training.splits import sample_groups
+    from training.datasets.splits import sample_groups
 
     paths = {}
     for name, x0 in (("a", 400000.0), ("b", 400150.0), ("c", 401000.0)):  # a and b overlap by half

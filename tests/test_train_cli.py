@@ -31,7 +31,7 @@ torch = pytest.importorskip("torch")
 from conftest import TEST_DATA  # noqa: E402
 
 from osmseg.cli.main import cli  # noqa: E402
-from training.checkpoint import load_checkpoint  # noqa: E402
+from training.models.checkpoint import load_checkpoint  # noqa: E402
 
 TINYSEG = TEST_DATA / "tinyseg"
 CONFIGS = TEST_DATA / "train"
@@ -176,7 +176,7 @@ def test_eval_curves_show_the_whole_run_or_say_where_they_stop(trained: tuple[Pa
     the history best.pt holds, while the run's own curves.png showed all 8 epochs. With the run's
     log.csv beside the checkpoint it draws the whole run; without it, it says it stops at the
     checkpoint's epoch; either way the checkpoint's epoch is marked."""
-    from training.figures import checkpoint_curves
+    from training.evaluation.figures import checkpoint_curves
 
     run, _ = trained
     best = load_checkpoint(run / "best.pt")
@@ -538,7 +538,7 @@ def test_sigterm_to_the_process_group_ends_training_with_one_line(tmp_path: Path
 DROPPED_HANDOVER = """
 import os, socket, sys, threading
 from multiprocessing import resource_sharer
-from training.train import _loader_worker_start
+from training.run.train import _loader_worker_start
 _loader_worker_start(0)
 df = resource_sharer.DupFd(os.pipe()[0])     # what pickling a batch's tensor does in a worker
 address, _ = df._id
@@ -566,8 +566,8 @@ def test_a_handover_the_training_process_drops_as_it_stops_is_no_traceback_in_a_
 CYCLIC_STOP = """
 import gc, sys
 from pathlib import Path
-from training.config import make_config
-from training.train import run
+from training.run.config import make_config
+from training.run.train import run
 gc.disable()
 config = make_config(Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3]), {"loader_workers": 2, "epochs": 3})
 

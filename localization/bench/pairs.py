@@ -63,7 +63,7 @@ from localization.profile.method import profile_index, run_profile
 from localization.profile.search import ProfileConfig
 from osmseg import __version__
 from osmseg.errors import ConfigError, DatasetError
-from osmseg.progress import Progress, track
+from osmseg.runtime.progress import Progress, track
 from osmseg.units import plural
 
 logger = logging.getLogger(__name__)
@@ -113,8 +113,8 @@ class PairsConfig:
             raise ConfigError(f"heading must be 'known' or 'unknown', got {self.heading!r}")
         if "profile" in self.methods and self.resolution_m is None:
             raise ConfigError("the profile method measures ground distances in metres: give the aerial resolution "
-                              "with --resolution (CVUSA's 750 px aerial images are about 0.2-0.3 m/px), or "
-                              "--method paper")
+                              "with --aerial-resolution (CVUSA's 750 px aerial images are about 0.2-0.3 m/px), or "
+                              "--methods paper")
         if not 0 < self.p <= 1:
             raise ConfigError(f"p must be in (0, 1], got {self.p}")
         if self.top_k < 1 or (self.window is not None and self.window < 1):

@@ -110,8 +110,8 @@ class RenderConfig:
         if self.vfov_deg is not None and not 0 < self.vfov_deg <= 180:
             raise ConfigError(f"vfov_deg must be in (0, 180], got {self.vfov_deg}")
         if self.vfov_deg is None:  # square pixels in angle: a 360° panorama is at least twice as wide as high
-            check_view_shape(self.width, self.height, 360.0, "the rendered panorama (--width, --height)",
-                             "give a --width at least twice the --height")
+            check_view_shape(self.width, self.height, 360.0, "the rendered panorama (--pano-width, --pano-height)",
+                             "give a --pano-width at least twice the --pano-height")
         if any(not math.isfinite(h) or h < 0 for h in self.heights.values()):
             raise ConfigError("class heights must be finite and >= 0 metres")
         if not 0 <= self.height_spread < 1:

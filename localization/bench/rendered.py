@@ -92,7 +92,7 @@ from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.output.manifest import dataset_class_table, manifest_path, read_manifest, refuse_busy
-from osmseg.progress import Progress, track
+from osmseg.runtime.progress import Progress, track
 from osmseg.units import plural
 
 logger = logging.getLogger(__name__)
@@ -222,7 +222,7 @@ def _read_mask(path: Path) -> np.ndarray:
 def load_mask_scene(path: Path, table: ClassTable | str, resolution_m: float) -> Scene:
     """A mask file (PNG/GeoTIFF of class ids) with its class table and ground resolution (m/px)."""
     if not (resolution_m and resolution_m > 0):
-        raise ConfigError("give the mask's ground resolution in metres per pixel (--resolution)")
+        raise ConfigError("give the mask's ground resolution in metres per pixel (--aerial-resolution)")
     refuse_busy(path)  # a label a build is writing
     tab = load_class_table(table) if isinstance(table, str) else table
     bounds = geotiff_bounds_3857(Path(path)) if Path(path).suffix.lower() in (".tif", ".tiff") else None
@@ -236,7 +236,7 @@ def load_dataset_scenes(folder: Path) -> list[Scene]:
     refuse_busy(folder)  # a build's first run has no manifest yet to refuse it
     if not manifest_path(folder).is_file():
         raise DatasetError(f"{folder}: no manifest.json; give a dataset made by `osmseg build`, "
-                           "or a mask file with --table and --resolution")
+                           "or a mask file with --classes and --aerial-resolution")
     manifest = read_manifest(folder)
     table = dataset_class_table(manifest, folder)  # with its OSM rules when at hand (--renderer geometry)
     samples = [(s["name"], float(s["ground_resolution_m"]), s.get("bounds_3857")) for s in manifest["samples"]]

@@ -173,7 +173,7 @@ def baselines(records: Sequence[dict[str, Any]]) -> dict[str, float | None]:
 def headline(results: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
     """The method a benchmark's summary leads with, and its summary: the default method
     (``profile``) when it ran, else the first one run. ``results["summary"]`` stays the first
-    method's (the records' fields and the class subsets are its), so a run of ``--method
+    method's (the records' fields and the class subsets are its), so a run of ``--methods
     paper,profile`` still headlines with the method a user of ``osmseg localize`` gets.
 
     >>> headline({"summary": {"n": 1}, "methods": {"paper": {"n": 2}, "profile": {"n": 3}}})

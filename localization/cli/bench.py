@@ -18,10 +18,31 @@ from typing import TYPE_CHECKING, TypeVar
 
 import click
 
-from localization.cli.options import given, misplaced, parse_heights
+from localization.cli.options import (
+    AERIAL_RESOLUTION,
+    AERIAL_SIZE,
+    CAMERA_HEIGHT,
+    CONVENTIONS,
+    FOV,
+    GRID_STRIDE,
+    GROUND_SIZE,
+    LANDMARK_MODE,
+    LANDMARKS,
+    MIN_SIZE,
+    TOP_K,
+    WINDOW,
+    P,
+    given,
+    misplaced,
+    osm_files,
+    parse_camera_height,
+    parse_heights,
+    parse_window,
+)
 from localization.cli.summary import format_summary
-from osmseg.cli.common import output_options, parse_size, renamed_option, report_errors
+from osmseg.cli.common import output_options, parse_size, report_errors
 from osmseg.cli.drawers import Mode, progress_drawer
+from osmseg.cli.options import CLASSES, OSM, OUT, SEED, declare, moved
 from osmseg.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -36,29 +57,25 @@ def bench_options(func: F) -> F:
     """The options of both protocols: where the results go, the landmark classes, the paper
     method's graph settings, the camera height, the methods compared and the heading."""
     options = [
-        click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True,
-                     help="Folder for results.json, errors.png and classes.png."),
-        click.option("--resolution", type=click.FloatRange(min=0, min_open=True),
-                     help="Ground resolution of the aerial side in m/px (a dataset records its own; pairs without "
-                          "it are scored in pixels)."),
-        click.option("--landmarks", "landmark_dict",
-                     show_default="the one for the class table; camvid for annotated pairs",
-                     help="Landmark class dictionary (data_manifests/landmarks-*.toml)."),
-        click.option("--window", type=click.IntRange(min=1), show_default="mu + 5 sigma of nearest-neighbour distances",
-                     help="Aerial covisibility window (pixels)."),
-        click.option("--p", "p", type=click.FloatRange(0, 1, min_open=True), default=0.5, show_default=True,
-                     help="Covisibility parameter of candidates."),
-        click.option("--top-k", type=click.IntRange(min=1), default=5, show_default=True),
-        click.option("--subsets/--no-subsets", default=True, show_default=True,
-                     help="Also localize with every subset of 2, 3... landmark classes."),
-        click.option("--camera-height", type=click.FloatRange(min=0, min_open=True), default=2.0, show_default=True, help="Metres above the ground."),
-        click.option("--method", "methods_text", default="profile,paper", show_default=True,
-                     help="Methods to compare, comma-separated, side by side in one run: profile, paper. The first "
-                          "fills the summary; the class-subset figure is the paper method's when it comes first."),
-        click.option("--heading", type=click.Choice(["known", "unknown"]), default="known", show_default=True,
-                     help="known: north-aligned panoramas; unknown: each view turned to a seeded random heading the "
-                          "methods are not told (the profile method searches it and its error is reported)."),
-        click.option("--plots/--no-plots", default=True, show_default=True, help="Draw errors.png and classes.png."),
+        OUT(required=True, detail=" of results.json, errors.png and classes.png."),
+        AERIAL_RESOLUTION(dest="resolution", detail=" (a dataset records its own; pairs without it are scored in "
+                                                    "pixels)."),
+        LANDMARKS(show_default="the one for the class table; camvid for annotated pairs"),
+        WINDOW(dest="window_text", default="auto", show_default=True),
+        P(default=0.5, show_default=True),
+        TOP_K(default=5, show_default=True),
+        NO_SUBSETS(default=True, show_default=True),
+        CAMERA_HEIGHT(dest="camera_height", default="2", show_default=True,
+                      detail=" (a benchmark's views are of a known height: metres)"),
+        METHODS(default="profile,paper", show_default=True),
+        VIEW_HEADING(dest="heading", default="known", show_default=True),
+        NO_PLOTS(default=True, show_default=True),
+        moved("--resolution", "--resolution is predict's (resample the input): give the aerial side's metres per "
+                              "pixel as --aerial-resolution"),
+        moved("--method", "--method is osmseg localize's (one method): the benchmarks compare --methods "
+                          "profile,paper"),
+        moved("--heading", "--heading is osmseg localize's (the query's degrees or unknown): the benchmarks turn "
+                           "their views with --view-heading known|unknown"),
     ]
     for option in reversed(options):
         func = option(func)
@@ -66,11 +83,20 @@ def bench_options(func: F) -> F:
 
 
 def _methods(ctx: click.Context, methods_text: str) -> tuple[str, ...]:
-    """The methods of --method; the paper method's options refused when it does not run."""
+    """The methods of --methods; the paper method's options refused when it does not run."""
     methods = tuple(m.strip() for m in methods_text.split(",") if m.strip())
-    if "paper" not in methods and (stray := given(ctx, ("window", "p", "conventions", "subsets"))):
-        raise misplaced(stray, "the paper method", "paper to --method")
+    if "paper" not in methods and (stray := given(ctx, ("window_text", "p", "conventions", "subsets"))):
+        raise misplaced(stray, "the paper method", "paper to --methods")
     return methods
+
+
+def _rendered_height(text: str) -> float:
+    """``--camera-height`` of a benchmark: metres (its views are drawn, or were taken, from one known height)."""
+    height, unknown = parse_camera_height(text)
+    if unknown:
+        raise click.BadParameter("the benchmarks score views of a known camera height: give metres, e.g. 2",
+                                 param_hint="'--camera-height'")
+    return height
 
 
 def _report(ctx: click.Context, results: BenchResults, out_dir: Path) -> None:
@@ -85,76 +111,90 @@ def _drawn(ctx: click.Context) -> Mode | None:
     return ctx.obj.get("progress") if ctx.obj else None
 
 
+VIEWPOINTS = declare('--viewpoints', type=click.IntRange(min=1), help="Rendered panoramas to localize, placed round-robin over the masks (-n is build's --samples).")
+MARGIN = declare('--margin', type=click.FloatRange(min=0), help="Viewpoints stay this many metres from the mask border.")
+STAND_ON = declare('--stand-on', multiple=True, help="Classes viewpoints may stand on (repeatable).")
+MAX_RANGE = declare('--max-range', type=click.FloatRange(min=0, min_open=True), help="How far the camera sees (m).")
+CLASS_HEIGHT = declare('--class-height', multiple=True, metavar="CLASS=METRES", help="Height of a class that occludes (repeatable).")
+CONFUSION = declare('--confusion', type=click.FloatRange(0, 1), help="Noise: fraction of panorama landmarks relabelled as another landmark class.")
+MISS_SMALL = declare('--miss-small', type=click.IntRange(min=0), help="Noise: panorama landmarks under this many pixels are missed.")
+MISS_PROB = declare('--miss-prob', type=click.FloatRange(0, 1), help="Noise: every other panorama landmark is missed with this probability.")
+OFFSET = declare('--offset', type=click.FloatRange(min=0), help="Noise: render from this many metres away from the true viewpoint.")
+QUERY_LANDMARKS = declare('--query-landmarks', type=click.Choice(["mask", "visible"]), help="Panorama landmarks from its rendered mask, or the aerial landmarks the camera sees "
+              "(perfect correspondence, as a person annotating both views: measures the matching alone).")
+VISIBLE_MIN_PX = declare('--visible-min-px', type=click.IntRange(min=1), help="With --query-landmarks visible: panorama pixels an aerial landmark needs to count as seen.")
+SAVE_PANORAMAS = declare('--save-panoramas', type=click.IntRange(min=0), help="Write the first K rendered panoramas as PNG under OUT/panoramas/.")
+PICTURES = declare('--pictures', type=click.IntRange(min=0), help="Draw the first K localizations under OUT/views/: the mask with candidates, top-k and truth, "
+              "and the panorama with its landmark graph.")
+HEIGHT_SPREAD = declare('--height-spread', type=click.FloatRange(0, 1, max_open=True), help="Each building and tree gets its class height times U(1-s, 1+s), seeded: heights the methods "
+                   "do not know.")
+NO_NEGATIVES = declare('--negatives/--no-negatives', help="Also localize each view in another scene: how well each method's confidence separates "
+                   "matching from non-matching pairs (ROC AUC).")
+RENDERER = declare('--renderer', type=click.Choice(["mask", "geometry"]), help="mask: panoramas ray-cast over the aerial mask, one height per class (the model the profile "
+                   "method scores with) | geometry: ray-cast over the OSM geometry of --osm in 3-D, heights from "
+                   "the tags, see-through tree crowns (shares no code with the methods).")
+NO_SUBSETS = declare('--subsets/--no-subsets', help="Also localize with every subset of 2, 3... landmark classes.")
+NO_PLOTS = declare('--plots/--no-plots', help="Draw errors.png and classes.png.")
+METHODS = declare("--methods", dest="methods_text", metavar="METHOD,...",
+                  help="Methods to compare, comma-separated, side by side in one run: profile, paper. The first "
+                       "fills the summary; the class-subset figure is the paper method's when it comes first.")
+VIEW_HEADING = declare("--view-heading", type=click.Choice(["known", "unknown"]),
+                       help="known: north-aligned views; unknown: each view turned to a seeded random heading the "
+                            "methods are not told (the profile method searches it and its error is reported).")
+PANO_WIDTH = declare("--pano-width", type=click.IntRange(min=8), help="Panorama width (pixels, 360 degrees).")
+PANO_HEIGHT = declare("--pano-height", type=click.IntRange(min=2), help="Panorama height (pixels).")
+
+
 @click.command("localize-bench")
 @output_options
 @click.argument("source", type=click.Path(exists=True, path_type=Path))
 @bench_options
-@click.option("--viewpoints", type=click.IntRange(min=1), default=20, show_default=True,
-              help="Rendered panoramas to localize, placed round-robin over the masks (-n is build's --samples).")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seeds viewpoints and noise.")
-@click.option("--table", default="classes13.toml", show_default=True,
-              help="Class table of a mask file (a dataset folder brings its own).")
-@click.option("--mode", type=click.Choice(["centroid", "grid", "component"]), default="centroid", show_default=True,
-              help="Landmarks as component centroids, grid points or whole components.")
-@click.option("--min-size", type=click.IntRange(min=0), default=50, show_default=True, help="Smallest landmark component (pixels).")
-@click.option("--grid-stride", "stride", type=click.IntRange(min=1), default=50, show_default=True,
-              help="Grid step for --mode grid (pixels), as osmseg localize's --grid-stride.")
-@click.option("--margin", type=click.FloatRange(min=0), default=20.0, show_default=True,
-              help="Viewpoints stay this many metres from the mask border.")
-@click.option("--stand-on", multiple=True, show_default="every flat class but unlabeled and water",
-              help="Classes viewpoints may stand on (repeatable).")
-@click.option("--width", type=click.IntRange(min=8), default=1232, show_default=True, help="Panorama width (pixels, 360 degrees).")
-@click.option("--height", type=click.IntRange(min=2), default=224, show_default=True, help="Panorama height (pixels).")
-@click.option("--max-range", type=click.FloatRange(min=0, min_open=True), default=100.0, show_default=True, help="How far the camera sees (m).")
-@click.option("--class-height", multiple=True, metavar="CLASS=METRES", show_default="building=10, tree=6, others 0",
-              help="Height of a class that occludes (repeatable).")
-@click.option("--confusion", type=click.FloatRange(0, 1), default=0.0, show_default=True,
-              help="Noise: fraction of panorama landmarks relabelled as another landmark class.")
-@click.option("--miss-small", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Noise: panorama landmarks under this many pixels are missed.")
-@click.option("--miss-prob", type=click.FloatRange(0, 1), default=0.0, show_default=True,
-              help="Noise: every other panorama landmark is missed with this probability.")
-@click.option("--offset", type=click.FloatRange(min=0), default=0.0, show_default=True,
-              help="Noise: render from this many metres away from the true viewpoint.")
-@click.option("--query-landmarks", type=click.Choice(["mask", "visible"]), default="mask", show_default=True,
-              help="Panorama landmarks from its rendered mask, or the aerial landmarks the camera sees "
-              "(perfect correspondence, as a person annotating both views: measures the matching alone).")
-@click.option("--visible-min-px", type=click.IntRange(min=1), default=20, show_default=True,
-              help="With --query-landmarks visible: panorama pixels an aerial landmark needs to count as seen.")
-@click.option("--save-panoramas", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Write the first K rendered panoramas as PNG under OUT/panoramas/.")
-@click.option("--pictures", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Draw the first K localizations under OUT/views/: the mask with candidates, top-k and truth, "
-              "and the panorama with its landmark graph.")
-@click.option("--fov", "fov_deg", type=click.FloatRange(10, 360), default=360.0, show_default=True,
-              help="Horizontal field of view of each view: 360 for panoramas, 60-120 for photos.")
-@click.option("--height-spread", type=click.FloatRange(0, 1, max_open=True), default=0.0, show_default=True,
-              help="Each building and tree gets its class height times U(1-s, 1+s), seeded: heights the methods "
-                   "do not know.")
-@click.option("--negatives/--no-negatives", default=True, show_default=True,
-              help="Also localize each view in another scene: how well each method's confidence separates "
-                   "matching from non-matching pairs (ROC AUC).")
-@click.option("--renderer", type=click.Choice(["mask", "geometry"]), default="mask", show_default=True,
-              help="mask: panoramas ray-cast over the aerial mask, one height per class (the model the profile "
-                   "method scores with) | geometry: ray-cast over the OSM geometry of --osm in 3-D, heights from "
-                   "the tags, see-through tree crowns (shares no code with the methods).")
-@click.option("--osm", "osm", multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="With --renderer geometry: the OSM file(s) (.osm, .osm.pbf) the masks were built from.")
-@renamed_option("-n", "viewpoints", type=click.IntRange(min=1), note=" here (-n is build's --samples)")
+@VIEWPOINTS(default=20, show_default=True)
+@SEED(default=0, show_default=True, detail=": viewpoints and noise.")
+@CLASSES(dest="table", default="classes13.toml", show_default=True, detail=" of a mask file (a dataset folder "
+                                                                             "brings its own).")
+@LANDMARK_MODE(dest="mode", default="centroid", show_default=True)
+@MIN_SIZE(default=50, show_default=True)
+@GRID_STRIDE(dest="stride", default=50, show_default=True)
+@MARGIN(default=20.0, show_default=True)
+@STAND_ON(show_default="every flat class but unlabeled and water")
+@PANO_WIDTH(dest="width", default=1232, show_default=True)
+@PANO_HEIGHT(dest="height", default=224, show_default=True)
+@MAX_RANGE(default=100.0, show_default=True)
+@CLASS_HEIGHT(show_default="building=10, tree=6, others 0")
+@CONFUSION(default=0.0, show_default=True)
+@MISS_SMALL(default=0, show_default=True)
+@MISS_PROB(default=0.0, show_default=True)
+@OFFSET(default=0.0, show_default=True)
+@QUERY_LANDMARKS(default="mask", show_default=True)
+@VISIBLE_MIN_PX(default=20, show_default=True)
+@SAVE_PANORAMAS(default=0, show_default=True)
+@PICTURES(default=0, show_default=True)
+@FOV(default=360.0, show_default=True)
+@HEIGHT_SPREAD(default=0.0, show_default=True)
+@NO_NEGATIVES(default=True, show_default=True)
+@RENDERER(default="mask", show_default=True)
+@OSM(detail=": with --renderer geometry, the files (.osm, .osm.pbf) the masks were built from.")
+@moved("-n", "-n is build's --samples: localize-bench renders --viewpoints N")
+@moved("--mode", "--mode is predict's (split-join or rescale): the landmarks are --landmark-mode "
+                 "centroid|grid|component")
+@moved("--width", "--width is train's (channels): the panorama's is --pano-width")
+@moved("--height", "--height is now --pano-height")
+@moved("--table", "--table is now --classes (the class table of a mask file)")
 @click.pass_context
 @report_errors
 def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, viewpoints: int, seed: int, table: str,
                            resolution: float | None, landmark_dict: str | None, mode: str, min_size: int, stride: int,
-                           window: int | None, p: float, top_k: int, margin: float, stand_on: tuple[str, ...],
-                           subsets: bool, width: int, height: int, camera_height: float, max_range: float,
+                           window_text: str, p: float, top_k: int, margin: float, stand_on: tuple[str, ...],
+                           subsets: bool, width: int, height: int, camera_height: str, max_range: float,
                            class_height: tuple[str, ...], confusion: float, miss_small: int, miss_prob: float,
                            offset: float, query_landmarks: str, visible_min_px: int, save_panoramas: int,
                            pictures: int, plots: bool, methods_text: str, heading: str, fov_deg: float,
-                           height_spread: float, negatives: bool, renderer: str, osm: tuple[Path, ...]) -> None:
+                           height_spread: float, negatives: bool, renderer: str, osm: tuple[str, ...]) -> None:
     """Render panoramas at seeded viewpoints of SOURCE and localize them in it.
 
     SOURCE is a dataset folder made by `osmseg build` (its labels/ and manifest.json), or one
-    label mask file (PNG/GeoTIFF of class ids) with --table and --resolution. (A folder of
+    label mask file (PNG/GeoTIFF of class ids) with --classes and --aerial-resolution. (A folder of
     annotated aerial/ground pairs is `osmseg localize-pairs`'s.) Prints the path of
     results.json on stdout and a summary on stderr.
     """
@@ -163,28 +203,30 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     from localization.bench.rendered import BenchConfig, load_dataset_scenes, load_mask_scene, run_bench
 
     methods = _methods(ctx, methods_text)
+    window, height_m = parse_window(window_text), _rendered_height(camera_height)
     if source.is_dir() and is_pairs_folder(source):
         raise ConfigError(f"{source} is a folder of annotated pairs (aerial/ + ground/): score them with "
                           f"osmseg localize-pairs {source} --out {out_dir}")
     config = BenchConfig(
         viewpoints=viewpoints, seed=seed, landmarks=landmark_dict, mode=mode, min_size=min_size, stride=stride,
         window=window, p=p, top_k=top_k, margin_m=margin, stand_on=tuple(stand_on) or None, subsets=subsets,
-        render=RenderConfig(width=width, height=height, camera_height_m=camera_height, max_range_m=max_range,
+        render=RenderConfig(width=width, height=height, camera_height_m=height_m, max_range_m=max_range,
                             heights=parse_heights(class_height), height_spread=height_spread, height_seed=seed),
         noise=NoiseConfig(confusion=confusion, miss_small_px=miss_small, miss_prob=miss_prob, offset_m=offset),
         save_panoramas=save_panoramas, pictures=pictures, query_landmarks=query_landmarks, visible_min_px=visible_min_px,
         methods=methods, heading=heading, fov_deg=fov_deg, negatives=negatives, renderer=renderer,
-        osm=tuple(str(o) for o in osm),
+        osm=tuple(str(o) for o in osm_files(osm)),
     )
     if query_landmarks != "visible" and given(ctx, ("visible_min_px",)):
         raise ConfigError("--visible-min-px applies with --query-landmarks visible only: add it or leave it out")
     if source.is_dir():
         if resolution is not None or given(ctx, ("table",)):
-            raise ConfigError("--resolution and --table are for a mask file; a dataset folder records its own")
+            raise ConfigError("--aerial-resolution and --classes are for a mask file; a dataset folder records its "
+                              "own")
         scenes = load_dataset_scenes(source)
     else:
         if resolution is None:
-            raise ConfigError(f"{source} is a mask file: give its ground resolution with --resolution (m/px)")
+            raise ConfigError(f"{source} is a mask file: give its ground resolution with --aerial-resolution (m/px)")
         scenes = [load_mask_scene(source, table, resolution)]
     with progress_drawer(_drawn(ctx)) as progress:
         results = run_bench(scenes, config, out_dir, progress=progress, plots=plots, source=str(source))
@@ -195,24 +237,21 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
 @output_options
 @click.argument("folder", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @bench_options
-@click.option("--aerial-size", help="WIDTHxHEIGHT of the aerial images when no image lies beside "
-              "the landmark files, e.g. 750x750.")
-@click.option("--ground-size", help="WIDTHxHEIGHT of the panoramas, e.g. 1232x224.")
-@click.option("--conventions", type=click.Choice(["osmseg", "authors"]), default="osmseg", show_default=True,
-              help="The paper method: osmseg's conventions or the authors' MATLAB demo's "
-                   "(see osmseg localize --help); the truth then defaults to (W/2, H/2) as their [375 375].")
+@AERIAL_SIZE()
+@GROUND_SIZE()
+@CONVENTIONS(default="osmseg", show_default=True)
 @click.pass_context
 @report_errors
 def localize_pairs_command(ctx: click.Context, folder: Path, out_dir: Path, resolution: float | None,
-                           landmark_dict: str | None, window: int | None, p: float, top_k: int, subsets: bool,
-                           camera_height: float, methods_text: str, heading: str, plots: bool,
+                           landmark_dict: str | None, window_text: str, p: float, top_k: int, subsets: bool,
+                           camera_height: str, methods_text: str, heading: str, plots: bool,
                            aerial_size: str | None, ground_size: str | None, conventions: str) -> None:
     """Localize every annotated pair of FOLDER: the paper's own evaluation.
 
     FOLDER holds aerial/NAME.txt and ground/NAME.txt landmark files (x y Class), images beside
     them or --aerial-size/--ground-size, and the truth in truth.csv (name,x,y) or the aerial
     centre. Nothing is rendered; the landmark dictionary defaults to camvid (Building,
-    Pavement, Road, Tree) and errors are in pixels unless --resolution gives the aerial m/px.
+    Pavement, Road, Tree) and errors are in pixels unless --aerial-resolution gives the aerial m/px.
     Prints the path of results.json on stdout and a summary on stderr.
     """
     from localization.bench.pairs import PairsConfig, is_pairs_folder, load_pairs, run_pairs
@@ -221,10 +260,11 @@ def localize_pairs_command(ctx: click.Context, folder: Path, out_dir: Path, reso
     if not is_pairs_folder(folder):
         raise ConfigError(f"{folder} is not a folder of annotated pairs (aerial/NAME.txt + ground/NAME.txt); "
                           f"to render views of a dataset or mask, run osmseg localize-bench {folder} --out {out_dir}")
-    config = PairsConfig(landmarks=landmark_dict or "camvid", window=window, p=p, top_k=top_k, subsets=subsets,
+    config = PairsConfig(landmarks=landmark_dict or "camvid", window=parse_window(window_text), p=p, top_k=top_k,
+                         subsets=subsets,
                          resolution_m=resolution, aerial_size=parse_size(aerial_size, "--aerial-size"),
                          ground_size=parse_size(ground_size, "--ground-size"), methods=methods, heading=heading,
-                         camera_height_m=camera_height, conventions=conventions)
+                         camera_height_m=_rendered_height(camera_height), conventions=conventions)
     with progress_drawer(_drawn(ctx)) as progress:
         results = run_pairs(load_pairs(folder, config), config, out_dir, progress=progress, plots=plots,
                             source=str(folder))

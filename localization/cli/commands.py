@@ -32,6 +32,22 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from localization.cli.options import (
+    AERIAL_LANDMARKS,
+    AERIAL_RESOLUTION,
+    AERIAL_SIZE,
+    CAMERA_HEIGHT,
+    CONVENTIONS,
+    FOV,
+    GRID_STRIDE,
+    GROUND_LANDMARKS,
+    GROUND_SIZE,
+    HEADING,
+    LANDMARK_MODE,
+    METHOD,
+    MIN_SIZE,
+    TOP_K,
+    WINDOW,
+    P,
     given,
     misplaced,
     parse_camera_height,
@@ -43,6 +59,7 @@ from localization.cli.options import (
 from localization.cli.region import RegionArgs, region_options, run_region
 from localization.common.inputs import SideOptions
 from osmseg.cli.common import output_options, parse_size, report_errors
+from osmseg.cli.options import OUT, declare, moved
 from osmseg.errors import ConfigError
 from osmseg.texttable import text_table
 from osmseg.units import degrees, metres, number, pixels, plural, ratio
@@ -62,96 +79,91 @@ def _table(result: Any) -> str:
                        for rank, ((x, y, post), i) in enumerate(zip(result.top_k, result.order), start=1)], left=0)
 
 
-@click.command("localize")
-@output_options
-@click.option("--aerial", "aerial_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="Aerial label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy) or RGB image "
+AERIAL = declare('--aerial', dest='aerial_path', type=click.Path(exists=True, dir_okay=False, path_type=Path), help="Aerial label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy) or RGB image "
                    "with --aerial-checkpoint. Or no aerial image at all: a region's OSM with --osm and --bbox.")
-@region_options
-@click.option("--ground", "ground_path", required=True,
-              type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="Ground panorama: label mask, landmark file, or RGB image with --ground-checkpoint.")
-@click.option("--aerial-classes", default="aerial13", show_default=True,
-              help="Landmark class dictionary of the aerial side (data_manifests/landmarks-NAME.toml, or a path).")
-@click.option("--ground-classes", default="camvid", show_default=True,
-              help="Landmark class dictionary of the ground side.")
-@click.option("--aerial-table", show_default="its dataset's manifest",
-              help="Class table of the aerial mask, e.g. classes13.toml.")
-@click.option("--ground-table", show_default="the dictionary's own", help="Class table of the ground mask.")
-@click.option("--aerial-size", show_default="an image beside it", help="WIDTHxHEIGHT of the aerial landmark file's image.")
-@click.option("--ground-size", help="WIDTHxHEIGHT of the ground landmark file's image, e.g. 1232x224.")
-@click.option("--aerial-checkpoint", type=click.Path(exists=True, path_type=Path),
-              help="Segment the aerial RGB image with this checkpoint first (needs PyTorch).")
-@click.option("--ground-checkpoint", type=click.Path(exists=True, path_type=Path),
-              help="Segment the ground RGB image with this checkpoint first (needs PyTorch).")
-@click.option("--panorama/--no-panorama", default=True, show_default=True,
-              help="The ground image is a 360-degree panorama (x wraps around); --no-panorama for an aerial crop.")
-@click.option("--window", "window_text", default="auto", show_default=True,
-              help="Aerial covisibility window in pixels, or auto: mean + 5 sd of nearest-neighbour distances.")
-@click.option("--ground-window", type=click.IntRange(min=1), show_default="a panorama's height; otherwise the aerial window",
-              help="Ground window in pixels.")
-@click.option("--p", "p", type=click.FloatRange(0, 1, min_open=True), default=0.5, show_default=True,
-              help="Candidate extension: add cliques sharing at least this fraction of a relevant clique's landmarks.")
-@click.option("--top-k", type=click.IntRange(min=1), default=5, show_default=True)
-@click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True, help="Window stride in pixels.")
-@click.option("--hierarchical", is_flag=True, help="Refine over --windows, multiplying probabilities (eq. 3.8).")
-@click.option("--windows", "windows_text", default="400,200,100", show_default=True,
-              help="Hierarchical windows, coarse to fine.")
-@click.option("--mode", type=click.Choice(["centroid", "grid", "component"]), default="centroid", show_default=True,
-              help="Landmarks of a mask: component centroids, grid points, or whole components.")
-@click.option("--min-size", type=click.IntRange(min=0), default=50, show_default=True,
-              help="Mask components smaller than this (pixels) are no landmarks.")
-@click.option("--grid-stride", type=click.IntRange(min=1), default=50, show_default=True,
-              help="Spacing of --mode grid.")
-@click.option("--reference", is_flag=True, help="Build graphs with the paper's plain sliding window (slow; a check).")
-@click.option("--truth", "truth_text", help="Ground-truth viewpoint X,Y in aerial pixels (with --osm: LON,LAT): "
+GROUND = declare('--ground', dest='ground_path', type=click.Path(exists=True, dir_okay=False, path_type=Path), help="Ground panorama: label mask, landmark file, or RGB image with --ground-checkpoint.")
+AERIAL_TABLE = declare('--aerial-table', help="Class table of the aerial mask, e.g. classes13.toml.")
+GROUND_TABLE = declare('--ground-table', help="Class table of the ground mask.")
+AERIAL_CHECKPOINT = declare('--aerial-checkpoint', type=click.Path(exists=True, path_type=Path), help="Segment the aerial RGB image with this checkpoint first (needs PyTorch).")
+GROUND_CHECKPOINT = declare('--ground-checkpoint', type=click.Path(exists=True, path_type=Path), help="Segment the ground RGB image with this checkpoint first (needs PyTorch).")
+NO_PANORAMA = declare('--panorama/--no-panorama', help="The ground image is a 360-degree panorama (x wraps around); --no-panorama for an aerial crop.")
+GROUND_WINDOW = declare('--ground-window', type=click.IntRange(min=1), help="Ground window in pixels.")
+STRIDE = declare('--stride', type=click.IntRange(min=1), help="Window stride in pixels.")
+HIERARCHICAL = declare('--hierarchical', is_flag=True, help="Refine over --windows, multiplying probabilities (eq. 3.8).")
+WINDOWS = declare('--windows', dest='windows_text', help="Hierarchical windows, coarse to fine.")
+REFERENCE = declare('--reference', is_flag=True, help="Build graphs with the paper's plain sliding window (slow; a check).")
+TRUTH = declare('--truth', dest='truth_text', help="Ground-truth viewpoint X,Y in aerial pixels (with --osm: LON,LAT): "
               "reports the error.")
-@click.option("--resolution", type=click.FloatRange(min=0, min_open=True),
-              show_default="a GeoTIFF's, or the dataset manifest's",
-              help="Metres per aerial pixel, for errors in metres.")
-@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON instead of a table.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              help="Folder for localization.png, aerial_graph.png, ground_graph.png and result.json.")
-@click.option("--aerial-image", type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="RGB photo of the aerial mask or landmark file: for --feature-threshold, and drawn under the graph.")
-@click.option("--ground-image", type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="RGB photo of the ground mask or landmark file.")
-@click.option("--feature-threshold", type=click.FloatRange(min=0, min_open=True),
-              show_default="off", help="Remove edges between landmarks whose encoder features are closer than this (§5.3.2).")
-@click.option("--feature-metric", type=click.Choice(["euclidean", "cosine"]), default="cosine", show_default=True)
-@click.option("--feature-reduce", type=click.Choice(["none", "pca", "umap"]), default="pca", show_default=True,
-              help="Reduce the features first (umap needs umap-learn). PCA centres them: with 2 landmarks their cosine distance is 2, so nothing is dropped.")
-@click.option("--feature-components", type=click.IntRange(min=1), default=8, show_default=True,
-              help="Dimensions --feature-reduce keeps.")
-@click.option("--feature-checkpoint", type=click.Path(exists=True, path_type=Path),
-              show_default="the side's --aerial-checkpoint/--ground-checkpoint",
-              help="Checkpoint whose encoder gives the features.")
-@click.option("--conventions", type=click.Choice(["osmseg", "authors"]), default="osmseg", show_default=True,
-              help="Paper method: osmseg's (windows from pixel 0, each candidate at the mean of its windows, ties "
-                   "by the clique's own likelihood) or the authors' MATLAB demo's (windows from pixel 1, the first "
-                   "window, ties to the first clique in lexicographic order), to reproduce their figures.")
-@click.option("--method", type=click.Choice(["profile", "paper"]), default="profile", show_default=True,
-              help="profile: angular profiles on a dense grid (docs/localization.md), which also gives the heading "
-                   "and a confidence, and needs the aerial resolution; paper: landmark-graph matching (Verde et "
-                   "al. 2020).")
-@click.option("--heading", "heading_text", default="0", show_default=True,
-              help="Profile method: compass azimuth (degrees) of the ground image's centre column, or 'unknown' "
-                   "to search it. CVUSA-style panoramas are north-aligned: 0.")
-@click.option("--fov", "fov_deg", type=click.FloatRange(10, 360), default=360.0, show_default=True,
-              help="Profile method: horizontal field of view of the ground image in degrees (a photo: 60-120).")
-@click.option("--camera-height", "camera_height_text", default="2", show_default=True,
-              help="Profile method: metres of the ground camera above the ground, or 'unknown' to try 1.5 to "
-                   "2.5 m in 0.25 m steps (a hand-held camera to a car's), each place with the height that fits it.")
-@click.option("--tilt", "tilt_deg", type=click.FloatRange(0, 10), default=0.0, show_default="level",
-              help="Profile method: the camera may be tilted up to this many degrees in pitch and roll; the tilt is "
+JSON = declare('--json', dest='as_json', is_flag=True, help="Print the result as JSON instead of a table.")
+AERIAL_IMAGE = declare('--aerial-image', type=click.Path(exists=True, dir_okay=False, path_type=Path), help="RGB photo of the aerial mask or landmark file: for --feature-threshold, and drawn under the graph.")
+GROUND_IMAGE = declare('--ground-image', type=click.Path(exists=True, dir_okay=False, path_type=Path), help="RGB photo of the ground mask or landmark file.")
+FEATURE_THRESHOLD = declare('--feature-threshold', type=click.FloatRange(min=0, min_open=True), help="Remove edges between landmarks whose encoder features are closer than this (§5.3.2).")
+FEATURE_METRIC = declare('--feature-metric', type=click.Choice(["euclidean", "cosine"]),
+                         help="Distance between two landmarks' encoder features.")
+FEATURE_REDUCE = declare('--feature-reduce', type=click.Choice(["none", "pca", "umap"]), help="Reduce the features first (umap needs umap-learn). PCA centres them: with 2 landmarks their cosine distance is 2, so nothing is dropped.")
+FEATURE_COMPONENTS = declare('--feature-components', type=click.IntRange(min=1), help="Dimensions --feature-reduce keeps.")
+FEATURE_CHECKPOINT = declare('--feature-checkpoint', type=click.Path(exists=True, path_type=Path), help="Checkpoint whose encoder gives the features.")
+TILT = declare('--tilt', dest='tilt_deg', type=click.FloatRange(0, 10), help="Profile method: the camera may be tilted up to this many degrees in pitch and roll; the tilt is "
                    "read from the ground mask's horizon, where its sky ends and its ground begins (give the sky as a "
                    "class: the ground table's 'sky', id 14 for classes13).")
-@click.option("--min-confidence", type=click.FloatRange(-1, 1), show_default="0.04 for an aerial mask, none for aerial "
-              "landmark points", help="Profile method: below this confidence (how far the answer stands out from "
+MIN_CONFIDENCE = declare('--min-confidence', type=click.FloatRange(-1, 1), help="Profile method: below this confidence (how far the answer stands out from "
               "the best place 50 m or more away) the answer is 'not sure'.")
-@click.option("--min-kappa", type=click.FloatRange(-1, 1), show_default="0.6 for an aerial mask, 0.3 for aerial landmark "
-              "points", help="Profile method: below this kappa (the best match against chance) the answer is 'not in "
+MIN_KAPPA = declare('--min-kappa', type=click.FloatRange(-1, 1), help="Profile method: below this kappa (the best match against chance) the answer is 'not in "
               "this image'; lower it for segmented RGB queries.")
+
+
+@click.command("localize")
+@output_options
+@AERIAL()
+@region_options
+@GROUND(required=True)
+@AERIAL_LANDMARKS(default="aerial13", show_default=True)
+@GROUND_LANDMARKS(default="camvid", show_default=True)
+@AERIAL_TABLE(show_default="its dataset's manifest")
+@GROUND_TABLE(show_default="the dictionary's own")
+@AERIAL_SIZE(show_default="an image beside it")
+@GROUND_SIZE()
+@AERIAL_CHECKPOINT()
+@GROUND_CHECKPOINT()
+@NO_PANORAMA(default=True, show_default=True)
+@WINDOW(default="auto", show_default=True)
+@GROUND_WINDOW(show_default="a panorama's height; otherwise the aerial window")
+@P(default=0.5, show_default=True)
+@TOP_K(default=5, show_default=True)
+@STRIDE(default=1, show_default=True)
+@HIERARCHICAL()
+@WINDOWS(default="400,200,100", show_default=True)
+@LANDMARK_MODE(dest="mode", default="centroid", show_default=True)
+@MIN_SIZE(default=50, show_default=True)
+@GRID_STRIDE(default=50, show_default=True)
+@REFERENCE()
+@TRUTH()
+@AERIAL_RESOLUTION(dest="resolution", show_default="a GeoTIFF's, or the dataset manifest's")
+@JSON()
+@OUT(detail=" of localization.png, aerial_graph.png, ground_graph.png and result.json.")
+@AERIAL_IMAGE()
+@GROUND_IMAGE()
+@FEATURE_THRESHOLD(show_default="off")
+@FEATURE_METRIC(default="cosine", show_default=True)
+@FEATURE_REDUCE(default="pca", show_default=True)
+@FEATURE_COMPONENTS(default=8, show_default=True)
+@FEATURE_CHECKPOINT(show_default="the side's --aerial-checkpoint/--ground-checkpoint")
+@CONVENTIONS(default="osmseg", show_default=True)
+@METHOD(default="profile", show_default=True)
+@HEADING(default="0", show_default=True)
+@FOV(default=360.0, show_default=True)
+@CAMERA_HEIGHT(default="2", show_default=True)
+@TILT(default=0.0, show_default="level")
+@MIN_CONFIDENCE(show_default="0.04 for an aerial mask, none for aerial landmark points")
+@MIN_KAPPA(show_default="0.6 for an aerial mask, 0.3 for aerial landmark points")
+@moved("--mode", "--mode is predict's (split-join or rescale): osmseg localize's landmarks are --landmark-mode "
+                 "centroid|grid|component")
+@moved("--resolution", "--resolution is predict's (resample the input): osmseg localize takes the aerial "
+                       "image's metres per pixel as --aerial-resolution")
+@moved("--aerial-classes", "--aerial-classes is now --aerial-landmarks (a landmark dictionary; --aerial-table is "
+                           "the class table)")
+@moved("--ground-classes", "--ground-classes is now --ground-landmarks (a landmark dictionary; --ground-table is "
+                           "the class table)")
 @click.pass_context
 @report_errors
 def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, aerial_classes: str,

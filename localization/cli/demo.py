@@ -18,9 +18,11 @@ import click
 from osmseg.cli.build import run_build
 from osmseg.cli.common import output_options, report_errors
 from osmseg.cli.drawers import progress_drawer
+from osmseg.cli.options import OUT, declare
 from osmseg.demo import DEMO_CASSETTE, demo_config
-from osmseg.progress import Progress
+from osmseg.runtime.progress import Progress
 from osmseg.units import plural, ratio
+from training.cli import EPOCHS
 
 #: The demo's training run: the default network (SegNet with skips) at 1/8 of its width, by the
 #: default recipe (epochs of 50 steps of 16 random crops), long enough to learn the rendered
@@ -30,9 +32,9 @@ DEMO_TRAINING = {"model": "airsegnet13", "width": 0.125, "epochs": 8, "loader_wo
 
 def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, progress: Progress | None) -> None:
     """Train the demo model briefly on the demo dataset, then evaluate it on its test split."""
-    from training.config import make_config
-    from training.evaluate import EvalOptions, run_eval
-    from training.train import run
+    from training.evaluation.evaluate import EvalOptions, run_eval
+    from training.run.config import make_config
+    from training.run.train import run
 
     run_dir, eval_dir = out_dir / "run", out_dir / "eval"
     settings = dict(DEMO_TRAINING, epochs=epochs, device="cpu")
@@ -77,15 +79,17 @@ def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: Pr
                    err=True)
 
 
+TRAIN = declare('--train/--no-train', help="After the build, train a tiny AirSegNet13 on the CPU and evaluate it (needs osmseg[train]).")
+LOCALIZE = declare('--localize/--no-localize', help="After the build, localize rendered panoramas in the dataset's masks (localize-bench).")
+
+
 @click.command("demo")
 @output_options
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-out"),
-              show_default=True, help="Output folder: dataset/, localize/, run/ (training) and eval/ (metrics, pictures).")
-@click.option("--train/--no-train", default=True, show_default=True,
-              help="After the build, train a tiny AirSegNet13 on the CPU and evaluate it (needs osmseg[train]).")
-@click.option("--epochs", type=click.IntRange(min=1), default=DEMO_TRAINING["epochs"], show_default=True)
-@click.option("--localize/--no-localize", default=True, show_default=True,
-              help="After the build, localize rendered panoramas in the dataset's masks (localize-bench).")
+@OUT(default=Path("demo-out"), show_default=True, detail=": dataset/, localize/, run/ (training) and eval/ (metrics, "
+                                                         "pictures).")
+@TRAIN(default=True, show_default=True)
+@EPOCHS(default=DEMO_TRAINING["epochs"], show_default=True)
+@LOCALIZE(default=True, show_default=True)
 @click.pass_context
 @report_errors
 def demo_command(ctx: click.Context, out_dir: Path, train: bool, epochs: int, localize: bool) -> None:

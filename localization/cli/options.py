@@ -1,21 +1,35 @@
 """Parsers of ``osmseg localize`` and ``localize-bench`` options that click's types do not cover.
 
 Each turns the text of an option into a value or raises a one-line
-:class:`~osmseg.errors.ConfigError` that says what to give. Imports: osmseg core and
-localization.profile.search.
+:class:`~osmseg.errors.ConfigError` that says what to give. Below them, the options that more
+than one ``localize`` command takes, declared once (:mod:`osmseg.cli.options`). Imports: osmseg
+core and localization.profile.search.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import click
 
 from localization.profile.search import UNKNOWN_HEIGHTS
 from osmseg.cli.common import typed_options
+from osmseg.cli.options import declare
 from osmseg.errors import ConfigError
 
-__all__ = ["given", "misplaced", "parse_pair", "parse_point", "parse_window", "parse_windows", "parse_camera_height", "parse_heading", "parse_heights"]
+__all__ = ["given", "misplaced", "osm_files", "parse_pair", "parse_point", "parse_window", "parse_windows", "parse_camera_height", "parse_heading", "parse_heights"]
+
+
+def osm_files(values: tuple[str, ...]) -> tuple[Path, ...]:
+    """``--osm`` as the files a localize command reads: each an existing file (not ``api`` or
+    ``overpass``, which only ``osmseg build`` fetches from)."""
+    files = tuple(Path(v) for v in values)
+    for path in files:
+        if not path.is_file():
+            raise click.BadParameter(f"{path} is not a file: osmseg localize reads OpenStreetMap files (.osm, "
+                                     ".osm.pbf)", param_hint="'--osm'")
+    return files
 
 
 def parse_point(value: str | None) -> tuple[float, float] | None:
@@ -143,3 +157,50 @@ def given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
     by_name = {p.name: p for p in ctx.command.params}
     typed = typed_options(ctx)
     return [max(by_name[n].opts, key=len) for n in names if n in typed]
+
+
+# ------------------------------------------------------------------ options of more than one localize command
+# (each declared once: osmseg.cli.options; a flag's second declaration is an error at import)
+
+P = declare("--p", type=click.FloatRange(0, 1, min_open=True),
+            help="Paper method: candidates grow by the cliques sharing at least this fraction of a relevant clique's "
+                 "landmarks (covisibility).")
+TOP_K = declare("--top-k", type=click.IntRange(min=1), help="Locations reported, best first.")
+WINDOW = declare("--window", dest="window_text", metavar="PIXELS|auto",
+                 help="Paper method: the aerial covisibility window in pixels, or auto: mean + 5 sd of "
+                      "nearest-neighbour distances between landmarks.")
+LANDMARK_MODE = declare("--landmark-mode", type=click.Choice(["centroid", "grid", "component"]),
+                        help="Landmarks of a mask: component centroids, grid points (every --grid-stride pixels), or "
+                             "whole components.")
+MIN_SIZE = declare("--min-size", type=click.IntRange(min=0),
+                   help="Mask components smaller than this (pixels) are no landmarks.")
+GRID_STRIDE = declare("--grid-stride", type=click.IntRange(min=1), help="Spacing of --landmark-mode grid (pixels).")
+FOV = declare("--fov", dest="fov_deg", type=click.FloatRange(10, 360),
+              help="Horizontal field of view of the ground view in degrees: 360 for a panorama, 60-120 for a photo.")
+CAMERA_HEIGHT = declare("--camera-height", dest="camera_height_text", metavar="METRES|unknown",
+                        help="Metres of the ground camera above the ground, or 'unknown' to try 1.5 to 2.5 m in 0.25 m "
+                             "steps (a hand-held camera to a car's), each place with the height that fits it.")
+AERIAL_RESOLUTION = declare("--aerial-resolution", metavar="METRES", type=click.FloatRange(min=0, min_open=True),
+                            help="Ground resolution of the aerial side in metres per pixel, for errors in metres")
+AERIAL_SIZE = declare("--aerial-size", metavar="WIDTHxHEIGHT",
+                      help="Size of the aerial image of a landmark file, when no image lies beside it, e.g. 750x750.")
+GROUND_SIZE = declare("--ground-size", metavar="WIDTHxHEIGHT",
+                      help="Size of the ground image of a landmark file, when no image lies beside it, e.g. 1232x224.")
+CONVENTIONS = declare("--conventions", type=click.Choice(["osmseg", "authors"]),
+                      help="Paper method: osmseg's (windows from pixel 0, each candidate at the mean of its windows, "
+                           "ties by the clique's own likelihood) or the authors' MATLAB demo's (windows from pixel 1, "
+                           "the first window, ties to the first clique in lexicographic order), to reproduce their "
+                           "figures.")
+METHOD = declare("--method", type=click.Choice(["profile", "paper"]),
+                 help="profile: angular profiles on a dense grid (docs/localization.md), which also gives the heading "
+                      "and a confidence, and needs the aerial resolution; paper: landmark-graph matching (Verde et "
+                      "al. 2020).")
+HEADING = declare("--heading", dest="heading_text", metavar="DEGREES|unknown",
+                  help="Profile method: compass azimuth (degrees) of the ground image's centre column, or 'unknown' "
+                       "to search it. CVUSA-style panoramas are north-aligned: 0.")
+LANDMARKS = declare("--landmarks", dest="landmark_dict", metavar="NAME",
+                    help="Landmark class dictionary (data_manifests/landmarks-NAME.toml).")
+AERIAL_LANDMARKS = declare("--aerial-landmarks", dest="aerial_classes", metavar="NAME",
+                           help="Landmark class dictionary of the aerial side (data_manifests/landmarks-NAME.toml).")
+GROUND_LANDMARKS = declare("--ground-landmarks", dest="ground_classes", metavar="NAME",
+                           help="Landmark class dictionary of the ground side (data_manifests/landmarks-NAME.toml).")

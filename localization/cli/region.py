@@ -21,12 +21,13 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from localization.cli.options import parse_pair
+from localization.cli.options import osm_files, parse_pair
 from localization.common.inputs import SideOptions
 from osmseg.cli.common import default_cache_dir, parse_size
 from osmseg.cli.drawers import progress_drawer
+from osmseg.cli.options import BBOX, CACHE_DIR, LAT, LON, OSM, RADIUS_KM, SHARD, ZOOM
 from osmseg.errors import ConfigError
-from osmseg.shard import Shard
+from osmseg.runtime.shard import Shard
 from osmseg.texttable import text_table
 from osmseg.units import degrees, metres, plural, ratio
 
@@ -75,26 +76,24 @@ def region_options(command: Callable[..., Any]) -> Callable[..., Any]:
     """Add the region options to a click command; it receives them as ``region=RegionArgs(...)``."""
     @functools.wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        kwargs["osm"] = osm_files(kwargs["osm"])
+        if not 14 <= kwargs["zoom"] <= 21:
+            raise click.UsageError(f"--zoom {kwargs['zoom']}: a region is drawn at zoom 14 to 21")
         kwargs["region"] = RegionArgs(**{k: kwargs.pop(k) for k in REGION_KEYS})
         return command(*args, **kwargs)
 
     options = [
-        click.option("--osm", "osm", multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path),
-                     help="Search a whole region instead of an aerial image: its OpenStreetMap file(s) (.osm, "
-                          ".osm.pbf), drawn in --aerial-table's classes, with --bbox or --lat/--lon/--radius-km."),
-        click.option("--bbox", "bbox_text", metavar="W,S,E,N", help="With --osm: the region to search, in degrees."),
-        click.option("--lat", type=float, help="With --osm: the centre of the region (with --lon, --radius-km)."),
-        click.option("--lon", type=float, help="With --osm: the centre of the region (with --lat, --radius-km)."),
-        click.option("--radius-km", type=click.FloatRange(min=0, min_open=True),
-                     help="With --osm, --lat, --lon: search the square around this disc."),
-        click.option("--zoom", type=click.IntRange(14, 21), default=18, show_default=True,
-                     help="With --osm: the zoom the region is drawn at (18: about 0.6 m x cos(latitude) a pixel)."),
-        click.option("--shard", "shard_text", metavar="K/N",
-                     help="With --osm: search only this process's share of the region's blocks (array jobs, "
-                          "docs/scale.md); every shard writes its part to --out, the last one writes the answers."),
-        click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path),
-                     show_default="$OSMSEG_CACHE_DIR or ~/.cache/osmseg",
-                     help="With --osm: where the drawn region is kept, so the next query of it is not drawn again."),
+        OSM(detail=": with files (.osm, .osm.pbf), search a whole region of them instead of an aerial image, drawn "
+                   "in --aerial-table's classes, with --bbox or --lat/--lon/--radius-km."),
+        BBOX(dest="bbox_text", detail=": with --osm, the region to search."),
+        LAT(detail=": with --osm, the centre of the region (with --lon, --radius-km)."),
+        LON(detail=": with --osm, the centre of the region (with --lat, --radius-km)."),
+        RADIUS_KM(detail=": with --osm, --lat, --lon, search the square around this disc."),
+        ZOOM(default=18, show_default=True, detail=": with --osm, the zoom the region is drawn at, 14 to 21."),
+        SHARD(dest="shard_text", detail=": with --osm, the region's blocks (docs/scale.md); every shard writes its "
+                                        "part to --out, the last one writes the answers."),
+        CACHE_DIR(show_default="$OSMSEG_CACHE_DIR or ~/.cache/osmseg",
+                  detail=": with --osm, the drawn region, so the next query of it is not drawn again."),
     ]
     for option in reversed(options):
         wrapper = option(wrapper)

@@ -16,7 +16,7 @@
   distinct alternative and the truth, on axes in plain degrees.
 
 Each ``*_png`` draws with a ``draw_*`` function on a new figure and writes it. House style as
-:mod:`training.figures`: matplotlib's object-oriented API on an Agg canvas (never ``pyplot``),
+:mod:`training.evaluation.figures`: matplotlib's object-oriented API on an Agg canvas (never ``pyplot``),
 style through :func:`matplotlib.rc_context`, PNGs rendered in memory without a software stamp
 (same input, same bytes), cut to everything drawn (no title cut off) and written atomically
 (:mod:`osmseg.output.plotting`).

@@ -204,8 +204,8 @@ def _segmented_side(path: Path, pixels: np.ndarray, resolution: float | None, op
     from osmseg.cli.common import require_torch
 
     require_torch()
-    from training.checkpoint import model_from_checkpoint
-    from training.infer import predict_array
+    from training.inference.windows import predict_array
+    from training.models.checkpoint import model_from_checkpoint
 
     rgb = _photo(path, pixels)
     if rgb is None:

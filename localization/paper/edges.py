@@ -43,7 +43,7 @@ def feature_edge_mask(features: np.ndarray, threshold: float, *, metric: str = "
         raise ConfigError(f"features must be a finite (K, d) array, one row per landmark; got shape {x.shape}")
     if len(x) > MAX_FEATURE_LANDMARKS:  # K x K distances, 8 bytes each
         raise ConfigError(f"{len(x):,} landmarks are too many for feature edges (a {len(x):,}² distance matrix): "
-                          f"keep at most {MAX_FEATURE_LANDMARKS:,} (a larger --min-size, --mode centroid)")
+                          f"keep at most {MAX_FEATURE_LANDMARKS:,} (a larger --min-size, --landmark-mode centroid)")
     if reduce == "pca":
         centred = x - x.mean(axis=0)
         u, sv, _ = np.linalg.svd(centred, full_matrices=False)

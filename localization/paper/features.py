@@ -62,7 +62,7 @@ def fitted_size(n: int, step: int) -> int:
 def _model(model: Any, device: str) -> tuple[Any, Any]:
     """``(network, spec)`` from a checkpoint path, or an already loaded ``(network, spec)`` pair."""
     if isinstance(model, (str, Path)):
-        from training.checkpoint import model_from_checkpoint
+        from training.models.checkpoint import model_from_checkpoint
 
         model = model_from_checkpoint(Path(model), device=device)
     net, spec = model
@@ -113,19 +113,19 @@ def landmark_features(image_rgb: np.ndarray, landmarks: Landmarks, model: Any, *
         landmarks: their positions; for component landmarks (``pixels`` not None) the feature
             is the mean of the cells their pixels fall in, weighted by how many fall in each.
         model: a checkpoint path, or a ``(SegNet, ModelSpec)`` pair (as
-            :func:`~training.checkpoint.model_from_checkpoint` returns).
+            :func:`~training.models.checkpoint.model_from_checkpoint` returns).
         stage: the encoder stage whose pooled output is sampled (5, the deepest: the encoder's
             output, cells of 32 px that see ~200 px). device: as inference (cpu, cuda, cuda:N).
 
     The image is resized to multiples of ``2**stage`` (see the module docstring), normalised
     with the checkpoint's mean and std exactly as inference does
-    (:func:`training.infer.normalise`), and encoded once. A point landmark at ``(x, y)``
+    (:func:`training.inference.windows.normalise`), and encoded once. A point landmark at ``(x, y)``
     gets the bilinear sample of the feature map at the same relative position (cell centres
     at ``(j + 1/2) W / w - 1/2``; positions past the outer cell centres take the edge cell's).
     """
     torch = _torch()
-    from training.distributed import pick_device
-    from training.infer import normalise
+    from training.devices import pick_device
+    from training.inference.windows import normalise
 
     if not 1 <= stage <= DEEPEST:
         raise ConfigError(f"encoder stage must be 1..{DEEPEST}, got {stage}")

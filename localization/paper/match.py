@@ -203,7 +203,7 @@ class _EdgeTable:
         if pairs > MAX_CLIQUE_PAIRS:
             raise ConfigError(f"the graph's windows hold {pairs:,} landmark pairs ({k:,} landmarks, up to "
                               f"{int(sizes.max()):,} in one window): too many to match; use fewer landmarks "
-                              "(a larger --min-size, --mode centroid) or a smaller --window")
+                              "(a larger --min-size, --landmark-mode centroid) or a smaller --window")
         clique_of, code_of = [], []
         for size in np.unique(sizes[sizes >= 2]):  # cliques of one size: a rectangular block of indices
             rows = np.flatnonzero(sizes == size)

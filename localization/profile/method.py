@@ -43,7 +43,7 @@ def profile_index(aerial: SemanticMap | Landmarks, resolution_m: float | None,
     """The aerial side of the profile method: from a mask (ray casting) or landmark points (kernels)."""
     if not resolution_m:
         raise ConfigError("the profile method measures distances in metres: give the aerial resolution "
-                          "(--resolution, m/px), or a GeoTIFF or dataset mask that records it, or use --method paper")
+                          "(--aerial-resolution, m/px), or a GeoTIFF or dataset mask that records it, or use --method paper")
     if isinstance(aerial, SemanticMap):
         return AerialMaskIndex(aerial, resolution_m, config.samples)
     return AerialLandmarkIndex(aerial, resolution_m, sigma_deg=config.sigma_deg, distance_sd=config.distance_sd,

@@ -351,7 +351,7 @@ class AerialLandmarkIndex:
                  d0_m: float = 200.0, opaque: Sequence[str] = OPAQUE_LANDMARKS,
                  half_widths_m: Sequence[float] = HALF_WIDTHS_M) -> None:
         if not (resolution_m > 0 and math.isfinite(resolution_m)):
-            raise ConfigError("the profile method needs the aerial ground resolution in m/px (--resolution); "
+            raise ConfigError("the profile method needs the aerial ground resolution in m/px (--aerial-resolution); "
                               f"got {resolution_m}")
         self.lm, self.resolution_m = lm, float(resolution_m)
         self.sigma, self.distance_sd, self.d0_m = math.radians(sigma_deg), distance_sd, d0_m

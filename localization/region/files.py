@@ -46,8 +46,8 @@ from osmseg.errors import ConfigError
 from osmseg.osm.localfile import LocalFileSource
 from osmseg.output.atomic import atomic_write_text
 from osmseg.output.manifest import refuse_busy
-from osmseg.progress import Progress
-from osmseg.shard import Shard
+from osmseg.runtime.progress import Progress
+from osmseg.runtime.shard import Shard
 
 __all__ = ["RegionRequest", "RegionRun", "localize_region", "part_to_json", "part_from_json"]
 

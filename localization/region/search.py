@@ -51,8 +51,8 @@ from localization.region.cache import BlockMasks
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
 from osmseg.grid import SampleGrid, ground_resolution, pixel_lonlat
-from osmseg.progress import Progress, track
-from osmseg.shard import Shard
+from osmseg.runtime.progress import Progress, track
+from osmseg.runtime.shard import Shard
 
 __all__ = ["RegionConfig", "Answer", "RegionResult", "RegionPart", "region_blocks", "prior_blocks", "search_part",
            "merge_parts", "search_region", "distance_m", "pixel_lonlat"]

@@ -1,7 +1,7 @@
 """``osmseg build``: make a segmentation dataset from OpenStreetMap and aerial imagery.
 
 The options land in :class:`BuildOptions`, the one table of what each option is: the
-:class:`~osmseg.build.config.BuildConfig` is made from it (:func:`build_config`), the command
+:class:`~osmseg.builder.config.BuildConfig` is made from it (:func:`build_config`), the command
 recorded in the manifest reads each content option back from the config through it
 (:func:`content_options`, :func:`recorded_command`, flags spelled as click knows them), and
 the options that never change what is built are its plain fields (:data:`NOT_CONTENT`), so
@@ -20,10 +20,11 @@ from typing import Any
 
 import click
 
-from osmseg.build.builder import DEFAULT_ZOOM, NO_IMAGERY_REASONS, SAMPLE_TILES, BuildConfig, BuildSummary, Shard, build
-from osmseg.build.filters import FilterConfig
+from osmseg.builder.filters import FilterConfig
+from osmseg.builder.run import DEFAULT_ZOOM, NO_IMAGERY_REASONS, SAMPLE_TILES, BuildConfig, BuildSummary, Shard, build
 from osmseg.cli.common import command_line_of, default_cache_dir, output_options, report_errors
 from osmseg.cli.drawers import Mode, progress_drawer
+from osmseg.cli.options import BBOX, CACHE_DIR, CLASSES, LAT, LON, OSM, OUT, RADIUS_KM, SEED, SHARD, ZOOM, declare
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT, missing_bing_key
 from osmseg.output import command_line
@@ -102,58 +103,84 @@ def no_sample_error(summary: BuildSummary, config: BuildConfig) -> DatasetError:
                         f"loosen the filters, {more}, or sample another area")
 
 
+CITY = declare("--city", help="A preset area (data_manifests/cities.toml), e.g. Berlin, 'São Paulo'; any case/accents.")
+SAMPLES = declare("--samples", "-n", type=int, help="Accepted samples wanted.")
+SAMPLE_TILES_OPTION = declare("--sample-tiles", type=click.Choice([str(n) for n in SAMPLE_TILES]),
+                              help="Tiles per side of a sample (256 px each): 5 = 1280 px, the dissertation's; fewer "
+                                   "for a small orthophoto or tile folder, so that several samples fit without "
+                                   "overlapping.")
+IMAGERY = declare("--imagery", help="A provider name (Esri.WorldImagery, GeoportailFrance.orthos, USGS.USImagery, ...; "
+                                    "docs/imagery.md) | xyz:TEMPLATE | geotiff:PATH | bing (needs BING_MAPS_KEY).")
+TILE_SIZE = declare("--tile-size", type=click.Choice(["256", "512", "1024"]),
+                    help="Px of the tile server's tiles, when the provider does not say (a 512-px or @2x server); "
+                         "every tile is checked against it.")
+IMAGE_FORMAT = declare("--image-format", type=click.Choice(["png", "jpg", "cog"]),
+                       help="cog: images/NAME.tif, a Cloud-Optimized GeoTIFF on the label GeoTIFF's grid (GIS, "
+                            "torchgeo); png/jpg: the dissertation's layout.")
+MAX_UNLABELED = declare("--max-unlabeled", type=click.FloatRange(0, 1),
+                        help="Reject samples with at least this unlabeled share.")
+MIN_CLASSES = declare("--min-classes", type=click.IntRange(min=0), help="Reject samples with fewer classes.")
+MIN_CONTRAST = declare("--min-contrast", type=click.FloatRange(0, 255),
+                       help="Reject images whose grey-level standard deviation (0-255) is below this.")
+MAX_MISSING = declare("--max-missing-imagery", type=click.FloatRange(0, 1),
+                      help="Reject samples with more than this share of pixels without imagery.")
+MAX_PLACEHOLDERS = declare("--max-placeholder-tiles", type=click.IntRange(0, None),
+                           help="Reject samples with more provider 'no imagery' tiles than this.")
+MAX_TRIES = declare("--max-tries", type=click.IntRange(min=1), help="Centres tried per sample before giving up on it.")
+NO_OVERLAP = declare("--no-overlap", is_flag=True,
+                     help="Samples never share a pixel: each attempt takes its own block of the area's tile grid "
+                          "(seeded).")
+TIMEOUT = declare("--timeout", dest="http_timeout", type=click.FloatRange(min=0.1),
+                  help="Seconds to wait for a server to connect or send more bytes before retrying.")
+RETRIES = declare("--retries", dest="http_retries", type=click.IntRange(min=0),
+                  help="Further attempts of a request that timed out, was cut off, or got 429/5xx or an unusable body.")
+RETRY_DELAY = declare("--retry-delay", dest="http_retry_delay", type=click.FloatRange(min=0),
+                      help="Seconds before the first retry, doubling with each (a server's Retry-After comes first).")
+OFFLINE = declare("--offline", is_flag=True, help="Use only the cache; fail on anything not cached.")
+BUILD_WORKERS = declare("--workers", type=click.IntRange(min=0),
+                        help="Processes building samples at once; the dataset's bytes are the same for any number.")
+ZIP = declare("--zip", dest="make_zip", is_flag=True, help="Also write OUT.zip.")
+RECORD = declare("--record", type=click.Path(dir_okay=False, path_type=Path),
+                 help="Record all HTTP traffic to a cassette (keys removed).")
+REPLAY = declare("--replay", type=click.Path(dir_okay=False, exists=True, path_type=Path),
+                 help="Serve all HTTP from a recorded cassette.")
+
+
 @click.command("build")
 @output_options
-@click.option("--city", help="A preset area (data_manifests/cities.toml), e.g. Berlin, 'São Paulo'; any case/accents.")
-@click.option("--lat", type=float, help="Centre latitude (with --lon) for an area anywhere.")
-@click.option("--lon", type=float, help="Centre longitude (with --lat).")
-@click.option("--radius-km", type=click.FloatRange(min=0, min_open=True), show_default="the preset's, or 2 km",
-              help="Sampling radius around the centre.")
-@click.option("--bbox", help="Sample uniformly inside W,S,E,N (degrees) instead of a disc.")
-@click.option("--samples", "-n", type=int, default=30, show_default=True, help="Accepted samples wanted.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed for every random choice (recorded).")
-@click.option("--zoom", type=click.IntRange(1, 23), default=DEFAULT_ZOOM, show_default=True,
-              help="Tile zoom. 18 = ~0.6 m/px at the equator, ~0.37 m/px at 52°N (see docs).")
-@click.option("--sample-tiles", type=click.Choice([str(n) for n in SAMPLE_TILES]), default="5", show_default=True,
-              help="Tiles per side of a sample (256 px each): 5 = 1280 px, the dissertation's; fewer for a small "
-                   "orthophoto or tile folder, so that several samples fit without overlapping.")
-@click.option("--imagery", help="A provider name (Esri.WorldImagery, GeoportailFrance.orthos, USGS.USImagery, ...; "
-              "docs/imagery.md) | xyz:TEMPLATE | geotiff:PATH | bing (needs BING_MAPS_KEY).", show_default="bing")
-@click.option("--tile-size", type=click.Choice(["256", "512", "1024"]), default=None,
-              help="Px of the tile server's tiles, when the provider does not say (a 512-px or @2x server); "
-                   "every tile is checked against it.", show_default="256; 512 for an @2x template")
-@click.option("--osm", default="api", show_default=True, help="api | overpass | PATH.osm(.pbf) | geojson:PATH (see docs/osm.md).")
-@click.option("--classes", default="classes13.toml", show_default=True, help="Class table: classes13.toml or classes6.toml or a path.")
-@click.option("--image-format", type=click.Choice(["png", "jpg", "cog"]), default="png", show_default=True,
-              help="cog: images/NAME.tif, a Cloud-Optimized GeoTIFF on the label GeoTIFF's grid (GIS, torchgeo); "
-                   "png/jpg: the dissertation's layout.")
-@click.option("--max-unlabeled", type=click.FloatRange(0, 1), default=0.70, show_default=True, help="Reject samples with at least this unlabeled share.")
-@click.option("--min-classes", type=click.IntRange(min=0), default=2, show_default=True, help="Reject samples with fewer classes.")
-@click.option("--min-contrast", type=click.FloatRange(0, 255), default=FilterConfig.min_contrast, show_default=True,
-              help="Reject images whose grey-level standard deviation (0-255) is below this.")
-@click.option("--max-missing-imagery", type=click.FloatRange(0, 1), default=0.0, show_default=True,
-              help="Reject samples with more than this share of pixels without imagery.")
-@click.option("--max-placeholder-tiles", type=click.IntRange(0, None), default=0, show_default=True,
-              help="Reject samples with more provider 'no imagery' tiles than this.")
-@click.option("--max-tries", type=click.IntRange(min=1), default=10, show_default=True, help="Centres tried per sample before giving up on it.")
-@click.option("--no-overlap", is_flag=True,
-              help="Samples never share a pixel: each attempt takes its own block of the area's tile grid (seeded).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="Output folder (rerun to resume).")
-@click.option("--cache-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              show_default="$OSMSEG_CACHE_DIR, else $XDG_CACHE_HOME/osmseg, else ~/.cache/osmseg", help="HTTP/OSM cache.")
-@click.option("--timeout", "http_timeout", type=click.FloatRange(min=0.1), default=30.0, show_default=True,
-              help="Seconds to wait for a server to connect or send more bytes before retrying.")
-@click.option("--retries", "http_retries", type=click.IntRange(min=0), default=5, show_default=True,
-              help="Further attempts of a request that timed out, was cut off, or got 429/5xx or an unusable body.")
-@click.option("--retry-delay", "http_retry_delay", type=click.FloatRange(min=0), default=0.5, show_default=True,
-              help="Seconds before the first retry, doubling with each (a server's Retry-After comes first).")
-@click.option("--offline", is_flag=True, help="Use only the cache; fail on anything not cached.")
-@click.option("--workers", type=click.IntRange(min=0), default=0, show_default="0: every core this process may use",
-              help="Processes building samples at once; the dataset's bytes are the same for any number.")
-@click.option("--shard", help="K/N: build only this process's share of the samples (array jobs).")
-@click.option("--zip", "make_zip", is_flag=True, help="Also write OUT.zip.")
-@click.option("--record", type=click.Path(dir_okay=False, path_type=Path), help="Record all HTTP traffic to a cassette (keys removed).")
-@click.option("--replay", type=click.Path(dir_okay=False, exists=True, path_type=Path), help="Serve all HTTP from a recorded cassette.")
+@CITY()
+@LAT(detail=" for an area anywhere.")
+@LON()
+@RADIUS_KM(show_default="the preset's, or 2 km", detail=": the sampling disc.")
+@BBOX(detail=": sample uniformly inside it instead of a disc.")
+@SAMPLES(default=30, show_default=True)
+@SEED(default=0, show_default=True)
+@ZOOM(default=DEFAULT_ZOOM, show_default=True, detail=" (see docs).")
+@SAMPLE_TILES_OPTION(default="5", show_default=True)
+@IMAGERY(show_default="bing")
+@TILE_SIZE(default=None, show_default="256; 512 for an @2x template")
+@OSM(default=("api",), show_default="api")
+@CLASSES(default="classes13.toml", show_default=True)
+@IMAGE_FORMAT(default="png", show_default=True)
+@MAX_UNLABELED(default=0.70, show_default=True)
+@MIN_CLASSES(default=2, show_default=True)
+@MIN_CONTRAST(default=FilterConfig.min_contrast, show_default=True)
+@MAX_MISSING(default=0.0, show_default=True)
+@MAX_PLACEHOLDERS(default=0, show_default=True)
+@MAX_TRIES(default=10, show_default=True)
+@NO_OVERLAP()
+@OUT(required=True, detail=" (rerun to resume).")
+@CACHE_DIR(default=None, show_default="$OSMSEG_CACHE_DIR, else $XDG_CACHE_HOME/osmseg, else ~/.cache/osmseg",
+           detail=": the HTTP and OSM cache.")
+@TIMEOUT(default=30.0, show_default=True)
+@RETRIES(default=5, show_default=True)
+@RETRY_DELAY(default=0.5, show_default=True)
+@OFFLINE()
+@BUILD_WORKERS(default=0, show_default="0: every core this process may use")
+@SHARD(detail=" (samples).")
+@ZIP()
+@RECORD()
+@REPLAY()
 @click.pass_context
 @report_errors
 def build_command(ctx: click.Context, /, **params: Any) -> None:
@@ -166,7 +193,7 @@ def build_command(ctx: click.Context, /, **params: Any) -> None:
       osmseg build --lat 0.35 --lon 32.59 --zoom 21 --imagery 'xyz:file:///data/tiles/{z}/{x}/{y}.png' \\
                    --osm buildings.osm.pbf --out data/kampala
     """
-    options = BuildOptions(**params)
+    options = BuildOptions.from_params(params)
     config = build_config(options)  # usage errors (area, shard, cassette) before anything else is said
     imagery = options.imagery
     env = dict(os.environ)
@@ -241,6 +268,15 @@ class BuildOptions:
     make_zip: bool
     record: Path | None
     replay: Path | None
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any]) -> BuildOptions:
+        """The options of ``osmseg build``'s parsed parameters: ``--osm`` (which every command
+        may give more than once) names one source here."""
+        sources = params["osm"]
+        if len(sources) != 1:
+            raise ConfigError(f"--osm is given {len(sources)} times: a build reads one OpenStreetMap source")
+        return cls(**{**params, "osm": sources[0]})
 
 
 def build_config(options: BuildOptions) -> BuildConfig:

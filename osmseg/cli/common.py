@@ -17,11 +17,12 @@ from typing import Any, TypeVar
 import click
 from tqdm import tqdm
 
-from osmseg.cli.drawers import PROGRESS_DEFAULT, PROGRESS_HELP, progress_mode
+from osmseg.cli.drawers import PROGRESS_DEFAULT, progress_mode
+from osmseg.cli.options import PROGRESS, QUIET, VERBOSE
 from osmseg.errors import ConfigError, OsmsegError
 from osmseg.output.manifest import command_line
-from osmseg.processes import INTERRUPTED, TERMINATED, Terminated
 from osmseg.redact import RedactingFilter
+from osmseg.runtime.processes import INTERRUPTED, TERMINATED, Terminated
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -212,60 +213,20 @@ def output_options(func: F) -> F:
         return func(*args, **kwargs)
 
     options = [
-        click.Option(["-v", "--verbose"], count=True, expose_value=False, callback=_remember, show_default=False,
-                     help="More log output on stderr (-vv for debug); also before the command."),
-        click.Option(["-q", "--quiet"], count=True, expose_value=False, callback=_remember, show_default=False,
-                     help="Less output on stderr: only errors, no progress; also before the command."),
-        click.Option(["--progress/--no-progress"], default=None, expose_value=False, callback=_remember,
-                     show_default=PROGRESS_DEFAULT, help=PROGRESS_HELP + "; also before the command."),
+        VERBOSE.option(expose_value=False, callback=_remember, show_default=False),
+        QUIET.option(expose_value=False, callback=_remember, show_default=False),
+        PROGRESS.option(default=None, expose_value=False, callback=_remember, show_default=PROGRESS_DEFAULT),
     ]
     # click lists a command's parameters in reverse order of __click_params__: these come last in --help
     wrapper.__click_params__ = options[::-1] + list(getattr(func, "__click_params__", []))  # type: ignore[attr-defined]
     return wrapper  # type: ignore[return-value]
 
 
-def renamed_option(old: str, new: str, *, type: Any = None, note: str = "") -> Callable[[F], F]:
-    """Keep ``old`` (an option's former spelling, e.g. ``--workers``) working for a while as a
-    hidden alias of the parameter ``new``: it says once, on stderr, what to type instead, and
-    its value goes to ``new`` (unless ``new`` was given too: a usage error)."""
-    name = "renamed_" + old.lstrip("-").replace("-", "_")
-
-    def warn(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
-        if value is not None:
-            ctx.meta.setdefault("osmseg.renamed", {})[new] = (old, value)
-        return value
-
-    def decorate(func: F) -> F:
-        @functools.wraps(func)
-        def wrapper(*args: Any, **kwargs: Any) -> Any:
-            ctx = click.get_current_context()
-            renamed = ctx.meta.get("osmseg.renamed", {})
-            if new in renamed:
-                spelled, value = renamed[new]
-                flag = next(max(p.opts, key=len) for p in ctx.command.params if p.name == new)
-                if ctx.get_parameter_source(new) == click.core.ParameterSource.COMMANDLINE:
-                    raise click.UsageError(f"{spelled} is the old name of {flag}: give {flag} only")
-                if (ctx.find_root().obj or {}).get("verbosity", 0) >= 0:  # -q: errors only
-                    click.echo(f"Warning: {spelled} is now {flag}{note}; {spelled} will stop working in a later "
-                               "version", err=True)
-                kwargs[new] = value
-                ctx.params[new] = value
-            return func(*args, **kwargs)
-
-        option = click.Option([old, name], type=type, default=None, hidden=True, expose_value=False, callback=warn)
-        wrapper.__click_params__ = [option] + list(getattr(func, "__click_params__", []))  # type: ignore[attr-defined]
-        return wrapper  # type: ignore[return-value]
-
-    return decorate
-
-
 def typed_options(ctx: click.Context) -> set[str]:
     """The parameter names the user gave a value on the command line (or its environment
-    variable), directly or through a :func:`renamed_option`'s old spelling; the others hold
-    their defaults."""
+    variable); the others hold their defaults."""
     typed = (click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)
-    given = {name for name in ctx.params if ctx.get_parameter_source(name) in typed}
-    return given | set(ctx.meta.get("osmseg.renamed", {}))
+    return {name for name in ctx.params if ctx.get_parameter_source(name) in typed}
 
 
 def default_cache_dir() -> Path:

@@ -1,4 +1,4 @@
-"""How the command line shows the steps the library reports (:mod:`osmseg.progress`).
+"""How the command line shows the steps the library reports (:mod:`osmseg.runtime.progress`).
 
 On a terminal, tqdm bars (:class:`ProgressBars`) that leave nothing behind: the command's
 summary says what was done. In a log (stderr a file or a pipe: ``make demo 2> log``, Slurm, CI)
@@ -20,16 +20,13 @@ from typing import Any, Literal
 import click
 from tqdm import tqdm
 
-from osmseg.progress import Progress, Step
+from osmseg.runtime.progress import Progress, Step
 from osmseg.units import noun, percent, seconds
 
-__all__ = ["PROGRESS_DEFAULT", "PROGRESS_HELP", "Mode", "ProgressBars", "ProgressLines", "progress_drawer", "progress_mode"]
+__all__ = ["PROGRESS_DEFAULT", "Mode", "ProgressBars", "ProgressLines", "progress_drawer", "progress_mode"]
 
 #: how a command shows progress: bars on a terminal, lines in a log, or nothing
 Mode = Literal["bars", "lines"]
-#: what ``--progress/--no-progress`` says in every command's --help
-PROGRESS_HELP = ("Show long work on stderr: bars on a terminal; in a log (a file, a pipe) a plain line per tenth of a "
-                 "task or per minute, and per epoch of training")
 PROGRESS_DEFAULT = "on, unless -q"
 
 
@@ -62,7 +59,7 @@ def _value(name: str, value: float | None) -> str:
 
 
 class ProgressBars:
-    """Draws :class:`osmseg.progress.Step` reports as tqdm bars on stderr, one bar per task.
+    """Draws :class:`osmseg.runtime.progress.Step` reports as tqdm bars on stderr, one bar per task.
 
     A bar opens at its task's first step and closes when the task finishes; :meth:`close`
     closes what a failed or interrupted command left open. Bars do not stay on screen: the
@@ -126,7 +123,7 @@ class _Open:
 
 
 class ProgressLines:
-    """Draws :class:`osmseg.progress.Step` reports as plain lines for a log, never a ``\\r``::
+    """Draws :class:`osmseg.runtime.progress.Step` reports as plain lines for a log, never a ``\\r``::
 
         build: 3/30 samples (10%) in 12 s, about 1 min 48 s left; accepted 3, rejected 1
         train: 1/8 epochs (12%) in 1 min 58 s, about 13 min 46 s left; train loss 1.234, val loss 1.1, val mIoU 0.2345, epoch 1 min 58 s

@@ -2,7 +2,7 @@
 
 Importing the command line takes about 0.7 s (numpy, pyproj, rasterio, OpenCV, osmium), and so
 does the fork server that ``osmseg build --workers N`` makes its workers from
-(:mod:`osmseg.processes`). Started from the builder, the server imports only once the command
+(:mod:`osmseg.runtime.processes`). Started from the builder, the server imports only once the command
 has finished importing, and the workers begin that much later. This entry point reads just
 enough of the command line to see a build with several workers coming, starts the server, and
 only then imports :mod:`osmseg.cli.main`, so the two import side by side on two cores.
@@ -10,7 +10,7 @@ only then imports :mod:`osmseg.cli.main`, so the two import side by side on two 
 Reading the line is a guess that never changes what runs: click still parses it in full, and a
 wrong guess costs only an idle server, which ends with the command (or 0.4 s later workers).
 The group's own options (``-v``, ``-q``, ``--progress``) take no value, so the first word that
-is not an option names the command. Imports: the standard library and :mod:`osmseg.processes`
+is not an option names the command. Imports: the standard library and :mod:`osmseg.runtime.processes`
 before the group; the group after.
 """
 
@@ -19,7 +19,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from osmseg.processes import (
+from osmseg.runtime.processes import (
     INTERRUPTED,
     TERMINATED,
     Terminated,

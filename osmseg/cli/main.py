@@ -23,7 +23,8 @@ from click_plugins import with_plugins
 from osmseg import __version__
 from osmseg.cli.build import build_command
 from osmseg.cli.common import configure_logging
-from osmseg.cli.drawers import PROGRESS_DEFAULT, PROGRESS_HELP, progress_mode
+from osmseg.cli.drawers import PROGRESS_DEFAULT, progress_mode
+from osmseg.cli.options import PROGRESS, QUIET, VERBOSE
 from osmseg.cli.verify import verify_command
 
 #: the entry-point group other packages register ``osmseg`` subcommands in
@@ -33,12 +34,9 @@ PLUGIN_GROUP = "osmseg.commands"
 @with_plugins(sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name))  # type: ignore[untyped-decorator]
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "show_default": True})
 @click.version_option(__version__, "--version", prog_name="osmseg")
-@click.option("-v", "--verbose", count=True, show_default=False,
-              help="More log output on stderr (-vv for debug); also after the command.")
-@click.option("-q", "--quiet", count=True, show_default=False,
-              help="Less output on stderr: only errors, no progress; also after the command.")
-@click.option("--progress/--no-progress", default=None, show_default=PROGRESS_DEFAULT,
-              help=PROGRESS_HELP + "; also after the command.")
+@VERBOSE(show_default=False)
+@QUIET(show_default=False)
+@PROGRESS(default=None, show_default=PROGRESS_DEFAULT)
 @click.pass_context
 def cli(ctx: click.Context, verbose: int, quiet: int, progress: bool | None) -> None:
     """osmseg: aerial segmentation datasets from OpenStreetMap, and what to do with them."""

@@ -8,16 +8,19 @@ from pathlib import Path
 import click
 
 from osmseg.cli.common import output_options, report_errors
+from osmseg.cli.options import declare
 from osmseg.output import read_manifest, verify
 from osmseg.quality import dataset_alignment
 from osmseg.units import plural
+
+ALIGNMENT = declare("--alignment", dest="align_class", metavar="CLASS",
+                    help="Also estimate, per sample, the pixel offset between CLASS outlines and image edges.")
 
 
 @click.command("verify")
 @output_options
 @click.argument("dataset", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--alignment", "align_class", metavar="CLASS",
-              help="Also estimate, per sample, the pixel offset between CLASS outlines and image edges.")
+@ALIGNMENT()
 @click.pass_context
 @report_errors
 def verify_command(ctx: click.Context, dataset: Path, align_class: str | None) -> None:

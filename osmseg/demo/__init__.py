@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from osmseg.build.builder import BuildConfig
+from osmseg.builder.run import BuildConfig
 from osmseg.places import Area, find_preset
 
 DEMO_DIR = Path(__file__).resolve().parent

@@ -42,8 +42,8 @@ from PIL import Image
 from urllib3 import HTTPResponse
 from urllib3._collections import HTTPHeaderDict
 
-import osmseg.build.builder
-from osmseg.build.builder import build
+import osmseg.builder.run
+from osmseg.builder.run import build
 from osmseg.classes import load_class_table
 from osmseg.demo import DEMO_CASSETTE, demo_config
 from osmseg.demo.render import render_aerial
@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> None:
                 self._adapter = recorder
                 return session
 
-        osmseg.build.builder.HttpClient = RecordingClient  # type: ignore[attr-defined]  # this script only
+        osmseg.builder.run.HttpClient = RecordingClient  # type: ignore[attr-defined]  # this script only
         # one process: the recording client patched in here is this process's (workers would make their own)
         config = replace(demo_config(work / "demo-out"), cache_dir=None, cassette=None, workers=1)
         summary = build(config, env={"BING_MAPS_KEY": "demo-key-not-secret"})

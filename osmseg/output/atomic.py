@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from osmseg.processes import FOREIGN_SECONDS, deferred_termination, owner, owner_gone
+from osmseg.runtime.processes import FOREIGN_SECONDS, deferred_termination, owner, owner_gone
 
 
 def sha256_bytes(data: bytes) -> str:
@@ -41,12 +41,12 @@ def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
     return digest.hexdigest()
 
 
-#: (kept for callers of earlier releases) see :data:`osmseg.processes.FOREIGN_SECONDS`
+#: (kept for callers of earlier releases) see :data:`osmseg.runtime.processes.FOREIGN_SECONDS`
 FOREIGN_TEMP_SECONDS = FOREIGN_SECONDS
 
 
 def _owner() -> str:
-    """``HOST-PID`` of this process (:func:`osmseg.processes.owner`).
+    """``HOST-PID`` of this process (:func:`osmseg.runtime.processes.owner`).
 
     >>> _owner().rsplit("-", 1)[1] == str(os.getpid())
     True
@@ -71,7 +71,7 @@ def sweep_temp_files(folder: Path, named_only: bool = False) -> int:
 
     A file of this machine goes when its writing process is gone (a build killed mid-write); one
     named by another machine only once unchanged for :data:`FOREIGN_TEMP_SECONDS`
-    (:func:`osmseg.processes.owner_gone`). Files being written by a live process (a worker of
+    (:func:`osmseg.runtime.processes.owner_gone`). Files being written by a live process (a worker of
     this build, another shard started at the same time on the same folder) are left alone. A
     name without an owner (osmseg's older form) goes too, unless ``named_only``: a folder that is
     not osmseg's alone (the output folder itself, which may be the user's) keeps every file that

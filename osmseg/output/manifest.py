@@ -25,10 +25,10 @@ import mercantile
 
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import DatasetBusy, DatasetError, OsmsegError
-from osmseg.folderlock import STATE_DIR, FolderLock
 from osmseg.grid import SampleGrid
 from osmseg.output.atomic import atomic_path, sha256_file
 from osmseg.redact import redact
+from osmseg.runtime.folderlock import STATE_DIR, FolderLock
 
 MANIFEST_NAME = "manifest.json"
 FORMAT = "osmseg-dataset"
@@ -52,7 +52,7 @@ SAMPLE_KEYS = (
     "imagery", "osm", "class_histogram", "files",
 )
 
-#: Why the builder rejects a sample, in the order its filters check (:mod:`osmseg.build.filters`):
+#: Why the builder rejects a sample, in the order its filters check (:mod:`osmseg.builder.filters`):
 #: the manifest lists the rejected attempts by these reasons.
 REASONS: tuple[str, ...] = ("unlabeled", "single_class", "placeholder_imagery", "missing_imagery", "low_contrast")
 
@@ -332,7 +332,7 @@ def refuse_busy(*paths: Path | str | None) -> None:
 def read_manifest(path: Path) -> dict[str, Any]:
     """Read and validate a manifest (a dataset folder or the manifest file itself).
 
-    Refuses a dataset that a build holds now (:mod:`osmseg.folderlock`): its files and manifest
+    Refuses a dataset that a build holds now (:mod:`osmseg.runtime.folderlock`): its files and manifest
     are still being written, and what would be read may not be what the build ends with.
     """
     file = manifest_path(path)
