@@ -126,7 +126,7 @@ def test_the_ceiling_dataset_trains_on_the_test_mosaics_too(tmp_path: Path,
                                                             kampala_dataset: tuple[Path, dict]) -> None:
     """--fit-test: every test mosaic is also in train/ (same pixels, same labels, same place), the
     held-out dataset's splits otherwise unchanged."""
-    from training.data import discover_camvid
+    from training.datasets.patches import discover_camvid
 
     root, _ = kampala_dataset
     fitted = tmp_path / "fit"
