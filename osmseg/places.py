@@ -99,7 +99,7 @@ def find_preset(name: str, manifest: str = "cities.toml") -> Preset:
 
 
 def parse_bbox(text: str) -> LngLatBBox:
-    """Parse ``W,S,E,N`` in degrees.
+    """Parse ``--bbox W,S,E,N`` in degrees (every command's: one parser, one message).
 
     >>> parse_bbox("13.3,52.4,13.5,52.6")
     LngLatBBox(west=13.3, south=52.4, east=13.5, north=52.6)
@@ -111,6 +111,20 @@ def parse_bbox(text: str) -> LngLatBBox:
     if not (-180 <= w < e <= 180 and -85.06 <= s < n <= 85.06):
         raise ConfigError(f"--bbox {text!r}: need W<E within ±180 and S<N within ±85.06 (Web Mercator)")
     return LngLatBBox(w, s, e, n)
+
+
+def check_centre(lat: float, lon: float) -> None:
+    """ConfigError unless ``--lat``/``--lon`` is a finite point Web Mercator can draw (every
+    command's: one check, one message).
+
+    >>> check_centre(60.5, 26.9)
+    >>> check_centre(89.0, 0.0)
+    Traceback (most recent call last):
+    ...
+    osmseg.errors.ConfigError: --lat 89.0 --lon 0.0: out of range for Web Mercator (|lat| <= 85.05, |lon| <= 180)
+    """
+    if not (math.isfinite(lat) and math.isfinite(lon) and -85.05 <= lat <= 85.05 and -180 <= lon <= 180):
+        raise ConfigError(f"--lat {lat} --lon {lon}: out of range for Web Mercator (|lat| <= 85.05, |lon| <= 180)")
 
 
 def destination(lon: float, lat: float, distance_m: float, bearing_rad: float) -> tuple[float, float]:

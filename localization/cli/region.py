@@ -23,10 +23,12 @@ import click
 
 from localization.cli.options import osm_files, parse_pair
 from localization.common.inputs import SideOptions
+from osmseg import places
 from osmseg.cli.common import default_cache_dir, parse_size
 from osmseg.cli.drawers import progress_drawer
 from osmseg.cli.options import BBOX, CACHE_DIR, LAT, LON, OSM, RADIUS_KM, SHARD, ZOOM
 from osmseg.errors import ConfigError
+from osmseg.places import check_centre
 from osmseg.runtime.shard import Shard
 from osmseg.texttable import text_table
 from osmseg.units import degrees, metres, plural, ratio
@@ -106,8 +108,7 @@ def disc_bbox(lon: float, lat: float, radius_km: float) -> tuple[float, float, f
     >>> [round(v, 4) for v in disc_bbox(26.95, 60.53, 1.0)]
     [26.9317, 60.521, 26.9683, 60.539]
     """
-    if not (math.isfinite(lat) and math.isfinite(lon) and -85.05 <= lat <= 85.05 and -180 <= lon <= 180):
-        raise ConfigError(f"--lat {lat} --lon {lon}: out of range for Web Mercator (|lat| <= 85.05, |lon| <= 180)")
+    check_centre(lat, lon)
     if not (math.isfinite(radius_km) and radius_km > 0):
         raise ConfigError(f"--radius-km {radius_km}: give a finite radius in kilometres, e.g. 1")
     dlat = radius_km / 111.31949
@@ -116,19 +117,15 @@ def disc_bbox(lon: float, lat: float, radius_km: float) -> tuple[float, float, f
 
 
 def parse_bbox(text: str | None) -> tuple[float, float, float, float]:
-    """``--bbox W,S,E,N`` in degrees.
+    """``--bbox W,S,E,N`` in degrees, as every command reads it (:func:`osmseg.places.parse_bbox`);
+    a region search cannot go without one.
 
     >>> parse_bbox("26.94,60.53,26.95,60.535")
     (26.94, 60.53, 26.95, 60.535)
     """
     if text is None:
         raise ConfigError("a region search needs the region: add --bbox WEST,SOUTH,EAST,NORTH in degrees")
-    try:
-        w, s, e, n = (float(v) for v in text.split(","))
-    except ValueError:
-        raise ConfigError(f"--bbox must be four numbers WEST,SOUTH,EAST,NORTH in degrees, got {text!r}") from None
-    if not all(math.isfinite(v) for v in (w, s, e, n)):
-        raise ConfigError(f"--bbox must be finite numbers WEST,SOUTH,EAST,NORTH in degrees, got {text!r}")
+    w, s, e, n = places.parse_bbox(text)
     return w, s, e, n
 
 

@@ -28,7 +28,7 @@ from osmseg.cli.options import BBOX, CACHE_DIR, CLASSES, LAT, LON, OSM, OUT, RAD
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.imagery import BING_KEY_ENV, KEYLESS_DEFAULT, missing_bing_key
 from osmseg.output import command_line
-from osmseg.places import Area, find_preset, parse_bbox
+from osmseg.places import Area, check_centre, find_preset, parse_bbox
 from osmseg.redact import redact
 
 
@@ -47,8 +47,7 @@ def resolve_area(city: str | None, lat: float | None, lon: float | None, bbox: s
         return Area(name="bbox", lat=(b.south + b.north) / 2, lon=(b.west + b.east) / 2, bbox=b)
     if lat is None or lon is None:
         raise ConfigError("--lat and --lon go together")
-    if not (-85.05 <= lat <= 85.05 and -180 <= lon <= 180):
-        raise ConfigError(f"--lat {lat} --lon {lon}: out of range for Web Mercator (|lat| <= 85.05, |lon| <= 180)")
+    check_centre(lat, lon)
     name = f"{abs(lat):.4f}{'N' if lat >= 0 else 'S'}_{abs(lon):.4f}{'E' if lon >= 0 else 'W'}"
     return Area(name=name, lat=lat, lon=lon, radius_km=radius_km or 2.0)
 
