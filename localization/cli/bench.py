@@ -12,9 +12,10 @@ Imports: osmseg core (its command-line helpers) and localization.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
@@ -32,12 +33,12 @@ from localization.cli.options import (
     TOP_K,
     WINDOW,
     P,
-    given,
     misplaced,
     osm_files,
     parse_camera_height,
     parse_heights,
     parse_window,
+    typed_flags,
 )
 from localization.cli.summary import format_summary
 from osmseg.cli.common import output_options, parse_size, report_errors
@@ -46,7 +47,9 @@ from osmseg.cli.options import CLASSES, OSM, OUT, SEED, declare, moved
 from osmseg.errors import ConfigError
 
 if TYPE_CHECKING:
+    from localization.bench.rendered import BenchConfig
     from localization.bench.scores import BenchResults
+    from osmseg.runtime.progress import Progress
 
 __all__ = ["bench_options", "localize_bench_command", "localize_pairs_command"]
 
@@ -82,10 +85,11 @@ def bench_options(func: F) -> F:
     return func
 
 
-def _methods(ctx: click.Context, methods_text: str) -> tuple[str, ...]:
+def _methods(methods_text: str, typed: Mapping[str, str]) -> tuple[str, ...]:
     """The methods of --methods; the paper method's options refused when it does not run."""
     methods = tuple(m.strip() for m in methods_text.split(",") if m.strip())
-    if "paper" not in methods and (stray := given(ctx, ("window_text", "p", "conventions", "subsets"))):
+    stray = [typed[n] for n in ("window_text", "p", "conventions", "subsets") if n in typed]
+    if "paper" not in methods and stray:
         raise misplaced(stray, "the paper method", "paper to --methods")
     return methods
 
@@ -183,14 +187,7 @@ PANO_HEIGHT = declare("--pano-height", type=click.IntRange(min=2), help="Panoram
 @moved("--table", "--table is now --classes (the class table of a mask file)")
 @click.pass_context
 @report_errors
-def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, viewpoints: int, seed: int, table: str,
-                           resolution: float | None, landmark_dict: str | None, mode: str, min_size: int, stride: int,
-                           window_text: str, p: float, top_k: int, margin: float, stand_on: tuple[str, ...],
-                           subsets: bool, width: int, height: int, camera_height: str, max_range: float,
-                           class_height: tuple[str, ...], confusion: float, miss_small: int, miss_prob: float,
-                           offset: float, query_landmarks: str, visible_min_px: int, save_panoramas: int,
-                           pictures: int, plots: bool, methods_text: str, heading: str, fov_deg: float,
-                           height_spread: float, negatives: bool, renderer: str, osm: tuple[str, ...]) -> None:
+def localize_bench_command(ctx: click.Context, /, **params: Any) -> None:
     """Render panoramas at seeded viewpoints of SOURCE and localize them in it.
 
     SOURCE is a dataset folder made by `osmseg build` (its labels/ and manifest.json), or one
@@ -198,39 +195,99 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
     annotated aerial/ground pairs is `osmseg localize-pairs`'s.) Prints the path of
     results.json on stdout and a summary on stderr.
     """
-    from localization.bench.pairs import is_pairs_folder
-    from localization.bench.render import NoiseConfig, RenderConfig
-    from localization.bench.rendered import BenchConfig, load_dataset_scenes, load_mask_scene, run_bench
-
-    methods = _methods(ctx, methods_text)
-    window, height_m = parse_window(window_text), _rendered_height(camera_height)
-    if source.is_dir() and is_pairs_folder(source):
-        raise ConfigError(f"{source} is a folder of annotated pairs (aerial/ + ground/): score them with "
-                          f"osmseg localize-pairs {source} --out {out_dir}")
-    config = BenchConfig(
-        viewpoints=viewpoints, seed=seed, landmarks=landmark_dict, mode=mode, min_size=min_size, stride=stride,
-        window=window, p=p, top_k=top_k, margin_m=margin, stand_on=tuple(stand_on) or None, subsets=subsets,
-        render=RenderConfig(width=width, height=height, camera_height_m=height_m, max_range_m=max_range,
-                            heights=parse_heights(class_height), height_spread=height_spread, height_seed=seed),
-        noise=NoiseConfig(confusion=confusion, miss_small_px=miss_small, miss_prob=miss_prob, offset_m=offset),
-        save_panoramas=save_panoramas, pictures=pictures, query_landmarks=query_landmarks, visible_min_px=visible_min_px,
-        methods=methods, heading=heading, fov_deg=fov_deg, negatives=negatives, renderer=renderer,
-        osm=tuple(str(o) for o in osm_files(osm)),
-    )
-    if query_landmarks != "visible" and given(ctx, ("visible_min_px",)):
-        raise ConfigError("--visible-min-px applies with --query-landmarks visible only: add it or leave it out")
-    if source.is_dir():
-        if resolution is not None or given(ctx, ("table",)):
-            raise ConfigError("--aerial-resolution and --classes are for a mask file; a dataset folder records its "
-                              "own")
-        scenes = load_dataset_scenes(source)
-    else:
-        if resolution is None:
-            raise ConfigError(f"{source} is a mask file: give its ground resolution with --aerial-resolution (m/px)")
-        scenes = [load_mask_scene(source, table, resolution)]
+    request = RenderedBench(**params, typed=typed_flags(ctx))
     with progress_drawer(_drawn(ctx)) as progress:
-        results = run_bench(scenes, config, out_dir, progress=progress, plots=plots, source=str(source))
-    _report(ctx, results, out_dir)
+        results = request.run(progress)
+    _report(ctx, results, request.out_dir)
+
+
+@dataclass(frozen=True)
+class RenderedBench:
+    """What ``osmseg localize-bench`` was asked: its options by parameter name, typed and frozen,
+    and ``typed`` (parameter -> flag) the ones given on the command line. :meth:`run` is the one
+    library call; the checks of options that do not go together are here, not in the command."""
+
+    source: Path
+    out_dir: Path
+    viewpoints: int
+    seed: int
+    table: str
+    resolution: float | None
+    landmark_dict: str | None
+    mode: str
+    min_size: int
+    stride: int
+    window_text: str
+    p: float
+    top_k: int
+    margin: float
+    stand_on: tuple[str, ...]
+    subsets: bool
+    width: int
+    height: int
+    camera_height: str
+    max_range: float
+    class_height: tuple[str, ...]
+    confusion: float
+    miss_small: int
+    miss_prob: float
+    offset: float
+    query_landmarks: str
+    visible_min_px: int
+    save_panoramas: int
+    pictures: int
+    plots: bool
+    methods_text: str
+    heading: str
+    fov_deg: float
+    height_spread: float
+    negatives: bool
+    renderer: str
+    osm: tuple[str, ...]
+    typed: Mapping[str, str] = field(default_factory=dict)
+
+    def config(self) -> BenchConfig:
+        """The benchmark's :class:`~localization.bench.rendered.BenchConfig`."""
+        from localization.bench.render import NoiseConfig, RenderConfig
+        from localization.bench.rendered import BenchConfig
+
+        if self.query_landmarks != "visible" and "visible_min_px" in self.typed:
+            raise ConfigError("--visible-min-px applies with --query-landmarks visible only: add it or leave it out")
+        return BenchConfig(
+            viewpoints=self.viewpoints, seed=self.seed, landmarks=self.landmark_dict, mode=self.mode,
+            min_size=self.min_size, stride=self.stride, window=parse_window(self.window_text), p=self.p,
+            top_k=self.top_k, margin_m=self.margin, stand_on=tuple(self.stand_on) or None, subsets=self.subsets,
+            render=RenderConfig(width=self.width, height=self.height, camera_height_m=_rendered_height(self.camera_height),
+                                max_range_m=self.max_range, heights=parse_heights(self.class_height),
+                                height_spread=self.height_spread, height_seed=self.seed),
+            noise=NoiseConfig(confusion=self.confusion, miss_small_px=self.miss_small, miss_prob=self.miss_prob,
+                              offset_m=self.offset),
+            save_panoramas=self.save_panoramas, pictures=self.pictures, query_landmarks=self.query_landmarks,
+            visible_min_px=self.visible_min_px, methods=_methods(self.methods_text, self.typed), heading=self.heading,
+            fov_deg=self.fov_deg, negatives=self.negatives, renderer=self.renderer,
+            osm=tuple(str(o) for o in osm_files(self.osm)),
+        )
+
+    def run(self, progress: Progress | None = None) -> BenchResults:
+        """Render the views, localize them, write results.json and the pictures into ``out_dir``."""
+        from localization.bench.pairs import is_pairs_folder
+        from localization.bench.rendered import load_dataset_scenes, load_mask_scene, run_bench
+
+        config = self.config()
+        if self.source.is_dir() and is_pairs_folder(self.source):
+            raise ConfigError(f"{self.source} is a folder of annotated pairs (aerial/ + ground/): score them with "
+                              f"osmseg localize-pairs {self.source} --out {self.out_dir}")
+        if self.source.is_dir():
+            if self.resolution is not None or "table" in self.typed:
+                raise ConfigError("--aerial-resolution and --classes are for a mask file; a dataset folder records "
+                                  "its own")
+            scenes = load_dataset_scenes(self.source)
+        else:
+            if self.resolution is None:
+                raise ConfigError(f"{self.source} is a mask file: give its ground resolution with --aerial-resolution "
+                                  "(m/px)")
+            scenes = [load_mask_scene(self.source, self.table, self.resolution)]
+        return run_bench(scenes, config, self.out_dir, progress=progress, plots=self.plots, source=str(self.source))
 
 
 @click.command("localize-pairs")
@@ -242,10 +299,7 @@ def localize_bench_command(ctx: click.Context, source: Path, out_dir: Path, view
 @CONVENTIONS(default="osmseg", show_default=True)
 @click.pass_context
 @report_errors
-def localize_pairs_command(ctx: click.Context, folder: Path, out_dir: Path, resolution: float | None,
-                           landmark_dict: str | None, window_text: str, p: float, top_k: int, subsets: bool,
-                           camera_height: str, methods_text: str, heading: str, plots: bool,
-                           aerial_size: str | None, ground_size: str | None, conventions: str) -> None:
+def localize_pairs_command(ctx: click.Context, /, **params: Any) -> None:
     """Localize every annotated pair of FOLDER: the paper's own evaluation.
 
     FOLDER holds aerial/NAME.txt and ground/NAME.txt landmark files (x y Class), images beside
@@ -254,18 +308,48 @@ def localize_pairs_command(ctx: click.Context, folder: Path, out_dir: Path, reso
     Pavement, Road, Tree) and errors are in pixels unless --aerial-resolution gives the aerial m/px.
     Prints the path of results.json on stdout and a summary on stderr.
     """
-    from localization.bench.pairs import PairsConfig, is_pairs_folder, load_pairs, run_pairs
-
-    methods = _methods(ctx, methods_text)
-    if not is_pairs_folder(folder):
-        raise ConfigError(f"{folder} is not a folder of annotated pairs (aerial/NAME.txt + ground/NAME.txt); "
-                          f"to render views of a dataset or mask, run osmseg localize-bench {folder} --out {out_dir}")
-    config = PairsConfig(landmarks=landmark_dict or "camvid", window=parse_window(window_text), p=p, top_k=top_k,
-                         subsets=subsets,
-                         resolution_m=resolution, aerial_size=parse_size(aerial_size, "--aerial-size"),
-                         ground_size=parse_size(ground_size, "--ground-size"), methods=methods, heading=heading,
-                         camera_height_m=_rendered_height(camera_height), conventions=conventions)
+    request = AnnotatedPairs(**params, typed=typed_flags(ctx))
     with progress_drawer(_drawn(ctx)) as progress:
-        results = run_pairs(load_pairs(folder, config), config, out_dir, progress=progress, plots=plots,
-                            source=str(folder))
-    _report(ctx, results, out_dir)
+        results = request.run(progress)
+    _report(ctx, results, request.out_dir)
+
+
+@dataclass(frozen=True)
+class AnnotatedPairs:
+    """What ``osmseg localize-pairs`` was asked (as :class:`RenderedBench`); :meth:`run` is the one
+    library call."""
+
+    folder: Path
+    out_dir: Path
+    resolution: float | None
+    landmark_dict: str | None
+    window_text: str
+    p: float
+    top_k: int
+    subsets: bool
+    camera_height: str
+    methods_text: str
+    heading: str
+    plots: bool
+    aerial_size: str | None
+    ground_size: str | None
+    conventions: str
+    typed: Mapping[str, str] = field(default_factory=dict)
+
+    def run(self, progress: Progress | None = None) -> BenchResults:
+        """Localize every pair of ``folder``, write results.json and the pictures into ``out_dir``."""
+        from localization.bench.pairs import PairsConfig, is_pairs_folder, load_pairs, run_pairs
+
+        methods = _methods(self.methods_text, self.typed)
+        if not is_pairs_folder(self.folder):
+            raise ConfigError(f"{self.folder} is not a folder of annotated pairs (aerial/NAME.txt + ground/NAME.txt); "
+                              f"to render views of a dataset or mask, run osmseg localize-bench {self.folder} --out "
+                              f"{self.out_dir}")
+        config = PairsConfig(landmarks=self.landmark_dict or "camvid", window=parse_window(self.window_text), p=self.p,
+                             top_k=self.top_k, subsets=self.subsets, resolution_m=self.resolution,
+                             aerial_size=parse_size(self.aerial_size, "--aerial-size"),
+                             ground_size=parse_size(self.ground_size, "--ground-size"), methods=methods,
+                             heading=self.heading, camera_height_m=_rendered_height(self.camera_height),
+                             conventions=self.conventions)
+        return run_pairs(load_pairs(self.folder, config), config, self.out_dir, progress=progress, plots=self.plots,
+                         source=str(self.folder))

@@ -18,7 +18,7 @@ from osmseg.cli.common import typed_options
 from osmseg.cli.options import declare
 from osmseg.errors import ConfigError
 
-__all__ = ["given", "misplaced", "osm_files", "parse_pair", "parse_point", "parse_window", "parse_windows", "parse_camera_height", "parse_heading", "parse_heights"]
+__all__ = ["given", "misplaced", "osm_files", "typed_flags", "parse_pair", "parse_point", "parse_window", "parse_windows", "parse_camera_height", "parse_heading", "parse_heights"]
 
 
 def osm_files(values: tuple[str, ...]) -> tuple[Path, ...]:
@@ -150,6 +150,12 @@ def misplaced(stray: list[str], owner: str, fix: str) -> ConfigError:
     """
     verb, them = ("applies", "it") if len(stray) == 1 else ("apply", "them")
     return ConfigError(f"{', '.join(stray)} {verb} to {owner}: add {fix}, or leave {them} out")
+
+
+def typed_flags(ctx: click.Context) -> dict[str, str]:
+    """The options typed on the command line: parameter name -> the flag the user knows it by."""
+    typed = typed_options(ctx)
+    return {str(p.name): max(p.opts, key=len) for p in ctx.command.params if p.name in typed and p.opts}
 
 
 def given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
