@@ -56,57 +56,87 @@ def _recipes_default(name: str) -> str:
     return "the recipe's (" + ", ".join(f"{r.name} {getattr(r, name)}" for r in RECIPES.values()) + ")"
 
 
-CONFIG = declare('--config', dest='config_file', help="YAML or TOML file of settings, or a shipped one by name (cpu.yaml, gpu.yaml); the options "
-                   "below override it, and the defaults shown apply where neither sets a value.")
-MODEL = declare('--model', help="airsegnet6 | airsegnet13 | a name of your own (the class table decides the outputs).")
-WIDTH = declare('--width', type=float, help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU (unet-lite0: its "
-                   "decoder's channels).")
-ARCH = declare('--arch', type=click.Choice(list(ARCHS)), help="segnet-skip: SegNet whose decoder also adds each encoder stage's features (no extra weights; "
-                   "learns fine detail at small widths) | segnet: as published, the dissertation's network | "
-                   "unet-lite0: a U-Net decoder on EfficientNet-Lite0, whose ImageNet weights install with osmseg.")
-INIT = declare('--init', help="First weights: auto (unet-lite0: imagenet; SegNet: random) | random (as the dissertation) | imagenet (SegNet: torchvision's VGG16-BN, "
-                   "downloaded; unet-lite0: the installed EfficientNet-Lite0 weights) or a vgg16_bn PATH.pth "
-                   "(the encoder, width 1.0) | an osmseg run's best.pt/last.pt (fine-tuning at its width: the whole "
-                   "network, or all but the classifier when the classes differ).")
-EPOCHS = declare('--epochs', type=click.IntRange(min=1), help="Passes over the training data (with random crops, an epoch is --steps-per-epoch batches).")
-RECIPE = declare('--recipe', type=click.Choice(["auto", *RECIPES]), help="How the network learns: auto (the --arch's own: osmseg for SegNet, lite0 for unet-lite0) | osmseg "
-                   "(AdamW lr 0.01, cosine, 16 random 128x128 crops, no class weights; for small data and CPUs) | paper "
-                   "(the dissertation's SegNet recipe: SGD lr 0.1 poly, median-frequency weights, fixed 360x480 "
-                   "patches) | lite0 (fine-tuning: AdamW lr 0.001, warm-up, 4 crops of 256). "
-                   "docs/training.md compares them.")
-BATCH_SIZE = declare('--batch-size', type=click.IntRange(min=1), help="Images a batch: training crops, or windows "
-                     "predicted at once.")
-LR = declare('--lr', type=click.FloatRange(min=0, min_open=True), help="Peak learning rate (after the warm-up; the schedule decays it).")
-CLASS_WEIGHTS = declare('--class-weights', type=click.Choice(["none", "median-frequency", "sqrt-median-frequency"]),
+CONFIG = declare("--config", dest="config_file",
+                 help="YAML or TOML file of settings, or a shipped one by name (cpu.yaml, gpu.yaml); the options "
+                      "below override it, and the defaults shown apply where neither sets a value.")
+MODEL = declare("--model", help="airsegnet6 | airsegnet13 | a name of your own (the class table decides the outputs).")
+WIDTH = declare("--width", type=float,
+                help="Channel multiplier: 1.0 is the paper's SegNet; 0.125 trains on a CPU (unet-lite0: its "
+                     "decoder's channels).")
+ARCH = declare("--arch", type=click.Choice(list(ARCHS)),
+               help="segnet-skip: SegNet whose decoder also adds each encoder stage's features (no extra weights; "
+                    "learns fine detail at small widths) | segnet: as published, the dissertation's network | "
+                    "unet-lite0: a U-Net decoder on EfficientNet-Lite0, whose ImageNet weights install with osmseg.")
+INIT = declare("--init",
+               help="First weights: auto (unet-lite0: imagenet; SegNet: random) | random (as the dissertation) | "
+                    "imagenet (SegNet: torchvision's VGG16-BN, downloaded; unet-lite0: the installed "
+                    "EfficientNet-Lite0 weights) or a vgg16_bn PATH.pth (the encoder, width 1.0) | an osmseg run's "
+                    "best.pt/last.pt (fine-tuning at its width: the whole network, or all but the classifier when "
+                    "the classes differ).")
+EPOCHS = declare("--epochs", type=click.IntRange(min=1),
+                 help="Passes over the training data (with random crops, an epoch is --steps-per-epoch batches).")
+RECIPE = declare("--recipe", type=click.Choice(["auto", *RECIPES]),
+                 help="How the network learns: auto (the --arch's own: osmseg for SegNet, lite0 for unet-lite0) | "
+                      "osmseg (AdamW lr 0.01, cosine, 16 random 128x128 crops, no class weights; for small data and "
+                      "CPUs) | paper (the dissertation's SegNet recipe: SGD lr 0.1 poly, median-frequency weights, "
+                      "fixed 360x480 patches) | lite0 (fine-tuning: AdamW lr 0.001, warm-up, 4 crops of 256). "
+                      "docs/training.md compares them.")
+BATCH_SIZE = declare("--batch-size", type=click.IntRange(min=1),
+                     help="Images a batch: training crops, or windows predicted at once.")
+LR = declare("--lr", type=click.FloatRange(min=0, min_open=True),
+             help="Peak learning rate (after the warm-up; the schedule decays it).")
+CLASS_WEIGHTS = declare("--class-weights", type=click.Choice(["none", "median-frequency", "sqrt-median-frequency"]),
                         help="Loss weight of each class: none, median-frequency (the paper's) or its square root.")
-CROP = declare('--crop', type=click.IntRange(min=32), help="Side of the random training crops (recipe osmseg).")
-STEPS_PER_EPOCH = declare('--steps-per-epoch', type=click.IntRange(min=1), help="Batches of random crops per epoch (recipe osmseg).")
-BALANCED_CROPS = declare('--balanced-crops', type=click.FloatRange(0, 1), help="Share of the random crops centred on a pixel of one class, drawn uniformly from the classes the "
-                   "training labels hold: rare classes are seen as often as common ones (recipe osmseg).")
-ENCODER_LR = declare('--encoder-lr', type=click.FloatRange(0, 10), help="The encoder's learning rate as a multiple of --lr (below 1: pretrained features change less).")
-FREEZE_BN = declare('--freeze-bn/--train-bn', help="Keep the encoder's BatchNorm statistics as initialised (their scale and shift still learn).")
-EMA = declare('--ema', type=click.FloatRange(0, 1, max_open=True), help="Decay per step of the moving average of the weights that model.pt holds (0: the final weights).")
-DICE = declare('--dice', type=click.FloatRange(min=0), help="Weight of a soft Dice loss added to the cross-entropy (0: none).")
-CROP_SCALE = declare('--crop-scale', type=click.FloatRange(1, 4), help="Zoom random crops out by a factor drawn in [1, CROP_SCALE]: crops of up to --crop x CROP_SCALE "
-                   "pixels resized to --crop, so the network also sees coarser ground pixels (1: none).")
-JITTER = declare('--jitter', type=click.FloatRange(0, 1, max_open=True), help="Colour jitter: brightness, contrast and saturation factors drawn in 1 +- JITTER (0: none).")
-KEEP_UNLABELED = declare('--keep-unlabeled/--ignore-unlabeled', dest='keep_unlabeled', help="Train 'unlabeled' as a class instead of ignoring it (labels of one other class only always "
-                   "do: it is their background).")
-SPLIT_BY = declare('--split-by', type=click.Choice(["groups", "image"]), help="groups: samples that overlap on the ground stay in one split; image: each image alone.")
-LOADER_WORKERS = declare('--loader-workers', type=click.IntRange(min=0), help="DataLoader worker processes per training process (0: load in the training process).")
-MAX_STEPS_PER_EPOCH = declare('--max-steps-per-epoch', type=click.IntRange(min=0), help="Cap batches per epoch (smoke tests).")
-OVERLAP = declare('--overlap', type=click.IntRange(min=0), help="Window overlap in pixels.")
-BLOCK_SIZE = declare('--block-size', type=click.IntRange(min=256), help="Large rasters are predicted block by block (same result, bounded memory).")
-PAIR = declare('--pair', dest='pairs', nargs=2, multiple=True, type=click.Path(exists=True, dir_okay=False, path_type=Path), metavar="IMAGE LABEL", help="Evaluate on this image and label file instead of a dataset (repeatable).")
-SPLIT = declare('--split', type=click.Choice(["test", "val", "train", "all"]), help="For the dataset the model was trained on: which of its recorded splits.")
-MAPPING = declare('--mapping', help="Class mapping for foreign labels, e.g. inria-buildings.toml (data_manifests/).")
-PANELS = declare('--panels', type=click.IntRange(min=1), help="Samples shown in panels.png.")
-MODE = declare('--mode', type=click.Choice(["split-join", "rescale"]), help="split-join: windows of the training patch size; rescale: letterbox the whole image into "
-                          "one.")
-JOIN = declare('--join', type=click.Choice(["blend", "crop"]), help="split-join: blend overlapping windows smoothly, or keep each window's centre (the "
-                          "dissertation's).")
-TTA = declare('--tta', is_flag=True, help="Average over flips (and 90-degree turns of square inputs).")
-RESOLUTION = declare('--resolution', metavar="METRES|model", help="Resample georeferenced inputs, and a dataset's images (placed by its manifest.json), to "
+CROP = declare("--crop", type=click.IntRange(min=32), help="Side of the random training crops (recipe osmseg).")
+STEPS_PER_EPOCH = declare("--steps-per-epoch", type=click.IntRange(min=1),
+                          help="Batches of random crops per epoch (recipe osmseg).")
+BALANCED_CROPS = declare("--balanced-crops", type=click.FloatRange(0, 1),
+                         help="Share of the random crops centred on a pixel of one class, drawn uniformly from the "
+                              "classes the training labels hold: rare classes are seen as often as common ones "
+                              "(recipe osmseg).")
+ENCODER_LR = declare("--encoder-lr", type=click.FloatRange(0, 10),
+                     help="The encoder's learning rate as a multiple of --lr (below 1: pretrained features change "
+                          "less).")
+FREEZE_BN = declare("--freeze-bn/--train-bn",
+                    help="Keep the encoder's BatchNorm statistics as initialised (their scale and shift still "
+                         "learn).")
+EMA = declare("--ema", type=click.FloatRange(0, 1, max_open=True),
+              help="Decay per step of the moving average of the weights that model.pt holds (0: the final weights).")
+DICE = declare("--dice", type=click.FloatRange(min=0),
+               help="Weight of a soft Dice loss added to the cross-entropy (0: none).")
+CROP_SCALE = declare("--crop-scale", type=click.FloatRange(1, 4),
+                     help="Zoom random crops out by a factor drawn in [1, CROP_SCALE]: crops of up to --crop x "
+                          "CROP_SCALE pixels resized to --crop, so the network also sees coarser ground pixels (1: "
+                          "none).")
+JITTER = declare("--jitter", type=click.FloatRange(0, 1, max_open=True),
+                 help="Colour jitter: brightness, contrast and saturation factors drawn in 1 +- JITTER (0: none).")
+KEEP_UNLABELED = declare("--keep-unlabeled/--ignore-unlabeled", dest="keep_unlabeled",
+                         help="Train 'unlabeled' as a class instead of ignoring it (labels of one other class only "
+                              "always do: it is their background).")
+SPLIT_BY = declare("--split-by", type=click.Choice(["groups", "image"]),
+                   help="groups: samples that overlap on the ground stay in one split; image: each image alone.")
+LOADER_WORKERS = declare("--loader-workers", type=click.IntRange(min=0),
+                         help="DataLoader worker processes per training process (0: load in the training process).")
+MAX_STEPS_PER_EPOCH = declare("--max-steps-per-epoch", type=click.IntRange(min=0),
+                              help="Cap batches per epoch (smoke tests).")
+OVERLAP = declare("--overlap", type=click.IntRange(min=0), help="Window overlap in pixels.")
+BLOCK_SIZE = declare("--block-size", type=click.IntRange(min=256),
+                     help="Large rasters are predicted block by block (same result, bounded memory).")
+PAIR = declare("--pair", dest="pairs", nargs=2, multiple=True,
+               type=click.Path(exists=True, dir_okay=False, path_type=Path), metavar="IMAGE LABEL",
+               help="Evaluate on this image and label file instead of a dataset (repeatable).")
+SPLIT = declare("--split", type=click.Choice(["test", "val", "train", "all"]),
+                help="For the dataset the model was trained on: which of its recorded splits.")
+MAPPING = declare("--mapping", help="Class mapping for foreign labels, e.g. inria-buildings.toml (data_manifests/).")
+PANELS = declare("--panels", type=click.IntRange(min=1), help="Samples shown in panels.png.")
+MODE = declare("--mode", type=click.Choice(["split-join", "rescale"]),
+               help="split-join: windows of the training patch size; rescale: letterbox the whole image into one.")
+JOIN = declare("--join", type=click.Choice(["blend", "crop"]),
+               help="split-join: blend overlapping windows smoothly, or keep each window's centre (the "
+                    "dissertation's).")
+TTA = declare("--tta", is_flag=True, help="Average over flips (and 90-degree turns of square inputs).")
+RESOLUTION = declare("--resolution", metavar="METRES|model",
+                     help="Resample georeferenced inputs, and a dataset's images (placed by its manifest.json), to "
                           "this ground pixel size before predicting ('model': the training data's, from the "
                           "checkpoint); masks and labels stay on the input's grid.")
 

@@ -115,30 +115,47 @@ def _drawn(ctx: click.Context) -> Mode | None:
     return ctx.obj.get("progress") if ctx.obj else None
 
 
-VIEWPOINTS = declare('--viewpoints', type=click.IntRange(min=1), help="Rendered panoramas to localize, placed round-robin over the masks (-n is build's --samples).")
-MARGIN = declare('--margin', type=click.FloatRange(min=0), help="Viewpoints stay this many metres from the mask border.")
-STAND_ON = declare('--stand-on', multiple=True, help="Classes viewpoints may stand on (repeatable).")
-MAX_RANGE = declare('--max-range', type=click.FloatRange(min=0, min_open=True), help="How far the camera sees (m).")
-CLASS_HEIGHT = declare('--class-height', multiple=True, metavar="CLASS=METRES", help="Height of a class that occludes (repeatable).")
-CONFUSION = declare('--confusion', type=click.FloatRange(0, 1), help="Noise: fraction of panorama landmarks relabelled as another landmark class.")
-MISS_SMALL = declare('--miss-small', type=click.IntRange(min=0), help="Noise: panorama landmarks under this many pixels are missed.")
-MISS_PROB = declare('--miss-prob', type=click.FloatRange(0, 1), help="Noise: every other panorama landmark is missed with this probability.")
-OFFSET = declare('--offset', type=click.FloatRange(min=0), help="Noise: render from this many metres away from the true viewpoint.")
-QUERY_LANDMARKS = declare('--query-landmarks', type=click.Choice(["mask", "visible"]), help="Panorama landmarks from its rendered mask, or the aerial landmarks the camera sees "
-              "(perfect correspondence, as a person annotating both views: measures the matching alone).")
-VISIBLE_MIN_PX = declare('--visible-min-px', type=click.IntRange(min=1), help="With --query-landmarks visible: panorama pixels an aerial landmark needs to count as seen.")
-SAVE_PANORAMAS = declare('--save-panoramas', type=click.IntRange(min=0), help="Write the first K rendered panoramas as PNG under OUT/panoramas/.")
-PICTURES = declare('--pictures', type=click.IntRange(min=0), help="Draw the first K localizations under OUT/views/: the mask with candidates, top-k and truth, "
-              "and the panorama with its landmark graph.")
-HEIGHT_SPREAD = declare('--height-spread', type=click.FloatRange(0, 1, max_open=True), help="Each building and tree gets its class height times U(1-s, 1+s), seeded: heights the methods "
-                   "do not know.")
-NO_NEGATIVES = declare('--negatives/--no-negatives', help="Also localize each view in another scene: how well each method's confidence separates "
-                   "matching from non-matching pairs (ROC AUC).")
-RENDERER = declare('--renderer', type=click.Choice(["mask", "geometry"]), help="mask: panoramas ray-cast over the aerial mask, one height per class (the model the profile "
-                   "method scores with) | geometry: ray-cast over the OSM geometry of --osm in 3-D, heights from "
-                   "the tags, see-through tree crowns (shares no code with the methods).")
-NO_SUBSETS = declare('--subsets/--no-subsets', help="Also localize with every subset of 2, 3... landmark classes.")
-NO_PLOTS = declare('--plots/--no-plots', help="Draw errors.png and classes.png.")
+VIEWPOINTS = declare("--viewpoints", type=click.IntRange(min=1),
+                     help="Rendered panoramas to localize, placed round-robin over the masks (-n is build's "
+                          "--samples).")
+MARGIN = declare("--margin", type=click.FloatRange(min=0),
+                 help="Viewpoints stay this many metres from the mask border.")
+STAND_ON = declare("--stand-on", multiple=True, help="Classes viewpoints may stand on (repeatable).")
+MAX_RANGE = declare("--max-range", type=click.FloatRange(min=0, min_open=True), help="How far the camera sees (m).")
+CLASS_HEIGHT = declare("--class-height", multiple=True, metavar="CLASS=METRES",
+                       help="Height of a class that occludes (repeatable).")
+CONFUSION = declare("--confusion", type=click.FloatRange(0, 1),
+                    help="Noise: fraction of panorama landmarks relabelled as another landmark class.")
+MISS_SMALL = declare("--miss-small", type=click.IntRange(min=0),
+                     help="Noise: panorama landmarks under this many pixels are missed.")
+MISS_PROB = declare("--miss-prob", type=click.FloatRange(0, 1),
+                    help="Noise: every other panorama landmark is missed with this probability.")
+OFFSET = declare("--offset", type=click.FloatRange(min=0),
+                 help="Noise: render from this many metres away from the true viewpoint.")
+QUERY_LANDMARKS = declare("--query-landmarks", type=click.Choice(["mask", "visible"]),
+                          help="Panorama landmarks from its rendered mask, or the aerial landmarks the camera sees "
+                               "(perfect correspondence, as a person annotating both views: measures the matching "
+                               "alone).")
+VISIBLE_MIN_PX = declare("--visible-min-px", type=click.IntRange(min=1),
+                         help="With --query-landmarks visible: panorama pixels an aerial landmark needs to count as "
+                              "seen.")
+SAVE_PANORAMAS = declare("--save-panoramas", type=click.IntRange(min=0),
+                         help="Write the first K rendered panoramas as PNG under OUT/panoramas/.")
+PICTURES = declare("--pictures", type=click.IntRange(min=0),
+                   help="Draw the first K localizations under OUT/views/: the mask with candidates, top-k and truth, "
+                        "and the panorama with its landmark graph.")
+HEIGHT_SPREAD = declare("--height-spread", type=click.FloatRange(0, 1, max_open=True),
+                        help="Each building and tree gets its class height times U(1-s, 1+s), seeded: heights the "
+                             "methods do not know.")
+NO_NEGATIVES = declare("--negatives/--no-negatives",
+                       help="Also localize each view in another scene: how well each method's confidence separates "
+                            "matching from non-matching pairs (ROC AUC).")
+RENDERER = declare("--renderer", type=click.Choice(["mask", "geometry"]),
+                   help="mask: panoramas ray-cast over the aerial mask, one height per class (the model the profile "
+                        "method scores with) | geometry: ray-cast over the OSM geometry of --osm in 3-D, heights "
+                        "from the tags, see-through tree crowns (shares no code with the methods).")
+NO_SUBSETS = declare("--subsets/--no-subsets", help="Also localize with every subset of 2, 3... landmark classes.")
+NO_PLOTS = declare("--plots/--no-plots", help="Draw errors.png and classes.png.")
 METHODS = declare("--methods", dest="methods_text", metavar="METHOD,...",
                   help="Methods to compare, comma-separated, side by side in one run: profile, paper. The first "
                        "fills the summary; the class-subset figure is the paper method's when it comes first.")

@@ -79,37 +79,57 @@ def _table(result: Any) -> str:
                        for rank, ((x, y, post), i) in enumerate(zip(result.top_k, result.order), start=1)], left=0)
 
 
-AERIAL = declare('--aerial', dest='aerial_path', type=click.Path(exists=True, dir_okay=False, path_type=Path), help="Aerial label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy) or RGB image "
-                   "with --aerial-checkpoint. Or no aerial image at all: a region's OSM with --osm and --bbox.")
-GROUND = declare('--ground', dest='ground_path', type=click.Path(exists=True, dir_okay=False, path_type=Path), help="Ground panorama: label mask, landmark file, or RGB image with --ground-checkpoint.")
-AERIAL_TABLE = declare('--aerial-table', help="Class table of the aerial mask, e.g. classes13.toml.")
-GROUND_TABLE = declare('--ground-table', help="Class table of the ground mask.")
-AERIAL_CHECKPOINT = declare('--aerial-checkpoint', type=click.Path(exists=True, path_type=Path), help="Segment the aerial RGB image with this checkpoint first (needs PyTorch).")
-GROUND_CHECKPOINT = declare('--ground-checkpoint', type=click.Path(exists=True, path_type=Path), help="Segment the ground RGB image with this checkpoint first (needs PyTorch).")
-NO_PANORAMA = declare('--panorama/--no-panorama', help="The ground image is a 360-degree panorama (x wraps around); --no-panorama for an aerial crop.")
-GROUND_WINDOW = declare('--ground-window', type=click.IntRange(min=1), help="Ground window in pixels.")
-STRIDE = declare('--stride', type=click.IntRange(min=1), help="Window stride in pixels.")
-HIERARCHICAL = declare('--hierarchical', is_flag=True, help="Refine over --windows, multiplying probabilities (eq. 3.8).")
-WINDOWS = declare('--windows', dest='windows_text', help="Hierarchical windows, coarse to fine.")
-REFERENCE = declare('--reference', is_flag=True, help="Build graphs with the paper's plain sliding window (slow; a check).")
-TRUTH = declare('--truth', dest='truth_text', help="Ground-truth viewpoint X,Y in aerial pixels (with --osm: LON,LAT): "
-              "reports the error.")
-JSON = declare('--json', dest='as_json', is_flag=True, help="Print the result as JSON instead of a table.")
-AERIAL_IMAGE = declare('--aerial-image', type=click.Path(exists=True, dir_okay=False, path_type=Path), help="RGB photo of the aerial mask or landmark file: for --feature-threshold, and drawn under the graph.")
-GROUND_IMAGE = declare('--ground-image', type=click.Path(exists=True, dir_okay=False, path_type=Path), help="RGB photo of the ground mask or landmark file.")
-FEATURE_THRESHOLD = declare('--feature-threshold', type=click.FloatRange(min=0, min_open=True), help="Remove edges between landmarks whose encoder features are closer than this (§5.3.2).")
-FEATURE_METRIC = declare('--feature-metric', type=click.Choice(["euclidean", "cosine"]),
+AERIAL = declare("--aerial", dest="aerial_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+                 help="Aerial label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy) or RGB image "
+                      "with --aerial-checkpoint. Or no aerial image at all: a region's OSM with --osm and --bbox.")
+GROUND = declare("--ground", dest="ground_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+                 help="Ground panorama: label mask, landmark file, or RGB image with --ground-checkpoint.")
+AERIAL_TABLE = declare("--aerial-table", help="Class table of the aerial mask, e.g. classes13.toml.")
+GROUND_TABLE = declare("--ground-table", help="Class table of the ground mask.")
+AERIAL_CHECKPOINT = declare("--aerial-checkpoint", type=click.Path(exists=True, path_type=Path),
+                            help="Segment the aerial RGB image with this checkpoint first (needs PyTorch).")
+GROUND_CHECKPOINT = declare("--ground-checkpoint", type=click.Path(exists=True, path_type=Path),
+                            help="Segment the ground RGB image with this checkpoint first (needs PyTorch).")
+NO_PANORAMA = declare("--panorama/--no-panorama",
+                      help="The ground image is a 360-degree panorama (x wraps around); --no-panorama for an aerial "
+                           "crop.")
+GROUND_WINDOW = declare("--ground-window", type=click.IntRange(min=1), help="Ground window in pixels.")
+STRIDE = declare("--stride", type=click.IntRange(min=1), help="Window stride in pixels.")
+HIERARCHICAL = declare("--hierarchical", is_flag=True,
+                       help="Refine over --windows, multiplying probabilities (eq. 3.8).")
+WINDOWS = declare("--windows", dest="windows_text", help="Hierarchical windows, coarse to fine.")
+REFERENCE = declare("--reference", is_flag=True,
+                    help="Build graphs with the paper's plain sliding window (slow; a check).")
+TRUTH = declare("--truth", dest="truth_text",
+                help="Ground-truth viewpoint X,Y in aerial pixels (with --osm: LON,LAT): reports the error.")
+JSON = declare("--json", dest="as_json", is_flag=True, help="Print the result as JSON instead of a table.")
+AERIAL_IMAGE = declare("--aerial-image", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+                       help="RGB photo of the aerial mask or landmark file: for --feature-threshold, and drawn under "
+                            "the graph.")
+GROUND_IMAGE = declare("--ground-image", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+                       help="RGB photo of the ground mask or landmark file.")
+FEATURE_THRESHOLD = declare("--feature-threshold", type=click.FloatRange(min=0, min_open=True),
+                            help="Remove edges between landmarks whose encoder features are closer than this "
+                                 "(§5.3.2).")
+FEATURE_METRIC = declare("--feature-metric", type=click.Choice(["euclidean", "cosine"]),
                          help="Distance between two landmarks' encoder features.")
-FEATURE_REDUCE = declare('--feature-reduce', type=click.Choice(["none", "pca", "umap"]), help="Reduce the features first (umap needs umap-learn). PCA centres them: with 2 landmarks their cosine distance is 2, so nothing is dropped.")
-FEATURE_COMPONENTS = declare('--feature-components', type=click.IntRange(min=1), help="Dimensions --feature-reduce keeps.")
-FEATURE_CHECKPOINT = declare('--feature-checkpoint', type=click.Path(exists=True, path_type=Path), help="Checkpoint whose encoder gives the features.")
-TILT = declare('--tilt', dest='tilt_deg', type=click.FloatRange(0, 10), help="Profile method: the camera may be tilted up to this many degrees in pitch and roll; the tilt is "
-                   "read from the ground mask's horizon, where its sky ends and its ground begins (give the sky as a "
-                   "class: the ground table's 'sky', id 14 for classes13).")
-MIN_CONFIDENCE = declare('--min-confidence', type=click.FloatRange(-1, 1), help="Profile method: below this confidence (how far the answer stands out from "
-              "the best place 50 m or more away) the answer is 'not sure'.")
-MIN_KAPPA = declare('--min-kappa', type=click.FloatRange(-1, 1), help="Profile method: below this kappa (the best match against chance) the answer is 'not in "
-              "this image'; lower it for segmented RGB queries.")
+FEATURE_REDUCE = declare("--feature-reduce", type=click.Choice(["none", "pca", "umap"]),
+                         help="Reduce the features first (umap needs umap-learn). PCA centres them: with 2 landmarks "
+                              "their cosine distance is 2, so nothing is dropped.")
+FEATURE_COMPONENTS = declare("--feature-components", type=click.IntRange(min=1),
+                             help="Dimensions --feature-reduce keeps.")
+FEATURE_CHECKPOINT = declare("--feature-checkpoint", type=click.Path(exists=True, path_type=Path),
+                             help="Checkpoint whose encoder gives the features.")
+TILT = declare("--tilt", dest="tilt_deg", type=click.FloatRange(0, 10),
+               help="Profile method: the camera may be tilted up to this many degrees in pitch and roll; the tilt is "
+                    "read from the ground mask's horizon, where its sky ends and its ground begins (give the sky as "
+                    "a class: the ground table's 'sky', id 14 for classes13).")
+MIN_CONFIDENCE = declare("--min-confidence", type=click.FloatRange(-1, 1),
+                         help="Profile method: below this confidence (how far the answer stands out from the best "
+                              "place 50 m or more away) the answer is 'not sure'.")
+MIN_KAPPA = declare("--min-kappa", type=click.FloatRange(-1, 1),
+                    help="Profile method: below this kappa (the best match against chance) the answer is 'not in "
+                         "this image'; lower it for segmented RGB queries.")
 
 
 @click.command("localize")

@@ -79,8 +79,10 @@ def demo_localization(dataset: Path, out_dir: Path, verbosity: int, progress: Pr
                    err=True)
 
 
-TRAIN = declare('--train/--no-train', help="After the build, train a tiny AirSegNet13 on the CPU and evaluate it (needs osmseg[train]).")
-LOCALIZE = declare('--localize/--no-localize', help="After the build, localize rendered panoramas in the dataset's masks (localize-bench).")
+TRAIN = declare("--train/--no-train",
+                help="After the build, train a tiny AirSegNet13 on the CPU and evaluate it (needs osmseg[train]).")
+LOCALIZE = declare("--localize/--no-localize",
+                   help="After the build, localize rendered panoramas in the dataset's masks (localize-bench).")
 
 
 @click.command("demo")
