@@ -160,9 +160,8 @@ def typed_flags(ctx: click.Context) -> dict[str, str]:
 
 def given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
     """The options among ``names`` that were typed on the command line, as ``--option-names``."""
-    by_name = {p.name: p for p in ctx.command.params}
-    typed = typed_options(ctx)
-    return [max(by_name[n].opts, key=len) for n in names if n in typed]
+    flags = typed_flags(ctx)
+    return [flags[n] for n in names if n in flags]
 
 
 # ------------------------------------------------------------------ options of more than one localize command
