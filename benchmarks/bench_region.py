@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     view_options(ap, eye="2,2", tilt=0.0)
     ap.add_argument("--heading", choices=["known", "unknown"], default="known")
     ap.add_argument("--search-pose", action="store_true",
-                    help="tell the method the camera height and tilt are unknown (osmseg localize --camera-height "
+                    help="tell the method the camera height and tilt are unknown (osmseg localize-region --camera-height "
                          "unknown --tilt TILT): it reads the tilt from the horizon and tries 1.5 to 2.5 m")
     ap.add_argument("--json", type=Path, help="also write every figure here")
     args = ap.parse_args(argv)

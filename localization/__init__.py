@@ -9,7 +9,7 @@ seen first at each azimuth and ground distance with what the aerial image predic
 position of a dense grid. The package is built in wings, one folder each, layered:
 
 ==========================  ===============================================================
-:mod:`localization.cli`     ``osmseg localize``, ``localize-bench``, ``localize-pairs``, ``demo``
+:mod:`localization.cli`     ``osmseg localize``, ``localize-region``, ``localize-bench``, ``localize-pairs``, ``demo``
 :mod:`localization.bench`   the benchmarks: rendered views and annotated pairs, both renderers
 :mod:`localization.region`  a region from OpenStreetMap alone, in blocks and shards
 :mod:`localization.pipeline` the one entry point: :func:`~localization.pipeline.run` localizes

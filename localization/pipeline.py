@@ -17,11 +17,11 @@ segmented or features are asked for).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -104,6 +104,42 @@ class LocalizeFiles:
 
 
 @dataclass(frozen=True)
+class TruthError:
+    """``--truth`` (aerial pixels) and the error of the best answer from it."""
+
+    x: float
+    y: float
+    error_px: float | None
+    error_m: float | None
+
+
+@dataclass(frozen=True)
+class LocalizeSummary:
+    """What result.json says of the inputs beside the result: the files, their landmarks, which
+    were masks (profile method), the truth's error and the answer in degrees when georeferenced."""
+
+    aerial: str
+    ground: str
+    aerial_landmarks: int
+    ground_landmarks: int
+    inputs: tuple[tuple[str, str], ...] | None = None  # (side, "mask" | "landmarks")
+    truth: TruthError | None = None
+    map_lonlat: tuple[float, float] | None = None  # lon, lat (7 decimals)
+
+    def to_json(self) -> dict[str, object]:
+        """The summary's part of result.json."""
+        doc: dict[str, object] = {"aerial": self.aerial, "ground": self.ground,
+                                  "aerial_landmarks": self.aerial_landmarks, "ground_landmarks": self.ground_landmarks}
+        if self.inputs is not None:
+            doc["inputs"] = dict(self.inputs)
+        if self.truth is not None:
+            doc["truth"] = dataclasses.asdict(self.truth)
+        if self.map_lonlat is not None:
+            doc["map_lonlat"] = {"lon": self.map_lonlat[0], "lat": self.map_lonlat[1]}
+        return doc
+
+
+@dataclass(frozen=True)
 class LocalizeReport:
     """What :func:`localize_files` found, and the files it wrote."""
 
@@ -112,7 +148,7 @@ class LocalizeReport:
     ground: Side
     error_px: float | None
     error_m: float | None
-    summary: dict[str, Any]
+    summary: LocalizeSummary
     written: list[Path] = field(default_factory=list)
 
 
@@ -158,24 +194,25 @@ def localize_files(request: LocalizeFiles, config: LocalizeConfig, out_dir: Path
                           f"every landmark would be in one window; give less than {max(a.width, a.height)}, or auto")
     if truth is not None and not (0 <= truth[0] < a.width and 0 <= truth[1] < a.height):
         raise ConfigError(f"--truth {truth[0]:g},{truth[1]:g} is outside the aerial image ({a.width}x{a.height})")
-    summary: dict[str, Any] = {"aerial": str(request.aerial), "ground": str(request.ground),
-                               "aerial_landmarks": len(a), "ground_landmarks": len(ground.landmarks)}
+    inputs = None
     if config.method == "profile":
         result = _profile_result(request, config, aerial, ground)
-        summary["inputs"] = {side: "mask" if s.semantic is not None else "landmarks"
-                             for side, s in (("aerial", aerial), ("ground", ground))}
+        inputs = tuple((side, "mask" if s.semantic is not None else "landmarks")
+                       for side, s in (("aerial", aerial), ("ground", ground)))
     else:
         result = _paper_result(request, config, aerial, ground)
     resolution = request.resolution_m or aerial.resolution
     error_px, error_m = result.error(truth, resolution)
-    if truth is not None:
-        summary["truth"] = {"x": truth[0], "y": truth[1], "error_px": error_px, "error_m": error_m}
-    if result.map_xy is not None and (where := answer_lonlat(request.aerial, result.map_xy)) is not None:
-        summary["map_lonlat"] = {"lon": round(where[0], 7), "lat": round(where[1], 7)}
+    where = answer_lonlat(request.aerial, result.map_xy) if result.map_xy is not None else None
+    summary = LocalizeSummary(
+        aerial=str(request.aerial), ground=str(request.ground), aerial_landmarks=len(a),
+        ground_landmarks=len(ground.landmarks), inputs=inputs,
+        truth=None if truth is None else TruthError(truth[0], truth[1], error_px, error_m),
+        map_lonlat=None if where is None else (round(where[0], 7), round(where[1], 7)))
     report = LocalizeReport(result, aerial, ground, error_px, error_m, summary)
     if out_dir is not None:
         report.written.extend(_pictures(out_dir, report, config, resolution))
-        full = {**summary, **result.to_dict(all_candidates=config.method == "paper")}
+        full = {**summary.to_json(), **result.to_dict(all_candidates=config.method == "paper")}
         report.written.append(atomic_write_text(out_dir / "result.json",
                                                 json.dumps(full, indent=2, sort_keys=True) + "\n"))
     return report
@@ -252,7 +289,8 @@ def _pictures(out_dir: Path, report: LocalizeReport, config: LocalizeConfig, res
     except ImportError:
         raise ConfigError("pictures need matplotlib: pip install matplotlib (or leave out --out)") from None
     result, aerial, ground = report.result, report.aerial, report.ground
-    truth = (report.summary["truth"]["x"], report.summary["truth"]["y"]) if "truth" in report.summary else None
+    known = report.summary.truth
+    truth = None if known is None else (known.x, known.y)
     paths = [figures.localization_png(out_dir / "localization.png", result, aerial.landmarks,
                                        image=aerial.picture(), truth=truth, resolution=resolution)]
     if config.method != "paper":  # no landmark graphs to draw: none of an earlier paper run stays to mislead

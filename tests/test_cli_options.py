@@ -96,3 +96,50 @@ def test_a_former_spelling_says_in_one_line_what_to_type_now(tmp_path, command: 
     assert len(message) == 1 and new in message[0] and old[0] in message[0], result.output
     assert re.search(re.escape(new) + r"\b", commands()[command].get_help(click.Context(commands()[command])))
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("old", [["--osm", "city.osm"], ["--bbox", "26.94,60.53,26.95,60.54"], ["--lat", "60.5"],
+                                 ["--radius-km", "1"], ["--shard", "1/2"], ["--cache-dir", "cache"], ["--zoom", "18"]])
+def test_localize_names_localize_region_for_a_region_option(tmp_path, old: list[str]) -> None:
+    """The former ``osmseg localize --osm FILE --bbox ...`` (one command, two meanings) is now two
+    commands; the old spelling says in one line which to run, before any file is read."""
+    query = tmp_path / "query.png"
+    query.write_bytes(b"")
+    result = CliRunner().invoke(cli, ["localize", "--ground", str(query), *old, "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2, result.output
+    message = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(message) == 1 and f"{old[0]} is a region search's" in message[0], result.output
+    assert "osmseg localize-region --ground FILE --osm FILE --bbox W,S,E,N" in message[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_localize_and_localize_region_each_take_only_their_own_options() -> None:
+    """The image command takes the aerial image's and the paper method's options, the region
+    command the region's; what they share (the ground view, how it was taken) is declared once."""
+    found = commands()
+
+    def taken(name: str) -> set[str]:
+        return {flag for p in found[name].params if isinstance(p, DeclaredOption) for flag in p.opts}
+
+    image, region = taken("localize"), taken("localize-region")
+    assert {"--aerial", "--aerial-resolution", "--window", "--method", "--min-kappa"} <= image - region
+    assert {"--osm", "--bbox", "--lat", "--zoom", "--shard", "--cache-dir"} <= region - image
+    assert {"--ground", "--ground-table", "--heading", "--fov", "--camera-height", "--tilt", "--truth"} <= image & region
+
+
+def test_a_request_is_built_from_a_command_s_flat_parameters_and_refuses_a_stray_one() -> None:
+    """osmseg.cli.requests: a part of a request is filled from the parameters its own fields name;
+    a parameter no field takes is an error (a command and its request cannot drift apart)."""
+    from localization.cli.localize import ImageQuery, PaperOptions
+    from osmseg.cli.requests import make_request, part_options
+
+    ctx = click.Context(commands()["localize"])
+    params = {p.name: p.get_default(ctx) for p in ctx.command.params if p.expose_value and p.name}
+    params.update(aerial_path="a.png", ground_path="g.png", window_text="120")
+    query = make_request(ImageQuery, params, typed={"window_text": "--window"})
+    assert query.paper.window == 120 and query.aerial.aerial_path == "a.png" and query.profile.view.fov_deg == 360
+    assert "window_text" in part_options(PaperOptions) and "feature_threshold" in part_options(PaperOptions)
+    with pytest.raises(TypeError, match="no field for the parameters colour"):
+        make_request(ImageQuery, {**params, "colour": "red"})
+    with pytest.raises(Exception, match="--window applies to --method paper"):
+        query.config()  # the profile method is the default: --window was typed for nothing

@@ -7,7 +7,7 @@ Issue 31, item 4, through the CLI as a user meets each message:
 * no Python names reach a user: field names (``margin_m, save_panoramas``), exception reprs and
   class names (``KeyError('unlabeled')``, ``(TypeError)``), tracebacks;
 * usage errors exit 2;
-* ``osmseg localize --osm FILE --bbox`` over an area the file does not cover says so, naming the
+* ``osmseg localize-region --osm FILE --bbox`` over an area the file does not cover says so, naming the
   file's extent as ``osmseg build`` does (was: "no block holds a place that fits the query").
 
 :func:`test_every_error_names_only_what_the_command_has` walks the messages this issue touched,
@@ -188,11 +188,11 @@ def test_a_region_search_over_an_area_the_osm_file_does_not_cover_says_so(tmp_pa
     view[112:] = 2
     view[60:112, 100:300] = view[60:112, 700:900] = 1
     Image.fromarray(view).save(tmp_path / "query.png")
-    args = ["localize", "--ground", tmp_path / "query.png", "--ground-landmarks", "aerial13", "--ground-table",
+    args = ["localize-region", "--ground", tmp_path / "query.png", "--ground-landmarks", "aerial13", "--ground-table",
             "classes13.toml", "--osm", TINYCITY, "--cache-dir", tmp_path / "cache", "--out", tmp_path / "out"]
     result = run(*args, "--bbox", "10.0,50.0,10.003,50.002")  # Germany; the file is of Helsinki
     assert result.exit_code == 2, result.output  # was: exit 0, "no block of the region holds a place that fits"
-    line = check_words(result, "localize")
+    line = check_words(result, "localize-region")
     assert line.startswith(f"--osm {TINYCITY} covers lon 24.93572..24.94358, lat 60.16766..60.17207 (its header's "
                            "bounds), which misses the region (lon 10.00000..10.00300, lat 50.00000..50.00200)"), line
     assert not (tmp_path / "out").exists()

@@ -20,7 +20,7 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
-from localization.cli.commands import localize_command
+from localization.cli.localize import localize_command
 from localization.common.landmarks import Landmarks, landmarks_from_mask, load_landmark_classes
 from localization.paper.features import FeatureEdges, dropped_edges, landmark_features
 from localization.paper.graph import cliques_fast

@@ -326,7 +326,7 @@ def test_geometry_views_of_real_osm_are_localized_by_the_profile_method(tmp_path
     assert profile["answered"] == 4 and profile["recall_at"]["10"] >= 0.75
 
 
-# ------------------------------------------------------------------ region search: osmseg localize --osm --bbox
+# ------------------------------------------------------------------ region search: osmseg localize-region --osm --bbox
 def town(tmp_path):
     """An OSM town: a grid of streets lined by buildings of drawn lengths, depths, gaps and
     heights (seeded), so that no two stretches of street look alike."""
@@ -385,7 +385,7 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     truth = lonlat(*at)
     w, s = lonlat(-140, -140)
     e, n = lonlat(140, 140)
-    args = ["localize", "--ground", str(tmp_path / "query.png"), "--ground-landmarks", "aerial13", "--ground-table",
+    args = ["localize-region", "--ground", str(tmp_path / "query.png"), "--ground-landmarks", "aerial13", "--ground-table",
             "classes13.toml", "--osm", str(osm), "--bbox", f"{w},{s},{e},{n}", "--truth", f"{truth[0]},{truth[1]}",
             "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache")]
     runs = [CliRunner().invoke(cli, args) for _ in range(2)]
@@ -403,10 +403,15 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     alternative = [f for f in doc["features"] if f["properties"]["role"] == "best distinct alternative"]
     assert alternative and alternative[0]["properties"]["distance_m"] >= 50.0
     assert doc["properties"]["margin"] >= 0 and all(shapely.box(w, s, e, n).buffer(1e-3).contains(p) for p in points)
-    # a region search has no aerial image: its options are refused in one line
-    bad = CliRunner().invoke(cli, [*args, "--aerial-resolution", "0.3"])
-    assert bad.exit_code == 2 and "--aerial-resolution applies to an aerial image" in bad.output
-    no_box = CliRunner().invoke(cli, ["localize", "--ground", str(tmp_path / "query.png"), "--osm", str(osm)])
+    # a region search has no aerial image: its options name the command that takes them, in one line
+    for option, value in (("--aerial-resolution", "0.3"), ("--aerial", str(tmp_path / "query.png"))):
+        bad = CliRunner().invoke(cli, [*args, option, value])
+        assert bad.exit_code == 2 and f"{option} is for an aerial image" in bad.output, bad.output
+        assert "run osmseg localize --aerial FILE --ground FILE" in bad.output
+    # the former spelling, osmseg localize --osm, names the command to use in one line
+    old = CliRunner().invoke(cli, ["localize", *args[1:]])
+    assert old.exit_code == 2 and "osmseg localize-region --ground FILE --osm FILE --bbox" in old.output, old.output
+    no_box = CliRunner().invoke(cli, ["localize-region", "--ground", str(tmp_path / "query.png"), "--osm", str(osm)])
     assert no_box.exit_code == 2 and "--bbox" in no_box.output
     # the region as a centre and a radius: the square around the disc, the same answers
     centre = lonlat(0.0, 0.0)
@@ -441,7 +446,7 @@ def test_a_region_split_into_shards_answers_as_one_process(tmp_path) -> None:
     e, n = lonlat(140, 140)
 
     def run(out: str, *extra: str):
-        return CliRunner().invoke(cli, ["localize", "--ground", str(tmp_path / "query.png"), "--ground-landmarks",
+        return CliRunner().invoke(cli, ["localize-region", "--ground", str(tmp_path / "query.png"), "--ground-landmarks",
                                         "aerial13", "--ground-table", "classes13.toml", "--osm", str(osm), "--bbox",
                                         f"{w},{s},{e},{n}", "--heading", "unknown", "--out", str(tmp_path / out),
                                         "--cache-dir", str(tmp_path / "cache"), *extra])
@@ -464,7 +469,7 @@ def test_a_region_split_into_shards_answers_as_one_process(tmp_path) -> None:
     again = run("split2", "--shard", "1/2")
     assert again.exit_code == 0 and parts[0].stat().st_mtime_ns == stamp  # its part was kept, not searched again
     assert (tmp_path / "split2" / "region.geojson").read_bytes() == expected
-    no_out = CliRunner().invoke(cli, ["localize", "--ground", str(tmp_path / "query.png"), "--osm", str(osm),
+    no_out = CliRunner().invoke(cli, ["localize-region", "--ground", str(tmp_path / "query.png"), "--osm", str(osm),
                                       "--bbox", f"{w},{s},{e},{n}", "--shard", "1/2"])
     assert no_out.exit_code == 2 and "--shard 1/2 needs --out" in no_out.output
 

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from conftest import table_rows, write_dataset_manifest
 from PIL import Image
 
-from localization.cli.commands import localize_command
+from localization.cli.localize import localize_command
 from localization.common.figures import CANDIDATE, TOP_K, TRUTH, _segments, graph_png, localization_png
 from localization.common.landmarks import Landmarks
 from localization.paper.config import PaperConfig

@@ -22,7 +22,7 @@ from test_loc_render import CLASSES, GRASS, RES, ROAD, TABLE, B, town
 from localization.bench.compare import photo_view, roc_auc
 from localization.bench.render import RenderConfig, object_heights, render_panorama
 from localization.cli.bench import localize_bench_command
-from localization.cli.commands import localize_command
+from localization.cli.localize import localize_command
 from localization.common.landmarks import landmarks_from_mask
 from localization.common.views import Camera, semantic_map
 from localization.profile.method import profile_index, profile_query, run_profile

@@ -450,7 +450,7 @@ def test_aerial_landmarks_of_a_byte_mask_are_those_of_the_same_mask_in_int64() -
 
 def test_a_saved_panorama_is_a_query_the_localize_command_takes(tmp_path: Path) -> None:
     """What a user does next: the bench's saved panorama (sky and all) given to ``osmseg localize``."""
-    from localization.cli.commands import localize_command
+    from localization.cli.localize import localize_command
 
     mask_file = tmp_path / "town.png"
     Image.fromarray(town(seed=4)).save(mask_file)

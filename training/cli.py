@@ -2,8 +2,10 @@
 
 Registered on the ``osmseg`` group as plugins (entry points ``osmseg.commands`` in
 pyproject.toml, as rasterio registers ``rio`` commands), so the core package never imports
-this one. Each command parses options, builds a config, calls one library function of
-:mod:`training` and prints. The library (and so PyTorch) is imported when a command runs,
+this one. Each command builds one typed, frozen request from its options
+(:func:`osmseg.cli.requests.make_request`: ``PredictConfig``, :class:`EvalRequest`; train's
+``TrainConfig`` through ``make_config``, which layers a ``--config`` file under the options),
+calls one library function of :mod:`training` and prints. The library (and so PyTorch) is imported when a command runs,
 not when the CLI starts: ``osmseg build`` works without the ``train`` extra.
 
 ``train`` runs the same code on a CPU, a GPU, or several under ``torchrun --nproc-per-node N
@@ -15,7 +17,9 @@ pictures for a checkpoint on labelled images. Imports: osmseg core and training.
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -28,10 +32,15 @@ from osmseg.cli.common import (
 )
 from osmseg.cli.drawers import progress_drawer
 from osmseg.cli.options import CLASSES, DEVICE, OUT, SEED, declare, moved
+from osmseg.cli.requests import make_request
 from osmseg.errors import ConfigError
 from osmseg.units import plural, ratio
 from training.models.spec import ARCHS
 from training.run.recipe import RECIPES
+
+if TYPE_CHECKING:  # the library (and PyTorch) is imported when a command runs
+    from osmseg.runtime.progress import Progress
+    from training.evaluation.metrics import EvalMetrics
 
 
 def _default(name: str) -> object:
@@ -235,15 +244,12 @@ def inference_options(func: F) -> F:
 @BATCH_SIZE(default=4, show_default=True)
 @click.pass_context
 @report_errors
-def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ...], out_dir: Path, mode: str,
-                    join: str, overlap: int | None, block_size: int, tta: bool, resolution: str | None,
-                    batch_size: int, device: str) -> None:
+def predict_command(ctx: click.Context, /, **params: Any) -> None:
     """Write a class mask (and a colour mask) for every INPUT image."""
     require_torch()
     from training.inference.predict import PredictConfig, predict_files
 
-    config = PredictConfig(checkpoint, inputs, out_dir, mode=mode, join=join, overlap=overlap, block_size=block_size,
-                           tta=tta, resolution=resolution, batch_size=batch_size, device=device)
+    config = make_request(PredictConfig, params)  # its fields are the options'
     with progress_drawer(ctx.obj.get("progress")) as progress:
         masks = predict_files(config, progress)
     for mask in masks:
@@ -262,23 +268,46 @@ def predict_command(ctx: click.Context, checkpoint: Path, inputs: tuple[Path, ..
 @PANELS(default=4, show_default=True)
 @click.pass_context
 @report_errors
-def eval_command(ctx: click.Context, checkpoint: Path, dataset: Path | None, pairs: tuple[tuple[Path, Path], ...],
-                 split: str, mapping: str | None, mode: str, join: str, resolution: str | None, tta: bool,
-                 out_dir: Path, panels: int, device: str) -> None:
+def eval_command(ctx: click.Context, /, **params: Any) -> None:
     """Evaluate CHECKPOINT on DATASET (its test split when it is the training dataset)."""
-    if (dataset is None) == (not pairs):
-        raise ConfigError("give a DATASET folder or --pair IMAGE LABEL (one of the two), e.g. "
-                          "osmseg eval run/best.pt data/berlin --out eval/")
-    require_torch()
-    from training.evaluation.evaluate import EvalOptions, run_eval
-    from training.evaluation.metrics import format_table
-
-    opts = EvalOptions(mode=mode, join=join, tta=tta, split=split, mapping=mapping, panels=panels, device=device,
-                       resolution_m=resolution)
+    request = make_request(EvalRequest, params)
     with progress_drawer(ctx.obj.get("progress")) as progress:
-        metrics = run_eval(checkpoint, dataset, out_dir, opts, pairs, progress)
+        metrics = request.run(progress)
     if ctx.obj["verbosity"] >= 0:
+        from training.evaluation.metrics import format_table
+
         click.echo(format_table(metrics), err=True)
-        pictures = sorted(p.name for p in out_dir.glob("*.png"))
-        click.echo(f"pictures in {out_dir}/: {', '.join(pictures)}", err=True)
-    click.echo(str(out_dir / "metrics.json"))
+        pictures = sorted(p.name for p in request.out_dir.glob("*.png"))
+        click.echo(f"pictures in {request.out_dir}/: {', '.join(pictures)}", err=True)
+    click.echo(str(request.out_dir / "metrics.json"))
+
+
+@dataclass(frozen=True)
+class EvalRequest:
+    """What ``osmseg eval`` was asked: a checkpoint (or run folder), the labelled images (a dataset
+    or ``--pair``s), how to predict them and where the metrics go. :meth:`run` is the one library call."""
+
+    checkpoint: Path
+    dataset: Path | None
+    pairs: tuple[tuple[Path, Path], ...]
+    split: str
+    mapping: str | None
+    mode: str
+    join: str
+    resolution: str | None
+    tta: bool
+    out_dir: Path
+    panels: int
+    device: str
+
+    def run(self, progress: Progress | None = None) -> EvalMetrics:
+        """Predict the images, write metrics.json, metrics.txt and the pictures into ``out_dir``."""
+        if (self.dataset is None) == (not self.pairs):
+            raise ConfigError("give a DATASET folder or --pair IMAGE LABEL (one of the two), e.g. "
+                              "osmseg eval run/best.pt data/berlin --out eval/")
+        require_torch()
+        from training.evaluation.evaluate import EvalOptions, run_eval
+
+        opts = EvalOptions(mode=self.mode, join=self.join, tta=self.tta, split=self.split, mapping=self.mapping,
+                           panels=self.panels, device=self.device, resolution_m=self.resolution)
+        return run_eval(self.checkpoint, self.dataset, self.out_dir, opts, self.pairs, progress)

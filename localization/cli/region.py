@@ -1,32 +1,57 @@
-"""``osmseg localize --ground QUERY --osm FILE --bbox W,S,E,N``: the command line of a region search.
+"""``osmseg localize-region``: where in a region drawn from OpenStreetMap alone a ground view was taken.
 
-:func:`region_options` declares the region's options once (``--osm``, ``--bbox`` or
-``--lat/--lon/--radius-km``, ``--zoom``, ``--shard``, ``--cache-dir``) and hands them to the
-command as one :class:`RegionArgs`. :func:`run_region` takes what
-:func:`localization.cli.commands.localize_command` hands over in region mode, builds a
-:class:`~localization.region.files.RegionRequest` and :class:`~localization.region.search.RegionConfig`,
-calls :func:`~localization.region.files.localize_region` and prints the answers (a table, or the
-GeoJSON with ``--json``). Imports: osmseg core and localization (never localization.cli.commands).
+The command builds one :class:`RegionQuery` from its options (the ground view, the region's OSM
+files and box, how the view was taken) and calls its :meth:`~RegionQuery.run`, which builds a
+:class:`~localization.region.files.RegionRequest` and :class:`~localization.region.search.RegionConfig`
+and calls :func:`~localization.region.files.localize_region`; the command prints the answers (a
+table, or the GeoJSON with ``--json``). An aerial image is ``osmseg localize``'s
+(:mod:`localization.cli.localize`). Imports: osmseg core and localization (never another command's
+module).
 """
 
 from __future__ import annotations
 
-import functools
 import json
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from localization.cli.options import osm_files, parse_pair
-from localization.common.inputs import SideOptions
+from localization.cli.options import (
+    AERIAL_LANDMARKS,
+    CAMERA_HEIGHT,
+    FOV,
+    GRID_STRIDE,
+    GROUND_LANDMARKS,
+    GROUND_SIZE,
+    HEADING,
+    LANDMARK_MODE,
+    MIN_SIZE,
+    TOP_K,
+    osm_files,
+    parse_pair,
+    typed_flags,
+)
+from localization.cli.query import (
+    AERIAL_TABLE,
+    GROUND,
+    GROUND_CHECKPOINT,
+    GROUND_TABLE,
+    JSON,
+    TILT,
+    TRUTH,
+    GroundQuery,
+    LandmarkOptions,
+    ViewOptions,
+)
 from osmseg import places
-from osmseg.cli.common import default_cache_dir, parse_size
+from osmseg.cli.common import default_cache_dir, output_options, report_errors
 from osmseg.cli.drawers import progress_drawer
-from osmseg.cli.options import BBOX, CACHE_DIR, LAT, LON, OSM, RADIUS_KM, SHARD, ZOOM
+from osmseg.cli.options import BBOX, CACHE_DIR, LAT, LON, OSM, OUT, RADIUS_KM, SHARD, ZOOM, moved
+from osmseg.cli.requests import make_request
 from osmseg.errors import ConfigError
 from osmseg.places import check_centre
 from osmseg.runtime.shard import Shard
@@ -34,17 +59,21 @@ from osmseg.texttable import text_table
 from osmseg.units import degrees, metres, plural, ratio
 
 if TYPE_CHECKING:
-    from localization.profile.search import ProfileConfig
-    from localization.region.search import RegionResult
+    from localization.region.files import RegionRequest, RegionRun
+    from localization.region.search import RegionConfig, RegionResult
+    from osmseg.runtime.progress import Progress
 
-__all__ = ["RegionArgs", "region_options", "parse_bbox", "parse_lonlat", "disc_bbox", "run_region", "answers_table"]
+F = TypeVar("F", bound=Callable[..., object])
+
+__all__ = ["RegionArea", "RegionQuery", "localize_region_command", "parse_bbox", "parse_lonlat", "disc_bbox",
+           "answers_table"]
 
 
 @dataclass(frozen=True)
-class RegionArgs:
-    """The region options of ``osmseg localize``, as given."""
+class RegionArea:
+    """The region searched: its OSM files, its box (or disc), the zoom it is drawn at, the shard and the cache."""
 
-    osm: tuple[Path, ...]
+    osm: tuple[str, ...]
     bbox_text: str | None
     lat: float | None
     lon: float | None
@@ -52,12 +81,6 @@ class RegionArgs:
     zoom: int
     shard_text: str | None
     cache_dir: Path | None
-
-    @property
-    def given(self) -> bool:
-        """Whether any option says "search a region" (rather than an aerial image)."""
-        return bool(self.osm) or any(v is not None for v in (self.bbox_text, self.lat, self.lon, self.radius_km,
-                                                             self.shard_text))
 
     def bbox(self) -> tuple[float, float, float, float]:
         """The region in degrees: --bbox, or the square around --lat/--lon's disc of --radius-km."""
@@ -71,35 +94,104 @@ class RegionArgs:
         return disc_bbox(self.lon, self.lat, self.radius_km)
 
 
-REGION_KEYS = ("osm", "bbox_text", "lat", "lon", "radius_km", "zoom", "shard_text", "cache_dir")
+#: what ``osmseg localize-region`` says to an option of an aerial image (click would suggest --aerial-table)
+_AERIAL = ("{flag} is for an aerial image: osmseg localize-region draws the aerial side from --osm; to search an "
+           "aerial image, run osmseg localize --aerial FILE --ground FILE")
 
 
-def region_options(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Add the region options to a click command; it receives them as ``region=RegionArgs(...)``."""
-    @functools.wraps(command)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        kwargs["osm"] = osm_files(kwargs["osm"])
-        if not 14 <= kwargs["zoom"] <= 21:
-            raise click.UsageError(f"--zoom {kwargs['zoom']}: a region is drawn at zoom 14 to 21")
-        kwargs["region"] = RegionArgs(**{k: kwargs.pop(k) for k in REGION_KEYS})
-        return command(*args, **kwargs)
+def aerial_moved(func: F) -> F:
+    """The aerial image's options, refused by ``osmseg localize-region`` in one line naming localize."""
+    for flag in reversed(("--aerial", "--aerial-resolution", "--aerial-size", "--aerial-checkpoint", "--aerial-image")):
+        func = moved(flag, _AERIAL.format(flag=flag))(func)
+    return func
 
-    options = [
-        OSM(detail=": with files (.osm, .osm.pbf), search a whole region of them instead of an aerial image, drawn "
-                   "in --aerial-table's classes, with --bbox or --lat/--lon/--radius-km."),
-        BBOX(dest="bbox_text", detail=": with --osm, the region to search."),
-        LAT(detail=": with --osm, the centre of the region (with --lon, --radius-km)."),
-        LON(detail=": with --osm, the centre of the region (with --lat, --radius-km)."),
-        RADIUS_KM(detail=": with --osm, --lat, --lon, search the square around this disc."),
-        ZOOM(default=18, show_default=True, detail=": with --osm, the zoom the region is drawn at, 14 to 21."),
-        SHARD(dest="shard_text", detail=": with --osm, the region's blocks (docs/scale.md); every shard writes its "
-                                        "part to --out, the last one writes the answers."),
-        CACHE_DIR(show_default="$OSMSEG_CACHE_DIR or ~/.cache/osmseg",
-                  detail=": with --osm, the drawn region, so the next query of it is not drawn again."),
-    ]
-    for option in reversed(options):
-        wrapper = option(wrapper)
-    return wrapper
+
+@click.command("localize-region")
+@output_options
+@GROUND(required=True)
+@OSM(required=True, detail=": the files (.osm, .osm.pbf) the region is drawn from, in --aerial-table's classes.")
+@BBOX(dest="bbox_text", detail=": the region to search (or --lat/--lon/--radius-km).")
+@LAT(detail=": the centre of the region (with --lon, --radius-km).")
+@LON(detail=": the centre of the region (with --lat, --radius-km).")
+@RADIUS_KM(detail=": search the square around this disc.")
+@ZOOM(default=18, show_default=True, detail=": the zoom the region is drawn at, 14 to 21.")
+@SHARD(dest="shard_text", detail=": the region's blocks (docs/scale.md); every shard writes its part to --out, the "
+                                  "last one writes the answers.")
+@CACHE_DIR(show_default="$OSMSEG_CACHE_DIR or ~/.cache/osmseg",
+           detail=": the drawn region, so the next query of it is not drawn again.")
+@AERIAL_LANDMARKS(default="aerial13", show_default=True)
+@AERIAL_TABLE(default="classes13.toml", show_default=True, detail=" The region is drawn in it.")
+@GROUND_LANDMARKS(default="camvid", show_default=True)
+@GROUND_TABLE(show_default="the dictionary's own")
+@GROUND_SIZE()
+@GROUND_CHECKPOINT()
+@LANDMARK_MODE(dest="mode", default="centroid", show_default=True)
+@MIN_SIZE(default=50, show_default=True)
+@GRID_STRIDE(default=50, show_default=True)
+@TOP_K(default=5, show_default=True)
+@TRUTH(detail=": LON,LAT in degrees.")
+@JSON()
+@OUT(detail=" of region.geojson and region.png.")
+@HEADING(default="0", show_default=True)
+@FOV(default=360.0, show_default=True)
+@CAMERA_HEIGHT(default="2", show_default=True)
+@TILT(default=0.0, show_default="level")
+@aerial_moved
+@moved("--method", "--method is osmseg localize's: a region search uses the profile method; leave --method out")
+@click.pass_context
+@report_errors
+def localize_region_command(ctx: click.Context, /, **params: Any) -> None:
+    """Find where the GROUND view was taken anywhere in a region drawn from OpenStreetMap alone
+    (--osm FILE --bbox W,S,E,N), with angular profiles. An aerial image is osmseg localize's."""
+    if not 14 <= params["zoom"] <= 21:
+        raise click.UsageError(f"--zoom {params['zoom']}: a region is drawn at zoom 14 to 21", ctx)
+    request = make_request(RegionQuery, params, typed=typed_flags(ctx))
+    with progress_drawer((ctx.obj or {}).get("progress")) as progress:
+        run = request.run(progress)
+    _say(request, run, verbosity=(ctx.obj or {}).get("verbosity", 0))
+
+
+@dataclass(frozen=True)
+class RegionQuery:
+    """What ``osmseg localize-region`` was asked, typed and frozen (``typed``: the options given)."""
+
+    ground: GroundQuery
+    area: RegionArea
+    aerial_classes: str
+    aerial_table: str
+    landmarks: LandmarkOptions
+    view: ViewOptions
+    top_k: int
+    truth_text: str | None
+    as_json: bool
+    out_dir: Path | None
+    typed: Mapping[str, str] = field(default_factory=dict)
+
+    def config(self) -> RegionConfig:
+        """The search's :class:`~localization.region.search.RegionConfig`."""
+        from localization.region.search import RegionConfig
+
+        return RegionConfig(bbox=self.area.bbox(), zoom=self.area.zoom, top_k=self.top_k)
+
+    def request(self) -> RegionRequest:
+        """The files' :class:`~localization.region.files.RegionRequest`."""
+        from localization.region.files import RegionRequest
+
+        view = self.view
+        return RegionRequest(
+            ground=self.ground.ground_path, osm=osm_files(self.area.osm), table=self.aerial_table,
+            aerial_classes=self.aerial_classes, fov_deg=view.fov_deg, camera_height_m=view.camera_height,
+            truth=parse_lonlat(self.truth_text),
+            ground_options=self.ground.side(self.landmarks, panorama=view.fov_deg >= 360),
+            shard=Shard.parse(self.area.shard_text) if self.area.shard_text else Shard(1, 1),
+            cache_dir=self.area.cache_dir if self.area.cache_dir is not None else default_cache_dir())
+
+    def run(self, progress: Progress | None = None) -> RegionRun:
+        """Search the region; with ``out_dir``, write region.geojson and region.png (or this shard's part)."""
+        from localization.region.files import localize_region
+
+        config, request = self.config(), self.request()
+        return localize_region(request, config, self.view.profile(), self.out_dir, progress)
 
 
 def disc_bbox(lon: float, lat: float, radius_km: float) -> tuple[float, float, float, float]:
@@ -144,67 +236,41 @@ def answers_table(result: RegionResult) -> str:
                        for rank, a in enumerate(result.answers, start=1)], left=0)
 
 
-def run_region(ctx: click.Context, ground: Path | None, region: RegionArgs, method: str, ground_classes: str,
-               ground_table: str | None, ground_size: str | None, ground_checkpoint: Path | None,
-               aerial_classes: str, aerial_table: str, mode: str, min_size: int, grid_stride: int,
-               profile: ProfileConfig, fov_deg: float, camera_height: float, top_k: int,
-               truth_text: str | None, out_dir: Path | None, as_json: bool, verbosity: int,
-               stray: list[str]) -> None:
-    """Region mode of ``osmseg localize`` (``stray``: options that belong to an aerial image)."""
-    from localization.region.files import RegionRequest, localize_region
-    from localization.region.search import RegionConfig
-
-    if not region.osm:
-        raise ConfigError("give the aerial image (--aerial FILE), or a region to search: --osm FILE --bbox W,S,E,N")
-    if stray:
-        verb = "applies" if len(stray) == 1 else "apply"
-        raise ConfigError(f"{', '.join(stray)} {verb} to an aerial image; a region search (--osm) has none: "
-                          "leave out one or the other")
-    if method != "profile":
-        raise ConfigError("a region search uses the profile method: drop --method paper")
-    if ground is None:
-        raise ConfigError("give the ground view to localize: --ground FILE")
-    config = RegionConfig(bbox=region.bbox(), zoom=region.zoom, top_k=top_k)
-    request = RegionRequest(
-        ground=ground, osm=tuple(region.osm), table=aerial_table, aerial_classes=aerial_classes, fov_deg=fov_deg,
-        camera_height_m=camera_height, truth=parse_lonlat(truth_text),
-        ground_options=SideOptions("ground", ground_classes, ground_table, parse_size(ground_size, "--ground-size"),
-                                   ground_checkpoint, fov_deg >= 360, mode=mode, min_size=min_size,
-                                   grid_stride=grid_stride),
-        shard=Shard.parse(region.shard_text) if region.shard_text else Shard(1, 1),
-        cache_dir=region.cache_dir if region.cache_dir is not None else default_cache_dir())
-    with progress_drawer((ctx.obj or {}).get("progress")) as progress:
-        run = localize_region(request, config, profile, out_dir, progress)
+def _say(query: RegionQuery, run: RegionRun, verbosity: int) -> None:
+    """What ``osmseg localize-region`` prints: the answers on stdout (a table, or the GeoJSON), how
+    they were found on stderr."""
     result = run.result
     if result is None:
-        click.echo(f"shard {request.shard.index}/{request.shard.count} done; {run.parts} of {run.shards} parts in "
+        shard = Shard.parse(query.area.shard_text) if query.area.shard_text else Shard(1, 1)
+        click.echo(f"shard {shard.index}/{shard.count} done; {run.parts} of {run.shards} parts in "
                    f"{run.parts_dir}: the last shard to finish writes the answers", err=True)
         return
-    if as_json:
+    if query.as_json:
         click.echo(json.dumps(result.to_geojson(), indent=2))
     elif not result.answers:
         click.echo("unanswered: no block of the region holds a place that fits the query")
     else:
         click.echo(answers_table(result))
-    if verbosity >= 0 and not as_json and result.best is not None:
-        from localization.region.search import distance_m
+    if verbosity < 0 or query.as_json or result.best is None:
+        return
+    from localization.profile.profiles import MASK_MIN_CONFIDENCE
+    from localization.region.search import distance_m
 
-        alt = result.alternative
-        if alt is not None:
-            click.echo(f"best distinct alternative ({config.distinct_m:g} m or more away): {alt.lon:.7f}, "
-                       f"{alt.lat:.7f}, {metres(distance_m(result.best, alt))} from the answer; score margin "
-                       f"{ratio(result.margin)}", err=True)
-        from localization.profile.profiles import MASK_MIN_CONFIDENCE
-
-        if result.best.confidence is not None and result.best.confidence < MASK_MIN_CONFIDENCE:
-            click.echo(f"not sure: the answer's confidence {ratio(result.best.confidence)} is below "
-                       f"{MASK_MIN_CONFIDENCE:g}: the alternative fits almost as well (docs/localization.md)", err=True)
-        if result.best.heading_deg is not None and profile.heading_deg is None:
-            click.echo(f"heading of the answer: {degrees(result.best.heading_deg)}", err=True)
-        if request.truth is not None:
-            click.echo(f"error of the answer: {metres(distance_m(result.best, request.truth))}", err=True)
-        click.echo(f"{plural(result.blocks, 'block')} of {config.size}x{config.size} tiles at zoom {config.zoom} searched "
-                   f"({run.drawn} drawn from OSM, {run.cached} read from the cache)", err=True)
-        if out_dir is not None:
-            written = [f for f in ("region.geojson", "region.png") if (out_dir / f).is_file()]
-            click.echo(f"written: {', '.join(written)} in {out_dir}/", err=True)
+    config = query.config()
+    alt = result.alternative
+    if alt is not None:
+        click.echo(f"best distinct alternative ({config.distinct_m:g} m or more away): {alt.lon:.7f}, "
+                   f"{alt.lat:.7f}, {metres(distance_m(result.best, alt))} from the answer; score margin "
+                   f"{ratio(result.margin)}", err=True)
+    if result.best.confidence is not None and result.best.confidence < MASK_MIN_CONFIDENCE:
+        click.echo(f"not sure: the answer's confidence {ratio(result.best.confidence)} is below "
+                   f"{MASK_MIN_CONFIDENCE:g}: the alternative fits almost as well (docs/localization.md)", err=True)
+    if result.best.heading_deg is not None and query.view.profile().heading_deg is None:
+        click.echo(f"heading of the answer: {degrees(result.best.heading_deg)}", err=True)
+    if (truth := parse_lonlat(query.truth_text)) is not None:
+        click.echo(f"error of the answer: {metres(distance_m(result.best, truth))}", err=True)
+    click.echo(f"{plural(result.blocks, 'block')} of {config.size}x{config.size} tiles at zoom {config.zoom} searched "
+               f"({run.drawn} drawn from OSM, {run.cached} read from the cache)", err=True)
+    if query.out_dir is not None:
+        written = [f for f in ("region.geojson", "region.png") if (query.out_dir / f).is_file()]
+        click.echo(f"written: {', '.join(written)} in {query.out_dir}/", err=True)

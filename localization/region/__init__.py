@@ -1,4 +1,4 @@
-"""A region from OpenStreetMap alone: ``osmseg localize --osm FILE --bbox W,S,E,N``.
+"""A region from OpenStreetMap alone: ``osmseg localize-region --osm FILE --bbox W,S,E,N``.
 
 :mod:`~localization.region.search` draws the region in overlapping blocks with the builder's
 rasteriser and searches each with the profile method against the region's class frequencies;

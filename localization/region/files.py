@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from localization.common.inputs import SideOptions
 from localization.common.views import Camera, SemanticMap
 from localization.profile.search import ProfileConfig
 from localization.region.cache import BlockMasks, osm_key
@@ -56,10 +57,10 @@ PART_FORMAT = "osmseg-region-part"
 
 @dataclass(frozen=True)
 class RegionRequest:
-    """``osmseg localize --osm FILE --bbox W,S,E,N``'s inputs: the query file and the region's OSM."""
+    """``osmseg localize-region --osm FILE --bbox W,S,E,N``'s inputs: the query file and the region's OSM."""
 
     ground: Path
-    ground_options: Any  # localization.common.inputs.SideOptions
+    ground_options: SideOptions
     osm: tuple[Path, ...]
     table: str = "classes13.toml"        # the classes the OSM is drawn in
     aerial_classes: str = "aerial13"     # their landmark dictionary

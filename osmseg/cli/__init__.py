@@ -5,7 +5,7 @@ logging set-up, progress bars, errors as exit codes 1 and 2; :mod:`osmseg.cli.op
 option declared once, one name for one meaning across all commands).
 
 The commands of ``training`` and ``localization`` live in those packages (``training.cli``,
-``localization.cli.commands``, ``localization.cli.bench``, ``localization.cli.demo``) and join the group as plugins through the
+``localization.cli.localize``, ``localization.cli.bench``, ``localization.cli.demo``) and join the group as plugins through the
 ``osmseg.commands`` entry points, so this package never imports them. It is the only place
 that configures logging or draws progress. Imports: osmseg core only.
 """

@@ -1,7 +1,8 @@
 """The ``osmseg`` command: a click group, with each package's commands as plugins (as rasterio's ``rio``).
 
 The core's own commands (``build``, ``verify``) are added here; ``train``, ``predict`` and
-``eval`` (:mod:`training.cli`), ``localize`` (:mod:`localization.cli.commands`), ``localize-bench``
+``eval`` (:mod:`training.cli`), ``localize`` (:mod:`localization.cli.localize`), ``localize-region``
+(:mod:`localization.cli.region`), ``localize-bench``
 and ``localize-pairs`` (:mod:`localization.cli.bench`) and ``demo`` (:mod:`localization.cli.demo`)
 register themselves through the ``osmseg.commands``
 entry points of pyproject.toml and are loaded by click-plugins, so the core never imports the

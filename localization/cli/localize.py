@@ -1,4 +1,8 @@
-"""``osmseg localize``: where in the aerial image was the ground view taken (the benchmarks: :mod:`localization.cli.bench`).
+"""``osmseg localize``: where in the aerial image was the ground view taken.
+
+(A region drawn from OpenStreetMap is :mod:`localization.cli.region`'s ``localize-region``; the
+benchmarks are :mod:`localization.cli.bench`'s.) The command builds one :class:`ImageQuery` from
+its options and calls its :meth:`~ImageQuery.run`.
 
 Registered on the ``osmseg`` group as plugins (entry points ``osmseg.commands``), so the core
 package never imports this one. Imports: osmseg core, training (through
@@ -26,8 +30,10 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
@@ -48,24 +54,36 @@ from localization.cli.options import (
     TOP_K,
     WINDOW,
     P,
-    given,
     misplaced,
-    parse_camera_height,
-    parse_heading,
     parse_point,
     parse_window,
     parse_windows,
+    typed_flags,
 )
-from localization.cli.region import RegionArgs, region_options, run_region
+from localization.cli.query import (
+    AERIAL_TABLE,
+    GROUND,
+    GROUND_CHECKPOINT,
+    GROUND_TABLE,
+    JSON,
+    TILT,
+    TRUTH,
+    GroundQuery,
+    LandmarkOptions,
+    ViewOptions,
+)
 from localization.common.inputs import SideOptions
 from osmseg.cli.common import output_options, parse_size, report_errors
 from osmseg.cli.options import OUT, declare, moved
+from osmseg.cli.requests import make_request, part_options
 from osmseg.errors import ConfigError
 from osmseg.texttable import text_table
 from osmseg.units import degrees, metres, number, pixels, plural, ratio
 
 if TYPE_CHECKING:  # the command imports the pipeline only when it runs
-    from localization.pipeline import LocalizeReport
+    from localization.pipeline import LocalizeConfig, LocalizeReport
+
+F = TypeVar("F", bound=Callable[..., object])
 
 logger = logging.getLogger(__name__)
 
@@ -81,15 +99,9 @@ def _table(result: Any) -> str:
 
 AERIAL = declare("--aerial", dest="aerial_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                  help="Aerial label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy) or RGB image "
-                      "with --aerial-checkpoint. Or no aerial image at all: a region's OSM with --osm and --bbox.")
-GROUND = declare("--ground", dest="ground_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
-                 help="Ground panorama: label mask, landmark file, or RGB image with --ground-checkpoint.")
-AERIAL_TABLE = declare("--aerial-table", help="Class table of the aerial mask, e.g. classes13.toml.")
-GROUND_TABLE = declare("--ground-table", help="Class table of the ground mask.")
+                      "with --aerial-checkpoint.")
 AERIAL_CHECKPOINT = declare("--aerial-checkpoint", type=click.Path(exists=True, path_type=Path),
                             help="Segment the aerial RGB image with this checkpoint first (needs PyTorch).")
-GROUND_CHECKPOINT = declare("--ground-checkpoint", type=click.Path(exists=True, path_type=Path),
-                            help="Segment the ground RGB image with this checkpoint first (needs PyTorch).")
 NO_PANORAMA = declare("--panorama/--no-panorama",
                       help="The ground image is a 360-degree panorama (x wraps around); --no-panorama for an aerial "
                            "crop.")
@@ -100,9 +112,6 @@ HIERARCHICAL = declare("--hierarchical", is_flag=True,
 WINDOWS = declare("--windows", dest="windows_text", help="Hierarchical windows, coarse to fine.")
 REFERENCE = declare("--reference", is_flag=True,
                     help="Build graphs with the paper's plain sliding window (slow; a check).")
-TRUTH = declare("--truth", dest="truth_text",
-                help="Ground-truth viewpoint X,Y in aerial pixels (with --osm: LON,LAT): reports the error.")
-JSON = declare("--json", dest="as_json", is_flag=True, help="Print the result as JSON instead of a table.")
 AERIAL_IMAGE = declare("--aerial-image", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                        help="RGB photo of the aerial mask or landmark file: for --feature-threshold, and drawn under "
                             "the graph.")
@@ -120,10 +129,6 @@ FEATURE_COMPONENTS = declare("--feature-components", type=click.IntRange(min=1),
                              help="Dimensions --feature-reduce keeps.")
 FEATURE_CHECKPOINT = declare("--feature-checkpoint", type=click.Path(exists=True, path_type=Path),
                              help="Checkpoint whose encoder gives the features.")
-TILT = declare("--tilt", dest="tilt_deg", type=click.FloatRange(0, 10),
-               help="Profile method: the camera may be tilted up to this many degrees in pitch and roll; the tilt is "
-                    "read from the ground mask's horizon, where its sky ends and its ground begins (give the sky as "
-                    "a class: the ground table's 'sky', id 14 for classes13).")
 MIN_CONFIDENCE = declare("--min-confidence", type=click.FloatRange(-1, 1),
                          help="Profile method: below this confidence (how far the answer stands out from the best "
                               "place 50 m or more away) the answer is 'not sure'.")
@@ -131,11 +136,21 @@ MIN_KAPPA = declare("--min-kappa", type=click.FloatRange(-1, 1),
                     help="Profile method: below this kappa (the best match against chance) the answer is 'not in "
                          "this image'; lower it for segmented RGB queries.")
 
+#: what ``osmseg localize`` says to an option of a region search
+_REGION = ("{flag} is a region search's: osmseg localize-region --ground FILE --osm FILE --bbox W,S,E,N searches "
+           "OpenStreetMap; osmseg localize searches the --aerial image")
+
+
+def region_moved(func: F) -> F:
+    """The region search's options, refused by ``osmseg localize`` in one line naming localize-region."""
+    for flag in reversed(("--osm", "--bbox", "--lat", "--lon", "--radius-km", "--zoom", "--shard", "--cache-dir")):
+        func = moved(flag, _REGION.format(flag=flag))(func)
+    return func
+
 
 @click.command("localize")
 @output_options
-@AERIAL()
-@region_options
+@AERIAL(required=True)
 @GROUND(required=True)
 @AERIAL_LANDMARKS(default="aerial13", show_default=True)
 @GROUND_LANDMARKS(default="camvid", show_default=True)
@@ -157,7 +172,7 @@ MIN_KAPPA = declare("--min-kappa", type=click.FloatRange(-1, 1),
 @MIN_SIZE(default=50, show_default=True)
 @GRID_STRIDE(default=50, show_default=True)
 @REFERENCE()
-@TRUTH()
+@TRUTH(detail=": X,Y in aerial pixels.")
 @AERIAL_RESOLUTION(dest="resolution", show_default="a GeoTIFF's, or the dataset manifest's")
 @JSON()
 @OUT(detail=" of localization.png, aerial_graph.png, ground_graph.png and result.json.")
@@ -176,6 +191,7 @@ MIN_KAPPA = declare("--min-kappa", type=click.FloatRange(-1, 1),
 @TILT(default=0.0, show_default="level")
 @MIN_CONFIDENCE(show_default="0.04 for an aerial mask, none for aerial landmark points")
 @MIN_KAPPA(show_default="0.6 for an aerial mask, 0.3 for aerial landmark points")
+@region_moved
 @moved("--mode", "--mode is predict's (split-join or rescale): osmseg localize's landmarks are --landmark-mode "
                  "centroid|grid|component")
 @moved("--resolution", "--resolution is predict's (resample the input): osmseg localize takes the aerial "
@@ -186,75 +202,139 @@ MIN_KAPPA = declare("--min-kappa", type=click.FloatRange(-1, 1),
                            "the class table)")
 @click.pass_context
 @report_errors
-def localize_command(ctx: click.Context, aerial_path: Path, ground_path: Path, aerial_classes: str,
-                     ground_classes: str, aerial_table: str | None, ground_table: str | None, aerial_size: str | None,
-                     ground_size: str | None, aerial_checkpoint: Path | None, ground_checkpoint: Path | None,
-                     panorama: bool, window_text: str, ground_window: int | None, p: float, top_k: int, stride: int,
-                     hierarchical: bool, windows_text: str, mode: str, min_size: int, grid_stride: int,
-                     reference: bool, truth_text: str | None, resolution: float | None, as_json: bool,
-                     out_dir: Path | None, aerial_image: Path | None, ground_image: Path | None,
-                     feature_threshold: float | None, feature_metric: str, feature_reduce: str,
-                     feature_components: int, feature_checkpoint: Path | None, conventions: str, method: str,
-                     heading_text: str,
-                     fov_deg: float, camera_height_text: str, tilt_deg: float, min_confidence: float | None,
-                     min_kappa: float | None,
-                     region: RegionArgs) -> None:
-    """Find where the GROUND panorama was taken in the AERIAL image (landmark graphs, or angular profiles),
-    or anywhere in a region's OpenStreetMap (--osm FILE --bbox W,S,E,N)."""
-    from localization.paper.config import PaperConfig
-    from localization.paper.features import FeatureEdges
-    from localization.pipeline import LocalizeConfig, LocalizeFiles, localize_files
-    from localization.profile.search import ProfileConfig
+def localize_command(ctx: click.Context, /, **params: Any) -> None:
+    """Find where the GROUND view was taken in the AERIAL image: angular profiles (the default) or
+    landmark graphs (--method paper). A region drawn from OpenStreetMap is osmseg localize-region's."""
+    request = make_request(ImageQuery, params, typed=typed_flags(ctx))
+    report = request.run()
+    _say(report, as_json=request.as_json, quiet=(ctx.obj or {}).get("verbosity", 0) < 0,
+         hierarchical=request.paper.hierarchical, auto_window=request.paper.window is None, out_dir=request.out_dir)
 
-    verbosity = (ctx.obj or {}).get("verbosity", 0)
-    camera_height, heights = parse_camera_height(camera_height_text)
-    if region.given or aerial_path is None:  # a region of OSM, no aerial image
-        stray = given(ctx, ("aerial_path", "aerial_size", "aerial_checkpoint", "aerial_image", "resolution",
-                             "window_text", "ground_window", "p", "stride", "hierarchical", "windows_text",
-                             "reference", "feature_threshold", "conventions", "min_confidence", "min_kappa",
-                             "panorama"))
-        run_region(ctx, ground_path, region, method, ground_classes, ground_table, ground_size,
-                   ground_checkpoint, aerial_classes, aerial_table or "classes13.toml", mode, min_size, grid_stride,
-                   ProfileConfig(heading_deg=parse_heading(heading_text), camera_heights=heights, tilt_deg=tilt_deg),
-                   fov_deg, camera_height, top_k, truth_text, out_dir, as_json, verbosity, stray)
-        return
-    if stray := given(ctx, ("zoom", "cache_dir")):
-        raise ConfigError(f"{', '.join(stray)} is for a region (--osm FILE --bbox W,S,E,N): add them, or leave "
-                          "it out")
-    window, windows, truth = parse_window(window_text), parse_windows(windows_text), parse_point(truth_text)
-    if feature_threshold is None and (stray := given(ctx, ("feature_checkpoint", "feature_metric", "feature_reduce",
-                                                            "feature_components"))):
-        raise ConfigError(f"{', '.join(stray)} set how --feature-threshold removes edges: add --feature-threshold "
-                          "T, or leave them out")
-    features = (None if feature_threshold is None else
-                FeatureEdges(feature_threshold, feature_metric, feature_reduce, feature_components))
-    only = {"profile": ("heading_text", "fov_deg", "camera_height_text", "tilt_deg", "min_confidence", "min_kappa"),
-            "paper": ("window_text", "ground_window", "p", "stride", "hierarchical", "windows_text", "reference",
-                      "feature_threshold", "conventions")}
-    for name, options in only.items():
-        if method != name and (stray := given(ctx, options)):
-            raise misplaced(stray, f"--method {name}", f"--method {name}")
-    paper = PaperConfig(window=window, query_window=ground_window, p=p, stride=stride, top_k=top_k,
-                        fast=not reference, hierarchical=hierarchical, windows=windows, conventions=conventions)
-    config = LocalizeConfig(method=method, paper=paper, features=features, fov_deg=fov_deg, camera_height_m=camera_height,
-                            profile=ProfileConfig(heading_deg=parse_heading(heading_text), top_k=top_k,
-                                                  min_confidence=min_confidence, min_kappa=min_kappa,
-                                                  camera_heights=heights, tilt_deg=tilt_deg))
 
-    def side(name: str, classes: str, table: str | None, size: str | None, checkpoint: Path | None,
-             is_panorama: bool) -> SideOptions:
-        return SideOptions(name, classes, table, parse_size(size, f"--{name}-size"), checkpoint, is_panorama,
-                           mode=mode, min_size=min_size, grid_stride=grid_stride)
+@dataclass(frozen=True)
+class AerialImage:
+    """The aerial side: its file, how to read it, its photo and metres per pixel (``--aerial*``)."""
 
-    request = LocalizeFiles(
-        aerial=aerial_path, ground=ground_path,
-        aerial_options=side("aerial", aerial_classes, aerial_table, aerial_size, aerial_checkpoint, False),
-        ground_options=side("ground", ground_classes, ground_table, ground_size, ground_checkpoint, panorama),
-        aerial_image=aerial_image, ground_image=ground_image, feature_checkpoint=feature_checkpoint,
-        truth=truth, resolution_m=resolution)
-    report = localize_files(request, config, out_dir)
-    _say(report, as_json=as_json, quiet=verbosity < 0, hierarchical=hierarchical, auto_window=window is None,
-         out_dir=out_dir)
+    aerial_path: Path
+    aerial_classes: str
+    aerial_table: str | None
+    aerial_size: str | None
+    aerial_checkpoint: Path | None
+    aerial_image: Path | None
+    resolution: float | None
+
+    def side(self, landmarks: LandmarkOptions) -> SideOptions:
+        """How :func:`localization.common.inputs.load_side` reads the aerial image."""
+        return SideOptions("aerial", self.aerial_classes, self.aerial_table,
+                           parse_size(self.aerial_size, "--aerial-size"), self.aerial_checkpoint, False,
+                           mode=landmarks.mode, min_size=landmarks.min_size, grid_stride=landmarks.grid_stride)
+
+
+@dataclass(frozen=True)
+class FeatureOptions:
+    """How ``--feature-threshold`` removes graph edges (§5.3.2); the others set how, so they go with it."""
+
+    feature_threshold: float | None
+    feature_checkpoint: Path | None
+    feature_metric: str
+    feature_reduce: str
+    feature_components: int
+
+
+@dataclass(frozen=True)
+class PaperOptions:
+    """The paper method's options (Verde et al. 2020): its windows, covisibility and feature edges."""
+
+    window_text: str
+    ground_window: int | None
+    p: float
+    stride: int
+    hierarchical: bool
+    windows_text: str
+    reference: bool
+    features: FeatureOptions
+    conventions: str
+
+    @property
+    def window(self) -> int | None:
+        """``--window`` in pixels; None for auto."""
+        return parse_window(self.window_text)
+
+
+@dataclass(frozen=True)
+class ProfileOptions:
+    """The profile method's options: how the view was taken, and when an answer is accepted."""
+
+    view: ViewOptions
+    min_confidence: float | None
+    min_kappa: float | None
+
+
+@dataclass(frozen=True)
+class ImageQuery:
+    """What ``osmseg localize`` was asked, typed and frozen; ``typed`` (parameter -> flag) the
+    options given on the command line. The options of the method not run, and feature options
+    without ``--feature-threshold``, are refused from the parts' own fields."""
+
+    aerial: AerialImage
+    ground: GroundQuery
+    ground_image: Path | None
+    panorama: bool
+    landmarks: LandmarkOptions
+    method: str
+    paper: PaperOptions
+    profile: ProfileOptions
+    top_k: int
+    truth_text: str | None
+    as_json: bool
+    out_dir: Path | None
+    typed: Mapping[str, str] = field(default_factory=dict)
+
+    def _refuse_misplaced(self) -> None:
+        """One line for options that do nothing in this run."""
+        features = self.paper.features
+        how = tuple(n for n in part_options(FeatureOptions) if n != "feature_threshold")
+        if features.feature_threshold is None and (stray := self._given(how)):
+            raise ConfigError(f"{', '.join(stray)} set how --feature-threshold removes edges: add "
+                              "--feature-threshold T, or leave them out")
+        for name, part in (("profile", ProfileOptions), ("paper", PaperOptions)):
+            if self.method != name and (stray := self._given(part_options(part))):
+                raise misplaced(stray, f"--method {name}", f"--method {name}")
+
+    def _given(self, names: tuple[str, ...]) -> list[str]:
+        return [self.typed[n] for n in names if n in self.typed]
+
+    def config(self) -> LocalizeConfig:
+        """The pipeline's :class:`~localization.pipeline.LocalizeConfig`."""
+        from localization.paper.config import PaperConfig
+        from localization.paper.features import FeatureEdges
+        from localization.pipeline import LocalizeConfig
+
+        self._refuse_misplaced()
+        paper, f, view = self.paper, self.paper.features, self.profile.view
+        features = (None if f.feature_threshold is None else
+                    FeatureEdges(f.feature_threshold, f.feature_metric, f.feature_reduce, f.feature_components))
+        return LocalizeConfig(
+            method=self.method, features=features, fov_deg=view.fov_deg, camera_height_m=view.camera_height,
+            paper=PaperConfig(window=paper.window, query_window=paper.ground_window, p=paper.p, stride=paper.stride,
+                              top_k=self.top_k, fast=not paper.reference, hierarchical=paper.hierarchical,
+                              windows=parse_windows(paper.windows_text), conventions=paper.conventions),
+            profile=view.profile(top_k=self.top_k, min_confidence=self.profile.min_confidence,
+                                 min_kappa=self.profile.min_kappa))
+
+    def run(self) -> LocalizeReport:
+        """Localize the ground view in the aerial image; with ``out_dir``, write result.json and the pictures."""
+        from localization.pipeline import LocalizeFiles, localize_files
+
+        config = self.config()
+        files = LocalizeFiles(
+            aerial=self.aerial.aerial_path, ground=self.ground.ground_path,
+            aerial_options=self.aerial.side(self.landmarks),
+            ground_options=self.ground.side(self.landmarks, self.panorama),
+            aerial_image=self.aerial.aerial_image, ground_image=self.ground_image,
+            feature_checkpoint=self.paper.features.feature_checkpoint, truth=parse_point(self.truth_text),
+            resolution_m=self.aerial.resolution)
+        return localize_files(files, config, self.out_dir)
 
 
 def _say(report: LocalizeReport, *, as_json: bool, quiet: bool, hierarchical: bool, auto_window: bool,
@@ -262,7 +342,7 @@ def _say(report: LocalizeReport, *, as_json: bool, quiet: bool, hierarchical: bo
     """What ``osmseg localize`` prints: the answer on stdout (a table, or JSON), how it was found on stderr."""
     result = report.result
     if as_json:
-        click.echo(json.dumps({**report.summary, **result.to_dict(all_candidates=False),
+        click.echo(json.dumps({**report.summary.to_json(), **result.to_dict(all_candidates=False),
                                "files": [str(f) for f in report.written]}, indent=2, sort_keys=True))
     elif result.unanswered:
         click.echo(f"unanswered: {result.reason}")
@@ -285,10 +365,9 @@ def _say(report: LocalizeReport, *, as_json: bool, quiet: bool, hierarchical: bo
                     else f"window {result.window} px{' (auto)' if auto_window else ''}")
             click.echo(f"{used}, ground window {result.query_window} px, {plural(result.n_cliques, 'clique')}, "
                        f"{plural(len(result.candidates), 'candidate')}{ties}", err=True)
-        if "map_lonlat" in report.summary:
-            where = report.summary["map_lonlat"]
-            click.echo(f"the answer in degrees (the aerial image's georeference): {where['lon']:.7f}, "
-                       f"{where['lat']:.7f}", err=True)
+        if (where := report.summary.map_lonlat) is not None:
+            click.echo(f"the answer in degrees (the aerial image's georeference): {where[0]:.7f}, "
+                       f"{where[1]:.7f}", err=True)
         if report.error_px is not None:
             click.echo(f"error of the best location: {pixels(report.error_px)}"
                        + (f" ({metres(report.error_m)})" if report.error_m is not None else ""), err=True)
