@@ -1,6 +1,6 @@
 """A real held-out dataset: Kampala z21 drone tiles + OSM building footprints, in CamVid layout.
 
-Used by ``bench_real_heldout.py`` (and ``tests/test_bench_baseline.py``). The source is
+Used by ``bench_real_heldout.py`` (and ``tests/train/test_bench_baseline.py``). The source is
 ``../shared/data/kampala-oam`` (OpenAerialMap contributors, CC-BY 4.0; footprints
 OpenStreetMap contributors, ODbL), which is not part of the project: it is read in place and
 the dataset is written wherever the caller says (a temporary folder).

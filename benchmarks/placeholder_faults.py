@@ -1,7 +1,7 @@
 """A tile server that answers 5 % of tile requests with a white tile, at random: does a build give
 the clean build's bytes, and does a rerun against the healthy server mend it?
 
-Run from a checkout's root (it uses the fault services of ``tests/test_build_faults.py``: the
+Run from a checkout's root (it uses the fault services of ``tests/core/test_build_faults.py``: the
 OSM API and a z18 tile block of tinycity on 127.0.0.1)::
 
     .venv/bin/python benchmarks/placeholder_faults.py [SAMPLES]   # default 30
@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, "tests")
+sys.path.insert(0, "tests")  # servers.py
+sys.path.insert(0, "tests/core")  # test_build_faults.py
 import servers
 from servers import Reply, ScriptedServer
 from test_build_faults import (

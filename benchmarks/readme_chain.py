@@ -31,7 +31,8 @@ from PIL import Image
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests"))  # conftest
+sys.path.insert(0, str(ROOT / "tests" / "project"))  # test_readme_chain
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from pixel_baseline import back_to_grid, building_scores, fit_baseline, resample  # noqa: E402

@@ -286,7 +286,7 @@ def osm(ws: Workspace) -> dict[str, Figure]:
                 if length > longest:
                     longest, kind = length, str(way.tags.get("highway"))
     table_ = load_class_table("classes13.toml")
-    grid = sample_grid(-122.30136, 37.80765, 20)  # a 150 m sample in a 380 m file, as tests/test_osm_sources.py
+    grid = sample_grid(-122.30136, 37.80765, 20)  # a 150 m sample in a 380 m file, as tests/core/test_osm_sources.py
     box = pad_bbox(grid.bbox, 20)
     whole = rasterize(read_features([oakland], grid, table_), grid, table_)
     bare = LocalFileSource(oakland, ws.root / "oakland-reach0", reach=0).fetch(box)

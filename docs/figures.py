@@ -12,7 +12,7 @@ between the markers. Numbers are written at the one precision of :mod:`osmseg.un
 first part of a key names the *figure set* that measures it (``docs/figure_sets.py`` says
 what each runs); a set is
 
-* **cheap**: seconds to a minute, deterministic; ``tests/test_docs_figures.py`` runs these again
+* **cheap**: seconds to a minute, deterministic; ``tests/project/test_docs_figures.py`` runs these again
   and fails when a doc says something else;
 * **expensive**: minutes, or timings that differ on every run: only this script regenerates them;
 * or it **needs** something osmseg does not ship: PyTorch, ``../shared/data``, or the authors'

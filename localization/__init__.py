@@ -22,7 +22,7 @@ position of a dense grid. The package is built in wings, one folder each, layere
 
 Each wing imports only the wings below it (``lint-imports`` checks it: the layers contract in
 ``pyproject.toml``), and a name starting with ``_`` is used only inside its own wing
-(``tests/test_code_shape.py`` checks it).
+(``tests/project/test_code_shape.py`` checks it).
 Coordinates are pixels throughout: ``x`` is the column, ``y`` the row. numpy and scipy do the
 work; only :mod:`localization.paper.features` runs a network, with torch (the ``train`` extra).
 Imports: osmseg core and training (the top layer: nothing imports localization).

@@ -4,7 +4,7 @@ Why a second one: :mod:`localization.bench.render` draws a panorama from the aer
 a one-height-per-class first-hit model, the same model the profile method scores with. A
 benchmark drawn only that way measures the method against itself. This renderer shares no
 code with it or with the methods (the panorama's pixel convention below is written out
-again, and ``tests/test_loc_georender.py`` checks that both renderers agree on a scene where
+again, and ``tests/localize/test_loc_georender.py`` checks that both renderers agree on a scene where
 their models coincide). It works on geometry in metres rather than on a mask, and its scene
 is closer to what a camera sees:
 

@@ -8,7 +8,7 @@ help about what it does there; it cannot change the name, the type or the meanin
 
 Each flag is registered in :data:`DECLARED` when declared, and a flag declared a second time
 (another meaning under the same name) is an error at import: two commands cannot say ``--mode``
-and mean two things. ``tests/test_cli_options.py`` walks every command of the group and fails
+and mean two things. ``tests/cli/test_cli_options.py`` walks every command of the group and fails
 on any option not made from a declaration. Options shared by commands of more than one layer,
 and the core's own, are declared here; training's and localization's own in ``training.cli``
 and ``localization.cli.options``.

@@ -8,7 +8,7 @@ whose fields are again parameters. :func:`make_request` fills the whole tree fro
 apart); :func:`part_options` names the parameters a part holds, so a command refuses the options
 of a method it does not run from the request type itself, never from a hand-kept list.
 
-Imports: the standard library only. (``tests/test_cli_options.py`` shows a request tree built.)
+Imports: the standard library only. (``tests/cli/test_cli_options.py`` shows a request tree built.)
 """
 
 from __future__ import annotations

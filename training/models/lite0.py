@@ -12,7 +12,7 @@ of the ``efficientnet_pytorch`` project (``_conv_stem``, ``_blocks.N``, ``_conv_
   one) with ``features_only``: features at strides 2, 4, 8, 16 and 32 (16, 24, 40, 112 and 320
   channels). :func:`timm_names` maps the package's names onto timm's one by one, by the block
   structure (not by the order of the keys), and :func:`imagenet_classifier` builds the whole
-  ImageNet classifier from them: ``tests/test_lite0.py`` checks that it classifies
+  ImageNet classifier from them: ``tests/train/test_lite0.py`` checks that it classifies
   scikit-image's photos of a cat and of a coffee cup as ImageNet does, so a wrong map fails.
 * **The decoder** is a U-Net's: from the stride-32 features up, each step doubles the size,
   concatenates the encoder's features of that stride and applies two 3x3 convolutions with

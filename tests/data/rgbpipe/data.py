@@ -1,4 +1,4 @@
-"""Generate the data of the RGB localization pipeline test (tests/test_loc_rgb.py).
+"""Generate the data of the RGB localization pipeline test (tests/localize/test_loc_rgb.py).
 
 A seeded town (classes13 ids, irregular streets, no grass: paved ground, so every ground pixel
 the camera sees has a CamVid class) is turned into

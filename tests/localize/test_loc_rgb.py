@@ -24,7 +24,7 @@ pytest.importorskip("torch")
 #: image with a checkpoint in localize: test_loc_match; loading CamVid-layout data: test_data)
 pytestmark = pytest.mark.slow
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parents[1]  # tests/
 CONFIGS = HERE / "data" / "train"
 
 

@@ -395,7 +395,7 @@ def test_a_ctrl_c_or_sigterm_whose_handler_runs_in_a_finalizer_still_stops_the_c
     "Exception ignored" and dropped, and the run went on to its last epoch and exited 0."""
     for stop, raised in (("SIGTERM", "Terminated"), ("SIGINT", "KeyboardInterrupt")):
         run = subprocess.run([sys.executable, "-c", STOP_IN_A_FINALIZER, stop], capture_output=True, text=True,
-                             timeout=60, cwd=Path(__file__).resolve().parents[1])
+                             timeout=60, cwd=Path(__file__).resolve().parents[2])
         assert (run.stdout, run.stderr) == (raised + "\n", "")
 
 

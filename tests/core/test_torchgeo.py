@@ -5,7 +5,7 @@ and ``geo/*.tif`` as two ``RasterDataset`` subclasses, intersects them and sampl
 patches through a ``DataLoader``. The tests check that torchgeo sees the grid osmseg wrote
 (EPSG:3857, the samples' pixel size), that its samples are what the files hold, and that mask and
 image samples line up: the imagery is painted from the same OSM data (``osmseg.demo.render``, in
-ETRS-TM35FIN as in tests/test_build.py), so building pixels of a mask must sit on roof colour.
+ETRS-TM35FIN as in tests/core/test_build.py), so building pixels of a mask must sit on roof colour.
 
 torchgeo 0.8 facts these tests rely on (torchgeo/datasets/geo.py, torchgeo/samplers/):
 

@@ -5,8 +5,8 @@ annotated pairs, ``eval`` (its summary and its metrics.txt) on a tiny trained mo
 is read as a person reads it (:func:`conftest.table_rows`): cells apart by two spaces or more,
 as many values as labels in every row, each label over its value; and the value under a label
 is the number results.json or metrics.json holds for it. (``osmseg localize``'s top-k and a
-region search's answers are read the same way in tests/test_loc_match.py and
-tests/test_loc_georender.py.)
+region search's answers are read the same way in tests/localize/test_loc_match.py and
+tests/localize/test_loc_georender.py.)
 """
 
 from __future__ import annotations

@@ -501,7 +501,7 @@ def test_geotiff_alpha_band_masks_and_nir_is_not_alpha(grid):
     ],
 )
 def test_geotiff_bad_inputs_are_one_line_imagery_errors(name, message, tmp_path):
-    if name == "float32.tif":  # a stretch only its owner can choose (16-bit reads: tests/test_bad_inputs.py)
+    if name == "float32.tif":  # a stretch only its owner can choose (16-bit reads: tests/core/test_bad_inputs.py)
         with rasterio.open(DATA / "uint16.tif") as src:
             profile = dict(src.profile, dtype="float32")
         with rasterio.open(tmp_path / name, "w", **profile) as dst:

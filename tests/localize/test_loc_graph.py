@@ -26,7 +26,7 @@ from osmseg.classes import load_class_table
 from osmseg.errors import ClassTableError, ConfigError, DatasetError
 
 ABC = ("a", "b", "c")
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def points(xy, width: int, height: int, panorama: bool = False, cls=None) -> Landmarks:

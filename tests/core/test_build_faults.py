@@ -192,7 +192,7 @@ def services(module_services: Services, clean: Clean) -> Services:
 
 def build_args(server: ScriptedServer, out: Path, cache: Path, *extra: str, samples: int = 2) -> list[str]:
     """A two-sample build from ``server``; retries 0.01 s apart (which requests are made is what these tests
-    check; the client's waits, 0.5 s doubling by default, are tests/test_http.py's)."""
+    check; the client's waits, 0.5 s doubling by default, are tests/core/test_http.py's)."""
     imagery = "xyz:" + server.url("/tiles/") + "{z}/{x}/{y}.png?key={env:TILE_KEY}"
     return ["build", "--lat", str(LAT), "--lon", str(LON), "--radius-km", "0.08", "--samples", str(samples),
             "--seed", "1", "--imagery", imagery, "--osm", "api:" + server.url("/api/0.6"),
@@ -447,7 +447,7 @@ def test_ctrl_c_stops_cleanly_and_the_same_command_resumes(services: Services, c
         if path != MAP:
             services.fault(path, lambda n, good=good: Reply(good.status, good.body, good.headers, delay=0.1))
     out = tmp_path / "ds"
-    # one process: the interrupt lands while slot 1 is being built (tests/test_build_workers.py stops workers)
+    # one process: the interrupt lands while slot 1 is being built (tests/core/test_build_workers.py stops workers)
     args = build_args(services.server, out, tmp_path / "cache", "--workers", "1")
     # a background job of a non-interactive shell (CI, `make test &`) inherits SIGINT ignored, and
     # Python then never turns it into KeyboardInterrupt: give the build the terminal's default

@@ -9,7 +9,7 @@
   builder's own label mask of the area as a GeoTIFF (``benchmarks/osm_mask.py``, what
   ``docs/localization.md`` uses), with ``--min-contrast 0``.
 * **the README's training chain** (Kampala's drone tiles and OSM footprints, Inria's Austin
-  tile): read out of README.md and run as written, in order (``tests/test_readme_chain.py``).
+  tile): read out of README.md and run as written, in order (``tests/project/test_readme_chain.py``).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ mended by a rerun. What a user checks here: the bytes of the dataset equal those
 saw no fault, the cache's imagery table never holds a tile of one colour (read with ``sqlite3``
 and PIL, not with osmseg's cache code), and the ``incomplete:`` line says what to do.
 
-The services, the reference build and the helpers are those of ``tests/test_build_faults.py``.
+The services, the reference build and the helpers are those of ``tests/core/test_build_faults.py``.
 """
 
 from __future__ import annotations
