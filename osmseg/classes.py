@@ -13,6 +13,7 @@ Tables are data files in ``data_manifests/`` (``classes13.toml`` for the 13 OSM 
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -20,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from osmseg.datafiles import load_toml
+from osmseg.datafiles import find_data_file, load_toml
 from osmseg.errors import ClassTableError, DatasetError
 
 RGB = tuple[int, int, int]
@@ -372,7 +373,27 @@ def _check_classes(name: str, unlabeled: ClassDef, classes: list[ClassDef]) -> N
 def load_class_table(name: str = "classes13.toml") -> ClassTable:
     """Read a class table from ``data_manifests/`` (or a path), checking it whole before it is used:
     distinct names and colours, ids 0..N (unlabeled included), every field there. A broken table
-    is one ClassTableError that names the file and what to fix, before anything is built with it."""
+    is one ClassTableError that names the file and what to fix, before anything is built with it.
+
+    A table is read once per process while its file is unchanged (the tables are frozen values):
+    a command that meets the same table at several steps does not parse it again.
+    """
+    path = find_data_file(name)
+    try:
+        stat = path.stat()
+    except OSError:
+        return _read_class_table(name)  # its one-line error
+    return _cached_class_table(name, str(path), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_class_table(name: str, path: str, mtime_ns: int, size: int) -> ClassTable:
+    """:func:`_read_class_table`, once per file version (the path, time and size are the key)."""
+    return _read_class_table(name)
+
+
+def _read_class_table(name: str) -> ClassTable:
+    """The checks and parsing of :func:`load_class_table`."""
     raw = load_toml(name)
     try:
         un = raw.get("unlabeled")
