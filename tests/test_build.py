@@ -215,9 +215,9 @@ def test_a_build_stops_when_another_command_takes_its_folder_over(tmp_path: Path
     """Two commands with other options on one folder (say, shards started with a typo): the one
     that lost the folder stops at its next record instead of mixing its samples in."""
     from osmseg.builder.records import Attempt
-    from osmseg.output.manifest import Point, RejectionRecord
     from osmseg.builder.state import BuildState
     from osmseg.errors import DatasetError
+    from osmseg.output.manifest import Point, RejectionRecord
 
     rejected = Attempt.rejected(RejectionRecord(Point(0, 0), "unlabeled", "all unlabeled"))
     first, second = BuildState(tmp_path), BuildState(tmp_path)
