@@ -15,13 +15,14 @@ imagery", samples were rejected for it, and a rerun asked nothing).
 
 from __future__ import annotations
 
-import json
 import sys
 import tempfile
 import zlib
 from pathlib import Path
 
 import numpy as np
+
+from osmseg.output.manifest import manifest_path, read_manifest
 
 sys.path.insert(0, "tests")  # servers.py
 sys.path.insert(0, "tests/core")  # test_build_faults.py
@@ -75,8 +76,7 @@ def main() -> None:
             served = white_at_random(services, seed)
             out, cache = tmp / f"ds{seed}", tmp / f"cache{seed}"
             first = run_cli(*build_args(server, out, cache, samples=samples))
-            manifest = out / "manifest.json"
-            accepted = json.loads(manifest.read_text())["summary"]["accepted"] if manifest.exists() else 0
+            accepted = (read_manifest(out).summary.accepted or 0) if manifest_path(out).is_file() else 0
             after_first = differing(clean, tree_bytes(out))
             services.reset()  # the server is healthy now
             asked = server.count()

@@ -29,6 +29,8 @@ import numpy as np
 import rasterio
 from PIL import Image
 
+from osmseg.output.manifest import read_manifest
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 sys.path.insert(0, str(ROOT / "tests"))  # conftest
@@ -87,7 +89,7 @@ def baseline(work: Path, seed: int) -> dict[str, dict[str, float]]:
         austin_m = abs(src.transform.a)
     with rasterio.open(SHARED / "inria-austin" / "buildings.tif") as src:
         austin_truth = src.read(1) == 255
-    model_m = json.loads((data / "manifest.json").read_text())["samples"][0]["ground_resolution_m"]
+    model_m = read_manifest(data).ground_resolutions()[0]
     austin_pred = back_to_grid(model.predict(resample(rgb, austin_m / model_m)), austin_truth.shape)
     austin = building_scores(austin_pred, austin_truth, np.ones_like(austin_truth))
     return {"kampala": {k: float(v) for k, v in kampala.items()}, "austin": {k: float(v) for k, v in austin.items()}}

@@ -24,7 +24,6 @@ from typing import Any, NamedTuple, cast
 
 import numpy as np
 
-from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
 from osmseg.images import read_label, read_rgb
 from osmseg.output.manifest import read_manifest
@@ -97,25 +96,23 @@ def dataset_alignment(dataset: Path, class_name: str, skip: Iterable[str] = ()) 
     are left out. ConfigError when the dataset has no such class.
     """
     manifest = read_manifest(dataset)
-    table = ClassTable.from_dict(manifest["classes"], f"{dataset}/manifest.json classes")
+    table = manifest.classes
     wanted = table.by_name.get(class_name)
     if wanted is None:
         names = ", ".join(c.name for c in table.classes)
         raise ConfigError(f"--alignment {class_name!r}: not a class of this dataset; use one of {names}")
     skipped = set(skip)
     offsets: dict[str, dict[str, Any]] = {}
-    for sample in manifest["samples"]:
-        files = sample["files"]
-        image = next((k for k in files if k.startswith("images/")), None)
-        label = next((k for k in files if k.startswith("labels/")), None)
+    for sample in manifest.samples:
+        image, label = sample.file_in("images"), sample.file_in("labels")
         if image is None or label is None or image in skipped or label in skipped:
             continue
         mask = read_label(Path(dataset) / label) == wanted.id
         if not mask.any():
-            offsets[sample["name"]] = {"dx": None, "dy": None, "outline_pixels": 0,
+            offsets[sample.name] = {"dx": None, "dy": None, "outline_pixels": 0,
                                        "note": f"no {class_name} pixels in this sample"}
             continue
         fit = edge_alignment(read_rgb(Path(dataset) / image), mask)
-        offsets[sample["name"]] = {"dx": fit.best[0], "dy": fit.best[1], "edge_at_zero": round(fit.at_zero, 1),
+        offsets[sample.name] = {"dx": fit.best[0], "dy": fit.best[1], "edge_at_zero": round(fit.at_zero, 1),
                                    "edge_far": round(fit.far, 1), "outline_pixels": fit.outline_pixels}
     return offsets

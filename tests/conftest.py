@@ -70,7 +70,7 @@ def shared_data() -> Path:
 def write_dataset_manifest(folder: Path, classes: Mapping[str, Any], samples: Sequence[Mapping[str, Any]]) -> Path:
     """A ``manifest.json`` that passes the dataset schema, for tests that make a dataset folder by
     hand (label masks only): ``samples`` give at least ``name`` and ``ground_resolution_m``."""
-    rows = [{"center": {}, "bbox_wgs84": [], "bounds_3857": [], "zoom": 18, "tiles": [], "imagery": {}, "osm": {},
+    rows = [{"center": None, "bbox_wgs84": [], "bounds_3857": [], "zoom": 18, "tiles": [], "imagery": {}, "osm": {},
              "class_histogram": {}, "files": {f"labels/{s['name']}.png": "0" * 64}, **s} for s in samples]
     manifest = {"format": "osmseg-dataset", "format_version": 1, "tool": {}, "command": "", "seed": 0, "area": {},
                 "zoom": 18, "grid_size": len(rows), "filters": {}, "imagery": {}, "osm": {}, "rejected": [],

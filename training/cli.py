@@ -209,8 +209,8 @@ def train_command(ctx: click.Context, /, dataset: Path, out_dir: Path, config_fi
         return
     if summary.best is not None and ctx.obj["verbosity"] >= 0:
         b, last = summary.best, summary.last
-        final = f"final epoch {last['epoch']}: val mIoU {ratio(last['val_miou'])}; " if last is not None else ""
-        click.echo(f"{final}best epoch {b['epoch']}: val mIoU {ratio(b['val_miou'])} (best.pt)", err=True)
+        final = f"final epoch {last.epoch}: val mIoU {ratio(last.val_miou)}; " if last is not None else ""
+        click.echo(f"{final}best epoch {b.epoch}: val mIoU {ratio(b.val_miou)} (best.pt)", err=True)
         click.echo(f"use {out_dir / 'model.pt'} (osmseg predict {out_dir} ...): {summary.choice}", err=True)
     click.echo(json.dumps({"model": str(out_dir / "model.pt"), "best": str(out_dir / "best.pt"),
                            "last": str(out_dir / "last.pt"), "log": str(out_dir / "log.csv")}))

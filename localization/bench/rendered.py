@@ -239,13 +239,15 @@ def load_dataset_scenes(folder: Path) -> list[Scene]:
                            "or a mask file with --classes and --aerial-resolution")
     manifest = read_manifest(folder)
     table = dataset_class_table(manifest, folder)  # with its OSM rules when at hand (--renderer geometry)
-    samples = [(s["name"], float(s["ground_resolution_m"]), s.get("bounds_3857")) for s in manifest["samples"]]
-    if not samples:
+    if not manifest.samples:
         raise DatasetError(f"{folder}: the dataset has no samples")
-    return [Scene(name, _read_mask(folder / "labels" / f"{name}.png"), table, res,
-                  tuple(float(v) for v in bounds) if bounds else None,  # type: ignore[arg-type]
-                  str(folder / "labels" / f"{name}.png"))
-            for name, res, bounds in samples]
+    unplaced = [s.name for s in manifest.samples if s.ground_resolution_m is None]
+    if unplaced:
+        raise DatasetError(f"{folder}: sample {unplaced[0]} records no ground_resolution_m; give a dataset made by "
+                           "`osmseg build`, or its masks one by one with --aerial-resolution")
+    return [Scene(s.name, _read_mask(folder / "labels" / f"{s.name}.png"), table, float(s.ground_resolution_m or 0),
+                  s.bounds(), str(folder / "labels" / f"{s.name}.png"))
+            for s in manifest.samples]
 
 
 def landmark_classes_for(table: ClassTable, name: str | None) -> LandmarkClasses:

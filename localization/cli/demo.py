@@ -42,7 +42,7 @@ def demo_training(dataset: Path, out_dir: Path, epochs: int, verbosity: int, pro
         click.echo(f"training {settings['model']} (width {settings['width']}, {epochs} epochs, CPU) "
                    f"into {run_dir}/", err=True)
     summary = run(make_config(dataset, run_dir, None, settings), progress=progress)
-    seconds = sum(h["seconds"] for h in summary.history)
+    seconds = sum(h.seconds for h in summary.history)
     if verbosity >= 0:
         click.echo(f"evaluating {run_dir / 'model.pt'} on the test split into {eval_dir}/", err=True)
     opts = EvalOptions(split="test", device="cpu")

@@ -19,7 +19,7 @@ import numpy as np
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
 from osmseg.images import is_tiff, read_raster, read_rgb
-from osmseg.output.manifest import MANIFEST_NAME, read_manifest
+from osmseg.output.manifest import MANIFEST_NAME, SampleRecord, read_manifest
 
 if TYPE_CHECKING:
     from localization.common.landmarks import Landmarks
@@ -87,7 +87,7 @@ def _read_image(path: Path) -> tuple[np.ndarray, float | None]:
     return raster.pixels, raster.resolution_m
 
 
-def _manifest_for(mask: Path) -> tuple[ClassTable, dict[str, Any], Path] | None:
+def _manifest_for(mask: Path) -> tuple[ClassTable, SampleRecord, Path] | None:
     """The class table and sample entry of ``mask`` in the manifest of the osmseg dataset listing it, and its root.
 
     Looks at ``DATASET/labels/NAME.png`` -> ``DATASET/manifest.json`` (and a manifest beside the
@@ -98,9 +98,9 @@ def _manifest_for(mask: Path) -> tuple[ClassTable, dict[str, Any], Path] | None:
             continue
         manifest = read_manifest(root)
         rel = mask.resolve().relative_to(root.resolve()).as_posix()
-        sample = next((s for s in manifest["samples"] if rel in s["files"]), None)
+        sample = next((s for s in manifest.samples if rel in s.files), None)
         if sample is not None:
-            return ClassTable.from_dict(manifest["classes"], f"{root / MANIFEST_NAME} classes"), sample, root
+            return manifest.classes, sample, root
     return None
 
 
@@ -111,11 +111,12 @@ def manifest_bounds_3857(mask: Path) -> tuple[tuple[float, float, float, float],
     if found is None:
         return None
     _, sample, _ = found
-    bounds = sample.get("bounds_3857")
-    if not isinstance(bounds, list) or len(bounds) != 4:
+    bounds = sample.bounds()
+    if bounds is None:
         return None
     shape = read_raster(mask).pixels.shape[:2]
-    return (float(bounds[0]), float(bounds[1]), float(bounds[2]), float(bounds[3])), (int(shape[0]), int(shape[1]))
+    left, bottom, right, top = (float(v) for v in bounds)
+    return (left, bottom, right, top), (int(shape[0]), int(shape[1]))
 
 
 def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: SideOptions, dictionary: Any,
@@ -131,8 +132,8 @@ def _mask_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: S
         found = _manifest_for(path)
         if found is not None:
             table, sample, root = found
-            resolution = resolution or sample.get("ground_resolution_m")
-            image = next((root / rel for rel in sorted(sample["files"]) if rel.startswith("images/")), None)
+            resolution = resolution or sample.ground_resolution_m
+            image = None if (rel := sample.file_in("images")) is None else root / rel
             if background is None and image is not None and image.is_file():
                 background = _drawable(_read_image(image)[0])  # the sample's photo, whatever its format
     if table is not None and opts.name == "ground" and max(table.by_id) < 255:

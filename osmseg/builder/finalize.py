@@ -20,9 +20,10 @@ import hashlib
 import json
 import tempfile
 from collections import Counter
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
-from typing import IO, Any, overload
+from typing import IO, Generic, TypeVar, overload
 
 import numpy as np
 
@@ -42,7 +43,19 @@ from osmseg.output import (
     write_manifest,
     write_overview,
 )
-from osmseg.output.manifest import FORMAT, FORMAT_VERSION, Summary, config_entry
+from osmseg.output.manifest import (
+    FORMAT_VERSION,
+    AreaRecord,
+    DatasetManifest,
+    DatasetSummary,
+    Json,
+    JsonObject,
+    Provenance,
+    RejectionRecord,
+    SampleRecord,
+    ToolInfo,
+    config_entry,
+)
 from osmseg.output.stac import write_stac
 from osmseg.overlap import overlap_groups
 from osmseg.runtime.processes import deferred_termination, owner
@@ -86,17 +99,20 @@ class SlotRecords:
             for slot in range(slots):
                 outcome = self._outcome(slot)
                 for r in outcome.rejected:
-                    self.rejected_by_reason[str(r["reason"])] += 1
-                    self.osm_unplaced += int(r.get("osm_unplaced", 0))
-                    self._add(rejected, "rejected", dict(r, slot=slot))
+                    self.rejected_by_reason[r.reason] += 1
+                    self.osm_unplaced += r.osm_unplaced or 0
+                    self._add(rejected, "rejected", replace(r, slot=slot).to_json())
                 if outcome.sample is not None:
                     sample = outcome.sample
-                    left, bottom, right, top = (float(v) for v in sample["bounds_3857"])
-                    bounds.append((left, bottom, right, top))
-                    tiles[hashlib.blake2b("/".join(t["quadkey"] for t in sample["tiles"]).encode(),
+                    box = sample.bounds()
+                    if box is None:
+                        raise DatasetError(f"slot {slot} of {self.state.root.parent} records no bounds_3857: delete "
+                                           "its record and run the same build command again")
+                    bounds.append(box)
+                    tiles[hashlib.blake2b("/".join(t.quadkey for t in sample.tiles).encode(),
                                           digest_size=16).digest()] += 1
-                    self.osm_unplaced += int(sample.get("osm_unplaced", 0))
-                    self._add(samples, "samples", sample)
+                    self.osm_unplaced += sample.osm_unplaced or 0
+                    self._add(samples, "samples", sample.to_json())
         self.groups = np.asarray(overlap_groups(bounds), dtype=np.int64)
         sizes = Counter(self.groups.tolist())
         self.duplicate_samples = sum(n - 1 for n in tiles.values())
@@ -110,17 +126,17 @@ class SlotRecords:
                                "command again to finish it")
         return outcome
 
-    def _add(self, file: IO[bytes], kind: str, entry: dict[str, Any]) -> None:
+    def _add(self, file: IO[bytes], kind: str, entry: Mapping[str, Json]) -> None:
         self.offsets[kind].append(file.tell())
         file.write(json.dumps(entry, ensure_ascii=False).encode("utf-8") + b"\n")
 
-    def entries(self, kind: str) -> Iterator[dict[str, Any]]:
-        """The entries of ``kind`` ("samples" or "rejected"), in slot order."""
+    def entries(self, kind: str) -> Iterator[JsonObject]:
+        """The entries of ``kind`` ("samples" or "rejected"), in slot order, as JSON objects."""
         with open(self.files[kind], "rb") as f:
             for line in f:
                 yield json.loads(line)
 
-    def entry(self, kind: str, i: int) -> dict[str, Any]:
+    def entry(self, kind: str, i: int) -> JsonObject:
         with open(self.files[kind], "rb") as f:
             f.seek(self.offsets[kind][i])
             return dict(json.loads(f.readline()))
@@ -132,8 +148,12 @@ class SlotRecords:
         self._folder.cleanup()
 
 
-class _Entries(Sequence[dict[str, Any]]):
-    """A manifest list (samples or rejections) read from :class:`SlotRecords` as it is iterated."""
+_Record = TypeVar("_Record", SampleRecord, RejectionRecord)
+
+
+class _Entries(Sequence[_Record], Generic[_Record]):
+    """A manifest list (samples or rejections) read from :class:`SlotRecords` as it is iterated,
+    a typed record at a time."""
 
     kind = ""
 
@@ -143,49 +163,51 @@ class _Entries(Sequence[dict[str, Any]]):
     def __len__(self) -> int:
         return len(self.records.offsets[self.kind])
 
-    def _entry(self, i: int) -> dict[str, Any]:
-        return self.records.entry(self.kind, i)
+    def _record(self, entry: JsonObject, i: int) -> _Record:
+        raise NotImplementedError
 
     @overload
-    def __getitem__(self, index: int) -> dict[str, Any]: ...
+    def __getitem__(self, index: int) -> _Record: ...
     @overload
-    def __getitem__(self, index: slice) -> list[dict[str, Any]]: ...
-    def __getitem__(self, index: int | slice) -> dict[str, Any] | list[dict[str, Any]]:
+    def __getitem__(self, index: slice) -> list[_Record]: ...
+    def __getitem__(self, index: int | slice) -> _Record | list[_Record]:
         if isinstance(index, slice):
-            return [self._entry(i) for i in range(len(self))[index]]
-        return self._entry(range(len(self))[index])
+            return [self[i] for i in range(len(self))[index]]
+        i = range(len(self))[index]
+        return self._record(self.records.entry(self.kind, i), i)
 
-    def __iter__(self) -> Iterator[dict[str, Any]]:
-        return self.records.entries(self.kind)
+    def __iter__(self) -> Iterator[_Record]:
+        for i, entry in enumerate(self.records.entries(self.kind)):
+            yield self._record(entry, i)
 
 
-class SampleEntries(_Entries):
+class SampleEntries(_Entries[SampleRecord]):
     """The manifest's ``samples``, each with its ``overlap_group``."""
 
     kind = "samples"
 
-    def _entry(self, i: int) -> dict[str, Any]:
-        return {**self.records.entry(self.kind, i), "overlap_group": int(self.records.groups[i])}
-
-    def __iter__(self) -> Iterator[dict[str, Any]]:
-        for sample, group in zip(self.records.entries(self.kind), self.records.groups.tolist()):
-            yield {**sample, "overlap_group": group}
+    def _record(self, entry: JsonObject, i: int) -> SampleRecord:
+        where = f"{self.records.state.root} sample {i}"
+        return replace(SampleRecord.from_json(entry, where), overlap_group=int(self.records.groups[i]))
 
 
-class RejectionEntries(_Entries):
+class RejectionEntries(_Entries[RejectionRecord]):
     """The manifest's ``rejected``: every rejected attempt, slot by slot, with its slot."""
 
     kind = "rejected"
+
+    def _record(self, entry: JsonObject, i: int) -> RejectionRecord:
+        return RejectionRecord.from_json(entry, f"{self.records.state.root} rejected attempt {i}")
 
 
 def finalize(
     config: BuildConfig,
     table: ClassTable,
     state: BuildState,
-    imagery_info: dict[str, Any],
-    osm_info: dict[str, Any],
+    imagery_info: Mapping[str, Json],
+    osm_info: Mapping[str, Json],
     command_line: str,
-) -> Summary:
+) -> DatasetSummary:
     """Write manifest, datasheet, attribution, STAC, pictures (and zip) from the finished slots.
 
     Returns the manifest's ``summary``. Every slot of the build must have its outcome recorded.
@@ -195,39 +217,24 @@ def finalize(
 
 
 def _write_dataset_files(config: BuildConfig, table: ClassTable, state: BuildState, records: SlotRecords,
-                         imagery_info: dict[str, Any], osm_info: dict[str, Any], command_line: str) -> Summary:
+                         imagery_info: Mapping[str, Json], osm_info: Mapping[str, Json],
+                         command_line: str) -> DatasetSummary:
     samples, rejected = SampleEntries(records), RejectionEntries(records)
     area = config.area
     counts = summary_entry(samples, rejected, requested=config.samples, max_attempts=config.samples * config.max_tries)
     # slots draw independently (that is what makes shards exact), so two may land on one grid, or
     # overlap: groups of overlapping samples are recorded, and training keeps a group in one split
-    summary: Summary = {
-        **counts,
-        "duplicate_samples": records.duplicate_samples,
-        "overlapping_samples": records.overlapping_samples,
-        "overlap_groups": records.overlap_group_count,
-        "osm_unplaced": records.osm_unplaced,
-    }
-    manifest: dict[str, Any] = {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "tool": {"name": "osmseg", "version": __version__},
-        "command": command_line,
-        "seed": config.seed,
-        "area": {"name": area.name, "kind": area.kind, "lat": area.lat, "lon": area.lon, "radius_km": area.radius_km,
-                 "bbox": list(area.bbox) if area.bbox else None},
-        "zoom": config.zoom,
-        "grid_size": config.grid_size,
-        "image_format": config.image_format,
-        "config": config_entry(config.identity()),
-        "classes": table.to_dict(),
-        "filters": config.filters.to_dict(),
-        "imagery": imagery_info,
-        "osm": osm_info,
-        "samples": samples,
-        "rejected": rejected,
-        "summary": summary,
-    }
+    summary = replace(counts, duplicate_samples=records.duplicate_samples,
+                      overlapping_samples=records.overlapping_samples, overlap_groups=records.overlap_group_count,
+                      osm_unplaced=records.osm_unplaced)
+    manifest = DatasetManifest(
+        format_version=FORMAT_VERSION, tool=ToolInfo("osmseg", __version__), command=command_line, seed=config.seed,
+        area=AreaRecord(name=area.name, kind=area.kind, lat=area.lat, lon=area.lon, radius_km=area.radius_km,
+                        bbox=tuple(area.bbox) if area.bbox else None),
+        zoom=config.zoom, grid_size=config.grid_size, image_format=config.image_format,
+        config=config_entry(config.identity()), classes=table, filters=config.filters.to_dict(),
+        imagery=Provenance(imagery_info), osm=Provenance(osm_info), samples=samples, rejected=rejected,
+        summary=summary)
     write_datasheet(config.out_dir, manifest)
     write_attribution(config.out_dir, manifest)
     write_stac(config.out_dir, manifest)

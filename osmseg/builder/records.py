@@ -9,9 +9,12 @@ build ends byte-identical to an uninterrupted one).
 
 The entries they carry (``sample``, ``rejection``) are the manifest's own JSON entries
 (:func:`osmseg.output.manifest.sample_entry`, :func:`~osmseg.output.manifest.rejection_entry`):
-the documented dataset format, not build internals. Imports: osmseg.errors only.
+the documented dataset format, not build internals, held as the manifest's typed records
+(:class:`~osmseg.output.manifest.SampleRecord`, :class:`~osmseg.output.manifest.RejectionRecord`).
+Imports: osmseg.errors, osmseg.output.manifest.
 
->>> Attempt.from_json(Attempt.rejected({"reason": "unlabeled", "detail": "d"}).to_json()).status
+>>> rejection = RejectionRecord(center=None, reason="unlabeled", detail="d")
+>>> Attempt.from_json(Attempt.rejected(rejection).to_json()).status
 'rejected'
 >>> SlotOutcome.from_json(SlotOutcome(3, "gave_up", exhausted=True).to_json())
 SlotOutcome(slot=3, status='gave_up', rejected=(), sample=None, exhausted=True, attempt=None, reason=None)
@@ -24,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any, Literal, get_args
 
 from osmseg.errors import DatasetError
+from osmseg.output.manifest import JsonObject, RejectionRecord, SampleRecord
 
 __all__ = ["Attempt", "AttemptStatus", "SlotOutcome", "SlotStatus"]
 
@@ -46,35 +50,35 @@ class Attempt:
     ``--no-overlap``, no block of the area was left to try)."""
 
     status: AttemptStatus
-    sample: dict[str, Any] | None = None
-    rejection: dict[str, Any] | None = None
+    sample: SampleRecord | None = None
+    rejection: RejectionRecord | None = None
 
     @classmethod
-    def accepted(cls, sample: dict[str, Any]) -> Attempt:
+    def accepted(cls, sample: SampleRecord) -> Attempt:
         return cls("accepted", sample=sample)
 
     @classmethod
-    def rejected(cls, rejection: dict[str, Any]) -> Attempt:
+    def rejected(cls, rejection: RejectionRecord) -> Attempt:
         return cls("rejected", rejection=rejection)
 
     @classmethod
     def exhausted(cls) -> Attempt:
         return cls("exhausted")
 
-    def to_json(self) -> dict[str, Any]:
-        if self.status == "accepted":
-            return {"status": "accepted", "sample": self.sample}
-        if self.status == "rejected":
-            return {"status": "rejected", **(self.rejection or {})}
+    def to_json(self) -> JsonObject:
+        if self.status == "accepted" and self.sample is not None:
+            return {"status": "accepted", "sample": self.sample.to_json()}
+        if self.status == "rejected" and self.rejection is not None:
+            return {"status": "rejected", **self.rejection.to_json()}
         return {"status": "exhausted"}
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any], where: str = "attempt record") -> Attempt:
         status = _status(data, get_args(AttemptStatus), where)
         if status == "accepted":
-            return cls.accepted(dict(data["sample"]))
+            return cls.accepted(SampleRecord.from_json(data.get("sample"), f"{where} sample"))
         if status == "rejected":
-            return cls.rejected({k: v for k, v in data.items() if k != "status"})
+            return cls.rejected(RejectionRecord.from_json({k: v for k, v in data.items() if k != "status"}, where))
         return cls.exhausted()
 
 
@@ -87,8 +91,8 @@ class SlotOutcome:
 
     slot: int
     status: SlotStatus
-    rejected: tuple[dict[str, Any], ...] = ()
-    sample: dict[str, Any] | None = None
+    rejected: tuple[RejectionRecord, ...] = ()
+    sample: SampleRecord | None = None
     exhausted: bool = False
     attempt: int | None = None
     reason: str | None = None
@@ -96,13 +100,13 @@ class SlotOutcome:
     @property
     def unplaced(self) -> int:
         """OSM objects of a class that could not be drawn (no located node), over all attempts."""
-        found = sum(int(r.get("osm_unplaced", 0)) for r in self.rejected)
-        return found + (int(self.sample.get("osm_unplaced", 0)) if self.sample else 0)
+        found = sum(r.osm_unplaced or 0 for r in self.rejected)
+        return found + ((self.sample.osm_unplaced or 0) if self.sample else 0)
 
-    def to_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"slot": self.slot, "status": self.status, "rejected": list(self.rejected)}
+    def to_json(self) -> JsonObject:
+        out: JsonObject = {"slot": self.slot, "status": self.status, "rejected": [r.to_json() for r in self.rejected]}
         if self.status == "accepted":
-            out["sample"] = self.sample
+            out["sample"] = None if self.sample is None else self.sample.to_json()
         elif self.status == "failed":
             out.update(attempt=self.attempt, reason=self.reason)
         if self.exhausted:
@@ -113,8 +117,10 @@ class SlotOutcome:
     def from_json(cls, data: Mapping[str, Any], where: str = "slot record") -> SlotOutcome:
         status = _status(data, get_args(SlotStatus), where)
         try:
-            return cls(slot=int(data["slot"]), status=status, rejected=tuple(dict(r) for r in data["rejected"]),
-                       sample=dict(data["sample"]) if status == "accepted" else None,
+            rejected = tuple(RejectionRecord.from_json(r, f"{where} rejected[{i}]")
+                             for i, r in enumerate(data["rejected"]))
+            return cls(slot=int(data["slot"]), status=status, rejected=rejected,
+                       sample=SampleRecord.from_json(data["sample"], f"{where} sample") if status == "accepted" else None,
                        exhausted=bool(data.get("exhausted", False)), attempt=data.get("attempt"),
                        reason=data.get("reason"))
         except (KeyError, TypeError, ValueError) as exc:

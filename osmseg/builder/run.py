@@ -243,10 +243,10 @@ def _build_slots(ctx: BuildContext, env: dict[str, str], progress: Progress | No
     if summary.pending_other_shards == 0:
         state.check_owner()  # the folder was deleted meanwhile (or taken where there are no locks)
         whole = finalize(config, pipe.table, state, pipe.imagery.describe(), pipe.osm.describe(), command_line)
-        summary.dataset_accepted = whole["accepted"]  # every shard's samples, not only ours
-        summary.duplicates = whole["duplicate_samples"]
-        summary.overlapping = whole["overlapping_samples"]
-        summary.groups = whole["overlap_groups"]
+        summary.dataset_accepted = whole.accepted or 0  # every shard's samples, not only ours
+        summary.duplicates = whole.duplicate_samples or 0
+        summary.overlapping = whole.overlapping_samples or 0
+        summary.groups = whole.overlap_groups or 0
         summary.finalized = True
 
 
@@ -268,8 +268,7 @@ def asks_verdicts_again(config: BuildConfig, pipe: Pipeline) -> bool:
 
 def verdict_attempt(outcome: SlotOutcome) -> int | None:
     """The first attempt of a finished slot that a missing-imagery verdict rejected, or None."""
-    attempts = [int(r["attempt"]) for r in outcome.rejected
-                if r.get("reason") in NO_IMAGERY_REASONS and isinstance(r.get("attempt"), int)]
+    attempts = [r.attempt for r in outcome.rejected if r.reason in NO_IMAGERY_REASONS and r.attempt is not None]
     return min(attempts) if attempts else None
 
 
@@ -332,8 +331,8 @@ def _count(summary: BuildSummary, outcome: SlotOutcome) -> None:
         summary.failed.append((outcome.slot, str(outcome.reason)))
     elif outcome.sample is not None:
         summary.accepted += 1
-        summary.osm_problems += len(outcome.sample.get("osm_problems", ()))
+        summary.osm_problems += len(outcome.sample.osm_problems or ())
     else:
         summary.gave_up += 1
-    summary.rejected.update(r["reason"] for r in outcome.rejected)
-    summary.osm_empty += sum(1 for r in outcome.rejected if r.get("osm_empty"))
+    summary.rejected.update(r.reason for r in outcome.rejected)
+    summary.osm_empty += sum(1 for r in outcome.rejected if r.osm_empty)

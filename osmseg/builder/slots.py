@@ -18,7 +18,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -46,6 +45,7 @@ from osmseg.osm.base import CoveringSource, OsmSource
 from osmseg.osm.features import read_features
 from osmseg.osm.sources import make_osm_source
 from osmseg.output import rejection_entry, sample_entry, write_sample
+from osmseg.output.manifest import Provenance, RejectionRecord
 from osmseg.output.overview import write_thumbnails
 from osmseg.rasterize import rasterize, to_table
 
@@ -200,32 +200,25 @@ def run_attempt(config: BuildConfig, pipe: Pipeline, slot: int, attempt: int,
                                   uniform_tiles=imagery.uniform_tiles)
     # OSM objects of a class that could not be drawn at all (their nodes have no location in the
     # data): recorded for rejected attempts too, so an empty mask is never a silent one
-    unplaced = {"osm_unplaced": features.unplaced} if features.unplaced else {}
+    unplaced = features.unplaced or None
     if rejection is not None or imagery is None:
         assert rejection is not None
-        problems = {"osm_problems": list(features.problems)} if features.problems else {}
-        # which tiles were of one colour (placeholders a server answered as tiles), for the manifest
-        uniform = {"uniform_tiles": imagery.info["uniform_tiles"]} if imagery and imagery.uniform_tiles else {}
+        # which tiles were of one colour (placeholders a server answered as tiles), for the manifest;
         # no OSM object of any class in the box: when every attempt says so, the source has no data there
-        empty = {"osm_empty": True} if not features.features and not features.unplaced else {}
-        return Attempt.rejected({**rejection_entry(lon, lat, rejection, attempt=attempt), **problems, **unplaced,
-                                 **uniform, **empty})
+        return Attempt.rejected(replace(
+            rejection_entry(lon, lat, rejection, attempt=attempt), osm_problems=tuple(features.problems) or None,
+            osm_unplaced=unplaced, uniform_tiles=Provenance(imagery.info).uniform_tiles if imagery and imagery.uniform_tiles else None,
+            osm_empty=True if not features.features and not features.unplaced else None))
     name = f"{config.prefix}_{slot:05d}"
     written = write_sample(config.out_dir, name, imagery.rgb, labels, pipe.table, grid, config.image_format,
                            valid=imagery.valid)
     if thumbnails is not None:
         # the overview shows the image as a reader decodes it: a JPEG's own pixels, not the ones encoded
-        shown = read_rgb(config.out_dir / _image_file(written)) if config.image_format == "jpg" else imagery.rgb
+        shown = read_rgb(config.out_dir / written.file_in("images")) if config.image_format == "jpg" else imagery.rgb
         write_thumbnails(thumbnails, name, shown, labels)
     entry = sample_entry(name, grid, written, imagery=imagery.info, osm=extract.info, osm_timestamp=extract.timestamp)
     # broken OSM objects that were repaired or skipped, for users checking a mask they doubt
-    entry["osm_problems"] = list(features.problems)
-    entry.update(unplaced)
-    return Attempt.accepted(entry)
-
-
-def _image_file(written: dict[str, Any]) -> str:
-    return str(next(rel for rel in written["files"] if rel.startswith("images/")))
+    return Attempt.accepted(replace(entry, osm_problems=tuple(features.problems), osm_unplaced=unplaced))
 
 
 def run_slot(ctx: BuildContext, slot: int, keep_thumbnails: bool = False) -> SlotOutcome:
@@ -236,7 +229,7 @@ def run_slot(ctx: BuildContext, slot: int, keep_thumbnails: bool = False) -> Slo
     decoding any image again).
     """
     config, pipe, state = ctx.config, ctx.pipe, ctx.state
-    rejections: list[dict[str, Any]] = []
+    rejections: list[RejectionRecord] = []
     outcome = SlotOutcome(slot, "gave_up")  # unless an attempt is accepted
     thumbnails = state.thumbnails if keep_thumbnails else None
     for attempt in range(config.max_tries):
@@ -259,7 +252,8 @@ def run_slot(ctx: BuildContext, slot: int, keep_thumbnails: bool = False) -> Slo
         if record.sample is not None:
             outcome = SlotOutcome(slot, "accepted", sample=record.sample)
             break
-        rejections.append(dict(record.rejection or {}))
+        if record.rejection is not None:
+            rejections.append(record.rejection)
     outcome = replace(outcome, rejected=tuple(rejections))
     state.record_slot(outcome)
     return outcome

@@ -33,7 +33,7 @@ def verify_command(ctx: click.Context, dataset: Path, align_class: str | None) -
     """
     manifest = read_manifest(dataset)
     problems = verify(dataset)
-    report: dict[str, object] = {"dataset": str(dataset), "samples": len(manifest["samples"]), "problems": problems}
+    report: dict[str, object] = {"dataset": str(dataset), "samples": len(manifest.samples), "problems": problems}
     if align_class is not None:
         offsets = dataset_alignment(dataset, align_class, skip={p.split(":")[0] for p in problems})
         report["alignment"] = {"class": align_class, "offsets": offsets}

@@ -20,7 +20,6 @@ from osmseg.output.manifest import (
     rejection_entry,
     sample_entry,
     summary_entry,
-    validate_manifest,
     verify,
     write_manifest,
 )
@@ -41,7 +40,6 @@ __all__ = [
     "sample_paths",
     "sha256_file",
     "summary_entry",
-    "validate_manifest",
     "verify",
     "write_attribution",
     "write_class_histogram",

@@ -16,29 +16,26 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from osmseg.output.atomic import atomic_write_text
+from osmseg.output.manifest import DatasetManifest, Provenance
 
 ATTRIBUTION_NAME = "ATTRIBUTION.md"
 OSM_NOTICE = "© OpenStreetMap contributors"
 ODBL_URL = "https://opendatacommons.org/licenses/odbl/1-0/"
 OSM_COPYRIGHT_URL = "https://www.openstreetmap.org/copyright"
 
-_TERMS_KEYS = ("copyright", "terms", "terms_url", "terms_of_use", "license", "licence", "license_url", "brand_logo_uri")
 
-
-def _imagery_lines(imagery: dict[str, Any]) -> list[str]:
+def _imagery_lines(imagery: Provenance) -> list[str]:
     """What the manifest says about the imagery provider's terms."""
-    name = imagery.get("name") or imagery.get("provider") or "the imagery provider"
+    name = imagery.name or imagery.provider or "the imagery provider"
     lines = [f"- Provider: **{name}**"]
-    attribution = imagery.get("attribution")
+    attribution = imagery.attribution
     lines.append(f"- Attribution: {attribution}" if attribution else
                  "- Attribution: *(the provider gave none; look up its terms before sharing the images)*")
-    for key in _TERMS_KEYS:
-        if imagery.get(key):
-            lines.append(f"- {key.replace('_', ' ').capitalize()}: {imagery[key]}")
-    if imagery.get("brand_logo_uri"):
+    for key, value in imagery.stated_terms():
+        lines.append(f"- {key.replace('_', ' ').capitalize()}: {value}")
+    if imagery.brand_logo_uri:
         lines.append("- Bing Maps terms ask that the logo above is shown with the imagery.")
     return lines
 
@@ -58,15 +55,14 @@ class LabelSource:
     spdx: str | None  # SPDX licence id of the labels, None when unknown
 
     @classmethod
-    def of(cls, manifest: dict[str, Any]) -> LabelSource:
-        """The label source a manifest records (``manifest["osm"]``).
+    def of(cls, osm: Provenance) -> LabelSource:
+        """The label source a manifest records (its ``osm``).
 
-        >>> LabelSource.of({"osm": {"source": "geojson", "path": "f.geojson"}}).spdx is None
+        >>> LabelSource.of(Provenance({"source": "geojson", "path": "f.geojson"})).spdx is None
         True
         """
-        osm = manifest.get("osm") or {}
-        if osm.get("source") == "geojson":
-            where = f"the GeoJSON features of `{osm.get('path', '?')}`"
+        if osm.source == "geojson":
+            where = f"the GeoJSON features of `{osm.path or '?'}`"
             return cls(False, where, f"labels made by osmseg from {where}: keep the licence and attribution of "
                        "that file's source (if it was exported from OpenStreetMap: © OpenStreetMap contributors, "
                        "ODbL 1.0)", None)
@@ -87,12 +83,11 @@ def _geojson_section(source: LabelSource) -> list[str]:
     ]
 
 
-def render_attribution(manifest: dict[str, Any]) -> str:
+def render_attribution(manifest: DatasetManifest) -> str:
     """The ATTRIBUTION.md text for ``manifest`` (pure function of the manifest)."""
-    imagery = manifest.get("imagery") or {}
-    osm = manifest.get("osm") or {}
-    osm_extra = osm.get("attribution")
-    source = LabelSource.of(manifest)
+    imagery = manifest.imagery
+    osm_extra = manifest.osm.attribution
+    source = LabelSource.of(manifest.osm)
     if not source.is_osm:
         return "\n".join([
             "# Attribution and licences", "",
@@ -148,6 +143,6 @@ def render_attribution(manifest: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
-def write_attribution(out_dir: Path, manifest: dict[str, Any]) -> Path:
+def write_attribution(out_dir: Path, manifest: DatasetManifest) -> Path:
     """Write ``OUT/ATTRIBUTION.md`` atomically and return its path."""
     return atomic_write_text(Path(out_dir) / ATTRIBUTION_NAME, render_attribution(manifest))

@@ -13,12 +13,20 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
-from osmseg.classes import ClassTable
+from osmseg.classes import ClassDef
 from osmseg.output.atomic import atomic_write_text
 from osmseg.output.attribution import LabelSource
-from osmseg.output.manifest import class_totals
+from osmseg.output.manifest import (
+    AreaRecord,
+    DatasetManifest,
+    DatasetSummary,
+    Json,
+    Provenance,
+    RejectionRecord,
+    SampleRecord,
+    class_totals,
+)
 
 DATASHEET_NAME = "DATASHEET.md"
 
@@ -38,20 +46,19 @@ _REASON_TEXT = {
 }
 
 
-def _value(v: Any) -> str:
+def _value(v: Json) -> str:
     """A manifest value in one line of Markdown."""
     if isinstance(v, (dict, list)):
         return "`" + json.dumps(v, sort_keys=True, ensure_ascii=False) + "`"
     return str(v)
 
 
-def _description(d: dict[str, Any] | None) -> list[str]:
-    """Bullet lines for a source's ``describe()`` dict (sorted keys; long lists summarised)."""
-    if not d:
+def _description(source: Provenance) -> list[str]:
+    """Bullet lines for a source's ``describe()`` record (sorted keys; long lists summarised)."""
+    if not source.fields:
         return ["- (not recorded)"]
     lines = []
-    for key in sorted(d):
-        v = d[key]
+    for key, v in sorted(source.fields.items()):
         if isinstance(v, list) and len(v) > 8:
             v = f"{len(v)} entries (see manifest.json)"
         lines.append(f"- {key}: {_value(v)}")
@@ -67,22 +74,22 @@ def _hex(rgb: Sequence[int]) -> str:
     return "#" + "".join(f"{c:02x}" for c in rgb)
 
 
-def _area_text(area: dict[str, Any]) -> str:
-    name = area.get("name") or "an area"
+def _area_text(area: AreaRecord) -> str:
+    name = area.name or "an area"
     parts = [f"**{name}**"]
-    if area.get("kind"):
-        parts.append(f"({area['kind']})")
-    if area.get("bbox"):
-        w, s, e, n = area["bbox"]
+    if area.kind:
+        parts.append(f"({area.kind})")
+    if area.bbox:
+        w, s, e, n = area.bbox
         parts.append(f"box W {w:.5f}, S {s:.5f}, E {e:.5f}, N {n:.5f}")
-    elif area.get("lat") is not None and area.get("lon") is not None:
-        radius = f" within {area['radius_km']:g} km" if area.get("radius_km") is not None else ""
-        parts.append(f"centred on lat {area['lat']:.5f}, lon {area['lon']:.5f}{radius}")
+    elif area.lat is not None and area.lon is not None:
+        radius = f" within {area.radius_km:g} km" if area.radius_km is not None else ""
+        parts.append(f"centred on lat {area.lat:.5f}, lon {area.lon:.5f}{radius}")
     return " ".join(parts)
 
 
-def _timestamps(samples: list[dict[str, Any]]) -> str:
-    stamps = sorted({s["osm"].get("timestamp") for s in samples if s.get("osm", {}).get("timestamp")})
+def _timestamps(samples: Sequence[SampleRecord]) -> str:
+    stamps = sorted({s.osm.timestamp for s in samples if s.osm.timestamp})
     if not stamps:
         return "not reported by the source"
     return stamps[0] if len(stamps) == 1 else f"{stamps[0]} to {stamps[-1]}"
@@ -92,41 +99,38 @@ _FORMAT_TEXT = {"cog": "RGB Cloud-Optimized GeoTIFF on the grid of `geo/` (EPSG:
                 "png": "RGB PNG", "jpg": "RGB JPEG (quality 95, 4:4:4)"}
 
 
-def render_datasheet(manifest: dict[str, Any]) -> str:
+def render_datasheet(manifest: DatasetManifest) -> str:
     """The datasheet Markdown for ``manifest`` (pure function of the manifest)."""
-    samples: list[dict[str, Any]] = manifest["samples"]
-    rejected: list[dict[str, Any]] = manifest["rejected"]
-    summary: dict[str, Any] = manifest.get("summary", {})
-    tool = manifest.get("tool", {})
-    tool_text = f"{tool.get('name', 'osmseg')} {tool.get('version', '')}".strip()
-    area = manifest.get("area", {}) or {}
-    table = ClassTable.from_dict(manifest["classes"], "manifest classes")
+    samples, rejected, summary, area = manifest.samples, manifest.rejected, manifest.summary, manifest.area
+    table = manifest.classes
     classes = sorted((table.unlabeled, *table.classes), key=lambda c: c.id)
     totals = class_totals(samples)
-    res = [s["ground_resolution_m"] for s in samples]
+    res = manifest.ground_resolutions()
     res_text = f"{min(res):.3f}-{max(res):.3f} m" if res and max(res) - min(res) >= 0.0005 else (f"{res[0]:.3f} m" if res else "n/a")
-    title = manifest.get("name") or f"osmseg dataset: {area.get('name') or 'custom area'}"
-    imagery = manifest.get("imagery") or {}
-    osm = manifest.get("osm") or {}
+    title = manifest.name or f"osmseg dataset: {area.name or 'custom area'}"
     n_classes = len(classes) - 1
-    labels = LabelSource.of(manifest)
+    labels = LabelSource.of(manifest.osm)
 
     out: list[str] = [f"# Datasheet: {title}", ""]
-    out += _composition(manifest, summary, tool_text, len(samples), n_classes, res_text, area)
+    out += _composition(manifest, manifest.tool.text(), len(samples), n_classes, res_text)
     out += _class_rows(classes, totals)
-    out += _collection(samples, rejected, summary, imagery, osm)
+    out += _collection(samples, rejected, summary, manifest.imagery, manifest.osm)
     out += _preprocessing(manifest, summary, rejected)
     out += _closing(manifest, labels)
     return "\n".join(out)
 
 
-def _composition(manifest: dict[str, Any], summary: dict[str, Any], tool_text: str, n_samples: int, n_classes: int,
-                 res_text: str, area: dict[str, Any]) -> list[str]:
+def _known(value: int | None) -> str:
+    """A count the manifest may not record: ``?`` then."""
+    return "?" if value is None else str(value)
+
+
+def _composition(manifest: DatasetManifest, tool_text: str, n_samples: int, n_classes: int, res_text: str) -> list[str]:
     """Motivation, and composition up to the class table's header."""
-    zoom = manifest["zoom"]
-    grid = manifest.get("grid_size", 5)
+    zoom = manifest.zoom
+    grid = 5 if manifest.grid_size is None else manifest.grid_size
     size = grid * 256
-    fmt = manifest.get("image_format", "png")
+    fmt = manifest.image_format or "png"
     return [
         f"Generated by {tool_text} from `manifest.json`, following the sections of Gebru et al.,",
         '"Datasheets for Datasets" (Communications of the ACM 64(12), 2021), as Appendix A of',
@@ -135,13 +139,13 @@ def _composition(manifest: dict[str, Any], summary: dict[str, Any], tool_text: s
         "## Motivation",
         "",
         f"- **Purpose.** Training and evaluating semantic segmentation of aerial images into {n_classes}",
-        f"  classes derived from OpenStreetMap (class table `{manifest['classes'].get('name', '?')}`), the task of",
+        f"  classes derived from OpenStreetMap (class table `{manifest.classes.name}`), the task of",
         "  Resek (2022): masks come from OSM, so a dataset can be made for any place with imagery.",
-        f"- **Created by** running `{manifest['command']}` with {tool_text}. Creator and funding: *(to fill in)*.",
+        f"- **Created by** running `{manifest.command}` with {tool_text}. Creator and funding: *(to fill in)*.",
         "",
         "## Composition",
         "",
-        f"- **Instances.** {n_samples} samples (requested {summary.get('requested', '?')}). Each is an aerial image",
+        f"- **Instances.** {n_samples} samples (requested {_known(manifest.summary.requested)}). Each is an aerial image",
         f"  of {size}x{size} px ({grid}x{grid} Web Mercator tiles of 256 px at zoom {zoom}) and its labels:",
         "",
         "  | folder | content |",
@@ -152,9 +156,9 @@ def _composition(manifest: dict[str, Any], summary: dict[str, Any], tool_text: s
         "  | `geo/` | class ids as Cloud-Optimized GeoTIFF in EPSG:3857 with a colour table and class names (QGIS, torchgeo), "
         "and beside each its QGIS style (`.qml`: class colours and names in QGIS's legend) |",
         "",
-        f"- **Area.** {_area_text(area)}.",
+        f"- **Area.** {_area_text(manifest.area)}.",
         f"- **Ground resolution.** zoom {zoom}: {res_text} per pixel at the samples' latitudes.",
-        f"- **Sampling.** Sample centres are drawn uniformly at random over the area with seed {manifest['seed']};",
+        f"- **Sampling.** Sample centres are drawn uniformly at random over the area with seed {manifest.seed};",
         "  a centre is kept only if it passes the filters below, so the dataset is a filtered random sample",
         "  of the area, not all of it. Samples may overlap.",
         f"- **Labels.** {n_classes} classes + unlabeled. Pixel counts over all samples:",
@@ -164,7 +168,7 @@ def _composition(manifest: dict[str, Any], summary: dict[str, Any], tool_text: s
     ]
 
 
-def _class_rows(classes: list[Any], totals: dict[str, int]) -> list[str]:
+def _class_rows(classes: list[ClassDef], totals: dict[str, int]) -> list[str]:
     """The class table's rows: id, name, colour, pixels and share over all samples."""
     all_pixels = sum(totals.values())
     rows = []
@@ -176,8 +180,8 @@ def _class_rows(classes: list[Any], totals: dict[str, int]) -> list[str]:
     return rows
 
 
-def _collection(samples: list[dict[str, Any]], rejected: list[dict[str, Any]], summary: dict[str, Any],
-                imagery: dict[str, Any], osm: dict[str, Any]) -> list[str]:
+def _collection(samples: Sequence[SampleRecord], rejected: Sequence[RejectionRecord], summary: DatasetSummary,
+                imagery: Provenance, osm: Provenance) -> list[str]:
     """Composition's notes after the class table, and the collection process."""
     return [
         "",
@@ -196,12 +200,12 @@ def _collection(samples: list[dict[str, Any]], rejected: list[dict[str, Any]], s
         "- **OpenStreetMap** source:",
         *[f"  {line}" for line in _description(osm)],
         f"- **OSM data timestamp:** {_timestamps(samples)}.",
-        f"- **Attempts.** {summary.get('attempts', len(samples) + len(rejected))} centres drawn"
-        f" (limit {summary.get('max_attempts', '?')}): {len(samples)} accepted, {len(rejected)} rejected.",
+        f"- **Attempts.** {_known(summary.attempts or len(samples) + len(rejected))} centres drawn"
+        f" (limit {_known(summary.max_attempts)}): {len(samples)} accepted, {len(rejected)} rejected.",
     ]
 
 
-def _preprocessing(manifest: dict[str, Any], summary: dict[str, Any], rejected: list[dict[str, Any]]) -> list[str]:
+def _preprocessing(manifest: DatasetManifest, summary: DatasetSummary, rejected: Sequence[RejectionRecord]) -> list[str]:
     """Labeling, the filters as used and the rejected samples by reason."""
     out = [
         "",
@@ -215,15 +219,13 @@ def _preprocessing(manifest: dict[str, Any], summary: dict[str, Any], rejected: 
         "  | setting | value | rule |",
         "  |---|---:|---|",
     ]
-    for key, value in sorted((manifest.get("filters") or {}).items()):
+    for key, value in sorted(manifest.filters.items()):
         out.append(f"  | `{key}` | {value:g} | {_FILTER_TEXT.get(key, '')} |" if isinstance(value, (int, float))
                    else f"  | `{key}` | {_value(value)} | {_FILTER_TEXT.get(key, '')} |")
-    by_reason = summary.get("rejected_by_reason") or {}
+    by_reason = dict(summary.rejected_by_reason or {})
     if not by_reason:
-        counts: dict[str, int] = {}
         for r in rejected:
-            counts[r["reason"]] = counts.get(r["reason"], 0) + 1
-        by_reason = counts
+            by_reason[r.reason] = by_reason.get(r.reason, 0) + 1
     out += ["", "- **Rejected samples by reason:**", ""]
     if by_reason:
         out += ["  | reason | count | meaning |", "  |---|---:|---|"]
@@ -233,7 +235,7 @@ def _preprocessing(manifest: dict[str, Any], summary: dict[str, Any], rejected: 
     return out
 
 
-def _closing(manifest: dict[str, Any], labels: LabelSource) -> list[str]:
+def _closing(manifest: DatasetManifest, labels: LabelSource) -> list[str]:
     """Raw data, uses, distribution and maintenance."""
     return [
         "",
@@ -260,7 +262,7 @@ def _closing(manifest: dict[str, Any], labels: LabelSource) -> list[str]:
         "",
         "## Maintenance",
         "",
-        f"- **Reproduce:** `{manifest['command']}` (seed {manifest['seed']}). With the same sources this",
+        f"- **Reproduce:** `{manifest.command}` (seed {manifest.seed}). With the same sources this",
         "  gives byte-identical files; live OSM and imagery change over time, so for exact",
         "  reproduction build from a pinned `.osm.pbf` extract and a local GeoTIFF or a cache.",
         "- **Check integrity:** every file's SHA-256 is in `manifest.json`",
@@ -270,6 +272,6 @@ def _closing(manifest: dict[str, Any], labels: LabelSource) -> list[str]:
     ]
 
 
-def write_datasheet(out_dir: Path, manifest: dict[str, Any]) -> Path:
+def write_datasheet(out_dir: Path, manifest: DatasetManifest) -> Path:
     """Write ``OUT/DATASHEET.md`` atomically and return its path."""
     return atomic_write_text(Path(out_dir) / DATASHEET_NAME, render_datasheet(manifest))

@@ -14,7 +14,6 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from itertools import islice
 from pathlib import Path
-from typing import Any, cast
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
@@ -23,6 +22,7 @@ from osmseg.classes import ClassTable
 from osmseg.errors import DatasetError
 from osmseg.images import read_rgb
 from osmseg.output.atomic import atomic_write_bytes
+from osmseg.output.manifest import SampleRecord
 from osmseg.output.writer import PHOTO_COMPRESS_LEVEL, encode_png
 
 OVERVIEW_NAME = "overview.png"
@@ -42,15 +42,15 @@ def _font() -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
     return ImageFont.load_default()
 
 
-def _file(out_dir: Path, sample: Mapping[str, Any], folder: str) -> Path:
+def _file(out_dir: Path, sample: SampleRecord, folder: str) -> Path:
     """The sample's file under ``folder/`` as listed in its manifest entry."""
-    for rel in sorted(sample["files"]):
-        if rel.startswith(folder + "/"):
-            path = out_dir / rel
-            if not path.is_file():
-                raise DatasetError(f"{path} is missing; rebuild the dataset (the manifest lists it)")
-            return cast(Path, path)
-    raise DatasetError(f"sample {sample.get('name', '?')} lists no file under {folder}/; rebuild it")
+    rel = sample.file_in(folder)
+    if rel is None:
+        raise DatasetError(f"sample {sample.name} lists no file under {folder}/; rebuild it")
+    path = out_dir / rel
+    if not path.is_file():
+        raise DatasetError(f"{path} is missing; rebuild the dataset (the manifest lists it)")
+    return path
 
 
 def _legend(draw: ImageDraw.ImageDraw, table: ClassTable, x0: int, y0: int, width: int) -> int:
@@ -93,10 +93,10 @@ def write_thumbnails(folder: Path, name: str, image: np.ndarray, labels: np.ndar
     atomic_write_bytes(Path(folder) / f"{name}.labels.png", encode_png(np.asarray(small_labels), level=1))
 
 
-def _sample_thumbnails(out_dir: Path, sample: Mapping[str, Any], folder: Path | None,
+def _sample_thumbnails(out_dir: Path, sample: SampleRecord, folder: Path | None,
                        thumb: int) -> tuple[Image.Image, Image.Image]:
     """The thumbnails of a sample: kept ones from ``folder`` when there, else made from its files."""
-    name = str(sample.get("name", ""))
+    name = sample.name
     if folder is not None and thumb == THUMB:
         kept = (Path(folder) / f"{name}.image.png", Path(folder) / f"{name}.labels.png")
         if all(p.is_file() for p in kept):
@@ -114,7 +114,7 @@ def _sample_thumbnails(out_dir: Path, sample: Mapping[str, Any], folder: Path | 
 
 
 def overview_image(
-    out_dir: Path, samples: Sequence[Mapping[str, Any]], table: ClassTable, *, max_samples: int = OVERVIEW_SAMPLES,
+    out_dir: Path, samples: Sequence[SampleRecord], table: ClassTable, *, max_samples: int = OVERVIEW_SAMPLES,
     thumb: int = THUMB, kept: Path | None = None,
 ) -> Image.Image:
     """The contact sheet of the first ``max_samples`` samples (manifest entries) as a Pillow image.
@@ -141,7 +141,7 @@ def overview_image(
         mask = Image.fromarray(table.colorize(np.asarray(small_labels)))
         overlay = Image.blend(image, mask, 0.5)
         y = top + row * row_h
-        draw.text((MARGIN, y), str(sample.get("name", "")), fill=INK, font=font)
+        draw.text((MARGIN, y), sample.name, fill=INK, font=font)
         for col, picture in enumerate((image, mask, overlay)):
             sheet.paste(picture, (MARGIN + col * (thumb + MARGIN), y + LINE))
     legend_top = top + len(shown) * row_h
@@ -151,12 +151,12 @@ def overview_image(
 
 
 def write_overview(
-    out_dir: Path, samples: Sequence[Mapping[str, Any]], table: ClassTable, *, max_samples: int = OVERVIEW_SAMPLES,
+    out_dir: Path, samples: Sequence[SampleRecord], table: ClassTable, *, max_samples: int = OVERVIEW_SAMPLES,
     thumb: int = THUMB, kept: Path | None = None,
 ) -> Path:
     """Write ``OUT/overview.png`` (see :func:`overview_image`) atomically and return its path.
 
-    ``samples`` are manifest sample entries (:func:`osmseg.output.manifest.sample_entry`);
+    ``samples`` are the manifest's sample records (:class:`osmseg.output.manifest.SampleRecord`);
     their files must already be in ``out_dir``. ``kept``: a folder of thumbnails (see
     :func:`write_thumbnails`).
     """

@@ -33,7 +33,7 @@ OSM date of the manifest) to its latest OSM date. Never the time of writing: the
 manifest gives the same bytes (JSON as the manifest's: sorted keys, except that assets keep
 their order; indent 2; atomic).
 
-**Large builds.** ``manifest["samples"]`` may be any sequence of entries, also a lazy one that
+**Large builds.** ``manifest.samples`` may be any sequence of records, also a lazy one that
 reads each entry from disk as it is iterated: :func:`write_stac` iterates it three times (the
 manifest's shape; what STAC needs and the dates undated samples span; the items, made, written
 and dropped a sample at a time, the Collection's extent gathered on the way) and keeps only the
@@ -49,7 +49,7 @@ import os
 import re
 import warnings
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from fnmatch import fnmatch
@@ -72,7 +72,7 @@ from osmseg.grid import TILE_SIZE
 from osmseg.output.atomic import atomic_path, atomic_write_text, sync_file_system
 from osmseg.output.attribution import ATTRIBUTION_NAME, ODBL_URL, OSM_COPYRIGHT_URL, LabelSource
 from osmseg.output.datasheet import DATASHEET_NAME
-from osmseg.output.manifest import MANIFEST_NAME, build_identity, validate_manifest
+from osmseg.output.manifest import MANIFEST_NAME, AreaRecord, DatasetManifest, SampleRecord, check_sample_names
 from osmseg.output.overview import OVERVIEW_NAME
 
 STAC_DIR = "stac"
@@ -134,13 +134,13 @@ def classification(table: ClassTable) -> list[Classification]:
                                   description=UNLABELED_TEXT if c.id == table.unlabeled.id else None) for c, n in zip(classes, names)]
 
 
-def _numbers(value: Any, n: int, what: str) -> list[float]:
-    if not (isinstance(value, list) and len(value) == n and all(isinstance(v, (int, float)) for v in value)):
+def _numbers(value: tuple[float, ...] | None, n: int, what: str) -> list[float]:
+    if value is None or len(value) != n:
         raise DatasetError(f"manifest: {what} must be {n} numbers, got {value!r}")
     return [float(v) for v in value]
 
 
-def _date(value: Any, what: str) -> datetime | None:
+def _date(value: str | None, what: str) -> datetime | None:
     if value is None:
         return None
     try:
@@ -150,37 +150,39 @@ def _date(value: Any, what: str) -> datetime | None:
     return stamp if stamp.tzinfo else stamp.replace(tzinfo=timezone.utc)
 
 
-def _sample_dates(sample: dict[str, Any], known: tuple[datetime, ...]) -> tuple[datetime | None, ...]:
+def _sample_dates(sample: SampleRecord, known: tuple[datetime, ...]) -> tuple[datetime | None, ...]:
     """(datetime, start, end) of a sample: its OSM timestamp, else a span (see the module docstring);
     ``known``: the earliest and latest OSM date of the manifest (empty: none)."""
-    stamp = _date(sample["osm"].get("timestamp"), "osm.timestamp")
+    stamp = _date(sample.osm.timestamp, "osm.timestamp")
     if stamp is not None:
         return stamp, None, None
     if not known:
-        raise DatasetError(f"manifest: sample {sample['name']} has no OSM date, nor has any other: STAC needs one")
-    start = _date(sample["osm"].get("newest_element"), "osm.newest_element") or known[0]
+        raise DatasetError(f"manifest: sample {sample.name} has no OSM date, nor has any other: STAC needs one")
+    start = _date(sample.osm.newest_element, "osm.newest_element") or known[0]
     return None, start, max(start, known[-1])
 
 
-def _geometry(sample: dict[str, Any]) -> tuple[str, list[float], list[float], float, int]:
+def _geometry(sample: SampleRecord) -> tuple[str, list[float], list[float], float, int]:
     """(name, ``bbox_wgs84``, ``bounds_3857``, gsd, zoom) of a sample, checked."""
-    name = sample["name"]
-    if not (isinstance(name, str) and _NAME.fullmatch(name)):
+    name = sample.name
+    if not _NAME.fullmatch(name):
         raise DatasetError(f"manifest: sample name {name!r} is not a file stem ([A-Za-z0-9][A-Za-z0-9_.-]*)")
-    return (name, _numbers(sample["bbox_wgs84"], 4, f"sample {name} bbox_wgs84"),
-            _numbers(sample["bounds_3857"], 4, f"sample {name} bounds_3857"),
-            float(sample["ground_resolution_m"]), int(sample["zoom"]))
+    if sample.ground_resolution_m is None or sample.zoom is None:
+        raise DatasetError(f"manifest: sample {name} records no zoom or ground_resolution_m: STAC needs both")
+    return (name, _numbers(sample.bbox_wgs84, 4, f"sample {name} bbox_wgs84"),
+            _numbers(sample.bounds_3857, 4, f"sample {name} bounds_3857"),
+            float(sample.ground_resolution_m), sample.zoom)
 
 
-def _counts(sample: dict[str, Any], table: ClassTable) -> list[tuple[str, int]]:
+def _counts(sample: SampleRecord, table: ClassTable) -> list[tuple[str, int]]:
     """(class name, pixels) of a sample's ``class_histogram``, in class id order."""
-    histogram, by_name = sample["class_histogram"], table.by_name
-    if not isinstance(histogram, dict) or not set(histogram) <= set(by_name):
-        raise DatasetError(f"manifest: sample {sample['name']} class_histogram names classes the class table lacks")
+    histogram, by_name = sample.class_histogram, table.by_name
+    if not set(histogram) <= set(by_name):
+        raise DatasetError(f"manifest: sample {sample.name} class_histogram names classes the class table lacks")
     return [(c, int(histogram[c])) for c in sorted(histogram, key=lambda c: by_name[c].id)]
 
 
-def _asset_plan(name: str, files: dict[str, str]) -> list[tuple[str, str, str, str]]:
+def _asset_plan(name: str, files: Mapping[str, str]) -> list[tuple[str, str, str, str]]:
     """(asset key, file, sha256, folder) per file of a sample, in the label item's asset order:
     :data:`ASSET_KINDS` order, other files before ``images/``, a :data:`SIDECARS` file after its
     folder's raster. Keys by folder (``image_tif`` when a folder has two files; ``labels_style``
@@ -214,7 +216,7 @@ def _is_sidecar(path: PurePosixPath) -> bool:
     return len(path.parts) > 1 and path.suffix.lower() in SIDECARS
 
 
-def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classification], pixels: int,
+def _items(sample: SampleRecord, table: ClassTable, classes: list[Classification], pixels: int,
            known: tuple[datetime, ...], source: LabelSource) -> tuple[pystac.Item, pystac.Item]:
     """The (label item, image item) of a sample; the label item links the image item (rel ``source``)."""
     name, (w, s, e, n), (left, bottom, right, top), gsd, zoom = _geometry(sample)
@@ -232,7 +234,7 @@ def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classificati
     label_item, image_item = pair
     overview = LabelOverview({})
     overview.counts = [LabelCount.create(c, count) for c, count in _counts(sample, table)]
-    origin = str(sample["osm"].get("timestamp_from", ""))
+    origin = sample.osm.timestamp_from or ""
     when_text = (f"edited up to {when:%Y-%m-%d %H:%M} UTC (its newest element)" if when and origin == "newest element"
                  else f"of a file dated {when:%Y-%m-%d} (no edit times in it)" if when and "modification" in origin
                  else f"as of {when:%Y-%m-%d %H:%M} UTC" if when else f"edited {start:%Y-%m-%d} or later")
@@ -244,7 +246,7 @@ def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classificati
         label_type=LabelType.RASTER, label_properties=None,
         label_classes=[LabelClasses.create(sorted(table.by_id), None)],
         label_tasks=list(TASKS), label_methods=list(METHODS), label_overviews=[overview])
-    for key, rel, digest, folder in _asset_plan(name, sample["files"]):  # the images/ one in the image item too
+    for key, rel, digest, folder in _asset_plan(name, sample.files):  # the images/ one in the image item too
         sidecar = _is_sidecar(PurePosixPath(rel))
         kind: tuple[str, list[str], str | None] = ("", [], None)
         _, roles, title = SIDECARS[PurePosixPath(rel).suffix.lower()] if sidecar else ASSET_KINDS.get(folder, kind)
@@ -264,21 +266,21 @@ def _items(sample: dict[str, Any], table: ClassTable, classes: list[Classificati
     return label_item, image_item
 
 
-def _survey(manifest: dict[str, Any], table: ClassTable) -> tuple[list[str], tuple[datetime, ...]]:
+def _survey(manifest: DatasetManifest, table: ClassTable) -> tuple[list[str], tuple[datetime, ...]]:
     """Check every sample as :func:`_items` does (a faulty manifest writes no item); return their
     names and the earliest and latest OSM date of the manifest (empty: none), as ``sorted(dates)``
     has them first and last (of one instant in several time zones: the first, the last)."""
     names: list[str] = []
-    earliest = latest = _date(manifest["osm"].get("timestamp"), "osm.timestamp")
-    for sample in manifest["samples"]:
-        for k in ("timestamp", "newest_element"):
-            if (d := _date(sample["osm"].get(k), f"sample {sample['name']} osm.{k}")) is not None:
+    earliest = latest = _date(manifest.osm.timestamp, "osm.timestamp")
+    for sample in manifest.samples:
+        for k, value in (("timestamp", sample.osm.timestamp), ("newest_element", sample.osm.newest_element)):
+            if (d := _date(value, f"sample {sample.name} osm.{k}")) is not None:
                 earliest = d if earliest is None or d < earliest else earliest
                 latest = d if latest is None or d >= latest else latest
         names.append(name := _geometry(sample)[0])
         _counts(sample, table)
-        _asset_plan(name, sample["files"])
-    unique = set(names)  # validate_manifest checks
+        _asset_plan(name, sample.files)
+    unique = set(names)  # check_sample_names checks
     if clash := sorted(n for n in unique if n.endswith(IMAGE_ITEM_SUFFIX) and n[:-len(IMAGE_ITEM_SUFFIX)] in unique):
         raise DatasetError(f"manifest: sample name {clash[0]!r} is the image item id of sample "
                            f"{clash[0].removesuffix(IMAGE_ITEM_SUFFIX)!r}: rename one")
@@ -306,9 +308,9 @@ class _Facts:
                 self.definitions[key] = pystac.ItemAssetDefinition.create(
                     asset.title, None, asset.media_type, asset.roles, extra_fields=fields or None)
 
-    def describe(self, collection: pystac.Collection, area: dict[str, Any]) -> None:
+    def describe(self, collection: pystac.Collection, area: AreaRecord) -> None:
         """Set the Collection's extent, ``item_assets`` and item summaries."""
-        box = self.folded[:4] or _numbers(area.get("bbox") or [-180, -90, 180, 90], 4, "area.bbox")
+        box = self.folded[:4] or _numbers(area.bbox or (-180, -90, 180, 90), 4, "area.bbox")
         interval = self.folded[4:6] or [None, None]
         collection.extent = pystac.Extent(pystac.SpatialExtent([box]), pystac.TemporalExtent([interval]))
         collection.item_assets = self.definitions
@@ -317,40 +319,39 @@ class _Facts:
             collection.summaries.add("osmseg:zoom", sorted(self.zooms))
 
 
-def _providers(manifest: dict[str, Any]) -> list[pystac.Provider]:
-    imagery, osm, version = manifest["imagery"], manifest["osm"], manifest["tool"].get("version", "")
-    url = imagery.get("terms_url")  # not "url"/"template": those are tile URLs
-    notes = dict.fromkeys(str(imagery[k]) for k in ("attribution", "copyright", "terms") if imagery.get(k))
-    source = LabelSource.of(manifest)
-    labels = (pystac.Provider("OpenStreetMap contributors", osm.get("attribution") or "labels: OpenStreetMap data, "
+def _providers(manifest: DatasetManifest) -> list[pystac.Provider]:
+    imagery, osm, version = manifest.imagery, manifest.osm, manifest.tool.version or ""
+    url = imagery.terms_url  # not "url"/"template": those are tile URLs
+    notes = dict.fromkeys(note for note in (imagery.attribution, imagery.copyright, imagery.terms) if note)
+    source = LabelSource.of(osm)
+    labels = (pystac.Provider("OpenStreetMap contributors", osm.attribution or "labels: OpenStreetMap data, "
                               "ODbL 1.0", roles=[pystac.ProviderRole.LICENSOR, pystac.ProviderRole.PRODUCER],
                               url=OSM_COPYRIGHT_URL) if source.is_osm else
-              pystac.Provider(f"label source: {osm.get('path', 'GeoJSON file')}", source.notice,
+              pystac.Provider(f"label source: {osm.path or 'GeoJSON file'}", source.notice,
                               roles=[pystac.ProviderRole.LICENSOR, pystac.ProviderRole.PRODUCER]))
     return [
         labels,
-        pystac.Provider(str(imagery.get("name") or imagery.get("provider") or "imagery provider"),
+        pystac.Provider(imagery.name or imagery.provider or "imagery provider",
                         "; ".join(notes) or f"see {ATTRIBUTION_NAME}",
                         roles=[pystac.ProviderRole.LICENSOR, pystac.ProviderRole.PRODUCER],
-                        url=url if isinstance(url, str) and url.startswith(("https://", "http://")) else None),
+                        url=url if url and url.startswith(("https://", "http://")) else None),
         pystac.Provider("osmseg", f"osmseg {version} rasterised the OSM data on the imagery's tile grid; "
-                        f"command: {manifest['command']}", roles=[pystac.ProviderRole.PROCESSOR]),
+                        f"command: {manifest.command}", roles=[pystac.ProviderRole.PROCESSOR]),
     ]
 
 
-def _collection(manifest: dict[str, Any], table: ClassTable, classes: list[Classification], count: int,
+def _collection(manifest: DatasetManifest, table: ClassTable, classes: list[Classification], count: int,
                 pixels: int) -> pystac.Collection:
     """The Collection of ``count`` samples, without what comes from the items (:class:`_Facts`)."""
-    area = manifest["area"]
-    place = str(area.get("name") or "area")
-    labels = LabelSource.of(manifest)
-    identity = json.dumps(build_identity(manifest) or manifest["command"], sort_keys=True, ensure_ascii=False)
+    place = manifest.area.name or "area"
+    labels = LabelSource.of(manifest.osm)
+    identity = json.dumps(manifest.build_identity() or manifest.command, sort_keys=True, ensure_ascii=False)
     slug = re.sub(r"[^0-9a-z]+", "-", place.lower()).strip("-") or "area"
     extent = pystac.Extent(pystac.SpatialExtent([-180.0, -90.0, 180.0, 90.0]), pystac.TemporalExtent([None, None]))
     collection = pystac.Collection(
         id=f"osmseg-{slug}-{hashlib.sha256(identity.encode()).hexdigest()[:8]}",
-        title=f"osmseg: {place}, zoom {manifest['zoom']}, {count} samples",
-        description=(f"{count} aerial images of {place} ({pixels}x{pixels} px, zoom {manifest['zoom']}) with "
+        title=f"osmseg: {place}, zoom {manifest.zoom}, {count} samples",
+        description=(f"{count} aerial images of {place} ({pixels}x{pixels} px, zoom {manifest.zoom}) with "
                      f"per-pixel class ids rasterised by osmseg from {labels.name.replace('`', '')} (class table "
                      f"{table.name}). Labels: {labels.notice}; images under the imagery provider's terms "
                      f"(see {ATTRIBUTION_NAME}). How it was built: {MANIFEST_NAME}, {DATASHEET_NAME}."),
@@ -419,7 +420,7 @@ def _remove_stale_items(folder: Path, names: set[str]) -> None:
                 (folder / name).unlink(missing_ok=True)  # (two shards may finalise at once)
 
 
-def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
+def write_stac(out_dir: Path, manifest: DatasetManifest) -> Path:
     """Write ``OUT/stac/catalog.json``, ``collection.json`` and ``items/*.json``; return the Catalog's path.
 
     A pure function of ``manifest`` (reads no file); raises a one-line
@@ -428,8 +429,8 @@ def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
     as their item is written). Items are written before the Collection that lists them, the
     Collection before the Catalog; items of samples no longer listed are removed.
 
-    ``manifest["samples"]`` (any sequence) is iterated three times: by
-    :func:`~osmseg.output.manifest.validate_manifest`, by :func:`_survey` (the checks, the dates
+    ``manifest.samples`` (any sequence) is iterated three times: by
+    :func:`~osmseg.output.manifest.check_sample_names`, by :func:`_survey` (the checks, the dates
     undated samples span), then to make, write and drop each sample's two items, gathering the
     Collection's extent and summaries (:class:`_Facts`). Only the sample names stay in memory.
 
@@ -442,12 +443,12 @@ def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
     yet, and a rerun of the same build command rewrites the whole catalog (this is a pure
     function of the manifest). Where that cannot be asked (Windows), each item is fsynced.
     """
-    validate_manifest(manifest)
-    table = ClassTable.from_dict(manifest["classes"], where="manifest classes")
+    check_sample_names(manifest.samples)
+    table = manifest.classes
     classes = classification(table)
     try:
-        pixels = int(manifest["grid_size"]) * TILE_SIZE
-        source = LabelSource.of(manifest)
+        pixels = int(manifest.grid_size or 0) * TILE_SIZE
+        source = LabelSource.of(manifest.osm)
         names, known = _survey(manifest, table)
         collection = _collection(manifest, table, classes, len(names), pixels)  # the items hold its id and title
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
@@ -456,7 +457,7 @@ def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
     up = [pystac.Link(rel, f"../{target}", pystac.MediaType.JSON, collection.title)  # every item's links
           for rel, target in (("root", CATALOG_NAME), ("parent", COLLECTION_NAME), ("collection", COLLECTION_NAME))]
     facts = _Facts()
-    for sample in manifest["samples"]:
+    for sample in manifest.samples:
         pair = _items(sample, table, classes, pixels, known, source)  # checked by _survey
         facts.add(pair[0])
         for item in pair:
@@ -470,7 +471,7 @@ def write_stac(out_dir: Path, manifest: dict[str, Any]) -> Path:
             for item_id in (name, name + IMAGE_ITEM_SUFFIX):
                 with open(root / ITEMS_DIR / f"{item_id}.json", "rb") as f:
                     os.fsync(f.fileno())
-    facts.describe(collection, manifest["area"])
+    facts.describe(collection, manifest.area)
     catalog = pystac.Catalog(f"{collection.id}-catalog", title=collection.title,
                              description=f"osmseg dataset: Collection {collection.id}; per sample a label item NAME "
                                          f"whose source link is its image item NAME{IMAGE_ITEM_SUFFIX}.",

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import io
 import re
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import imagecodecs
 import numpy as np
@@ -51,6 +51,19 @@ PNG_FILTER_UP = 32
 #: than the default strategy at level 6, which takes ~15 ms); colour masks and photos are not.
 ZLIB_RLE = 3
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+
+
+@dataclass(frozen=True)
+class WrittenSample:
+    """What :func:`write_sample` wrote: each file (relative path) with its SHA-256, and the pixels
+    per class name of the labels (every class, zeros included)."""
+
+    files: dict[str, str]
+    class_histogram: dict[str, int]
+
+    def file_in(self, folder: str) -> str:
+        """The file written under ``folder`` (``images``, ``labels``, ...)."""
+        return next(rel for rel in self.files if rel.startswith(f"{folder}/"))
 
 
 def check_name(name: str) -> str:
@@ -176,12 +189,12 @@ def write_sample(
     image_format: str = "png",
     jpeg_quality: int = 95,
     valid: np.ndarray | None = None,
-) -> dict[str, Any]:
+) -> WrittenSample:
     """Write the five files of one sample atomically (``valid``: the pixels that have imagery,
     marked in a COG photo's mask; see :func:`encode_image_cog`).
 
-    Returns ``{"files": {relative path: sha256}, "class_histogram": {class name: pixels}}``
-    for the manifest (see :func:`osmseg.output.manifest.sample_entry`).
+    Returns the files with their SHA-256 and the pixels per class, for the manifest (see
+    :func:`osmseg.output.manifest.sample_entry`).
     """
     paths = sample_paths(name, image_format)
     shape = (grid.height, grid.width)
@@ -206,4 +219,4 @@ def write_sample(
     for rel, data in encoded.items():
         atomic_write_bytes(out_dir / rel, data)
         files[rel] = sha256_bytes(data)
-    return {"files": files, "class_histogram": histogram}
+    return WrittenSample(files=files, class_histogram=histogram)

@@ -82,14 +82,15 @@ def test_build_writes_a_dataset_whose_masks_line_up_with_the_imagery(tmp_path: P
     for extra in ("DATASHEET.md", "ATTRIBUTION.md", "overview.png", "class_histogram.png"):
         assert (out / extra).stat().st_size > 0
     # each build setting is written once (format 2), and together they are what decided the content
-    from osmseg.output.manifest import TOP_LEVEL_SETTINGS, build_identity, verify
+    from osmseg.output.manifest import TOP_LEVEL_SETTINGS, read_manifest, verify
 
     assert manifest["format_version"] == 2 and not set(manifest["config"]) & set(TOP_LEVEL_SETTINGS)
-    assert build_identity(manifest) == json.loads((out / ".osmseg-build" / "config.json").read_text())
+    identity = read_manifest(out).build_identity()
+    assert identity == json.loads((out / ".osmseg-build" / "config.json").read_text())
     # a format-1 manifest (every setting again in config) is still read and verified
-    old = dict(manifest, format_version=1, config=build_identity(manifest))
+    old = dict(manifest, format_version=1, config=identity)
     (out / "manifest.json").write_text(json.dumps(old, indent=2, sort_keys=True) + "\n")
-    assert verify(out) == [] and build_identity(old) == build_identity(manifest)
+    assert verify(out) == [] and read_manifest(out).build_identity() == identity
 
 
 def test_cog_images_and_labels_share_one_grid_and_are_cloud_optimized(tmp_path: Path, imagery_tif: Path) -> None:
@@ -216,8 +217,9 @@ def test_a_build_stops_when_another_command_takes_its_folder_over(tmp_path: Path
     from osmseg.builder.records import Attempt
     from osmseg.builder.state import BuildState
     from osmseg.errors import DatasetError
+    from osmseg.output.manifest import Point, RejectionRecord
 
-    rejected = Attempt.rejected({"center": {"lon": 0, "lat": 0}, "reason": "unlabeled", "detail": "all unlabeled"})
+    rejected = Attempt.rejected(RejectionRecord(Point(0, 0), "unlabeled", "all unlabeled"))
     first, second = BuildState(tmp_path), BuildState(tmp_path)
     first.check_config({"seed": 1})
     second.check_config({"seed": 2})  # nothing accepted yet: the folder is taken over

@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import mercantile
 import numpy as np
@@ -26,7 +26,6 @@ from osmseg.output import (
     rejection_entry,
     sample_entry,
     summary_entry,
-    validate_manifest,
     verify,
     write_attribution,
     write_class_histogram,
@@ -35,7 +34,15 @@ from osmseg.output import (
     write_overview,
     write_sample,
 )
-from osmseg.output.manifest import FORMAT, FORMAT_VERSION, Rejection, class_totals
+from osmseg.output.manifest import (
+    FORMAT_VERSION,
+    AreaRecord,
+    DatasetManifest,
+    Provenance,
+    Rejection,
+    ToolInfo,
+    class_totals,
+)
 from osmseg.output.overview import MARGIN, legend_height
 
 TABLE = load_class_table("classes13.toml")
@@ -71,7 +78,7 @@ def test_write_sample_is_byte_identical_on_rewrite(tmp_path: Path, sample_arrays
     second = write_sample(tmp_path / "b", "s0", rgb, labels, TABLE, GRID)
     again = write_sample(tmp_path / "a", "s0", rgb, labels, TABLE, GRID)  # over itself
     assert first == second == again
-    assert sorted(first["files"]) == ["geo/s0.qml", "geo/s0.tif", "images/s0.png", "labels/s0.png", "segmented/s0.png"]
+    assert sorted(first.files) == ["geo/s0.qml", "geo/s0.tif", "images/s0.png", "labels/s0.png", "segmented/s0.png"]
     a, b = files_in(tmp_path / "a"), files_in(tmp_path / "b")
     assert a == b
     assert not [name for name in a if Path(name).name.startswith(".")], "temp files left behind"
@@ -82,11 +89,11 @@ def test_returned_hashes_and_histogram_match_the_files(tmp_path: Path, sample_ar
 
     rgb, labels = sample_arrays
     out = write_sample(tmp_path, "s0", rgb, labels, TABLE, GRID)
-    for rel, digest in out["files"].items():
+    for rel, digest in out.files.items():
         assert hashlib.sha256((tmp_path / rel).read_bytes()).hexdigest() == digest
     counts = np.bincount(labels.ravel(), minlength=TABLE.num_classes)
-    assert out["class_histogram"] == {TABLE.by_id[i].name: int(counts[i]) for i in range(TABLE.num_classes)}
-    assert sum(out["class_histogram"].values()) == 1280 * 1280
+    assert out.class_histogram == {TABLE.by_id[i].name: int(counts[i]) for i in range(TABLE.num_classes)}
+    assert sum(out.class_histogram.values()) == 1280 * 1280
 
 
 def test_pngs_decode_to_the_inputs(tmp_path: Path, sample_arrays) -> None:
@@ -111,13 +118,13 @@ def test_jpeg_images_are_deterministic_and_faithful(tmp_path: Path, sample_array
     rgb, labels = sample_arrays
     a = write_sample(tmp_path / "a", "s0", rgb, labels, TABLE, GRID, image_format="jpg")
     b = write_sample(tmp_path / "b", "s0", rgb, labels, TABLE, GRID, image_format="jpg")
-    assert a == b and "images/s0.jpg" in a["files"]
+    assert a == b and "images/s0.jpg" in a.files
     with Image.open(tmp_path / "a/images/s0.jpg") as im:
         assert im.format == "JPEG" and "exif" not in im.info
         decoded = np.asarray(im).astype(int)
     assert np.abs(decoded - rgb).mean() < 2.0
     low = write_sample(tmp_path / "c", "s0", rgb, labels, TABLE, GRID, image_format="jpg", jpeg_quality=30)
-    assert low["files"]["images/s0.jpg"] != a["files"]["images/s0.jpg"]
+    assert low.files["images/s0.jpg"] != a.files["images/s0.jpg"]
 
 
 def test_geotiff_is_georeferenced_and_holds_the_labels(tmp_path: Path, sample_arrays) -> None:
@@ -203,7 +210,7 @@ def test_a_failed_write_leaves_the_old_file_intact(tmp_path: Path, sample_arrays
 # --- manifest ----------------------------------------------------------------------------
 
 
-def build_dataset(out: Path, n: int = 3, image_format: str = "png") -> dict[str, Any]:
+def build_dataset(out: Path, n: int = 3, image_format: str = "png") -> DatasetManifest:
     """Write ``n`` samples and the manifest the way the builder does."""
     samples, rejected = [], []
     centres = [(13.40 + 0.01 * i, 52.52 - 0.01 * i) for i in range(n)]
@@ -215,43 +222,33 @@ def build_dataset(out: Path, n: int = 3, image_format: str = "png") -> dict[str,
     rejected.append(rejection_entry(13.5, 52.4, Rejection("unlabeled", "91.0% unlabeled >= 70.0%"), attempt=1))
     rejected.append(rejection_entry(13.6, 52.3, Rejection("unlabeled", "75.5% unlabeled >= 70.0%"), attempt=2))
     rejected.append(rejection_entry(13.7, 52.2, Rejection("low_contrast", "grey-level std 2.1 < 8"), attempt=4))
-    manifest = {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "tool": {"name": "osmseg", "version": "0.1.0"},
-        "command": command_line(["osmseg", "build", "--city", "Berlin", "--samples", str(n), "--seed", "7"]),
-        "seed": 7,
-        "area": {"name": "Berlin", "kind": "urban", "lat": 52.52, "lon": 13.405, "radius_km": 5.0, "bbox": None},
-        "zoom": 18,
-        "grid_size": 5,
-        "image_format": image_format,
-        "classes": TABLE.to_dict(),
-        "filters": FilterConfig().to_dict(),
-        "imagery": IMAGERY,
-        "osm": OSM,
-        "samples": samples,
-        "rejected": rejected,
-        "summary": summary_entry(samples, rejected, requested=n, max_attempts=10 * n),
-    }
+    manifest = DatasetManifest(
+        format_version=FORMAT_VERSION, tool=ToolInfo("osmseg", "0.1.0"),
+        command=command_line(["osmseg", "build", "--city", "Berlin", "--samples", str(n), "--seed", "7"]), seed=7,
+        area=AreaRecord(name="Berlin", kind="urban", lat=52.52, lon=13.405, radius_km=5.0), zoom=18, grid_size=5,
+        image_format=image_format, classes=TABLE, filters=FilterConfig().to_dict(), imagery=Provenance(IMAGERY),
+        osm=Provenance(OSM), samples=samples, rejected=rejected,
+        summary=summary_entry(samples, rejected, requested=n, max_attempts=10 * n))
     write_manifest(out, manifest)
     return manifest
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory) -> tuple[Path, dict[str, Any]]:
+def dataset(tmp_path_factory) -> tuple[Path, DatasetManifest]:
     out = tmp_path_factory.mktemp("ds") / "berlin"
     return out, build_dataset(out)
 
 
 def test_sample_entry_records_where_and_what(dataset) -> None:
-    _, manifest = dataset
-    s = manifest["samples"][0]
+    out, _ = dataset
+    written = json.loads((out / "manifest.json").read_text())  # what a user reads
+    s = written["samples"][0]
     assert s["center"] == {"lon": 13.40, "lat": 52.52}
     grid = sample_grid(13.40, 52.52, zoom=18)
     assert s["bbox_wgs84"] == list(grid.bbox) and s["bounds_3857"] == list(grid.xy_bounds)
     assert len(s["tiles"]) == 25 and s["tiles"][12]["quadkey"] == mercantile.quadkey(mercantile.tile(13.40, 52.52, 18))
     assert s["osm"]["timestamp"] == OSM_TIME and s["imagery"] == IMAGERY
-    assert manifest["summary"] == {
+    assert written["summary"] == {
         "requested": 3, "accepted": 3, "rejected": 3, "attempts": 6, "max_attempts": 30,
         "rejected_by_reason": {"unlabeled": 2, "low_contrast": 1}, "complete": True,
     }
@@ -260,12 +257,13 @@ def test_sample_entry_records_where_and_what(dataset) -> None:
 def test_manifest_is_deterministic_sorted_json(tmp_path: Path, dataset) -> None:
     out, manifest = dataset
     text = (out / "manifest.json").read_bytes()
-    write_manifest(tmp_path, json.loads(text))
+    assert text.decode() == json.dumps(manifest.to_json(), sort_keys=True, indent=2, ensure_ascii=False) + "\n"
+    write_manifest(tmp_path, read_manifest(out))
     assert (tmp_path / "manifest.json").read_bytes() == text
     assert text.endswith(b"}\n")
     keys = list(json.loads(text))
     assert keys == sorted(keys)
-    assert read_manifest(out) == manifest
+    assert read_manifest(out).to_json() == manifest.to_json()
 
 
 def test_verify_accepts_an_intact_dataset_and_catches_changes(tmp_path: Path) -> None:
@@ -294,15 +292,16 @@ def test_malformed_manifests_are_reported_in_one_line(tmp_path: Path, dataset) -
     (tmp_path / "manifest.json").write_text("{not json")
     with pytest.raises(DatasetError, match="not valid JSON"):
         read_manifest(tmp_path)
-    broken = {k: v for k, v in manifest.items() if k != "seed"}
+    broken = {k: v for k, v in manifest.to_json().items() if k != "seed"}
     with pytest.raises(DatasetError, match=r"missing keys \['seed'\]"):
-        validate_manifest(broken)
-    escaping = json.loads(json.dumps(manifest))
-    escaping["samples"][0]["files"] = {"../../etc/passwd": "0"}
+        DatasetManifest.from_json(broken)
+    escaping = manifest.to_json()
+    escaping["samples"][0]["files"] = {"../../etc/passwd": "0"}  # type: ignore[call-overload,index]
     with pytest.raises(DatasetError, match="outside the dataset"):
-        validate_manifest(escaping)
+        DatasetManifest.from_json(escaping)
+    nan = replace(manifest, samples=[replace(manifest.samples[0], ground_resolution_m=float("nan"))])
     with pytest.raises(DatasetError, match="not JSON-serialisable"):
-        write_manifest(tmp_path, {"x": float("nan")})
+        write_manifest(tmp_path, nan)
 
 
 def test_command_line_drops_secrets() -> None:
@@ -325,13 +324,13 @@ def test_datasheet_is_filled_with_the_builds_numbers(dataset) -> None:
     for section in ("Motivation", "Composition", "Collection process", "Preprocessing / cleaning / labeling",
                     "Uses", "Distribution", "Maintenance"):
         assert f"\n## {section}\n" in text
-    totals = class_totals(manifest["samples"])
+    totals = class_totals(manifest.samples)
     all_px = 3 * 1280 * 1280
     assert sum(totals.values()) == all_px
     water = totals["water"]
     assert f"| 8 | water | #77f2f2 (119, 242, 242) | {water:,} | {100 * water / all_px:.2f}% |" in text
     assert "3 samples (requested 3)" in text
-    assert "seed 7" in text and manifest["command"] in text
+    assert "seed 7" in text and manifest.command in text
     assert "zoom 18: 0.363 m per pixel" in text  # cos(52.5°) * 0.597 m
     ids = [int(line.split("|")[1]) for line in text.splitlines() if line.startswith("  | ") and "#" in line]
     assert ids == list(range(14))  # classes listed by id
@@ -349,8 +348,8 @@ def test_attribution_names_odbl_and_the_imagery_terms(dataset) -> None:
     assert "© OpenStreetMap contributors" in text and "ODbL" in text and "Derivative Database" in text
     assert "Produced Work" in text and "https://www.openstreetmap.org/copyright" in text
     assert "Provider: **xyz**" in text and "Imagery © Example Aerial Co." in text
-    bing = {**manifest, "imagery": {"provider": "bing", "attribution": "Imagery © Microsoft",
-                                    "copyright": "© 2024 Maxar", "brand_logo_uri": "https://dev.example/logo.png"}}
+    bing = replace(manifest, imagery=Provenance({"provider": "bing", "attribution": "Imagery © Microsoft",
+                                                 "copyright": "© 2024 Maxar", "brand_logo_uri": "https://dev.example/logo.png"}))
     text = write_attribution(out, bing).read_text(encoding="utf-8")
     assert "Copyright: © 2024 Maxar" in text and "logo" in text
 
@@ -360,7 +359,7 @@ def test_attribution_names_odbl_and_the_imagery_terms(dataset) -> None:
 
 def test_overview_shows_samples_and_a_full_legend(tmp_path: Path, dataset) -> None:
     out, manifest = dataset
-    path = write_overview(out, manifest["samples"], TABLE, max_samples=2, thumb=64)
+    path = write_overview(out, manifest.samples, TABLE, max_samples=2, thumb=64)
     first = path.read_bytes()
     with Image.open(path) as im:
         sheet = np.asarray(im.convert("RGB"))
@@ -375,9 +374,9 @@ def test_overview_shows_samples_and_a_full_legend(tmp_path: Path, dataset) -> No
         small = np.asarray(im.resize((64, 64), Image.Resampling.NEAREST))
     top = MARGIN + 14 + 4 + 14
     assert np.array_equal(sheet[top:top + 64, 2 * MARGIN + 64:2 * MARGIN + 128], TABLE.colorize(small))
-    write_overview(out, manifest["samples"], TABLE, max_samples=2, thumb=64)
+    write_overview(out, manifest.samples, TABLE, max_samples=2, thumb=64)
     assert path.read_bytes() == first
-    gone = [{"name": "x", "files": {"images/x.png": "0", "labels/x.png": "0"}}]
+    gone = [replace(manifest.samples[0], name="x", files={"images/x.png": "0", "labels/x.png": "0"})]
     with pytest.raises(DatasetError, match="missing"):
         write_overview(out, gone, TABLE)
 

@@ -16,7 +16,8 @@ import hashlib
 import json
 import shutil
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any, overload
@@ -49,7 +50,8 @@ from osmseg.demo.render import render_aerial
 from osmseg.errors import DatasetError
 from osmseg.grid import sample_grid
 from osmseg.osm.features import read_features
-from osmseg.output.stac import write_stac
+from osmseg.output.manifest import DatasetManifest, RejectionRecord, SampleRecord
+from osmseg.output.stac import write_stac as write_typed_stac
 from osmseg.rasterize import rasterize
 
 TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
@@ -312,6 +314,11 @@ def test_same_dataset_gives_identical_stac_bytes_and_the_folder_moves(built: tup
 
 # -- write_stac on hand-written manifests ------------------------------------------------------
 
+def write_stac(out: Path, manifest: dict[str, Any] | DatasetManifest) -> Path:
+    """:func:`osmseg.output.stac.write_stac` of a manifest as it is read: from its JSON, checked."""
+    return write_typed_stac(out, manifest if isinstance(manifest, DatasetManifest) else DatasetManifest.from_json(manifest))
+
+
 def manifest_of(*samples: dict[str, Any]) -> dict[str, Any]:
     return {
         "format": "osmseg-dataset", "format_version": 1, "tool": {"name": "osmseg", "version": "0.1.0"},
@@ -379,8 +386,8 @@ def test_write_stac_is_repeatable_and_drops_items_of_removed_samples(tmp_path: P
     assert sorted(p.name for p in (tmp_path / "stac" / "items").iterdir()) == ["a_2.json", "a_2_image.json"]
 
 
-class Entry(dict[str, Any]):
-    """A sample entry that counts how many are alive (CPython frees it as soon as nothing refers to it)."""
+class Entry(SampleRecord):
+    """A sample record that counts how many are alive (CPython frees it as soon as nothing refers to it)."""
 
     alive = 0
 
@@ -388,29 +395,31 @@ class Entry(dict[str, Any]):
         Entry.alive -= 1
 
 
-class LazySamples(Sequence[dict[str, Any]]):
-    """Entries decoded from JSON text at every access, as a build's finaliser reads them from disk:
+class LazySamples(Sequence[Any]):
+    """Records decoded from JSON text at every access, as a build's finaliser reads them from disk:
     counts the reads of each entry and the most entries alive at once."""
 
-    def __init__(self, entries: list[dict[str, Any]]) -> None:
+    def __init__(self, entries: list[dict[str, Any]], read: Callable[[Any], Any] = Entry.from_json) -> None:
         self.texts = [json.dumps(e) for e in entries]
         self.reads = [0] * len(entries)
         self.most_alive = 0
+        self.read = read
 
     def __len__(self) -> int:
         return len(self.texts)
 
     @overload
-    def __getitem__(self, i: int) -> dict[str, Any]: ...
+    def __getitem__(self, i: int) -> Any: ...
     @overload
-    def __getitem__(self, i: slice) -> list[dict[str, Any]]: ...
-    def __getitem__(self, i: int | slice) -> dict[str, Any] | list[dict[str, Any]]:
+    def __getitem__(self, i: slice) -> list[Any]: ...
+    def __getitem__(self, i: int | slice) -> Any:
         if isinstance(i, slice):
             return [self[j] for j in range(*i.indices(len(self)))]
         self.reads[i] += 1
-        entry = Entry(json.loads(self.texts[i]))
-        Entry.alive += 1
-        self.most_alive = max(self.most_alive, Entry.alive)
+        entry = self.read(json.loads(self.texts[i]))
+        if isinstance(entry, Entry):
+            Entry.alive += 1
+            self.most_alive = max(self.most_alive, Entry.alive)
         return entry
 
 
@@ -418,10 +427,10 @@ def test_write_stac_reads_a_lazy_sequence_of_samples_a_few_times(tmp_path: Path)
     entries = [sample("a_1", None, newest="2019-04-21T09:50:14Z"), sample("a_2", "2024-05-01T12:00:00Z"),
                sample("a_3", None)]
     write_stac(tmp_path / "list", manifest_of(*entries))
-    manifest = manifest_of(*entries)
-    lazy = manifest["samples"] = LazySamples(entries)
-    manifest["rejected"] = LazySamples([{"center": {"lon": 24.9, "lat": 60.2}, "reason": "unlabeled", "detail": "-"}])
-    write_stac(tmp_path / "lazy", manifest)
+    lazy = LazySamples(entries)
+    rejected = LazySamples([{"center": {"lon": 24.9, "lat": 60.2}, "reason": "unlabeled", "detail": "-"}],
+                           RejectionRecord.from_json)
+    write_stac(tmp_path / "lazy", replace(DatasetManifest.from_json(manifest_of()), samples=lazy, rejected=rejected))
     tree, again = ({p.relative_to(root).as_posix(): p.read_bytes() for p in sorted((root / "stac").rglob("*"))
                     if p.is_file()} for root in (tmp_path / "list", tmp_path / "lazy"))
     assert again == tree and len(tree) == 8

@@ -221,8 +221,7 @@ def dataset_class_table(root: Path, classes: str | None = None) -> ClassTable:
         return load_class_table(str(classes))
     root = Path(root)
     if manifest_path(root).is_file():
-        manifest = read_manifest(root)
-        return ClassTable.from_dict(manifest["classes"], f"{manifest_path(root)} classes")
+        return read_manifest(root).classes
     if (root / "classes.toml").is_file():
         return load_class_table(str(root / "classes.toml"))
     raise DatasetError(f"{root}: no manifest.json or classes.toml says what the label ids mean; "
@@ -239,8 +238,7 @@ def dataset_resolution(root: Path, files: Sequence[SampleFiles]) -> float | None
     values: list[float] = []
     if manifest_path(Path(root)).is_file():
         try:
-            values = [float(s["ground_resolution_m"]) for s in read_manifest(Path(root))["samples"]
-                      if "ground_resolution_m" in s]
+            values = [float(v) for v in read_manifest(Path(root)).ground_resolutions()]
         except (DatasetError, ValueError, TypeError):
             values = []  # measured from the images below; training does not need it
     if not values:

@@ -300,10 +300,9 @@ def sample_groups(root: Path, names: Iterable[str], images: Mapping[str, Path] |
     boxes: dict[str, tuple[float, ...]] = {}
     if manifest_path(Path(root)).is_file():
         try:
-            for s in read_manifest(Path(root))["samples"]:
-                b = s.get("bounds_3857")
-                if isinstance(b, list) and len(b) == 4 and all(isinstance(v, (int, float)) for v in b):
-                    boxes[str(s["name"])] = tuple(float(v) for v in b)
+            for s in read_manifest(Path(root)).samples:
+                if (box := s.bounds()) is not None:
+                    boxes[s.name] = tuple(float(v) for v in box)
         except DatasetError:
             boxes = {}  # footprints from the images below; validation reports the manifest
     for name in names:

@@ -111,14 +111,10 @@ def dataset_places(dataset: Path | None) -> dict[str, GroundPlace]:
     if dataset is None or not manifest_path(dataset).is_file():
         return {}
     places = {}
-    for sample in read_manifest(dataset).get("samples", []):
-        try:
-            bounds = sample.get("bounds_3857")
-            places[str(sample["name"])] = GroundPlace(
-                float(sample["ground_resolution_m"]),
-                (float(bounds[0]), float(bounds[1]), float(bounds[2]), float(bounds[3])) if bounds else None)
-        except (KeyError, TypeError, ValueError, IndexError):
+    for sample in read_manifest(dataset).samples:
+        if sample.ground_resolution_m is None:
             continue  # a sample without its place is predicted at its own pixel size, and said so
+        places[sample.name] = GroundPlace(float(sample.ground_resolution_m), sample.bounds())
     return places
 
 

@@ -23,12 +23,12 @@ import math
 import signal
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, TypedDict, cast
+from typing import Any
 
 import numpy as np
 import torch
@@ -85,8 +85,10 @@ SETTINGS_ADDED = {"balanced_crops": 0.0, "arch": "segnet", "encoder_lr": 1.0, "f
                   "dice": 0.0, "crop_scale": 1.0, "jitter": 0.1}
 
 
-class EpochRow(TypedDict):
-    """One epoch of a run: a row of its log.csv (losses None when no batch had a labelled pixel)."""
+@dataclass(frozen=True)
+class EpochRow:
+    """One epoch of a run: a row of its log.csv (losses None when no batch had a labelled pixel;
+    the validation metrics None when the epoch had none)."""
 
     epoch: int
     lr: float
@@ -95,6 +97,17 @@ class EpochRow(TypedDict):
     val_miou: float | None
     val_pixel_accuracy: float | None
     seconds: float
+
+    @classmethod
+    def from_row(cls, row: Mapping[str, float | None]) -> EpochRow:
+        """The row as the loop and the checkpoints' ``history`` keep it (a dict per epoch)."""
+        def number(key: str) -> float | None:
+            value = row.get(key)
+            return None if value is None else float(value)
+
+        return cls(epoch=int(row["epoch"] or 0), lr=float(row["lr"] or 0.0), train_loss=number("train_loss"),
+                   val_loss=number("val_loss"), val_miou=number("val_miou"),
+                   val_pixel_accuracy=number("val_pixel_accuracy"), seconds=float(row.get("seconds") or 0.0))
 
 
 @dataclass(frozen=True)
@@ -487,7 +500,6 @@ def _run(config: TrainConfig, d: Dist, teardown: ExitStack, progress: Progress |
                         rounded(train_loss, 4), rounded(val_loss, 4), metrics["miou"])
         barrier()
     files_out.close()
-    rows = tuple(cast("EpochRow", h) for h in history)
-    best_row = max((h for h in rows if h.get("val_miou") is not None), key=lambda h: h.get("val_miou") or 0.0,
-                   default=None)
+    rows = tuple(EpochRow.from_row(h) for h in history)
+    best_row = max((h for h in rows if h.val_miou is not None), key=lambda h: h.val_miou or 0.0, default=None)
     return TrainResult(out_dir=config.out_dir, history=rows, best=best_row, rank=d.rank, choice=choice_note(recipe))

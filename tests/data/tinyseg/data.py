@@ -7,7 +7,7 @@ Run it again to regenerate the files (deterministic from ``SEED``; no network)::
 
 Twelve 128x160 samples (``tinyseg_000`` .. ``tinyseg_011``), each ``images/NAME.png`` (RGB),
 ``labels/NAME.png`` (class ids, mode L), ``segmented/NAME.png`` (class colours), and a
-``manifest.json`` that passes ``osmseg.output.manifest.validate_manifest`` (synthetic
+``manifest.json`` (format version 1) that ``osmseg.output.manifest.read_manifest`` reads (synthetic
 placeholders where a real build records places and providers) with the class table below.
 
 Each scene: a grass background, one road band across the image (horizontal or vertical),
