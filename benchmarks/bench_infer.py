@@ -59,7 +59,7 @@ sys.path.insert(0, str(ROOT))
 
 from training.inference.predict import predict_file  # noqa: E402
 from training.inference.tiling import WindowGrid  # noqa: E402
-from training.inference.windows import DEFAULT_OVERLAP_FRACTION, predict_array  # noqa: E402
+from training.inference.windows import DEFAULT_OVERLAP_FRACTION, InferenceOptions, predict_array  # noqa: E402
 from training.models.networks import Network, build_model, model_spec  # noqa: E402
 from training.models.spec import ModelSpec  # noqa: E402
 
@@ -203,8 +203,8 @@ def tiny_model() -> tuple[Network, ModelSpec]:
 
 def geotiff_run(model: Network, spec: ModelSpec, out: Path, mode: str, join: str, batch: int,
                 block: int | None) -> Result:
-    return measure(lambda: predict_file(model, spec, MANILA, out, mode=mode, join=join, batch_size=batch,
-                                        block_size=block))
+    options = InferenceOptions(mode=mode, join=join, batch_size=batch, block_size=block)
+    return measure(lambda: predict_file(model, spec, MANILA, out, options))
 
 
 def child_main(args: argparse.Namespace) -> None:

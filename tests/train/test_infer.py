@@ -28,7 +28,7 @@ from osmseg.output.geotiff import read_class_table
 from osmseg.runtime.progress import Step
 from training.inference.predict import predict_file
 from training.inference.tiling import WindowGrid, blend_weight, letterbox
-from training.inference.windows import predict_array
+from training.inference.windows import InferenceOptions, predict_array
 from training.models.spec import ModelSpec
 
 torch.set_num_threads(1)
@@ -297,7 +297,7 @@ def test_geotiff_in_geotiff_out_keeps_georeference(tmp_path) -> None:
     image, truth = blocky(333, 517, 19, list(COLOURS), seed=9)
     write_tif(tmp_path / "in.tif", image)
     out = predict_file(ColourModel(spec), spec, tmp_path / "in.tif", tmp_path / "out" / "mask.tif",
-                       colour_dst=tmp_path / "out" / "colour.png", block_size=200)
+                       InferenceOptions(block_size=200), colour_dst=tmp_path / "out" / "colour.png")
     with rasterio.open(tmp_path / "in.tif") as src, rasterio.open(out) as ds:
         assert ds.crs == CRS.from_epsg(32633) == src.crs and ds.transform == src.transform
         assert (ds.count, ds.dtypes[0], ds.width, ds.height) == (1, "uint8", 517, 333)
@@ -351,7 +351,7 @@ def test_geotiff_block_wise_equals_whole_image(tmp_path, join: str) -> None:
     model = ContextModel(spec)
     image, _ = blocky(900, 1100, 29, list(COLOURS), seed=10)
     write_tif(tmp_path / "in.tif", image, tiled=True, blockxsize=128, blockysize=128, compress="deflate")
-    predict_file(model, spec, tmp_path / "in.tif", tmp_path / "mask.tif", join=join, block_size=300,
+    predict_file(model, spec, tmp_path / "in.tif", tmp_path / "mask.tif", InferenceOptions(join=join, block_size=300),
                  colour_dst=tmp_path / "colour.tif")
     with rasterio.open(tmp_path / "mask.tif") as ds:
         blocks = ds.read(1)
@@ -365,7 +365,8 @@ def test_rescale_geotiff(tmp_path) -> None:
     spec = make_spec()
     image, truth = blocky(700, 1000, 60, BRIGHT, seed=11)
     write_tif(tmp_path / "in.tif", image)
-    predict_file(ColourModel(spec), spec, tmp_path / "in.tif", tmp_path / "mask.tif", mode="rescale", block_size=256)
+    predict_file(ColourModel(spec), spec, tmp_path / "in.tif", tmp_path / "mask.tif",
+                 InferenceOptions(mode="rescale", block_size=256))
     with rasterio.open(tmp_path / "mask.tif") as ds:
         pred = ds.read(1)
         assert ds.transform == from_origin(500000, 5100000, 0.5, 0.5) and ds.crs == CRS.from_epsg(32633)
@@ -382,7 +383,7 @@ def test_png_and_jpeg_in_png_out(tmp_path) -> None:
     with Image.open(tmp_path / "mask.png") as mask:
         assert mask.mode == "L" and np.array_equal(np.asarray(mask), truth)
     assert np.array_equal(np.asarray(Image.open(tmp_path / "c.png")), spec.palette()[truth])
-    predict_file(ColourModel(spec), spec, tmp_path / "in.jpg", tmp_path / "jmask.png", mode="rescale")
+    predict_file(ColourModel(spec), spec, tmp_path / "in.jpg", tmp_path / "jmask.png", InferenceOptions(mode="rescale"))
     jpeg = np.asarray(Image.open(tmp_path / "jmask.png"))
     assert jpeg.shape == truth.shape and (jpeg == truth).mean() > 0.9
 
@@ -442,7 +443,7 @@ def test_unreadable_inputs_give_one_line_errors_and_no_output(tmp_path) -> None:
     with pytest.raises(ConfigError, match=".jpg"):
         predict_file(model, spec, tmp_path / "whole.png", tmp_path / "mask.jpg")
     with pytest.raises(ConfigError, match="mode"):
-        predict_file(model, spec, tmp_path / "whole.png", tmp_path / "mask.png", mode="tiles")
+        predict_file(model, spec, tmp_path / "whole.png", tmp_path / "mask.png", InferenceOptions(mode="tiles"))
     with pytest.raises(ConfigError, match="overwrite"):
         predict_file(model, spec, tmp_path / "whole.tif", tmp_path / "whole.tif")
 
@@ -456,7 +457,7 @@ def test_manila_orthophoto_blockwise_equals_whole_and_keeps_georeference(tmp_pat
     peaks = {}
     for name, block_size in (("blocks", 1024), ("whole", None)):
         tracemalloc.start()
-        predict_file(model, spec, src, tmp_path / f"{name}.tif", block_size=block_size)
+        predict_file(model, spec, src, tmp_path / f"{name}.tif", InferenceOptions(block_size=block_size))
         peaks[name] = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
     print(f"\nmanila 2048x2048, blend, {NUM_CLASSES} classes: peak traced memory "
@@ -468,7 +469,7 @@ def test_manila_orthophoto_blockwise_equals_whole_and_keeps_georeference(tmp_pat
     with rasterio.open(tmp_path / "whole.tif") as b:
         assert np.array_equal(blocks, b.read(1))
     assert peaks["blocks"] < peaks["whole"] / 2
-    predict_file(model, spec, src, tmp_path / "rescale.tif", mode="rescale")
+    predict_file(model, spec, src, tmp_path / "rescale.tif", InferenceOptions(mode="rescale"))
     with rasterio.open(tmp_path / "rescale.tif") as r:
         assert r.crs == CRS.from_epsg(3395) and r.shape == (2048, 2048)
 

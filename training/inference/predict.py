@@ -168,22 +168,22 @@ def predict_files(config: PredictConfig, progress: Progress | None = None) -> li
     warn_resolutions([(str(src), known_resolution(src, places.get(src))) for src in config.inputs], spec, resolution_m)
     config.out_dir.mkdir(parents=True, exist_ok=True)
     written = []
+    options = InferenceOptions(config.mode, config.join, config.overlap, config.tta, config.batch_size, config.device,
+                               config.block_size)
     for src in track(config.inputs, progress, "predict", unit="image"):  # each image's windows: its own task
         dst, colour = config.outputs(src)
-        written.append(predict_file(model, spec, src, dst, colour_dst=colour, mode=config.mode, join=config.join,
-                                    overlap=config.overlap, block_size=config.block_size, tta=config.tta,
-                                    batch_size=config.batch_size, device=config.device, progress=progress,
+        written.append(predict_file(model, spec, src, dst, options, colour_dst=colour, progress=progress,
                                     resolution_m=resolution_m, place=places.get(src), warn=False))
     return written
 
 
-def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: str | Path, *,
-                 colour_dst: str | Path | None = None, mode: str = "split-join", join: str = "blend",
-                 overlap: int | tuple[int, int] | None = None, tta: bool = False, batch_size: int = 4,
-                 device: str = "cpu", block_size: int | None = DEFAULT_BLOCK,
+def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: str | Path,
+                 options: InferenceOptions | None = None, *, colour_dst: str | Path | None = None,
                  progress: Progress | None = None, resolution_m: float | None = None,
                  place: GroundPlace | None = None, warn: bool = True) -> Path:
-    """Predict ``src`` (PNG/JPEG/GeoTIFF or any GDAL raster) into a class-id mask at ``dst``.
+    """Predict ``src`` (PNG/JPEG/GeoTIFF or any GDAL raster) into a class-id mask at ``dst``, as
+    ``options`` say (split-join or rescale, the join, overlap, TTA, batch, device, block size;
+    :class:`~training.inference.windows.InferenceOptions`' defaults when None).
 
     ``dst`` ending in .png gets an 8-bit greyscale PNG of class ids (the whole mask is held in
     memory); ending in .tif a Cloud-Optimized GeoTIFF with the source's CRS and transform, the
@@ -198,7 +198,8 @@ def predict_file(model: torch.nn.Module, spec: ModelSpec, src: str | Path, dst: 
     cannot apply (False: the caller said it, once for all inputs: :func:`warn_resolutions`).
     Writes are atomic. Returns ``dst``.
     """
-    options = InferenceOptions(mode, join, overlap, tta, batch_size, device, block_size)
+    options = options if options is not None else InferenceOptions()
+    block_size = options.block_size
     src, dst = Path(src), Path(dst)
     out_kind = _kind(dst, "the mask")
     colour = Path(colour_dst) if colour_dst is not None else None
