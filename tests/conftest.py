@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import fcntl
 import json
+import os
 import re
-from collections.abc import Mapping, Sequence
+import shutil
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -107,6 +110,46 @@ def imagery_tif(tmp_path_factory: pytest.TempPathFactory) -> Path:
             reproject(rgb[band], rasterio.band(dst, band + 1), src_transform=grid.transform,
                       src_crs="EPSG:3857", dst_transform=transform, dst_crs=dst_crs)
     return path
+
+
+def made_once(tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable[[Path], None]) -> Path:
+    """The folder ``name`` that ``make(folder)`` fills, made once per test run and shared by every
+    process of it: under pytest-xdist each worker has its own temporary folder, all in one parent,
+    so the first worker to ask makes it there holding a lock, and the others wait for it and read
+    it. For long read-only results several modules use; a test that changes files copies them
+    first (``shutil.copytree``). A ``make`` that fails is tried again, afresh, by the next asker."""
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    folder, done = root / name, root / f"{name}.done"
+    with (root / f"{name}.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not done.exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            make(folder)
+            done.touch()
+    return folder
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``osmseg demo --no-train`` as a new user runs it (4 Helsinki samples replayed, 12 rendered
+    panoramas localized, pictures drawn): ``demo/`` (dataset/ and localize/) and the command's
+    ``stdout.txt`` and ``stderr.txt`` beside it. Session-scoped and made once for all workers
+    (:func:`made_once`): half a minute of CPU that test_demo, test_data, test_loc_pictures and
+    test_printed_tables each paid before. Read only: test_demo's ``verify`` checks every file's
+    sha256 against the manifest, so a test that wrote into it would be caught."""
+    def make(folder: Path) -> None:
+        from click.testing import CliRunner
+
+        from osmseg.cli.main import cli
+
+        result = CliRunner().invoke(cli, ["demo", "--out", str(folder / "demo"), "--no-train"])
+        assert result.exit_code == 0, result.output
+        (folder / "stdout.txt").write_text(result.stdout)
+        (folder / "stderr.txt").write_text(result.stderr)
+
+    return made_once(tmp_path_factory, "demo-run", make)
 
 
 # tests/data/*/data.py are generator scripts (run by hand), not test modules

@@ -16,12 +16,12 @@ from osmseg.cli.main import cli
 from osmseg.demo import DEMO_CASSETTE, DEMO_SAMPLES
 
 
-def test_demo_builds_offline_and_says_what_it_used(tmp_path: Path) -> None:
-    out = tmp_path / "demo" / "dataset"
-    result = CliRunner().invoke(cli, ["demo", "--out", str(tmp_path / "demo"), "--no-train"])
-    assert result.exit_code == 0, result.output
-    assert result.stdout.strip() == str(out / "manifest.json")
-    assert "Helsinki" in result.stderr and DEMO_CASSETTE.name in result.stderr and str(out) in result.stderr
+def test_demo_builds_offline_and_says_what_it_used(demo_run: Path) -> None:
+    """``osmseg demo --no-train`` (run once for the session: conftest's ``demo_run``)."""
+    out = demo_run / "demo" / "dataset"
+    stdout, stderr = (demo_run / "stdout.txt").read_text(), (demo_run / "stderr.txt").read_text()
+    assert stdout.strip() == str(out / "manifest.json")
+    assert "Helsinki" in stderr and DEMO_CASSETTE.name in stderr and str(out) in stderr
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["summary"]["accepted"] == DEMO_SAMPLES
     assert manifest["imagery"]["provider"] == "bing" and manifest["osm"]["source"] == "api"
@@ -44,12 +44,12 @@ def test_demo_builds_offline_and_says_what_it_used(tmp_path: Path) -> None:
     unknown = CliRunner().invoke(cli, ["verify", str(out), "--alignment", "lava"])
     assert unknown.exit_code == 2 and "'lava': not a class of this dataset; use one of building" in unknown.output
     # then panoramas rendered from those masks were localized in them, with pictures
-    loc = tmp_path / "demo" / "localize"
+    loc = demo_run / "demo" / "localize"
     results = json.loads((loc / "results.json").read_text())
     assert results["summary"]["n"] == DEMO_VIEWPOINTS and {r["scene"] for r in results["viewpoints"]} == {
         s["name"] for s in manifest["samples"]}
     assert sorted(p.name for p in (loc / "views").glob("*_map.png"))[:1] == ["0000_helsinki_00000_map.png"]
-    assert (loc / "errors.png").stat().st_size > 1000 and "rendered panoramas" in result.stderr
+    assert (loc / "errors.png").stat().st_size > 1000 and "rendered panoramas" in stderr
 
 
 def test_version_and_help() -> None:

@@ -24,11 +24,9 @@ from osmseg.units import column, metres, number
 
 
 @pytest.fixture(scope="module")
-def demo_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("tables") / "demo"
-    built = CliRunner().invoke(cli, ["-q", "demo", "--out", str(out), "--no-train", "--no-localize"])
-    assert built.exit_code == 0, built.output
-    return out / "dataset"
+def demo_dataset(demo_run: Path) -> Path:
+    """The dataset ``osmseg demo`` builds (conftest's ``demo_run``, made once for the session)."""
+    return demo_run / "demo" / "dataset"
 
 
 def check_method_tables(printed: str, results: dict, unit: str) -> None:

@@ -246,7 +246,10 @@ def test_a_tile_folder_is_not_needed_where_samples_may_lack_imagery(tmp_path: Pa
 
 
 def test_a_server_with_no_imagery_there_is_named_in_the_final_error(tmp_path: Path, http_server) -> None:
-    result = run(*build_args(tmp_path / "ds", "xyz:" + http_server.url("/t/{z}/{x}/{y}.png"), "--max-tries", "2"))
+    # a tile's 404 is asked 3 times before it counts as "no imagery", 0.5 s then 1 s apart by default:
+    # 0.01 s here (the waits are tests/test_http.py's; this test is about the final error)
+    result = run(*build_args(tmp_path / "ds", "xyz:" + http_server.url("/t/{z}/{x}/{y}.png"), "--max-tries", "2",
+                             "--retry-delay", "0.01"))
     assert result.exit_code == 1, result.output  # every tile answered 404
     line = error_line(result)
     assert "all 4 attempts were rejected for missing imagery" in line, line

@@ -163,8 +163,7 @@ def test_ctrl_c_while_a_build_with_workers_starts_says_one_line(tmp_path: Path, 
     still importing, while the pool forks its workers, or while they open their sources: exit 130
     and no traceback from any of the processes, however early it comes."""
     out = tmp_path / "ds"
-    proc = subprocess.Popen([sys.executable, "-m", "osmseg", "-q",
-                             *build_args(out, imagery_tif, "--workers", "2", samples=24)],
+    proc = subprocess.Popen([sys.executable, "-m", "osmseg", "-q", *build_args(out, imagery_tif, "--workers", "2")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60
@@ -181,7 +180,8 @@ def test_ctrl_c_while_a_build_with_workers_starts_says_one_line(tmp_path: Path, 
     _, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr.decode()
     assert "Traceback" not in stderr.decode() and "Exception in initializer" not in stderr.decode(), stderr.decode()
-    result = run_cli(*build_args(out, imagery_tif, "--workers", "2", samples=24))  # and the folder resumes
+    # and the folder resumes (6 samples: every moment above comes before a worker has built its first one)
+    result = run_cli(*build_args(out, imagery_tif, "--workers", "2"))
     assert result.exit_code == 0, result.output
 
 def test_shards_started_at_once_on_one_folder_make_the_one_process_dataset(

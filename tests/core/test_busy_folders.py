@@ -40,11 +40,12 @@ sys.stdin.read()
 """
 
 
-@pytest.fixture
-def building(tmp_path: Path) -> Iterator[tuple[Path, int]]:
+@pytest.fixture(scope="module")
+def building(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, int]]:
     """``(dataset, pid)``: tinyseg as a first build leaves it midway (images and labels of its first
-    samples, no manifest yet), held by process ``pid``."""
-    data = tmp_path / "ds"
+    samples, no manifest yet), held by process ``pid``. Module-scoped (one holding process, not one
+    per command): every test checks that its command left the folder as it found it."""
+    data = tmp_path_factory.mktemp("held") / "ds"
     for folder in ("images", "labels"):
         (data / folder).mkdir(parents=True)
         for name in ("tinyseg_000.png", "tinyseg_001.png"):

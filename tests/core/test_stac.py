@@ -34,7 +34,7 @@ from pystac.extensions.file import FileExtension
 from pystac.extensions.projection import ProjectionExtension
 from pystac.utils import make_absolute_href
 from pystac.validation.local_validator import get_local_schema_cache
-from rasterio.warp import calculate_default_transform, reproject, transform_bounds
+from rasterio.warp import transform_bounds
 from referencing import Registry, Resource
 from shapely.geometry import box
 
@@ -44,15 +44,10 @@ with warnings.catch_warnings():  # pystac flags the label extension as unmaintai
 
 from conftest import TEST_DATA
 
-from osmseg.classes import load_class_table
 from osmseg.cli.main import cli
-from osmseg.demo.render import render_aerial
 from osmseg.errors import DatasetError
-from osmseg.grid import sample_grid
-from osmseg.osm.features import read_features
 from osmseg.output.manifest import DatasetManifest, RejectionRecord, SampleRecord
 from osmseg.output.stac import write_stac as write_typed_stac
-from osmseg.rasterize import rasterize
 
 TINYCITY = TEST_DATA / "tinycity" / "tinycity.osm"
 LON, LAT = 24.94, 60.17
@@ -86,23 +81,13 @@ def build(out: Path, imagery: Path) -> dict[str, Any]:
 
 
 @pytest.fixture(scope="module")
-def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict[str, Any]]:
-    """The same 3-sample dataset built twice, in two folders; and its manifest."""
-    table = load_class_table("classes13.toml")
-    grid = sample_grid(LON, LAT, 18, size=9)
-    rgb = render_aerial(rasterize(read_features([TINYCITY], grid, table), grid, table), seed=3).transpose(2, 0, 1)
-    transform, width, height = calculate_default_transform("EPSG:3857", "EPSG:3067", grid.width, grid.height,
-                                                           *grid.xy_bounds)
-    imagery = tmp_path_factory.mktemp("imagery") / "tinycity-tm35fin.tif"
-    with rasterio.open(imagery, "w", driver="GTiff", width=width, height=height, count=3, dtype="uint8",
-                       crs="EPSG:3067", transform=transform) as dst:
-        for band in range(3):
-            reproject(rgb[band], rasterio.band(dst, band + 1), src_transform=grid.transform,
-                      src_crs="EPSG:3857", dst_transform=transform, dst_crs="EPSG:3067")
+def built(tmp_path_factory: pytest.TempPathFactory, imagery_tif: Path) -> tuple[Path, Path, dict[str, Any]]:
+    """The same 3-sample dataset built twice, in two folders, from conftest's ``imagery_tif`` (tinycity
+    painted into a GeoTIFF in EPSG:3067); and its manifest."""
     first = tmp_path_factory.mktemp("first") / "ds"
     second = tmp_path_factory.mktemp("second") / "elsewhere"
-    manifest = build(first, imagery)
-    assert build(second, imagery) == manifest
+    manifest = build(first, imagery_tif)
+    assert build(second, imagery_tif) == manifest
     return first, second, manifest
 
 

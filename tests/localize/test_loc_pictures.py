@@ -34,14 +34,10 @@ WHITE = 250  # lighter than this, in every channel, is the page
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The output folder of ``osmseg demo --no-train`` (dataset/ and localize/)."""
-    from osmseg.cli.main import cli
-
-    out = tmp_path_factory.mktemp("pictures") / "demo"
-    result = CliRunner().invoke(cli, ["-q", "demo", "--out", str(out), "--no-train"])
-    assert result.exit_code == 0, result.output
-    return out
+def demo(demo_run: Path) -> Path:
+    """The output folder of ``osmseg demo --no-train`` (dataset/ and localize/; conftest's
+    ``demo_run``, made once for the session)."""
+    return demo_run / "demo"
 
 
 def _pixels(path: Path) -> np.ndarray:

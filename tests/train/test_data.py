@@ -377,15 +377,9 @@ def test_median_frequency_weights_by_hand() -> None:
 
 # ------------------------------------------------------------------------ osmseg demo output
 @pytest.fixture(scope="module")
-def demo_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from click.testing import CliRunner
-
-    from osmseg.cli.main import cli
-
-    out = tmp_path_factory.mktemp("demo") / "demo"
-    result = CliRunner().invoke(cli, ["-q", "demo", "--out", str(out), "--no-train", "--no-localize"])
-    assert result.exit_code == 0, result.output
-    return out / "dataset"
+def demo_dataset(demo_run: Path) -> Path:
+    """The dataset ``osmseg demo`` builds (conftest's ``demo_run``, made once for the session)."""
+    return demo_run / "demo" / "dataset"
 
 
 def test_osmseg_demo_output_loads(demo_dataset: Path) -> None:

@@ -63,6 +63,29 @@ def classifier() -> torch.nn.Module:
     return imagenet_classifier()
 
 
+#: The training both the recipe test and the resume test check: lite0's recipe, the packaged ImageNet
+#: weights, the moving average of the weights handed on as model.pt, and the options of its encoder.
+EMA_TRAINING = ("--epochs", 2, *LITE0, "--init", "imagenet", "--freeze-bn", "--encoder-lr", "0.1", "--dice", "1",
+                "--ema", "0.99")
+
+
+@pytest.fixture(scope="module")
+def ema_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Result]:
+    """``osmseg train ... EMA_TRAINING`` run once, never stopped, in this process on one torch thread (as
+    ``OMP_NUM_THREADS=1`` gives a subprocess, so the resume test's processes compute in the same order):
+    the run's folder and the command's result. Module-scoped: the recipe test reads it, the resume
+    test compares its own killed and resumed run with it."""
+    run = tmp_path_factory.mktemp("lite0") / "run"
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        result = osmseg("train", TINYSEG, "--out", run, "--config", TINY, *EMA_TRAINING)
+    finally:
+        torch.set_num_threads(threads)
+    assert result.exit_code == 0, result.output
+    return run, result
+
+
 def test_the_packaged_weights_classify_photos_as_imagenet_does(classifier: torch.nn.Module) -> None:
     data = pytest.importorskip("skimage.data")
     with torch.inference_mode():
@@ -116,14 +139,12 @@ def test_imagenet_init_loads_the_installed_weights_and_records_their_hash(tmp_pa
     assert all(torch.equal(encoder[k], packaged[k]) for k in encoder)
 
 
-def test_trains_with_its_recipe_and_hands_on_the_averaged_weights(tmp_path: Path) -> None:
+def test_trains_with_its_recipe_and_hands_on_the_averaged_weights(ema_run: tuple[Path, Result],
+                                                                  tmp_path: Path) -> None:
     """The lite0 recipe by default; with --ema model.pt is the moving average (not last.pt's weights),
     the summary says so, predict and eval take the run's folder; --freeze-bn and --encoder-lr
     do what they say."""
-    run = tmp_path / "run"
-    result = osmseg("train", TINYSEG, "--out", run, "--config", TINY, "--epochs", 2, *LITE0, "--init", "imagenet",
-                    "--freeze-bn", "--encoder-lr", "0.1", "--dice", "1", "--ema", "0.99")
-    assert result.exit_code == 0, result.output
+    run, result = ema_run
     assert json.loads(result.stdout.strip().splitlines()[-1])["model"] == str(run / "model.pt")
     last, handed = load_checkpoint(run / "last.pt"), load_checkpoint(run / "model.pt")
     config = last["config"]
@@ -172,9 +193,9 @@ def test_a_run_folder_without_model_pt_names_its_checkpoints(tmp_path: Path) -> 
     assert "without model.pt" in result.output and str(run / "best.pt") in result.output
 
 
-def test_a_killed_run_resumes_to_the_same_average(tmp_path: Path) -> None:
+def test_a_killed_run_resumes_to_the_same_average(ema_run: tuple[Path, Result], tmp_path: Path) -> None:
     """SIGKILL after epoch 1 of 2 and rerun: model.pt (the moving average) and last.pt hold the
-    same weights as a run never stopped (the average's state is in last.pt)."""
+    same weights as the run never stopped (``ema_run``; the average's state is in last.pt)."""
     import signal
     import subprocess
     import sys
@@ -184,10 +205,9 @@ def test_a_killed_run_resumes_to_the_same_average(tmp_path: Path) -> None:
 
     def command(run: Path) -> list[str]:
         return [sys.executable, "-m", "osmseg", "-q", "train", str(TINYSEG), "--out", str(run), "--config", str(TINY),
-                "--epochs", "2", *LITE0, "--init", "imagenet", "--ema", "0.9"]
+                *(str(a) for a in EMA_TRAINING)]
 
-    reference = tmp_path / "reference"
-    subprocess.run(command(reference), env=env, check=True, capture_output=True, timeout=600)
+    reference, _ = ema_run
     run = tmp_path / "run"
     with (tmp_path / "stderr.txt").open("wb") as err:
         proc = subprocess.Popen(command(run), env=env, stdout=subprocess.DEVNULL, stderr=err)
