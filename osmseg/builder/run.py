@@ -242,6 +242,7 @@ def _build_slots(ctx: BuildContext, env: dict[str, str], progress: Progress | No
     summary.pending_other_shards = sum(not state.has_slot(s) for s in range(config.samples))
     if summary.pending_other_shards == 0:
         state.check_owner()  # the folder was deleted meanwhile (or taken where there are no locks)
+        sweep_work_area(config.out_dir)  # again: a killed build's worker may have outlived the first sweep
         whole = finalize(config, pipe.table, state, pipe.imagery.describe(), pipe.osm.describe(), command_line)
         summary.dataset_accepted = whole.accepted or 0  # every shard's samples, not only ours
         summary.duplicates = whole.duplicate_samples or 0

@@ -64,6 +64,7 @@ from osmseg.errors import DatasetError
 from osmseg.grid import LngLatBBox
 from osmseg.net.http import HttpClient
 from osmseg.osm.base import RegionSource
+from osmseg.output.atomic import remove_own_temp_files
 from osmseg.output.overview import OVERVIEW_SAMPLES
 from osmseg.runtime.processes import interrupts_deferred, stop_unless_deferred, worker_context
 
@@ -113,7 +114,9 @@ def _die_with_build(pid: int) -> None:
     end the pool gave it, so neither a parent-death signal nor an end-of-file would reach it: a
     killed build would leave its workers blocked forever. A thread waits on a pidfd of the build
     (Linux), or polls it elsewhere, and exits the process when the build is gone. Every write of
-    a worker is atomic, so stopping it anywhere loses nothing but the slot in progress.
+    a worker is atomic, so stopping it anywhere loses nothing but the slot in progress; the
+    temporary files it was writing go with it (a resumed build may have swept the folder while
+    this worker still lived, and kept them as a live writer's).
     """
     if os.name == "nt":  # os.kill(pid, 0) would send the build a Ctrl-C there; spawn's pipes end workers
         return
@@ -134,6 +137,7 @@ def _die_with_build(pid: int) -> None:
                     break
                 except PermissionError:  # the pid was reused by someone else's process
                     break
+        remove_own_temp_files()  # the build that resumes may have swept already, while this worker lived
         os._exit(1)
 
     threading.Thread(target=watch, name="osmseg-watch-build", daemon=True).start()

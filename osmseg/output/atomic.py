@@ -16,6 +16,7 @@ import os
 import re
 import sys
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -54,6 +55,11 @@ def _owner() -> str:
     return owner()
 
 
+#: the temporary files :func:`atomic_path` blocks of this process are writing now
+_WRITING: set[Path] = set()
+_WRITING_LOCK = threading.Lock()
+
+
 def temp_path_for(path: Path) -> Path:
     """A fresh hidden temporary file beside ``path`` (created empty; the caller replaces or removes it).
 
@@ -64,6 +70,31 @@ def temp_path_for(path: Path) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{_owner()}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     return Path(tmp)
+
+
+def remove_own_temp_files() -> int:
+    """Remove the temporary files this process's :func:`atomic_path` blocks are writing; how many.
+
+    For a process about to end at once (``os._exit``: a build worker whose build was killed): its
+    files would otherwise outlive it, and a sweep that ran while it was still alive (the resumed
+    build's, started at once) has left them, as a live writer's.
+
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> try:
+    ...     with atomic_path(folder / "a.png") as tmp:
+    ...         removed = remove_own_temp_files()
+    ... except FileNotFoundError:  # its file is gone: os._exit would have followed
+    ...     pass
+    >>> removed, sorted(p.name for p in folder.iterdir())
+    (1, [])
+    """
+    with _WRITING_LOCK:
+        writing = list(_WRITING)
+        _WRITING.clear()
+    for tmp in writing:
+        tmp.unlink(missing_ok=True)
+    return len(writing)
 
 
 def sweep_temp_files(folder: Path, named_only: bool = False) -> int:
@@ -108,6 +139,8 @@ def atomic_path(path: Path) -> Iterator[Path]:
     try:
         with deferred_termination():  # a SIGTERM between creating the file and naming it here would leave it
             tmp = temp_path_for(path)
+            with _WRITING_LOCK:
+                _WRITING.add(tmp)
         yield tmp
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
@@ -115,6 +148,10 @@ def atomic_path(path: Path) -> Iterator[Path]:
         if tmp is not None:
             tmp.unlink(missing_ok=True)
         raise
+    finally:
+        if tmp is not None:
+            with _WRITING_LOCK:
+                _WRITING.discard(tmp)
 
 
 def atomic_write_bytes(path: Path, data: bytes, durable: bool = True) -> Path:

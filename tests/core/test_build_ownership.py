@@ -421,3 +421,40 @@ def test_a_ctrl_c_or_sigterm_while_signals_are_held_arrives_as_the_block_ends() 
     finally:
         signal.signal(signal.SIGTERM, before[0])
         signal.signal(signal.SIGINT, before[1])
+
+
+ORPHAN = r"""
+import sys, threading, time
+from pathlib import Path
+from osmseg.builder.workers import _die_with_build
+from osmseg.output.atomic import atomic_path
+
+_die_with_build(int(sys.argv[1]))  # as a build worker does in its initializer
+with atomic_path(Path(sys.argv[2]) / "bbox_00000.png") as tmp:
+    tmp.write_bytes(b"\x89PNG half a sample")
+    print(tmp, flush=True)
+    time.sleep(60)  # still writing when its build is killed
+"""
+
+
+def test_a_worker_whose_build_is_killed_takes_its_half_written_file_with_it(tmp_path: Path) -> None:
+    """``kill -9`` of a build: its workers end at once (they watch the build's pid) and remove the
+    files they were writing, so a resumed build that swept the folder while they still lived (and
+    kept their files, as a live writer's) is not left with their litter (was: a
+    ``images/.bbox_00000.png.HOST-PID.*.tmp`` in the resumed dataset, now and then under load)."""
+    build = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    images = tmp_path / "images"
+    images.mkdir()
+    worker = subprocess.Popen([sys.executable, "-c", ORPHAN, str(build.pid), str(images)], stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        half = Path(worker.stdout.readline().strip())  # type: ignore[union-attr]
+        assert half.is_file() and half.name.startswith(".bbox_00000.png.") and half.suffix == ".tmp"
+        build.kill()
+        build.wait()
+        assert worker.wait(timeout=30) == 1  # os._exit(1): the worker ended with its build
+        assert sorted(p.name for p in images.iterdir()) == []  # and took its half-written file with it
+    finally:
+        for proc in (build, worker):
+            proc.kill()
+            proc.wait()
