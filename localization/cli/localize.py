@@ -172,7 +172,7 @@ def region_moved(func: F) -> F:
 @MIN_SIZE(default=50, show_default=True)
 @GRID_STRIDE(default=50, show_default=True)
 @REFERENCE()
-@TRUTH(detail=": X,Y in aerial pixels.")
+@TRUTH(detail=", as X,Y in aerial pixels.")
 @AERIAL_RESOLUTION(dest="resolution", show_default="a GeoTIFF's, or the dataset manifest's")
 @JSON()
 @OUT(detail=" of localization.png, aerial_graph.png, ground_graph.png and result.json.")

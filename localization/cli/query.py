@@ -31,7 +31,8 @@ GROUND_TABLE = declare("--ground-table", help="Class table of the ground mask.")
 AERIAL_TABLE = declare("--aerial-table", help="Class table of the aerial side, e.g. classes13.toml.")
 GROUND_CHECKPOINT = declare("--ground-checkpoint", type=click.Path(exists=True, path_type=Path),
                             help="Segment the ground RGB image with this checkpoint first (needs PyTorch).")
-TRUTH = declare("--truth", dest="truth_text", help="Where the ground view was really taken: reports the error")
+TRUTH = declare("--truth", dest="truth_text", metavar="POINT",
+               help="Where the ground view was really taken, to report the answer's error")
 JSON = declare("--json", dest="as_json", is_flag=True, help="Print the result as JSON instead of a table.")
 TILT = declare("--tilt", dest="tilt_deg", type=click.FloatRange(0, 10),
                help="Profile method: the camera may be tilted up to this many degrees in pitch and roll; the tilt is "

@@ -120,7 +120,7 @@ def aerial_moved(func: F) -> F:
 @CACHE_DIR(show_default="$OSMSEG_CACHE_DIR or ~/.cache/osmseg",
            detail=": the drawn region, so the next query of it is not drawn again.")
 @AERIAL_LANDMARKS(default="aerial13", show_default=True)
-@AERIAL_TABLE(default="classes13.toml", show_default=True, detail=" The region is drawn in it.")
+@AERIAL_TABLE(default="classes13.toml", show_default=True, detail=": the classes the region is drawn in.")
 @GROUND_LANDMARKS(default="camvid", show_default=True)
 @GROUND_TABLE(show_default="the dictionary's own")
 @GROUND_SIZE()
@@ -129,7 +129,7 @@ def aerial_moved(func: F) -> F:
 @MIN_SIZE(default=50, show_default=True)
 @GRID_STRIDE(default=50, show_default=True)
 @TOP_K(default=5, show_default=True)
-@TRUTH(detail=": LON,LAT in degrees.")
+@TRUTH(detail=", as LON,LAT in degrees.")
 @JSON()
 @OUT(detail=" of region.geojson and region.png.")
 @HEADING(default="0", show_default=True)
