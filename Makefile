@@ -20,10 +20,16 @@ demo: $(VENV)/.installed
 test: $(VENV)/.installed
 	$(BIN)/lint-imports
 	$(BIN)/ruff check .
-	$(BIN)/mypy
-	# one test process per core, an idle one taking queued tests from a busy one (worksteal: the
-	# long end-to-end tests do not leave a core waiting at the end), and the 20 slowest named
-	$(BIN)/pytest -q -n auto --dist worksteal --durations=20
+	# the type checker runs beside the tests (its cold start is half a minute of one core, and the
+	# tests leave a core idle while they wait on the processes they start), its report printed after
+	# theirs; either failing fails the target. The tests: one process per core, an idle one taking
+	# queued tests from a busy one (worksteal: the long end-to-end tests do not leave a core waiting
+	# at the end), and the 20 slowest named
+	@report=$$(mktemp); echo "$(BIN)/mypy (beside the tests; its report follows theirs)"; \
+	$(BIN)/mypy >"$$report" 2>&1 & checker=$$!; \
+	$(BIN)/pytest -q -n auto --dist worksteal --durations=20; tests=$$?; \
+	wait $$checker; types=$$?; echo "$(BIN)/mypy:"; cat "$$report"; rm -f "$$report"; \
+	[ $$tests -eq 0 ] && [ $$types -eq 0 ]
 
 # the long end-to-end cases make test leaves out (CI runs both): learning to a bar, two trainings for
 # RGB localization, the docs' cheap figures measured again, benchmarks on real data

@@ -3,6 +3,7 @@
 Keys travel in query parameters (:data:`SECRET_PARAMS`), in request headers
 (:data:`SECRET_HEADERS`) or as ``user:password@`` in a URL.  :func:`redact` replaces their
 values with ``REDACTED`` in any text; call it before a URL reaches a message, a log or a file.
+:func:`command_line` quotes a command with its secrets removed (the manifest records it).
 :func:`install_log_redaction` puts the same cleaning on the loggers of urllib3, requests,
 requests-cache and vcrpy, which log URLs at debug level, so ``-v`` is safe.
 
@@ -14,6 +15,8 @@ from __future__ import annotations
 
 import logging
 import re
+import shlex
+from collections.abc import Sequence
 
 #: Query parameters that carry keys or tokens (Bing, Azure Maps, Mapbox, Esri, MapTiler,
 #: Thunderforest, HERE, Jawg, OpenWeatherMap, MapTilesAPI, generic).  Redaction and cassettes
@@ -84,3 +87,37 @@ def install_log_redaction(*own_loggers: str) -> None:
         named = logging.getLogger(name)
         if _REDACTING_FILTER not in named.filters:
             named.addFilter(_REDACTING_FILTER)
+
+
+_SECRET_OPTION = re.compile(r"(?i)^--?[\w-]*(key|token|secret|password)[\w-]*$")
+
+
+def command_line(argv: Sequence[str]) -> str:
+    """The command that made the dataset, shell-quoted, with secrets removed.
+
+    Values of options named like ``--*key*``/``--*token*``/``--*secret*``/``--*password*``
+    become ``REDACTED``, and every other argument goes through :func:`osmseg.redact.redact`
+    (secret URL parameters such as ``key=``/``access_token=``, passwords in URLs).
+
+    >>> command_line(["osmseg", "build", "--bing-key", "abc", "--api-token=xyz", "--seed", "3"])
+    'osmseg build --bing-key REDACTED --api-token=REDACTED --seed 3'
+    >>> print(command_line(["osmseg", "build", "--imagery", "xyz:https://t.example/{z}/{x}/{y}?key=SECRET"]))
+    osmseg build --imagery 'xyz:https://t.example/{z}/{x}/{y}?key=REDACTED'
+    """
+    out: list[str] = []
+    hide_next = False
+    for arg in argv:
+        if hide_next:
+            out.append("REDACTED")
+            hide_next = False
+            continue
+        option, eq, _ = arg.partition("=")
+        if _SECRET_OPTION.match(option):
+            if eq:
+                out.append(f"{option}=REDACTED")
+            else:
+                out.append(arg)
+                hide_next = True
+            continue
+        out.append(redact(arg))
+    return shlex.join(out)

@@ -20,8 +20,7 @@ from tqdm import tqdm
 from osmseg.cli.drawers import PROGRESS_DEFAULT, progress_mode
 from osmseg.cli.options import PROGRESS, QUIET, VERBOSE
 from osmseg.errors import ConfigError, OsmsegError
-from osmseg.output.manifest import command_line
-from osmseg.redact import RedactingFilter
+from osmseg.redact import RedactingFilter, command_line
 from osmseg.runtime.processes import INTERRUPTED, TERMINATED, Terminated
 
 F = TypeVar("F", bound=Callable[..., Any])

@@ -5,7 +5,9 @@ does the fork server that ``osmseg build --workers N`` makes its workers from
 (:mod:`osmseg.runtime.processes`). Started from the builder, the server imports only once the command
 has finished importing, and the workers begin that much later. This entry point reads just
 enough of the command line to see a build with several workers coming, starts the server, and
-only then imports :mod:`osmseg.cli.main`, so the two import side by side on two cores.
+only then imports :mod:`osmseg.cli.main` and the module of the command named (the group loads
+each command when asked for it), so the two import side by side on two cores, and a Ctrl-C or
+SIGTERM during the imports ends in the command's one line and status.
 
 Reading the line is a guess that never changes what runs: click still parses it in full, and a
 wrong guess costs only an idle server, which ends with the command (or 0.4 s later workers).
@@ -48,8 +50,7 @@ def builds_with_workers(args: Sequence[str], cores: int | None = None) -> bool:
     >>> builds_with_workers(["verify", "build"], cores=8), builds_with_workers([], cores=8)
     (False, False)
     """
-    words = [a for a in args if not a.startswith("-")]
-    if not words or words[0] != "build" or "--help" in args or "-h" in args:
+    if command_word(args) != "build" or "--help" in args or "-h" in args:
         return False
     workers = None
     for i, arg in enumerate(args):
@@ -64,6 +65,16 @@ def builds_with_workers(args: Sequence[str], cores: int | None = None) -> bool:
     if wanted == 0:  # the default: every core this process may use
         wanted = available_cores() if cores is None else cores
     return wanted > 1
+
+
+def command_word(args: Sequence[str]) -> str | None:
+    """The command ``osmseg ARGS`` names: the first word that is not an option (the group's own
+    options take no value), or None.
+
+    >>> command_word(["-q", "--no-progress", "localize", "--help"]), command_word(["-v"])
+    ('localize', None)
+    """
+    return next((a for a in args if not a.startswith("-")), None)
 
 
 def main() -> None:
@@ -84,7 +95,13 @@ def main() -> None:
             except OSError:  # no room for its socket, no file descriptors left: the build tries again, and says why
                 pass
         with signals_held():  # not inside a compiled module's start (see signals_held)
+            import click
+
             from osmseg.cli.main import cli  # after the server has started: the reason for this module
+
+            word = command_word(sys.argv[1:])  # its command's imports too, before click catches a Ctrl-C
+            if word is not None:
+                cli.get_command(click.Context(cli), word)
     except KeyboardInterrupt:  # Ctrl-C before the command runs: the line and exit status of one, no traceback
         _end(INTERRUPTED, 130)
     except Terminated:

@@ -1,12 +1,14 @@
 """The ``osmseg`` command: a click group, with each package's commands as plugins (as rasterio's ``rio``).
 
-The core's own commands (``build``, ``verify``) are added here; ``train``, ``predict`` and
+The core's own commands (``build``, ``verify``: :data:`CORE_COMMANDS`) are named here; ``train``, ``predict`` and
 ``eval`` (:mod:`training.cli`), ``localize`` (:mod:`localization.cli.localize`), ``localize-region``
 (:mod:`localization.cli.region`), ``localize-bench``
 and ``localize-pairs`` (:mod:`localization.cli.bench`) and ``demo`` (:mod:`localization.cli.demo`)
 register themselves through the ``osmseg.commands``
-entry points of pyproject.toml and are loaded by click-plugins, so the core never imports the
-packages above it. A plugin that fails to load shows up as a command that says why.
+entry points of pyproject.toml, so the core never imports the packages above it. A command is
+imported only when it runs or a listing (``osmseg --help``) asks for it (:class:`PluginGroup`):
+``osmseg build`` does not load torch or the localization methods. A plugin that fails to load
+shows up as a command that says why (click-plugins' ``BrokenCommand``).
 
 Every command also takes ``-v``, ``-q`` and ``--progress`` after its name
 (:func:`osmseg.cli.common.output_options`), and shows its defaults in ``--help`` (the group's
@@ -16,24 +18,52 @@ JSON) goes to stdout; logs, progress and summaries go to stderr. Exit status: 0 
 
 from __future__ import annotations
 
-from importlib.metadata import entry_points
+from importlib.metadata import EntryPoint, entry_points
 
 import click
-from click_plugins import with_plugins
+from click_plugins.core import BrokenCommand
 
 from osmseg import __version__
-from osmseg.cli.build import build_command
 from osmseg.cli.common import configure_logging
 from osmseg.cli.drawers import PROGRESS_DEFAULT, progress_mode
 from osmseg.cli.options import PROGRESS, QUIET, VERBOSE
-from osmseg.cli.verify import verify_command
 
 #: the entry-point group other packages register ``osmseg`` subcommands in
 PLUGIN_GROUP = "osmseg.commands"
 
+#: the core's own commands, loaded as the plugins are (when asked for)
+CORE_COMMANDS = {"build": "osmseg.cli.build:build_command", "verify": "osmseg.cli.verify:verify_command"}
 
-@with_plugins(sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name))  # type: ignore[untyped-decorator]
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "show_default": True})
+
+class PluginGroup(click.Group):
+    """A click group whose plugin commands (entry points of :data:`PLUGIN_GROUP`) are imported when
+    first asked for, not when the group is: each command's start pays for its own imports only.
+
+    A plugin that raises on import becomes a command that prints the traceback and exits 1 (as
+    click-plugins' ``with_plugins`` does), so one broken package does not take the others down.
+    """
+
+    def _plugins(self) -> dict[str, EntryPoint]:
+        core = (EntryPoint(name, value, PLUGIN_GROUP) for name, value in CORE_COMMANDS.items())
+        return {e.name: e for e in (*core, *entry_points(group=PLUGIN_GROUP))}
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(set(self.commands) | set(self._plugins()))
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in self.commands:
+            plugin = self._plugins().get(cmd_name)
+            if plugin is None:
+                return None
+            try:
+                command = plugin.load()
+            except Exception:
+                command = BrokenCommand(cmd_name)
+            self.add_command(command, cmd_name)
+        return self.commands[cmd_name]
+
+
+@click.group(cls=PluginGroup, context_settings={"help_option_names": ["-h", "--help"], "show_default": True})
 @click.version_option(__version__, "--version", prog_name="osmseg")
 @VERBOSE(show_default=False)
 @QUIET(show_default=False)
@@ -45,9 +75,6 @@ def cli(ctx: click.Context, verbose: int, quiet: int, progress: bool | None) -> 
     configure_logging(verbosity)
     ctx.obj = {"verbosity": verbosity, "progress_asked": progress, "progress": progress_mode(progress, verbosity)}
 
-
-cli.add_command(build_command)
-cli.add_command(verify_command)
 
 if __name__ == "__main__":  # pragma: no cover
     cli()

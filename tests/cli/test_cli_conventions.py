@@ -56,6 +56,32 @@ def test_every_command_is_a_plugin_or_core_command_that_loaded() -> None:
     assert {"build", "verify", "train", "predict", "eval", "localize", "localize-bench", "localize-pairs", "demo"} <= set(COMMANDS)
 
 
+def test_a_command_imports_only_its_own_package() -> None:
+    """``osmseg build`` loads neither training (torch) nor the localization methods, nor ``train``
+    localization: each command is imported when asked for, not with the group."""
+    probe = ("import sys, click; from osmseg.cli.main import cli; ctx = click.Context(cli); "
+             "cli.get_command(ctx, sys.argv[1]); "
+             "print(sorted({m.split('.')[0] for m in sys.modules} & {'torch', 'training', 'localization', 'scipy'}))")
+    seen = {name: subprocess.run([sys.executable, "-c", probe, name], capture_output=True, text=True, check=True,
+                                 timeout=120).stdout.strip() for name in ("verify", "build", "train", "localize")}
+    assert seen["verify"] == seen["build"] == "[]", seen
+    assert "training" in seen["train"] and "localization" not in seen["train"], seen
+    assert "localization" in seen["localize"], seen
+
+
+def test_a_plugin_that_fails_to_import_is_a_command_that_says_why(monkeypatch: pytest.MonkeyPatch) -> None:
+    """One broken package does not take the other commands down: its command prints the import's
+    traceback and exits 1, and ``osmseg --help`` still lists the rest."""
+    import osmseg.cli.main as group
+
+    monkeypatch.setattr(group, "CORE_COMMANDS", {**group.CORE_COMMANDS, "broken": "osmseg.no_such_module:command"})
+    monkeypatch.setattr(cli, "commands", dict(cli.commands))  # the broken command is not kept after the test
+    listing = CliRunner().invoke(cli, ["--help"])
+    assert listing.exit_code == 0 and "broken" in listing.output and "build" in listing.output, listing.output
+    result = CliRunner().invoke(cli, ["broken"])
+    assert result.exit_code == 1 and "No module named 'osmseg.no_such_module'" in result.output, result.output
+
+
 @pytest.mark.parametrize("name", COMMANDS)
 def test_output_options_are_accepted_after_every_command(name: str) -> None:
     result = CliRunner().invoke(cli, [name, "-v", "-vv", "-q", "--no-progress", "--progress", "--help"])

@@ -1,14 +1,10 @@
 """What a build records in the manifest, made from what it did: a sample's entry from its grid
-and files, a rejected attempt's, the summary's counts, the command line without its secrets.
-
->>> print(command_line(["osmseg", "build", "--imagery", "xyz:https://t.example/{z}/{x}/{y}?key=SECRET"]))
-osmseg build --imagery 'xyz:https://t.example/{z}/{x}/{y}?key=REDACTED'
+and files, a rejected attempt's, the summary's counts, the command line without its secrets
+(:func:`osmseg.redact.command_line`).
 """
 
 from __future__ import annotations
 
-import re
-import shlex
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -20,7 +16,7 @@ from osmseg.output.manifest.dataset import TOP_LEVEL_SETTINGS, DatasetSummary
 from osmseg.output.manifest.samples import Point, Provenance, RejectionRecord, SampleRecord, TileRecord
 from osmseg.output.manifest.values import Json, JsonObject
 from osmseg.output.writer import WrittenSample
-from osmseg.redact import redact
+from osmseg.redact import command_line
 
 __all__ = ["REASONS", "Rejection", "class_totals", "command_line", "config_entry", "rejection_entry", "sample_entry",
            "summary_entry", "tile_entry"]
@@ -36,38 +32,6 @@ class Rejection:
 
     reason: str
     detail: str
-
-
-_SECRET_OPTION = re.compile(r"(?i)^--?[\w-]*(key|token|secret|password)[\w-]*$")
-
-
-def command_line(argv: Sequence[str]) -> str:
-    """The command that made the dataset, shell-quoted, with secrets removed.
-
-    Values of options named like ``--*key*``/``--*token*``/``--*secret*``/``--*password*``
-    become ``REDACTED``, and every other argument goes through :func:`osmseg.redact.redact`
-    (secret URL parameters such as ``key=``/``access_token=``, passwords in URLs).
-
-    >>> command_line(["osmseg", "build", "--bing-key", "abc", "--api-token=xyz", "--seed", "3"])
-    'osmseg build --bing-key REDACTED --api-token=REDACTED --seed 3'
-    """
-    out: list[str] = []
-    hide_next = False
-    for arg in argv:
-        if hide_next:
-            out.append("REDACTED")
-            hide_next = False
-            continue
-        option, eq, _ = arg.partition("=")
-        if _SECRET_OPTION.match(option):
-            if eq:
-                out.append(f"{option}=REDACTED")
-            else:
-                out.append(arg)
-                hide_next = True
-            continue
-        out.append(redact(arg))
-    return shlex.join(out)
 
 
 def tile_entry(tile: mercantile.Tile) -> TileRecord:
