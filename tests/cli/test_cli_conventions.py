@@ -76,6 +76,7 @@ def test_a_plugin_that_fails_to_import_is_a_command_that_says_why(monkeypatch: p
 
     monkeypatch.setattr(group, "CORE_COMMANDS", {**group.CORE_COMMANDS, "broken": "osmseg.no_such_module:command"})
     monkeypatch.setattr(cli, "commands", dict(cli.commands))  # the broken command is not kept after the test
+    monkeypatch.setattr(cli, "_found", None)
     listing = CliRunner().invoke(cli, ["--help"])
     assert listing.exit_code == 0 and "broken" in listing.output and "build" in listing.output, listing.output
     result = CliRunner().invoke(cli, ["broken"])
