@@ -464,6 +464,41 @@ def region(ws: Workspace) -> dict[str, Figure]:
     }
 
 
+#: the searches of docs/localization.md's "not found here" table: (label, which searches, accepted by)
+NULL_ROWS = (("own town, right answers (within 10 m)", "own town, right answers"),
+             ("own town, all", "own town"),
+             ("another town", "other town"))
+
+
+@figure_set("null", "expensive", needs="shared data")
+def null(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_region_null.py, seeds 0 (threshold chosen on it) and 1 (held out): views of Kotka, Helsinki and West Oakland searched in each town"""
+    rows = []
+    found, searches = {}, {}
+    for seed, role in ((0, "chosen on"), (1, "held out")):
+        run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", str(seed),
+                        name=f"bench_region_null-{seed}")
+        s = found[seed] = run["summary"]
+        searches[seed] = run["searches"]
+        for label, key in NULL_ROWS:
+            alone, verdict = s["confidence_only"][key], s["verdict_here"][key]
+            rows.append([f"seed {seed} ({role}): {label}", count(alone["n"]),
+                         f"{alone['accepted']} ({ratio(alone['accepted'] / max(1, alone['n']))})",
+                         count(alone["accepted_wrong"]),
+                         f"{verdict['accepted']} ({ratio(verdict['accepted'] / max(1, verdict['n']))})",
+                         count(verdict["accepted_wrong"])])
+    auc = found[1]["auc_right_vs_other_town"]
+    confident = [r for r in searches[0] if (r["confidence"] or 0) >= 0.04 and r["lift"] is not None]
+    return {
+        "null.other_top": F(" and ".join(ratio(v) for v in sorted(r["lift"] for r in confident
+                                                                   if r["from"] != r["in"])[-2:])),
+        "null.table": F(table(["searches", "n", "accepted by confidence ≥ 0.04 alone", "of them wrong",
+                               "accepted by the verdict", "of them wrong"], rows)),
+        "null.auc": F(f"{ratio(auc['lift over the null'])} (kappa {ratio(auc['kappa'])}, confidence "
+                      f"{ratio(auc['confidence'])})"),
+    }
+
+
 @figure_set("memory", "expensive", needs="shared data")
 def memory(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/localize_memory.py: the resident memory of one `osmseg localize` command on Kotka masks of 1280² and 6400²"""

@@ -254,7 +254,7 @@ def _say(query: RegionQuery, run: RegionRun, verbosity: int) -> None:
     if verbosity < 0 or query.as_json or result.best is None:
         return
     from localization.profile.profiles import MASK_MIN_CONFIDENCE
-    from localization.region.search import distance_m
+    from localization.region.search import NOT_HERE, NULL_MIN_LIFT, distance_m
 
     config = query.config()
     alt = result.alternative
@@ -262,7 +262,11 @@ def _say(query: RegionQuery, run: RegionRun, verbosity: int) -> None:
         click.echo(f"best distinct alternative ({config.distinct_m:g} m or more away): {alt.lon:.7f}, "
                    f"{alt.lat:.7f}, {metres(distance_m(result.best, alt))} from the answer; score margin "
                    f"{ratio(result.margin)}", err=True)
-    if result.best.confidence is not None and result.best.confidence < MASK_MIN_CONFIDENCE:
+    if result.verdict == NOT_HERE:
+        click.echo(f"not found here: the view fits this region no better than a scrambled copy of itself does (lift "
+                   f"{ratio(result.lift)}, below {NULL_MIN_LIFT:g}): it was most likely taken somewhere else "
+                   "(docs/localization.md)", err=True)
+    elif result.best.confidence is not None and result.best.confidence < MASK_MIN_CONFIDENCE:
         click.echo(f"not sure: the answer's confidence {ratio(result.best.confidence)} is below "
                    f"{MASK_MIN_CONFIDENCE:g}: the alternative fits almost as well (docs/localization.md)", err=True)
     if result.best.heading_deg is not None and query.view.profile().heading_deg is None:

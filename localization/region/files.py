@@ -53,6 +53,8 @@ from osmseg.runtime.shard import Shard
 __all__ = ["RegionRequest", "RegionRun", "localize_region", "part_to_json", "part_from_json"]
 
 PART_FORMAT = "osmseg-region-part"
+#: 2: each block's best score of the scrambled query (the null) rides along
+PART_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -91,12 +93,13 @@ def _answer_doc(a: Answer) -> dict[str, Any]:
 def part_to_json(part: RegionPart, key: str) -> str:
     """A shard's part as JSON (floats in full precision, overview patches deflated)."""
     return json.dumps({
-        "format": PART_FORMAT, "format_version": 1, "key": key, "shard": [part.shard.index, part.shard.count],
+        "format": PART_FORMAT, "format_version": PART_VERSION, "key": key, "shard": [part.shard.index, part.shard.count],
         "blocks": part.blocks,
         "coarse": [[_answer_doc(a), b] for a, b in part.coarse],
         "refined": {str(b): [_answer_doc(a) for a in answers] for b, answers in part.refined.items()},
         "patches": {str(b): [list(p.shape), base64.b64encode(zlib.compress(p.tobytes(), 6)).decode()]
                     for b, p in part.patches.items()},
+        "null": {str(b): v for b, v in part.null.items()},
     }) + "\n"
 
 
@@ -108,7 +111,8 @@ def part_from_json(text: str) -> tuple[str, RegionPart]:
     patches = {int(b): np.frombuffer(zlib.decompress(base64.b64decode(data)), np.uint8).reshape(shape)
                for b, (shape, data) in doc["patches"].items()}
     part = RegionPart(Shard(*doc["shard"]), doc["blocks"], [(Answer(**a), b) for a, b in doc["coarse"]],
-                      {int(b): [Answer(**a) for a in answers] for b, answers in doc["refined"].items()}, patches)
+                      {int(b): [Answer(**a) for a in answers] for b, answers in doc["refined"].items()}, patches,
+                      {int(b): float(v) for b, v in doc.get("null", {}).items()})
     return doc["key"], part
 
 
@@ -116,6 +120,7 @@ def _key(query: SemanticMap, camera: Camera, request: RegionRequest, config: Reg
          profile: ProfileConfig) -> str:
     """A hash of everything that changes the answers (the shard split does not)."""
     h = hashlib.sha256()
+    h.update(f"part {PART_VERSION}".encode())  # a part of another version is another run's, never merged
     h.update(np.ascontiguousarray(query.labels).tobytes())
     h.update(np.ascontiguousarray(query.standing).tobytes())
     h.update(repr((query.classes, query.shape, camera, config, profile, request.table, request.aerial_classes,

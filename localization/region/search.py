@@ -20,6 +20,13 @@ candidates are ranked across blocks in degrees:
   within one image (:mod:`localization.profile.search`). Beside the best answer, the **best distinct
   alternative** and the score margin between them: a look-alike place has a small margin and
   the answer a confidence near 0.
+* **Is it from here at all?** Every block is also searched, on a grid twice as sparse, for two
+  scrambled copies of the query (:mod:`localization.profile.null`): the best score they reach is
+  the **null**, what the district gives any view with the query's contents. The answer's
+  **lift** is how far the query's own best on the coarse grid rises above the null, as a share
+  of its lead over chance, and the **verdict** is "not found here" below :data:`NULL_MIN_LIFT`,
+  "not sure" below the confidence threshold, else "here" (docs/localization.md: how the
+  threshold was chosen, on views of three real towns searched in each).
 * A region is split between processes or machines by ``--shard K/N``: shard K searches the
   blocks ``b`` with ``b % N == K - 1`` (:func:`search_part`) and :func:`merge_parts` ranks
   what all shards found. A block's candidates depend on that block alone, so the answer is the
@@ -45,6 +52,7 @@ import numpy as np
 from localization.common.landmarks import LandmarkClasses
 from localization.common.views import Camera, SemanticMap, semantic_map
 from localization.profile.method import profile_index, profile_query, run_profile
+from localization.profile.null import NULL_SCRAMBLES, scrambled
 from localization.profile.profiles import MASK_MIN_CONFIDENCE
 from localization.profile.search import ProfileConfig, class_prior, grid_positions
 from localization.region.cache import BlockMasks
@@ -107,12 +115,38 @@ class RegionResult:
     alternative: Answer | None
     blocks: int
     config: RegionConfig
+    null_score: float | None = None        # the best score a scrambled copy of the query reaches (the null)
+    coarse_score: float | None = None      # the query's own best on the same coarse grid, to compare with it
     overview: np.ndarray | None = None     # the region's drawn classes, every OVERVIEW_STEP-th pixel of the cores
     overview_bounds: tuple[float, float, float, float] | None = None  # its west, south, east, north in degrees
 
     @property
     def best(self) -> Answer | None:
         return self.answers[0] if self.answers else None
+
+    @property
+    def lift(self) -> float | None:
+        """How far the query's best place rises above the null, as a share of its lead over
+        chance: 1 when no scrambled copy fits anywhere better than chance, 0 or less when one
+        fits some place as well as the query fits its best (nothing here is its place)."""
+        best = self.best
+        if best is None or best.chance is None or self.null_score is None or self.coarse_score is None:
+            return None
+        lead = self.coarse_score - best.chance
+        return (self.coarse_score - self.null_score) / lead if lead > 0 else 0.0
+
+    @property
+    def verdict(self) -> str:
+        """``here`` (the answer stands out from the district and from the null), ``not sure`` (a
+        look-alike place fits nearly as well: confidence below the threshold) or ``not found
+        here`` (the query fits the district no better than a scrambled copy of itself, or no
+        place was found)."""
+        best, lift = self.best, self.lift
+        if best is None or (lift is not None and lift < NULL_MIN_LIFT):
+            return NOT_HERE
+        if best.confidence is not None and best.confidence < MASK_MIN_CONFIDENCE:
+            return NOT_SURE
+        return HERE
 
     @property
     def margin(self) -> float | None:
@@ -135,6 +169,9 @@ class RegionResult:
                                "distinct_m": self.config.distinct_m,
                                "sure": None if self.best is None or self.best.confidence is None
                                else self.best.confidence >= MASK_MIN_CONFIDENCE,
+                               "verdict": self.verdict,
+                               "null_score": None if self.null_score is None else round(self.null_score, 5),
+                               "lift": None if self.lift is None else round(self.lift, 4),
                                "margin": None if margin is None else round(margin, 5)}}
 
 
@@ -181,6 +218,13 @@ def region_blocks(config: RegionConfig) -> list[tuple[SampleGrid, frozenset[tupl
     return out
 
 
+#: the verdicts of a region search (:attr:`RegionResult.verdict`)
+HERE, NOT_SURE, NOT_HERE = "here", "not sure", "not found here"
+#: below this lift over the null (:attr:`RegionResult.lift`) the answer is "not found here"
+NULL_MIN_LIFT = 0.12
+#: the null's grid is this many times sparser than the coarse pass's
+NULL_GRID = 2.0
+
 #: At most this many blocks, spread evenly over the region, give its class frequencies.
 PRIOR_BLOCKS = 16
 
@@ -204,6 +248,7 @@ class RegionPart:
     coarse: list[tuple[Answer, int]]
     refined: dict[int, list[Answer]]
     patches: dict[int, np.ndarray]
+    null: dict[int, float] = dataclasses.field(default_factory=dict)  # each block's best score of a scrambled query
 
 
 def search_part(query: SemanticMap, camera: Camera, masks: BlockMasks, table: ClassTable, classes: LandmarkClasses,
@@ -224,6 +269,9 @@ def search_part(query: SemanticMap, camera: Camera, masks: BlockMasks, table: Cl
     coarse = dataclasses.replace(profile, top_k=config.per_block, min_confidence=-1.0, min_kappa=-1.0, levels=0)
     fine = dataclasses.replace(profile, top_k=config.per_block, min_confidence=-1.0, min_kappa=-1.0)
     q = profile_query(query, camera, fine)
+    # the null: scrambled copies of the query (each camera height's alike, so each position is scored
+    # as the query is: with the height that fits it best), on a grid twice as sparse as the coarse one
+    nulls = [scrambled(q, seed) for seed in range(NULL_SCRAMBLES)]
     sample = prior_blocks(len(blocks))
     priors = []
     for b in track(sample, progress, "region's class frequencies", unit="block"):
@@ -232,20 +280,25 @@ def search_part(query: SemanticMap, camera: Camera, masks: BlockMasks, table: Cl
     prior = np.mean(priors, axis=0)
     mine = [b for b in range(len(blocks)) if shard.owns(b)]
     found: list[tuple[Answer, int]] = []
-    patches = {}
+    patches, null = {}, {}
     for b in track(mine, progress, "searching blocks", unit="block"):
         grid, core = blocks[b]
         mask = masks.mask(b)
         patches[b] = _core_patch(grid, core, mask)
-        found += [(a, b) for a in _in_core(run_profile(coarse, _index(mask, grid, table, classes, coarse), q,
-                                                       prior=prior), grid, core, config.zoom)]
+        index = _index(mask, grid, table, classes, coarse)
+        found += [(a, b) for a in _in_core(run_profile(coarse, index, q, prior=prior), grid, core, config.zoom)]
+        sparse = dataclasses.replace(coarse, coarse_m=NULL_GRID * (coarse.coarse_m or index.grid_m))
+        scores = [a.score for n in nulls for a in _in_core(run_profile(sparse, index, n, prior=prior), grid, core,
+                                                              config.zoom)]
+        if scores:
+            null[b] = max(scores)
     found.sort(key=_rank)
     refined: dict[int, list[Answer]] = {}
     for b in dict.fromkeys(b for _, b in found[:config.top_k]):  # the blocks of the best places, best first
         grid, core = blocks[b]
         refined[b] = _in_core(run_profile(fine, _index(masks.mask(b), grid, table, classes, coarse), q, prior=prior),
                               grid, core, config.zoom)
-    return RegionPart(shard, len(blocks), found, refined, patches)
+    return RegionPart(shard, len(blocks), found, refined, patches, null)
 
 
 def _rank(item: tuple[Answer, int] | Answer) -> tuple[float, float, float]:
@@ -278,7 +331,9 @@ def merge_parts(parts: Sequence[RegionPart], config: RegionConfig) -> RegionResu
     for p in parts:
         for b, patch in p.patches.items():
             overview.paste(blocks[b][0], patch)
-    return RegionResult(tuple(answers), alternative, len(blocks), config, overview.pixels, overview.bounds)
+    nulls = [v for p in parts for v in p.null.values()]
+    return RegionResult(tuple(answers), alternative, len(blocks), config, max(nulls) if nulls else None,
+                        found[0][0].score if found else None, overview.pixels, overview.bounds)
 
 
 def _standing_out(a: Answer, rival: Answer | None, everything: Sequence[Answer], distinct_m: float) -> Answer:

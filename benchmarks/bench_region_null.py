@@ -1,0 +1,167 @@
+"""Is a view from this district at all? Region search of views from one town in another town's OpenStreetMap.
+
+Run: ``.venv/bin/python benchmarks/bench_region_null.py [--queries 8] [--heading known|unknown]
+[--json PATH]``. The towns are the real extracts of ``../shared/data``: Kotka (a 1 km box of
+``helsinki-osm/kotka.osm.pbf``), Helsinki centre (``helsinki-osm/helsinki.osm.pbf``) and West
+Oakland (``oakland-osm/west-oakland.osm``). Views are ray-cast by the independent renderer
+(:mod:`localization.bench.georender`, heights it draws, camera 1.5-2.5 m, tilt ±1°) at seeded
+street points of each town, and each view is searched for in every town: in its own town it
+has a right answer (within 10 m), in the others none.
+
+For each search it records what the region search says (:func:`localization.region.search.search_region`):
+the best score, kappa, confidence, and the **verdict** (``here`` / ``not sure`` / ``not found here``),
+and prints, per kind of search (own town, other town), how often a view is accepted (its verdict
+``here``, at this osmseg's thresholds: ``--summarise JSON`` counts an earlier run's searches again)
+and how often an accepted answer is wrong. Baseline: the confidence threshold alone (``not sure`` below 0.04),
+the only gate before the verdict existed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_region import CLASSES, PANO, TABLE, draw_views, street_points  # noqa: E402
+
+from localization.bench.compare import roc_auc  # noqa: E402
+from localization.common.views import Camera, semantic_map  # noqa: E402
+from localization.profile.profiles import MASK_MIN_CONFIDENCE  # noqa: E402
+from localization.profile.search import UNKNOWN_HEIGHTS, ProfileConfig  # noqa: E402
+from localization.region.cache import BlockMasks  # noqa: E402
+from localization.region.search import (  # noqa: E402
+    NULL_MIN_LIFT,
+    RegionConfig,
+    distance_m,
+    region_blocks,
+    search_region,
+)
+
+DATA = ROOT.parent / "shared" / "data"
+
+
+@dataclass(frozen=True)
+class Town:
+    name: str
+    osm: Path
+    bbox: tuple[float, float, float, float]
+
+
+TOWNS = (
+    Town("Kotka", DATA / "helsinki-osm" / "kotka.osm.pbf", (26.940, 60.523, 26.958, 60.532)),
+    Town("Helsinki", DATA / "helsinki-osm" / "helsinki.osm.pbf", (24.936, 60.165, 24.952, 60.178)),
+    Town("West Oakland", DATA / "oakland-osm" / "west-oakland.osm", (-122.30258, 37.80615, -122.29825, 37.80914)),
+)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--queries", type=int, default=8, help="views drawn in each town")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--heading", choices=["known", "unknown"], default="known")
+    ap.add_argument("--json", type=Path, help="also write every search here")
+    ap.add_argument("--summarise", type=Path, metavar="JSON",
+                    help="print the summary of an earlier run's --json at this osmseg's thresholds (no search)")
+    args = ap.parse_args(argv)
+    if args.summarise:
+        doc = json.loads(args.summarise.read_text())
+        doc["summary"] = summarise(doc["searches"])
+        print(json.dumps(doc["summary"], indent=2))
+        if args.json:
+            args.json.write_text(json.dumps(doc, indent=2) + "\n")
+        return dict(doc["summary"])
+    missing = [t.osm for t in TOWNS if not t.osm.is_file()]
+    if missing:
+        print(f"skipped: {', '.join(map(str, missing))} absent (../shared/data holds the extracts)")
+        return {}
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory() as cache:
+        views = {}
+        for t in TOWNS:
+            config = RegionConfig(bbox=t.bbox)
+            blocks = region_blocks(config)
+            masks = BlockMasks([t.osm], TABLE, [g for g, _ in blocks], Path(cache))
+            rng = np.random.default_rng(args.seed)
+            points = street_points(masks, blocks, args.queries, rng, t.bbox)
+            views[t.name] = list(draw_views(t.osm, points, rng, args.seed, (1.5, 2.5), 1.0, 360.0))
+            print(f"{t.name}: {len(blocks)} blocks, {len(points)} views", flush=True)
+        for origin in TOWNS:
+            for place in TOWNS:
+                config = RegionConfig(bbox=place.bbox)
+                for i, v in enumerate(views[origin.name]):
+                    query = semantic_map(v.pixels, PANO, CLASSES)
+                    camera = Camera(v.pixels.shape[1], 224, hfov_deg=360.0, camera_height_m=2.0)
+                    profile = ProfileConfig(heading_deg=v.heading if args.heading == "known" else None,
+                                            camera_heights=UNKNOWN_HEIGHTS, tilt_deg=1.0)
+                    t0 = time.perf_counter()
+                    result = search_region(query, camera, [place.osm], TABLE, CLASSES, config, profile,
+                                           cache_dir=Path(cache))
+                    best = result.best
+                    error = distance_m(best, (v.lon, v.lat)) if best and origin is place else None
+                    rows.append({"from": origin.name, "in": place.name, "view": i, "error_m": error,
+                                 "score": best.score if best else None, "chance": best.chance if best else None,
+                                 "kappa": best.kappa if best else None,
+                                 "confidence": best.confidence if best else None,
+                                 "verdict": result.verdict, "null": result.null_score,
+                                 "coarse": result.coarse_score, "lift": result.lift,
+                                 "seconds": round(time.perf_counter() - t0, 1)})
+                    r = rows[-1]
+                    print(f"{origin.name:>12} in {place.name:<12} #{i} error {error if error is None else round(error, 1)}"
+                          f" score {r['score'] or 0:.3f} null {r['null'] or 0:.3f} lift {r['lift'] or 0:.3f} "
+                          f"kappa {r['kappa'] or 0:.3f} "
+                          f"conf {r['confidence'] or 0:.3f} {r['verdict']} {r['seconds']} s", flush=True)
+    summary = summarise(rows)
+    print(json.dumps(summary, indent=2))
+    if args.json:
+        args.json.write_text(json.dumps({"summary": summary, "searches": rows}, indent=2) + "\n")
+    return summary
+
+
+def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per kind of search (own town, other town): accepted, wrong among accepted, for the verdict
+    and for the confidence threshold alone; and the AUC of each score for own-right vs other-town."""
+    own = [r for r in rows if r["from"] == r["in"]]
+    other = [r for r in rows if r["from"] != r["in"]]
+    right = [r for r in own if r["error_m"] is not None and r["error_m"] <= 10]
+
+    def gate(r: dict[str, Any]) -> bool:
+        return (r["confidence"] or 0) >= MASK_MIN_CONFIDENCE
+
+    def here(r: dict[str, Any]) -> bool:  # the verdict "here" (RegionResult.verdict) at this osmseg's thresholds
+        return r["score"] is not None and gate(r) and r["lift"] is not None and r["lift"] >= NULL_MIN_LIFT
+
+    def rates(group: list[dict[str, Any]], accept: Any) -> dict[str, Any]:
+        taken = [r for r in group if accept(r)]
+        wrong = [r for r in taken if r["error_m"] is None or r["error_m"] > 50]
+        return {"n": len(group), "accepted": len(taken), "accepted_wrong": len(wrong)}
+
+    return {
+        "verdict_here": {"own town": rates(own, here), "own town, right answers": rates(right, here),
+                         "other town": rates(other, here)},
+        "threshold": {"lift": NULL_MIN_LIFT, "confidence": MASK_MIN_CONFIDENCE},
+        "confidence_only": {"own town": rates(own, gate), "own town, right answers": rates(right, gate),
+                            "other town": rates(other, gate)},
+        "auc_right_vs_other_town": {
+            name: roc_auc([f(r) for r in right], [f(r) for r in other]) if right and other else None
+            for name, f in (("kappa", lambda r: r["kappa"] or 0), ("confidence", lambda r: r["confidence"] or 0),
+                            ("lift over the null", lambda r: r["lift"] if r["lift"] is not None else -1.0))},
+        "median_s": statistics.median(r["seconds"] for r in rows) if rows else None,
+    }
+
+
+if __name__ == "__main__":
+    logging.getLogger("osmseg").setLevel(logging.ERROR)
+    main()
