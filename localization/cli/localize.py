@@ -30,10 +30,10 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -74,7 +74,7 @@ from localization.cli.query import (
 )
 from localization.common.inputs import SideOptions
 from osmseg.cli.common import output_options, parse_size, report_errors
-from osmseg.cli.options import OUT, declare, moved
+from osmseg.cli.options import OUT, declare, moved, moved_each
 from osmseg.cli.requests import make_request, part_options
 from osmseg.errors import ConfigError
 from osmseg.texttable import text_table
@@ -83,7 +83,6 @@ from osmseg.units import degrees, metres, number, pixels, plural, ratio
 if TYPE_CHECKING:  # the command imports the pipeline only when it runs
     from localization.pipeline import LocalizeConfig, LocalizeReport
 
-F = TypeVar("F", bound=Callable[..., object])
 
 logger = logging.getLogger(__name__)
 
@@ -141,11 +140,8 @@ _REGION = ("{flag} is a region search's: osmseg localize-region --ground FILE --
            "OpenStreetMap; osmseg localize searches the --aerial image")
 
 
-def region_moved(func: F) -> F:
-    """The region search's options, refused by ``osmseg localize`` in one line naming localize-region."""
-    for flag in reversed(("--osm", "--bbox", "--lat", "--lon", "--radius-km", "--zoom", "--shard", "--cache-dir")):
-        func = moved(flag, _REGION.format(flag=flag))(func)
-    return func
+#: The region search's options, refused by ``osmseg localize`` in one line naming localize-region.
+region_moved = moved_each(("--osm", "--bbox", "--lat", "--lon", "--radius-km", "--zoom", "--shard", "--cache-dir"), _REGION)
 
 
 @click.command("localize")

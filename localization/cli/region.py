@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -50,7 +50,7 @@ from localization.cli.query import (
 from osmseg import places
 from osmseg.cli.common import default_cache_dir, output_options, report_errors
 from osmseg.cli.drawers import progress_drawer
-from osmseg.cli.options import BBOX, CACHE_DIR, LAT, LON, OSM, OUT, RADIUS_KM, SHARD, ZOOM, moved
+from osmseg.cli.options import BBOX, CACHE_DIR, LAT, LON, OSM, OUT, RADIUS_KM, SHARD, ZOOM, moved, moved_each
 from osmseg.cli.requests import make_request
 from osmseg.errors import ConfigError
 from osmseg.places import check_centre
@@ -63,7 +63,6 @@ if TYPE_CHECKING:
     from localization.region.search import RegionConfig, RegionResult
     from osmseg.runtime.progress import Progress
 
-F = TypeVar("F", bound=Callable[..., object])
 
 __all__ = ["RegionArea", "RegionQuery", "localize_region_command", "parse_bbox", "parse_lonlat", "disc_bbox",
            "answers_table"]
@@ -99,11 +98,8 @@ _AERIAL = ("{flag} is for an aerial image: osmseg localize-region draws the aeri
            "aerial image, run osmseg localize --aerial FILE --ground FILE")
 
 
-def aerial_moved(func: F) -> F:
-    """The aerial image's options, refused by ``osmseg localize-region`` in one line naming localize."""
-    for flag in reversed(("--aerial", "--aerial-resolution", "--aerial-size", "--aerial-checkpoint", "--aerial-image")):
-        func = moved(flag, _AERIAL.format(flag=flag))(func)
-    return func
+#: The aerial image's options, refused by ``osmseg localize-region`` in one line naming localize.
+aerial_moved = moved_each(("--aerial", "--aerial-resolution", "--aerial-size", "--aerial-checkpoint", "--aerial-image"), _AERIAL)
 
 
 @click.command("localize-region")

@@ -281,11 +281,10 @@ def draw_region(fig: Figure, result: Any, table: ClassTable, truth: tuple[float,
         ax.plot(alt.lon, alt.lat, marker="D", ms=7, color=CANDIDATE, mec="black", zorder=4)
         handles.append(Line2D([], [], ls="", marker="D", color=CANDIDATE, mec="black",
                               label=f"best distinct alternative (margin {units.ratio(result.margin)})"))
-    verdict = getattr(result, "verdict", None)
     title = (f"unanswered: no place of the region fits the query ({result.blocks} blocks searched)"
              if not result.answers else
              f"not found here: the view fits no better than scrambled ({result.blocks} blocks searched)"
-             if verdict == "not found here" else f"{verdict or 'answered'}: {result.blocks} blocks searched")
+             if result.verdict == "not found here" else f"{result.verdict}: {result.blocks} blocks searched")
     if truth is not None:
         ax.plot(*truth, marker="*", ms=13, color=TRUTH, mec="black", zorder=6)
         handles.append(Line2D([], [], ls="", marker="*", color=TRUTH, mec="black", label="truth"))

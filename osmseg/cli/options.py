@@ -27,7 +27,7 @@ True
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -147,6 +147,18 @@ def moved(old: str, message: str) -> Callable[[F], F]:
 
     return click.option(old, "moved_" + old.lstrip("-").replace("-", "_"), cls=MovedOption, message=message,
                         hidden=True, expose_value=False, callback=refuse, default=None)
+
+
+def moved_each(flags: Sequence[str], message: str) -> Callable[[F], F]:
+    """:func:`moved` for each of ``flags``, ``message`` a template naming it as ``{flag}``
+    (another command's options, each refused in one line that names that command)."""
+
+    def hide(func: F) -> F:
+        for flag in reversed(flags):
+            func = moved(flag, message.format(flag=flag))(func)
+        return func
+
+    return hide
 
 
 # ------------------------------------------------------------------------------------------ every layer's
