@@ -127,7 +127,7 @@ aerial_moved = moved_each(("--aerial", "--aerial-resolution", "--aerial-size", "
 @TOP_K(default=5, show_default=True)
 @TRUTH(detail=", as LON,LAT in degrees.")
 @JSON()
-@OUT(detail=" of region.geojson and region.png.")
+@OUT(detail=" of region.geojson, region.png and region.html (a map to pan, opens offline).")
 @HEADING(default="0", show_default=True)
 @FOV(default=360.0, show_default=True)
 @CAMERA_HEIGHT(default="2", show_default=True)
@@ -183,7 +183,7 @@ class RegionQuery:
             cache_dir=self.area.cache_dir if self.area.cache_dir is not None else default_cache_dir())
 
     def run(self, progress: Progress | None = None) -> RegionRun:
-        """Search the region; with ``out_dir``, write region.geojson and region.png (or this shard's part)."""
+        """Search the region; with ``out_dir``, write region.geojson, region.png and region.html (or this shard's part)."""
         from localization.region.files import localize_region
 
         config, request = self.config(), self.request()
@@ -272,5 +272,5 @@ def _say(query: RegionQuery, run: RegionRun, verbosity: int) -> None:
     click.echo(f"{plural(result.blocks, 'block')} of {config.size}x{config.size} tiles at zoom {config.zoom} searched "
                f"({run.drawn} drawn from OSM, {run.cached} read from the cache)", err=True)
     if query.out_dir is not None:
-        written = [f for f in ("region.geojson", "region.png") if (query.out_dir / f).is_file()]
+        written = [f for f in ("region.geojson", "region.png", "region.html") if (query.out_dir / f).is_file()]
         click.echo(f"written: {', '.join(written)} in {query.out_dir}/", err=True)

@@ -38,6 +38,7 @@ from matplotlib.patches import Patch, Rectangle
 from matplotlib.patheffects import withStroke
 
 from localization.common.landmarks import Landmarks
+from localization.common.marks import CANDIDATE, TOP_K, TRUTH
 from localization.common.result import Localization
 from osmseg import units
 from osmseg.errors import ConfigError
@@ -49,10 +50,6 @@ if TYPE_CHECKING:
 __all__ = ["CANDIDATE", "TERMS", "TOP_K", "TRUTH", "draw_graph", "draw_localization", "draw_region", "graph_png",
            "landmark_palette", "localization_png", "region_png"]
 
-#: Colours of the localization picture's marks (class colours come from the class table).
-CANDIDATE = "#ff9900"
-TOP_K = "#00c000"
-TRUTH = "#ff1a1a"
 #: What each method's marks are called in the legend: the paper method ranks candidate windows
 #: (the MAP is the best), the profile method scores positions on a grid (localization.profile.locate).
 TERMS = {
@@ -281,15 +278,10 @@ def draw_region(fig: Figure, result: Any, table: ClassTable, truth: tuple[float,
         ax.plot(alt.lon, alt.lat, marker="D", ms=7, color=CANDIDATE, mec="black", zorder=4)
         handles.append(Line2D([], [], ls="", marker="D", color=CANDIDATE, mec="black",
                               label=f"best distinct alternative (margin {units.ratio(result.margin)})"))
-    title = (f"unanswered: no place of the region fits the query ({result.blocks} blocks searched)"
-             if not result.answers else
-             f"not found here: the view fits no better than scrambled ({result.blocks} blocks searched)"
-             if result.verdict == "not found here" else f"{result.verdict}: {result.blocks} blocks searched")
+    title = result.headline(error_m)
     if truth is not None:
         ax.plot(*truth, marker="*", ms=13, color=TRUTH, mec="black", zorder=6)
         handles.append(Line2D([], [], ls="", marker="*", color=TRUTH, mec="black", label="truth"))
-        if error_m is not None:
-            title += f"; answer {units.metres(error_m)} from the truth"
     present = set(np.unique(result.overview).tolist())
     handles += [Patch(color=tuple(v / 255 for v in c.color[:3]), label=c.name)  # type: ignore[arg-type]
                 for c in table.classes if c.id in present]

@@ -1,4 +1,5 @@
-"""A region search from files to files: the query and the OSM in, ``region.geojson`` and ``region.png`` out.
+"""A region search from files to files: the query and the OSM in, ``region.geojson``, ``region.png`` and
+``region.html`` out.
 
 One process searches the whole region (:func:`localization.region.search.search_region`). With
 ``--shard K/N`` each of N commands searches its share of the blocks and writes its part to
@@ -171,7 +172,7 @@ def check_covered(osm: Sequence[Path], bbox: tuple[float, float, float, float], 
 def localize_region(request: RegionRequest, config: RegionConfig, profile: ProfileConfig = ProfileConfig(),
                     out_dir: Path | None = None, progress: Progress | None = None) -> RegionRun:
     """Read the query, search the region (or this shard's share of it), and with ``out_dir``
-    write ``region.geojson`` and ``region.png`` once every shard's part is there."""
+    write ``region.geojson``, ``region.png`` and ``region.html`` once every shard's part is there."""
     from localization.common.landmarks import load_landmark_classes
 
     for path in request.osm:
@@ -212,7 +213,7 @@ def localize_region(request: RegionRequest, config: RegionConfig, profile: Profi
 
 
 def _write(result: RegionResult, request: RegionRequest, out_dir: Path | None) -> None:
-    """``region.geojson`` (with the error when the truth is known) and ``region.png`` in ``out_dir``."""
+    """``region.geojson`` (with the error when the truth is known), ``region.png`` and ``region.html`` in ``out_dir``."""
     if out_dir is None:
         return
     doc = result.to_geojson()
@@ -225,3 +226,6 @@ def _write(result: RegionResult, request: RegionRequest, out_dir: Path | None) -
         from localization.common.figures import region_png
 
         region_png(Path(out_dir) / "region.png", result, _table(request.table), request.truth, error)
+    from localization.region.webmap import region_html  # folium: imported when a map is written
+
+    region_html(Path(out_dir) / "region.html", result, _table(request.table), request.truth, error)

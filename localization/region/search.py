@@ -56,6 +56,7 @@ from localization.profile.null import NULL_SCRAMBLES, scrambled
 from localization.profile.profiles import MASK_MIN_CONFIDENCE
 from localization.profile.search import ProfileConfig, class_prior, grid_positions
 from localization.region.cache import BlockMasks
+from osmseg import units
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
 from osmseg.grid import SampleGrid, ground_resolution, pixel_lonlat
@@ -147,6 +148,15 @@ class RegionResult:
         if best.confidence is not None and best.confidence < MASK_MIN_CONFIDENCE:
             return NOT_SURE
         return HERE
+
+    def headline(self, error_m: float | None = None) -> str:
+        """The verdict in one line, as the region's picture and map title it (``error_m``: the
+        answer's distance from a known truth)."""
+        line = (f"unanswered: no place of the region fits the query ({self.blocks} blocks searched)"
+                if not self.answers else
+                f"not found here: the view fits no better than scrambled ({self.blocks} blocks searched)"
+                if self.verdict == NOT_HERE else f"{self.verdict}: {self.blocks} blocks searched")
+        return line if error_m is None else f"{line}; answer {units.metres(error_m)} from the truth"
 
     @property
     def margin(self) -> float | None:

@@ -464,6 +464,8 @@ def test_a_region_split_into_shards_answers_as_one_process(tmp_path) -> None:
             if k < count:
                 assert f"{k} of {count} parts" in res.stderr
         assert (tmp_path / f"split{count}" / "region.geojson").read_bytes() == expected
+        for page in ("region.html", "region.png"):  # the map and the picture too
+            assert (tmp_path / f"split{count}" / page).read_bytes() == (tmp_path / "one" / page).read_bytes(), page
     parts = sorted((tmp_path / "split2" / "region-parts").glob("*/1-of-2.json"))
     stamp = parts[0].stat().st_mtime_ns
     again = run("split2", "--shard", "1/2")
