@@ -65,12 +65,16 @@ from localization.cli.query import (
     GROUND,
     GROUND_CHECKPOINT,
     GROUND_TABLE,
+    HEADING_WITHIN,
     JSON,
+    PHOTO,
     TILT,
     TRUTH,
     GroundQuery,
     LandmarkOptions,
     ViewOptions,
+    apply_photo,
+    say_photo,
 )
 from localization.common.inputs import SideOptions
 from osmseg.cli.common import output_options, parse_size, report_errors
@@ -147,7 +151,8 @@ region_moved = moved_each(("--osm", "--bbox", "--lat", "--lon", "--radius-km", "
 @click.command("localize")
 @output_options
 @AERIAL(required=True)
-@GROUND(required=True)
+@GROUND()
+@PHOTO()
 @AERIAL_LANDMARKS(default="aerial13", show_default=True)
 @GROUND_LANDMARKS(default="camvid", show_default=True)
 @AERIAL_TABLE(show_default="its dataset's manifest")
@@ -182,6 +187,7 @@ region_moved = moved_each(("--osm", "--bbox", "--lat", "--lon", "--radius-km", "
 @CONVENTIONS(default="osmseg", show_default=True)
 @METHOD(default="profile", show_default=True)
 @HEADING(default="0", show_default=True)
+@HEADING_WITHIN()
 @FOV(default=360.0, show_default=True)
 @CAMERA_HEIGHT(default="2", show_default=True)
 @TILT(default=0.0, show_default="level")
@@ -201,7 +207,11 @@ region_moved = moved_each(("--osm", "--bbox", "--lat", "--lon", "--radius-km", "
 def localize_command(ctx: click.Context, /, **params: Any) -> None:
     """Find where the GROUND view was taken in the AERIAL image: angular profiles (the default) or
     landmark graphs (--method paper). A region drawn from OpenStreetMap is osmseg localize-region's."""
-    request = make_request(ImageQuery, params, typed=typed_flags(ctx))
+    typed = typed_flags(ctx)
+    facts = apply_photo(params, typed)
+    if facts is not None:
+        say_photo(facts, params, quiet=(ctx.obj or {}).get("verbosity", 0) < 0)
+    request = make_request(ImageQuery, params, typed=typed)
     report = request.run()
     _say(report, as_json=request.as_json, quiet=(ctx.obj or {}).get("verbosity", 0) < 0,
          hierarchical=request.paper.hierarchical, auto_window=request.paper.window is None, out_dir=request.out_dir)

@@ -10,24 +10,36 @@ Imports: osmseg core and localization (common, profile; never another localizati
 
 from __future__ import annotations
 
+from collections.abc import Mapping, MutableMapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import click
 
 from localization.cli.options import parse_camera_height, parse_heading
 from localization.common.inputs import SideOptions
+from localization.common.photo import COMPASS_WITHIN_DEG, PhotoFacts, photo_facts
 from localization.profile.search import ProfileConfig
 from osmseg.cli.common import parse_size
 from osmseg.cli.options import declare
 
 __all__ = ["GroundQuery", "LandmarkOptions", "ViewOptions", "GROUND", "GROUND_TABLE", "AERIAL_TABLE",
-           "GROUND_CHECKPOINT", "TRUTH", "JSON", "TILT"]
+           "GROUND_CHECKPOINT", "TRUTH", "JSON", "TILT", "PHOTO", "HEADING_WITHIN", "apply_photo", "say_photo"]
 
 GROUND = declare("--ground", dest="ground_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                  help="Ground view: label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy), or RGB "
                       "image with --ground-checkpoint.")
 GROUND_TABLE = declare("--ground-table", help="Class table of the ground mask.")
+PHOTO = declare("--photo", dest="photo_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+                help="The photo as it was taken (JPEG or TIFF with EXIF): its field of view (focal length), compass "
+                     "heading and GPS fix stand in for --fov, --heading/--heading-within and the region's centre "
+                     "where those are not given. The ground view is its class-id mask (--ground), or the photo "
+                     "itself segmented with --ground-checkpoint.")
+HEADING_WITHIN = declare("--heading-within", dest="heading_within_deg", type=click.FloatRange(0, 180, min_open=True),
+                         metavar="DEGREES",
+                         help="How far --heading (or a --photo's compass) may be off: headings within this many "
+                              f"degrees of it are searched [--heading: exact; a photo's compass: {COMPASS_WITHIN_DEG:g}].")
 AERIAL_TABLE = declare("--aerial-table", help="Class table of the aerial side, e.g. classes13.toml.")
 GROUND_CHECKPOINT = declare("--ground-checkpoint", type=click.Path(exists=True, path_type=Path),
                             help="Segment the ground RGB image with this checkpoint first (needs PyTorch).")
@@ -68,13 +80,15 @@ class GroundQuery:
 
 @dataclass(frozen=True)
 class ViewOptions:
-    """How the ground view was taken, as the profile method reads it: ``--heading``, ``--fov``,
-    ``--camera-height`` and ``--tilt``."""
+    """How the ground view was taken, as the profile method reads it: ``--heading`` (``--heading-within``),
+    ``--fov``, ``--camera-height`` and ``--tilt``, and the ``--photo`` whose EXIF gave those not typed."""
 
     heading_text: str
     fov_deg: float
     camera_height_text: str
     tilt_deg: float
+    heading_within_deg: float | None = None
+    photo_path: Path | None = None  # the photo whose EXIF filled what was not given (apply_photo)
 
     @property
     def camera_height(self) -> float:
@@ -85,5 +99,72 @@ class ViewOptions:
                 min_kappa: float | None = None) -> ProfileConfig:
         """The profile method's configuration: heading, heights to try and tilt, and what is reported."""
         heights = parse_camera_height(self.camera_height_text)[1]
-        return ProfileConfig(heading_deg=parse_heading(self.heading_text), camera_heights=heights,
+        heading = parse_heading(self.heading_text)
+        if heading is not None and self.heading_within_deg is not None:  # a compass: searched near it
+            return ProfileConfig(heading_deg=None, heading_prior_deg=heading, heading_within_deg=self.heading_within_deg,
+                                 camera_heights=heights, tilt_deg=self.tilt_deg, top_k=top_k,
+                                 min_confidence=min_confidence, min_kappa=min_kappa)
+        return ProfileConfig(heading_deg=heading, camera_heights=heights,
                              tilt_deg=self.tilt_deg, top_k=top_k, min_confidence=min_confidence, min_kappa=min_kappa)
+
+
+def apply_photo(params: MutableMapping[str, Any], typed: Mapping[str, str]) -> PhotoFacts | None:
+    """Fill ``params`` (a localize command's) from ``--photo``'s EXIF where the user gave nothing:
+    ``--fov`` from its focal length, ``--heading`` and ``--heading-within`` from its compass (none:
+    the heading is searched), and the ground view from the photo itself with ``--ground-checkpoint``.
+    Returns what the EXIF said (None without ``--photo``); UsageError for a query that is missing
+    or does not match the photo."""
+    photo = params.get("photo_path")
+    if photo is None:
+        if params.get("ground_path") is None:
+            raise click.UsageError("give the ground view: --ground FILE (or --photo FILE.jpg with --ground-checkpoint)")
+        return None
+    facts = photo_facts(photo)
+    if params.get("ground_path") is None:
+        if params.get("ground_checkpoint") is None:
+            raise click.UsageError(f"--photo {photo.name}: give its class-id mask as --ground FILE, or segment the "
+                                   "photo itself with --ground-checkpoint FILE")
+        params["ground_path"] = photo
+    else:
+        _check_aspect(Path(params["ground_path"]), facts, photo)
+    if "fov_deg" not in typed:
+        if facts.hfov_deg is None:
+            raise click.UsageError(f"--photo {photo.name}: its EXIF has no focal length; give its field of view as "
+                                   "--fov DEGREES")
+        params["fov_deg"] = round(facts.hfov_deg, 3)
+    if "heading_text" not in typed:
+        if facts.heading_deg is None:
+            params["heading_text"] = "unknown"  # a photo without a compass: its heading is searched
+        else:
+            params["heading_text"] = f"{facts.heading_deg:g}"
+            if "heading_within_deg" not in typed:
+                params["heading_within_deg"] = COMPASS_WITHIN_DEG
+    return facts
+
+
+def _check_aspect(mask: Path, facts: PhotoFacts, photo: Path) -> None:
+    """UsageError when ``mask`` cannot be ``photo``'s segmentation: another shape than the photo upright."""
+    from PIL import Image
+
+    try:
+        with Image.open(mask) as im:
+            w, h = im.size
+    except OSError:
+        return  # a landmark file: read (and refused if need be) as a ground view
+    if abs(w / h - facts.width / facts.height) > 0.02 * (facts.width / facts.height):
+        raise click.UsageError(f"--ground {mask.name} is {w}x{h}, but --photo {photo.name} is {facts.width}x"
+                               f"{facts.height} upright: give the mask of this photo as it is seen (EXIF orientation "
+                               "applied)")
+
+
+def say_photo(facts: PhotoFacts, params: Mapping[str, Any], quiet: bool = False) -> None:
+    """Say on stderr what the photo's EXIF gave and how the search takes it (``params``: after :func:`apply_photo`)."""
+    if quiet:
+        return
+    click.echo(f"photo: {facts.describe()}", err=True)
+    within = params.get("heading_within_deg")
+    if params.get("heading_text") == "unknown":
+        click.echo("heading: searched (give --heading DEGREES if it is known)", err=True)
+    elif within is not None:
+        click.echo(f"heading: searched within ±{within:g}° of {params['heading_text']}° (--heading-within; a phone's "
+                   "compass is often 10-30° off)", err=True)

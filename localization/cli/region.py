@@ -40,13 +40,18 @@ from localization.cli.query import (
     GROUND,
     GROUND_CHECKPOINT,
     GROUND_TABLE,
+    HEADING_WITHIN,
     JSON,
+    PHOTO,
     TILT,
     TRUTH,
     GroundQuery,
     LandmarkOptions,
     ViewOptions,
+    apply_photo,
+    say_photo,
 )
+from localization.common.photo import PhotoFacts
 from osmseg import places
 from osmseg.cli.common import default_cache_dir, output_options, report_errors
 from osmseg.cli.drawers import progress_drawer
@@ -104,7 +109,8 @@ aerial_moved = moved_each(("--aerial", "--aerial-resolution", "--aerial-size", "
 
 @click.command("localize-region")
 @output_options
-@GROUND(required=True)
+@GROUND()
+@PHOTO()
 @OSM(required=True, detail=": the files (.osm, .osm.pbf) the region is drawn from, in --aerial-table's classes.")
 @BBOX(dest="bbox_text", detail=": the region to search (or --lat/--lon/--radius-km).")
 @LAT(detail=": the centre of the region (with --lon, --radius-km).")
@@ -129,6 +135,7 @@ aerial_moved = moved_each(("--aerial", "--aerial-resolution", "--aerial-size", "
 @JSON()
 @OUT(detail=" of region.geojson, region.png and region.html (a map to pan, opens offline).")
 @HEADING(default="0", show_default=True)
+@HEADING_WITHIN()
 @FOV(default=360.0, show_default=True)
 @CAMERA_HEIGHT(default="2", show_default=True)
 @TILT(default=0.0, show_default="level")
@@ -141,10 +148,26 @@ def localize_region_command(ctx: click.Context, /, **params: Any) -> None:
     (--osm FILE --bbox W,S,E,N), with angular profiles. An aerial image is osmseg localize's."""
     if not 14 <= params["zoom"] <= 21:
         raise click.UsageError(f"--zoom {params['zoom']}: a region is drawn at zoom 14 to 21", ctx)
-    request = make_request(RegionQuery, params, typed=typed_flags(ctx))
+    typed = typed_flags(ctx)
+    facts = apply_photo(params, typed)
+    if facts is not None:
+        _photo_centre(params, facts, ctx)
+        say_photo(facts, params, quiet=(ctx.obj or {}).get("verbosity", 0) < 0)
+    request = make_request(RegionQuery, params, typed=typed)
     with progress_drawer((ctx.obj or {}).get("progress")) as progress:
         run = request.run(progress)
     _say(request, run, verbosity=(ctx.obj or {}).get("verbosity", 0))
+
+
+def _photo_centre(params: dict[str, Any], facts: PhotoFacts, ctx: click.Context) -> None:
+    """The region around the photo's GPS fix when no region is given: ``--radius-km`` around it."""
+    if facts.lonlat is None or params.get("bbox_text") is not None or params.get("lat") is not None \
+            or params.get("lon") is not None:
+        return
+    if params.get("radius_km") is None:
+        raise click.UsageError(f"--photo carries a GPS fix ({facts.lonlat[0]:.6f},{facts.lonlat[1]:.6f}): give "
+                               "--radius-km KM to search around it, or the region as --bbox W,S,E,N", ctx)
+    params["lon"], params["lat"] = facts.lonlat
 
 
 @dataclass(frozen=True)

@@ -84,6 +84,10 @@ def _dictionary(name: str) -> Any:
 def _read_image(path: Path) -> tuple[np.ndarray, float | None]:
     """Pixels ``(H, W)`` or ``(H, W, bands)`` of an image, and its ground resolution (m/px) if georeferenced."""
     raster = read_raster(path)
+    if raster.resolution_m is None:  # a photo, not a map: as a person sees it (its EXIF orientation applied)
+        from localization.common.photo import upright_pixels
+
+        return upright_pixels(raster.pixels, path), None
     return raster.pixels, raster.resolution_m
 
 

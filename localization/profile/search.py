@@ -58,7 +58,8 @@ import numpy as np
 from localization.profile.profiles import QueryProfile
 from osmseg.errors import ConfigError
 
-__all__ = ["UNKNOWN_HEIGHTS", "AerialIndex", "ProfileConfig", "RayIndex", "class_prior", "grid_positions", "score_poses",
+__all__ = ["UNKNOWN_HEIGHTS", "AerialIndex", "ProfileConfig", "RayIndex", "allowed_shifts", "class_prior", "grid_positions",
+           "score_poses",
            "score_positions"]
 
 
@@ -79,6 +80,8 @@ class ProfileConfig:
     keep: int = 40                 # positions refined at each level
     levels: int | None = None      # refinements, each a third of the previous spacing [2 for a mask, 1 for points]
     heading_deg: float | None = 0.0  # compass azimuth of the query's centre column; None: unknown (searched)
+    heading_prior_deg: float | None = None  # heading unknown: search only within heading_within_deg of this
+    heading_within_deg: float = 180.0       # (a photo's compass heading, good to so many degrees)
     top_k: int = 5
     min_confidence: float | None = None  # confidence below this: "not sure" [the aerial side's: 0.04 for a mask,
                                          # none for landmark points (docs/localization.md: how chosen)]
@@ -106,6 +109,10 @@ class ProfileConfig:
             raise ConfigError("profile method: ranges must satisfy 0 < min < max and the grid spacing be > 0")
         if self.heading_deg is not None and not math.isfinite(self.heading_deg):
             raise ConfigError(f"heading must be a number of degrees or unknown, got {self.heading_deg}")
+        if self.heading_prior_deg is not None and not math.isfinite(self.heading_prior_deg):
+            raise ConfigError(f"heading prior must be a number of degrees, got {self.heading_prior_deg}")
+        if not 0 < self.heading_within_deg <= 180:
+            raise ConfigError(f"the heading's uncertainty must be 0-180 degrees, got {self.heading_within_deg:g}")
         if not 0 <= self.tilt_deg <= 10:
             raise ConfigError(f"camera tilt must be 0-10 degrees, got {self.tilt_deg:g}")
         if any(not (0 < h < 100) for h in self.camera_heights):
@@ -195,7 +202,7 @@ def score_positions(index: AerialIndex, query: QueryProfile, xy: np.ndarray, con
         P, V = index.profiles(part, query.radii_m, query.bins, need)
         if known:
             return (np.einsum("ncra,cra->n", P, q) + float(u.sum()) - np.einsum("nra,ra->n", V, u)) / total, None
-        return _rotations(P, V, qf, uf, u, total, query.bins)
+        return _rotations(P, V, qf, uf, u, total, query.bins, allowed_shifts(config, query.bins))
 
     for start, (b, s) in zip(range(0, n, config.chunk), _map(one, [xy[i:i + config.chunk] for i in range(0, n, config.chunk)],
                                                              config.threads)):
@@ -216,6 +223,7 @@ def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config:
     totals = np.maximum(qs.sum(axis=(1, 2, 3)), 1e-9)                              # (H,)
     u = np.einsum("hcra,cr->hra", qs, prior.astype(np.float32))                   # (H, R + 1, A)
     known = query.heading_deg is not None
+    allowed = allowed_shifts(config, query.bins)
     need = qs.sum(axis=(0, 3)) > 0
     if not known:
         qf, uf = np.conj(np.fft.rfft(qs, axis=-1)), np.conj(np.fft.rfft(u, axis=-1))
@@ -242,8 +250,8 @@ def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config:
         agree = np.einsum("nkf,hkf->nhf", np.fft.rfft(onehot, axis=-1), qf[:, rows_c, rows_r])
         seen = np.einsum("nrf,hrf->nhf", np.fft.rfft(valid.astype(np.float32), axis=-1), uf[:, :n_r])
         s = (np.fft.irfft(agree - seen, n=bins, axis=-1) + base[None, :, None]) / totals[None, :, None]
-        pose = s.max(axis=2).argmax(axis=1)
-        best, shift = _peak(s[np.arange(len(s)), pose])
+        pose = _within(s, allowed).max(axis=2).argmax(axis=1)
+        best, shift = _peak(s[np.arange(len(s)), pose], allowed)
         return best, shift, pose
 
     def one(part: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -258,8 +266,8 @@ def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config:
         agree = np.fft.irfft(np.einsum("ncrf,hcrf->nhf", np.fft.rfft(P, axis=-1), qf), n=query.bins, axis=-1)
         seen = np.fft.irfft(np.einsum("nrf,hrf->nhf", np.fft.rfft(V, axis=-1), uf), n=query.bins, axis=-1)
         s = (agree + u.sum(axis=(1, 2))[None, :, None] - seen) / totals[None, :, None]   # (N, H, A)
-        pose = s.max(axis=2).argmax(axis=1)
-        best, shift = _peak(s[np.arange(len(s)), pose])
+        pose = _within(s, allowed).max(axis=2).argmax(axis=1)
+        best, shift = _peak(s[np.arange(len(s)), pose], allowed)
         return best, shift, pose
 
     chunk = max(1, config.chunk // max(1, len(variants) // 8))  # (N, H, A) stays near one chunk's profiles
@@ -270,17 +278,37 @@ def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config:
             np.concatenate([p for _, _, p in parts]))
 
 
+def allowed_shifts(config: ProfileConfig, bins: int) -> np.ndarray | None:
+    """The azimuth shifts (bins; shift ``k`` is heading ``k * 360 / bins``) an unknown heading may take:
+    those within ``heading_within_deg`` of ``heading_prior_deg``, or None for all of them.
+
+    >>> allowed_shifts(ProfileConfig(heading_deg=None, heading_prior_deg=350, heading_within_deg=10), 36).nonzero()
+    (array([ 0, 34, 35]),)
+    >>> allowed_shifts(ProfileConfig(heading_deg=None), 36) is None
+    True
+    """
+    if config.heading_prior_deg is None or config.heading_within_deg >= 180:
+        return None
+    off = (np.arange(bins) * 360.0 / bins - config.heading_prior_deg + 180.0) % 360.0 - 180.0
+    return np.abs(off) <= config.heading_within_deg + 1e-9
+
+
+def _within(s: np.ndarray, allowed: np.ndarray | None) -> np.ndarray:
+    """``s`` (..., shifts) with the shifts not allowed at -inf, for picking the best allowed one."""
+    return s if allowed is None else np.where(allowed, s, -np.inf)
+
+
 def _rotations(P: np.ndarray, V: np.ndarray, qf: np.ndarray, uf: np.ndarray, u: np.ndarray, total: float,
-               bins: int) -> tuple[np.ndarray, np.ndarray]:
-    """Best score over all azimuth shifts, and the shift (sub-bin), by circular cross-correlation."""
+               bins: int, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Best score over the (allowed) azimuth shifts, and the shift (sub-bin), by circular cross-correlation."""
     agree = np.fft.irfft(np.einsum("ncrf,crf->nf", np.fft.rfft(P, axis=-1), qf), n=bins, axis=-1)
     seen = np.fft.irfft(np.einsum("nrf,rf->nf", np.fft.rfft(V, axis=-1), uf), n=bins, axis=-1)
-    return _peak((agree + float(u.sum()) - seen) / total)
+    return _peak((agree + float(u.sum()) - seen) / total, allowed)
 
 
-def _peak(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each row's best score over the shifts, and its shift refined to a fraction of a bin."""
-    k = s.argmax(axis=1)
+def _peak(s: np.ndarray, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's best score over the (allowed) shifts, and its shift refined to a fraction of a bin."""
+    k = _within(s, allowed).argmax(axis=1)
     return s[np.arange(len(s)), k], k + _parabola(s, k)
 
 
@@ -323,13 +351,14 @@ def _pruned(index: Any, query: QueryProfile, xy: np.ndarray, config: ProfileConf
     rows_c, rows_r = np.nonzero(need[:, :n_r])
     q_rows = qf[rows_c, rows_r]                                                   # (K, F)
     u_rows = np.flatnonzero(u[:n_r].any(axis=1))
+    allowed = allowed_shifts(config, query.bins)  # the bounds hold over every shift, so over these too
 
     def rotations_of(part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         lab, valid = index.labels(xy[part], query.radii_m, query.bins)
         onehot = (lab[:, rows_r, :] == rows_c[None, :, None].astype(lab.dtype)).astype(np.float32)
         agree = np.einsum("nkf,kf->nf", np.fft.rfft(onehot, axis=-1), q_rows)
         seen = np.einsum("nrf,rf->nf", np.fft.rfft(valid[:, u_rows, :].astype(np.float32), axis=-1), uf[u_rows])
-        return _peak((np.fft.irfft(agree - seen, n=query.bins, axis=-1) + float(u.sum())) / total)
+        return _peak((np.fft.irfft(agree - seen, n=query.bins, axis=-1) + float(u.sum())) / total, allowed)
 
     # a batch of chunks at a time, one per thread; then accepted chunk by chunk exactly as one
     # thread would: a chunk that starts below the keep-th best so far ends the search (within

@@ -67,6 +67,21 @@ def test_unknown_heading_is_recovered_with_the_position(scene, xy, heading) -> N
     assert abs((loc.heading_deg - heading + 180) % 360 - 180) <= 4.0
 
 
+def test_a_compass_prior_keeps_the_heading_search_within_its_uncertainty(scene) -> None:
+    """A photo's compass heading, good to 20°: near the truth the answer is the unknown-heading
+    one; a compass 90° off keeps every heading tried within its 20°, so the right one is never
+    reached (and the answer says so by its heading)."""
+    mask, index = scene
+    xy, heading = TRUTHS[1], 301.5
+    q = _query(mask, xy, heading, fov=90.0)
+    near = run_profile(ProfileConfig(heading_deg=None, heading_prior_deg=315.0, heading_within_deg=20.0,
+                                     min_confidence=-1.0), index, q.semantic, q.camera)
+    assert _error_m(near, xy) <= 3.0 and abs((near.heading_deg - heading + 180) % 360 - 180) <= 5.0
+    off = run_profile(ProfileConfig(heading_deg=None, heading_prior_deg=30.0, heading_within_deg=20.0,
+                                    min_confidence=-1.0), index, q.semantic, q.camera)
+    assert all(abs((h - 30.0 + 180) % 360 - 180) <= 20.0 + 2.5 for h in off.headings)  # within the prior (+ a bin)
+
+
 def test_a_90_degree_photo_with_unknown_heading_is_localized(scene) -> None:
     mask, index = scene
     xy, heading = TRUTHS[0], 200.0
