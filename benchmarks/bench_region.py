@@ -20,7 +20,9 @@ known|unknown] [--eye 1.5,2.5] [--tilt 2] [--json PATH]``. Defaults: the Kotka e
 * **Scores**: top-1 error; recall at 10 and 25 m; how well the confidence ranks right answers
   (within 10 m) above wrong ones (more than 50 m off), as ROC AUC, beside kappa's (the
   confidence before the best distinct alternative was used); the share of queries answered at
-  the default threshold (0.04) and the share of those answers that are wrong.
+  the default threshold (0.04) and the share of those answers that are wrong; the same for the
+  verdict ("here": the confidence and the lift over the null), and the share of right answers
+  it keeps.
 * **Baseline**: a random street point of the region (what a guess gives), its median error.
 
 Peak memory is the process's maximum resident set (``ru_maxrss``), which includes Python and
@@ -57,7 +59,14 @@ from localization.common.views import Camera, semantic_map  # noqa: E402
 from localization.profile.profiles import MASK_MIN_CONFIDENCE  # noqa: E402
 from localization.profile.search import UNKNOWN_HEIGHTS, ProfileConfig  # noqa: E402
 from localization.region.cache import BlockMasks  # noqa: E402
-from localization.region.search import RegionConfig, distance_m, pixel_lonlat, region_blocks, search_region  # noqa: E402
+from localization.region.search import (  # noqa: E402
+    HERE,
+    RegionConfig,
+    distance_m,
+    pixel_lonlat,
+    region_blocks,
+    search_region,
+)
 from osmseg.classes import load_class_table  # noqa: E402
 
 KOTKA = ROOT.parent / "shared" / "data" / "helsinki-osm" / "kotka.osm.pbf"
@@ -157,7 +166,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         guesses = street_points(masks, blocks, args.queries, rng, bbox)  # the baseline: a random street point
         print(f"{len(blocks)} blocks; {args.queries} views at street points, fov {args.fov:g}°, heading "
               f"{args.heading}, eye {eye[0]:g}-{eye[1]:g} m, tilt ±{args.tilt:g}°", flush=True)
-        print(f"{'#':>3} {'error m':>9} {'conf':>6} {'kappa':>6} {'s':>6}")
+        print(f"{'#':>3} {'error m':>9} {'conf':>6} {'kappa':>6} {'s':>6} verdict")
         for i, v in enumerate(draw_views(args.osm, points, rng, args.seed, eye, args.tilt, args.fov)):
             lon, lat, heading, h, pitch, roll = v.lon, v.lat, v.heading, v.eye_m, v.pitch, v.roll
             query = semantic_map(v.pixels, PANO, CLASSES)  # with its sky, as a segmented photo shows it
@@ -172,12 +181,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             error = distance_m(best, (lon, lat)) if best is not None else math.inf
             rows.append({"lon": lon, "lat": lat, "heading": heading, "eye_m": h, "pitch": pitch, "roll": roll,
                          "error_m": error, "confidence": best.confidence if best else None,
-                         "kappa": best.kappa if best else None, "seconds": seconds, "cpu_s": cpu})
+                         "kappa": best.kappa if best else None, "seconds": seconds, "cpu_s": cpu,
+                         "verdict": result.verdict, "lift": result.lift})
             print(f"{i:>3} {error:>9.2f} {rows[-1]['confidence'] or 0:>6.3f} {rows[-1]['kappa'] or 0:>6.3f} "
-                  f"{seconds:>6.1f}", flush=True)
+                  f"{seconds:>6.1f} {result.verdict}", flush=True)
     right = [r for r in rows if r["error_m"] <= 10]
     wrong = [r for r in rows if r["error_m"] > 50]
     accepted = [r for r in rows if (r["confidence"] or 0) >= MASK_MIN_CONFIDENCE]
+    here = [r for r in rows if r["verdict"] == HERE]  # the verdict: the confidence and the null's lift
     baseline = statistics.median(distance_m(p, g) for p, g in zip(points, guesses))
     summary = {
         "queries": len(rows), "fov": args.fov, "heading": args.heading, "eye_m": list(eye), "tilt_deg": args.tilt,
@@ -191,6 +202,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "threshold": MASK_MIN_CONFIDENCE,
         "accepted": round(len(accepted) / len(rows), 3),
         "false_accept": round(sum(r["error_m"] > 50 for r in accepted) / len(accepted), 3) if accepted else None,
+        "accepted_by_verdict": round(len(here) / len(rows), 3),
+        "false_accept_by_verdict": round(sum(r["error_m"] > 50 for r in here) / len(here), 3) if here else None,
+        "right_kept_by_verdict": round(sum(r["error_m"] <= 10 for r in here) / len(right), 3) if right else None,
         "first_query_s": round(rows[0]["seconds"], 1),
         "median_query_s": round(statistics.median(r["seconds"] for r in rows[1:] or rows), 1),
         "first_query_cpu_s": round(rows[0]["cpu_s"], 1),

@@ -1,6 +1,6 @@
 """Is a view from this district at all? Region search of views from one town in another town's OpenStreetMap.
 
-Run: ``.venv/bin/python benchmarks/bench_region_null.py [--queries 8] [--heading known|unknown]
+Run: ``.venv/bin/python benchmarks/bench_region_null.py [--queries 8] [--heading known|unknown] [--fov 360]
 [--json PATH]``. The towns are the real extracts of ``../shared/data``: Kotka (a 1 km box of
 ``helsinki-osm/kotka.osm.pbf``), Helsinki centre (``helsinki-osm/helsinki.osm.pbf``) and West
 Oakland (``oakland-osm/west-oakland.osm``). Views are ray-cast by the independent renderer
@@ -72,6 +72,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--queries", type=int, default=8, help="views drawn in each town")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--heading", choices=["known", "unknown"], default="known")
+    ap.add_argument("--fov", type=float, default=360.0, help="the views' field of view in degrees (360: panoramas)")
     ap.add_argument("--json", type=Path, help="also write every search here")
     ap.add_argument("--summarise", type=Path, metavar="JSON",
                     help="print the summary of an earlier run's --json at this osmseg's thresholds (no search)")
@@ -97,14 +98,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             masks.prepare(range(len(blocks)))  # the region's OSM cut once for every block
             rng = np.random.default_rng(args.seed)
             points = street_points(masks, blocks, args.queries, rng, t.bbox)
-            views[t.name] = list(draw_views(t.osm, points, rng, args.seed, (1.5, 2.5), 1.0, 360.0))
+            views[t.name] = list(draw_views(t.osm, points, rng, args.seed, (1.5, 2.5), 1.0, args.fov))
             print(f"{t.name}: {len(blocks)} blocks, {len(points)} views", flush=True)
         for origin in TOWNS:
             for place in TOWNS:
                 config = RegionConfig(bbox=place.bbox)
                 for i, v in enumerate(views[origin.name]):
                     query = semantic_map(v.pixels, PANO, CLASSES)
-                    camera = Camera(v.pixels.shape[1], 224, hfov_deg=360.0, camera_height_m=2.0)
+                    camera = Camera(v.pixels.shape[1], 224, hfov_deg=args.fov, camera_height_m=2.0)
                     profile = ProfileConfig(heading_deg=v.heading if args.heading == "known" else None,
                                             camera_heights=UNKNOWN_HEIGHTS, tilt_deg=1.0)
                     t0 = time.perf_counter()
@@ -127,7 +128,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     summary = summarise(rows)
     print(json.dumps(summary, indent=2))
     if args.json:
-        args.json.write_text(json.dumps({"summary": summary, "searches": rows}, indent=2) + "\n")
+        args.json.write_text(json.dumps({"summary": summary, "fov": args.fov, "heading": args.heading, "searches": rows},
+                                        indent=2) + "\n")
     return summary
 
 
