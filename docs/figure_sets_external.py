@@ -470,6 +470,23 @@ NULL_ROWS = (("own town, right answers (within 10 m)", "own town, right answers"
              ("another town", "other town"))
 
 
+def null_rows(summary: dict[str, Any], label: str) -> list[list[str]]:
+    """The rows of a "not found here" table for one run of bench_region_null.py (``label`` leads each row)."""
+    rows = []
+    for name, key in NULL_ROWS:
+        alone, verdict = summary["confidence_only"][key], summary["verdict_here"][key]
+        rows.append([f"{label}: {name}", count(alone["n"]),
+                     f"{alone['accepted']} ({ratio(alone['accepted'] / max(1, alone['n']))})",
+                     count(alone["accepted_wrong"]),
+                     f"{verdict['accepted']} ({ratio(verdict['accepted'] / max(1, verdict['n']))})",
+                     count(verdict["accepted_wrong"])])
+    return rows
+
+
+NULL_COLUMNS = ["searches", "n", "accepted by confidence ≥ 0.04 alone", "of them wrong", "accepted by the verdict",
+                "of them wrong"]
+
+
 @figure_set("null", "expensive", needs="shared data")
 def null(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_region_null.py, seeds 0 (threshold chosen on it) and 1 (held out): views of Kotka, Helsinki and West Oakland searched in each town"""
@@ -480,22 +497,29 @@ def null(ws: Workspace) -> dict[str, Figure]:
                         name=f"bench_region_null-{seed}")
         s = found[seed] = run["summary"]
         searches[seed] = run["searches"]
-        for label, key in NULL_ROWS:
-            alone, verdict = s["confidence_only"][key], s["verdict_here"][key]
-            rows.append([f"seed {seed} ({role}): {label}", count(alone["n"]),
-                         f"{alone['accepted']} ({ratio(alone['accepted'] / max(1, alone['n']))})",
-                         count(alone["accepted_wrong"]),
-                         f"{verdict['accepted']} ({ratio(verdict['accepted'] / max(1, verdict['n']))})",
-                         count(verdict["accepted_wrong"])])
+        rows += null_rows(s, f"seed {seed} ({role})")
     auc = found[1]["auc_right_vs_other_town"]
     confident = [r for r in searches[0] if (r["confidence"] or 0) >= 0.04 and r["lift"] is not None]
     return {
         "null.other_top": F(" and ".join(ratio(v) for v in sorted(r["lift"] for r in confident
                                                                    if r["from"] != r["in"])[-2:])),
-        "null.table": F(table(["searches", "n", "accepted by confidence ≥ 0.04 alone", "of them wrong",
-                               "accepted by the verdict", "of them wrong"], rows)),
+        "null.table": F(table(NULL_COLUMNS, rows)),
         "null.auc": F(f"{ratio(auc['lift over the null'])} (kappa {ratio(auc['kappa'])}, confidence "
                       f"{ratio(auc['confidence'])})"),
+    }
+
+
+@figure_set("null90", "expensive", needs="shared data")
+def null90(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_region_null.py --fov 90 --heading unknown: 90° photos of the three towns, each searched in every town"""
+    run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", "0", "--fov", "90", "--heading",
+                    "unknown", name="bench_region_null90-0")
+    s = run["summary"]
+    auc = s["auc_right_vs_other_town"]
+    return {
+        "null90.table": F(table(NULL_COLUMNS, null_rows(s, "90° photos, heading unknown"))),
+        "null90.auc": F(f"{ratio(auc['lift over the null'])} (kappa {ratio(auc['kappa'])}, confidence "
+                        f"{ratio(auc['confidence'])})"),
     }
 
 
