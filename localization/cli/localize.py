@@ -64,6 +64,8 @@ from localization.cli.query import (
     AERIAL_TABLE,
     GROUND,
     GROUND_CHECKPOINT,
+    GROUND_MODEL,
+    GROUND_MODEL_CLASSES,
     GROUND_TABLE,
     HEADING_WITHIN,
     JSON,
@@ -161,6 +163,8 @@ region_moved = moved_each(("--osm", "--bbox", "--lat", "--lon", "--radius-km", "
 @GROUND_SIZE()
 @AERIAL_CHECKPOINT()
 @GROUND_CHECKPOINT()
+@GROUND_MODEL()
+@GROUND_MODEL_CLASSES()
 @NO_PANORAMA(default=True, show_default=True)
 @WINDOW(default="auto", show_default=True)
 @GROUND_WINDOW(show_default="a panorama's height; otherwise the aerial window")

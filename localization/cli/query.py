@@ -25,7 +25,7 @@ from osmseg.cli.common import parse_size
 from osmseg.cli.options import declare
 
 __all__ = ["GroundQuery", "LandmarkOptions", "ViewOptions", "GROUND", "GROUND_TABLE", "AERIAL_TABLE",
-           "GROUND_CHECKPOINT", "TRUTH", "JSON", "TILT", "PHOTO", "HEADING_WITHIN", "apply_photo", "say_photo"]
+           "GROUND_CHECKPOINT", "GROUND_MODEL", "GROUND_MODEL_CLASSES", "TRUTH", "JSON", "TILT", "PHOTO", "HEADING_WITHIN", "apply_photo", "say_photo"]
 
 GROUND = declare("--ground", dest="ground_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                  help="Ground view: label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy), or RGB "
@@ -43,6 +43,12 @@ HEADING_WITHIN = declare("--heading-within", dest="heading_within_deg", type=cli
 AERIAL_TABLE = declare("--aerial-table", help="Class table of the aerial side, e.g. classes13.toml.")
 GROUND_CHECKPOINT = declare("--ground-checkpoint", type=click.Path(exists=True, path_type=Path),
                             help="Segment the ground RGB image with this checkpoint first (needs PyTorch).")
+GROUND_MODEL = declare("--ground-model", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+                       help="Segment the ground RGB image with a model trained elsewhere first: TorchScript (.pt, .ts) "
+                            "or ONNX (.onnx), read through --ground-model-classes.")
+GROUND_MODEL_CLASSES = declare("--ground-model-classes", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+                               help="TOML naming the osmseg class of each output channel of --ground-model (and its "
+                                    "table, input size and normalisation; docs/localization.md).")
 TRUTH = declare("--truth", dest="truth_text", metavar="POINT",
                help="Where the ground view was really taken, to report the answer's error")
 JSON = declare("--json", dest="as_json", is_flag=True, help="Print the result as JSON instead of a table.")
@@ -70,12 +76,20 @@ class GroundQuery:
     ground_table: str | None
     ground_size: str | None
     ground_checkpoint: Path | None
+    ground_model: Path | None = None
+    ground_model_classes: Path | None = None
 
     def side(self, landmarks: LandmarkOptions, panorama: bool) -> SideOptions:
         """How :func:`localization.common.inputs.load_side` reads the ground view."""
+        if self.ground_checkpoint is not None and self.ground_model is not None:
+            raise click.UsageError("give one segmentation of the ground photo: --ground-checkpoint (an osmseg "
+                                   "checkpoint) or --ground-model (TorchScript or ONNX)")
+        if self.ground_model_classes is not None and self.ground_model is None:
+            raise click.UsageError("--ground-model-classes reads the output of --ground-model: give the model too")
         return SideOptions("ground", self.ground_classes, self.ground_table,
                            parse_size(self.ground_size, "--ground-size"), self.ground_checkpoint, panorama,
-                           mode=landmarks.mode, min_size=landmarks.min_size, grid_stride=landmarks.grid_stride)
+                           mode=landmarks.mode, min_size=landmarks.min_size, grid_stride=landmarks.grid_stride,
+                           model=self.ground_model, model_classes=self.ground_model_classes)
 
 
 @dataclass(frozen=True)
@@ -117,13 +131,14 @@ def apply_photo(params: MutableMapping[str, Any], typed: Mapping[str, str]) -> P
     photo = params.get("photo_path")
     if photo is None:
         if params.get("ground_path") is None:
-            raise click.UsageError("give the ground view: --ground FILE (or --photo FILE.jpg with --ground-checkpoint)")
+            raise click.UsageError("give the ground view: --ground FILE (or --photo FILE.jpg with --ground-checkpoint "
+                                   "or --ground-model)")
         return None
     facts = photo_facts(photo)
     if params.get("ground_path") is None:
-        if params.get("ground_checkpoint") is None:
+        if params.get("ground_checkpoint") is None and params.get("ground_model") is None:
             raise click.UsageError(f"--photo {photo.name}: give its class-id mask as --ground FILE, or segment the "
-                                   "photo itself with --ground-checkpoint FILE")
+                                   "photo itself with --ground-checkpoint FILE or --ground-model FILE")
         params["ground_path"] = photo
     else:
         _check_aspect(Path(params["ground_path"]), facts, photo)

@@ -39,6 +39,8 @@ from localization.cli.query import (
     AERIAL_TABLE,
     GROUND,
     GROUND_CHECKPOINT,
+    GROUND_MODEL,
+    GROUND_MODEL_CLASSES,
     GROUND_TABLE,
     HEADING_WITHIN,
     JSON,
@@ -127,6 +129,8 @@ aerial_moved = moved_each(("--aerial", "--aerial-resolution", "--aerial-size", "
 @GROUND_TABLE(show_default="the dictionary's own")
 @GROUND_SIZE()
 @GROUND_CHECKPOINT()
+@GROUND_MODEL()
+@GROUND_MODEL_CLASSES()
 @LANDMARK_MODE(dest="mode", default="centroid", show_default=True)
 @MIN_SIZE(default=50, show_default=True)
 @GRID_STRIDE(default=50, show_default=True)

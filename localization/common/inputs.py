@@ -69,6 +69,15 @@ class SideOptions:
     mode: str
     min_size: int
     grid_stride: int
+    model: Path | None = None          # a TorchScript/ONNX model to segment the image with (--ground-model)
+    model_classes: Path | None = None  # its class mapping TOML (--ground-model-classes)
+
+    @property
+    def segments(self) -> str | None:
+        """The option that segments an RGB image on this side, if one was given (for messages)."""
+        if self.checkpoint is not None:
+            return f"--{self.name}-checkpoint"
+        return f"--{self.name}-model" if self.model is not None else None
 
 
 def _dictionary(name: str) -> Any:
@@ -205,16 +214,25 @@ def _photo(path: Path, pixels: np.ndarray) -> np.ndarray | None:
 
 def _segmented_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: SideOptions,
                     dictionary: Any) -> Side:
-    """Segment an RGB image with ``opts.checkpoint`` (needs PyTorch), then read its mask."""
+    """Segment an RGB image with ``opts.checkpoint`` (an osmseg checkpoint, needs PyTorch) or
+    ``opts.model`` (TorchScript or ONNX, with its class mapping), then read its mask."""
+    rgb = _photo(path, pixels)
+    if rgb is None:
+        raise ConfigError(f"{path}: {opts.segments} needs an RGB image, got {pixels.shape}")
+    if opts.model is not None:
+        from localization.common.landmarks import panorama_table
+        from training.inference.foreign import load_foreign_model
+
+        # a ground photo shows the sky: the mapping may name it, as the table's panorama has it
+        foreign = load_foreign_model(opts.model, opts.model_classes, panorama_table if opts.name == "ground" else None)
+        mask = foreign.segment(rgb)
+        return replace(_mask_side(path, mask, resolution, opts, dictionary, rgb, foreign.mapping.table), photo=rgb)
     from osmseg.cli.common import require_torch
 
     require_torch()
     from training.inference.windows import predict_array
     from training.models.checkpoint import model_from_checkpoint
 
-    rgb = _photo(path, pixels)
-    if rgb is None:
-        raise ConfigError(f"{path}: --{opts.name}-checkpoint needs an RGB image, got {pixels.shape}")
     model, spec = model_from_checkpoint(opts.checkpoint)  # type: ignore[arg-type]
     mask = predict_array(model, rgb, spec)
     return replace(_mask_side(path, mask, resolution, opts, dictionary, rgb, spec.table), photo=rgb)
@@ -253,11 +271,11 @@ def load_side(path: Path, opts: SideOptions) -> Side:
     dictionary = _dictionary(opts.classes)
     suffix = path.suffix.lower()
     if suffix in LANDMARK_SUFFIXES or suffix not in IMAGE_SUFFIXES:
-        if opts.checkpoint is not None:
-            raise ConfigError(f"--{opts.name}-checkpoint needs an image to segment, but {path.name} is a landmark file")
+        if opts.segments is not None:
+            raise ConfigError(f"{opts.segments} needs an image to segment, but {path.name} is a landmark file")
         return _landmark_file_side(path, opts, dictionary)
     pixels, resolution = _read_image(path)
-    if opts.checkpoint is not None:
+    if opts.segments is not None:
         return _segmented_side(path, pixels, resolution, opts, dictionary)
     if pixels.ndim != 2 or not np.issubdtype(pixels.dtype, np.integer):
         kind = f"{pixels.shape[2]}-band" if pixels.ndim == 3 else f"{pixels.dtype}"

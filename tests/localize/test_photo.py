@@ -19,6 +19,7 @@ import piexif
 import pytest
 from click.testing import CliRunner
 from PIL import Image, ImageOps
+from test_foreign_model import mapping, onnx_model
 from test_loc_georender import LAT0, LON0, lonlat
 from test_region_null import TABLE, towns  # noqa: F401  (towns: the fixture)
 
@@ -164,3 +165,32 @@ def test_a_photo_that_cannot_be_taken_as_it_is_says_what_to_give(towns: tuple[Pa
     # with --fov the bare photo is searched, its heading unknown
     ok = CliRunner().invoke(cli, region_args(bare, labels, here, tmp_path / "o5", *box, "--fov", "90"))
     assert ok.exit_code == 0 and "heading: searched (give --heading" in ok.stderr, ok.output
+
+
+def test_a_photo_segmented_by_a_foreign_onnx_model_is_found_as_its_mask_is(towns: tuple[Path, Path],
+                                                                         tmp_path: Path) -> None:
+    """--photo with --ground-model (ONNX, made here: each pixel's nearest class colour, its channels
+    in reverse order) and --ground-model-classes: the photo is segmented, then searched, and found
+    where its own class-id mask is found."""
+    here, _ = towns
+    at, heading = (10.0, -25.0), 80.0
+    photo, labels = photo_of_town(here, tmp_path / "q", at, heading, focal_mm=2.31, sensor_mm=8.0,
+                                  heading=heading + 12.0)
+    pano = panorama_table(TABLE)
+    channels = tuple(c.name for c in reversed((pano.unlabeled, *pano.classes)))
+    model = onnx_model(tmp_path / "colours.onnx", channels, pano)
+    classes = mapping(tmp_path / "colours.toml", channels=channels)
+    box = ["--bbox", ",".join(f"{v:.6f}" for v in (*lonlat(-140, -140), *lonlat(140, 140)))]
+    runs = {}
+    for name, ground in (("mask", ["--ground", str(labels)]),
+                         ("model", ["--ground-model", str(model), "--ground-model-classes", str(classes)])):
+        result = CliRunner().invoke(cli, [*region_args(photo, None, here, tmp_path / name, *box), *ground])
+        assert result.exit_code == 0, result.output
+        runs[name] = json.loads((tmp_path / name / "region.geojson").read_text())["features"][0]
+    for run in runs.values():
+        assert distance_m(tuple(run["geometry"]["coordinates"]), lonlat(*at)) < 5.0
+    assert distance_m(tuple(runs["model"]["geometry"]["coordinates"]),
+                      tuple(runs["mask"]["geometry"]["coordinates"])) < 2.0
+    both = CliRunner().invoke(cli, [*region_args(photo, labels, here, tmp_path / "both", *box), "--ground-model",
+                                    str(model), "--ground-checkpoint", str(model)])
+    assert both.exit_code == 2 and "give one segmentation of the ground photo" in both.output, both.output
