@@ -35,7 +35,7 @@ PHOTO = declare("--photo", dest="photo_path", type=click.Path(exists=True, dir_o
                 help="The photo as it was taken (JPEG or TIFF with EXIF): its field of view (focal length), compass "
                      "heading and GPS fix stand in for --fov, --heading/--heading-within and the region's centre "
                      "where those are not given. The ground view is its class-id mask (--ground), or the photo "
-                     "itself segmented with --ground-checkpoint.")
+                     "itself segmented with --ground-checkpoint or --ground-model.")
 HEADING_WITHIN = declare("--heading-within", dest="heading_within_deg", type=click.FloatRange(0, 180, min_open=True),
                          metavar="DEGREES",
                          help="How far --heading (or a --photo's compass) may be off: headings within this many "
@@ -129,6 +129,12 @@ def apply_photo(params: MutableMapping[str, Any], typed: Mapping[str, str]) -> P
     Returns what the EXIF said (None without ``--photo``); UsageError for a query that is missing
     or does not match the photo."""
     photo = params.get("photo_path")
+    if "heading_within_deg" in typed and "heading_text" not in typed and (photo is None or
+                                                                         photo_facts(photo).heading_deg is None):
+        raise click.UsageError("--heading-within is how far a heading may be off: give it with --heading DEGREES (or a "
+                               "--photo whose EXIF has a compass heading)")
+    if "heading_within_deg" in typed and parse_heading(str(params.get("heading_text"))) is None:
+        raise click.UsageError("--heading-within needs a heading to search near: --heading DEGREES, not unknown")
     if photo is None:
         if params.get("ground_path") is None:
             raise click.UsageError("give the ground view: --ground FILE (or --photo FILE.jpg with --ground-checkpoint "
@@ -146,6 +152,9 @@ def apply_photo(params: MutableMapping[str, Any], typed: Mapping[str, str]) -> P
         if facts.hfov_deg is None:
             raise click.UsageError(f"--photo {photo.name}: its EXIF has no focal length; give its field of view as "
                                    "--fov DEGREES")
+        if not 10 <= facts.hfov_deg <= 360:
+            raise click.UsageError(f"--photo {photo.name}: its EXIF gives a field of view of {facts.hfov_deg:.1f}° "
+                                   f"({facts.fov_from}), outside 10-360°; give it as --fov DEGREES")
         params["fov_deg"] = round(facts.hfov_deg, 3)
     if "heading_text" not in typed:
         if facts.heading_deg is None:
@@ -177,6 +186,8 @@ def say_photo(facts: PhotoFacts, params: Mapping[str, Any], quiet: bool = False)
     if quiet:
         return
     click.echo(f"photo: {facts.describe()}", err=True)
+    if facts.hfov_deg is not None and abs(float(params["fov_deg"]) - facts.hfov_deg) > 0.01:
+        click.echo(f"field of view: {float(params['fov_deg']):g}° (--fov), not the EXIF's", err=True)
     within = params.get("heading_within_deg")
     if params.get("heading_text") == "unknown":
         click.echo("heading: searched (give --heading DEGREES if it is known)", err=True)

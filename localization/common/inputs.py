@@ -209,7 +209,14 @@ def _photo(path: Path, pixels: np.ndarray) -> np.ndarray | None:
     osmseg imagery reader takes it (:func:`osmseg.images.read_rgb`: 16-bit values scaled by their
     declared depth, a colour table looked up, as ``osmseg build`` and ``predict`` do), else ``pixels``
     as drawn (None if they are no image)."""
-    return read_rgb(path) if is_tiff(path) else _drawable(pixels)
+    if not is_tiff(path):
+        return _drawable(pixels)
+    rgb = read_rgb(path)
+    if rgb is not None and read_raster(path).resolution_m is None:  # a TIFF photo, not a map: upright, as a person sees it
+        from localization.common.photo import upright_pixels
+
+        rgb = upright_pixels(rgb, path)
+    return rgb
 
 
 def _segmented_side(path: Path, pixels: np.ndarray, resolution: float | None, opts: SideOptions,

@@ -106,8 +106,8 @@ def _degrees(dms: Any, ref: Any, negative: str) -> float | None:
         return None
     if d is None or m is None or s is None:
         return None
-    value = d + m / 60.0 + s / 3600.0
-    return -value if str(ref).strip().upper() == negative else value
+    value = abs(d) + m / 60.0 + s / 3600.0  # some writers sign the degrees as well as the reference
+    return -value if str(ref).strip().upper() == negative or d < 0 else value
 
 
 def _fov(exif: Any, stored: tuple[int, int], turned: bool) -> tuple[float | None, str]:

@@ -284,13 +284,17 @@ def allowed_shifts(config: ProfileConfig, bins: int) -> np.ndarray | None:
 
     >>> allowed_shifts(ProfileConfig(heading_deg=None, heading_prior_deg=350, heading_within_deg=10), 36).nonzero()
     (array([ 0, 34, 35]),)
+    >>> allowed_shifts(ProfileConfig(heading_deg=None, heading_prior_deg=92.5, heading_within_deg=2), 72).nonzero()
+    (array([18]),)
     >>> allowed_shifts(ProfileConfig(heading_deg=None), 36) is None
     True
     """
     if config.heading_prior_deg is None or config.heading_within_deg >= 180:
         return None
     off = (np.arange(bins) * 360.0 / bins - config.heading_prior_deg + 180.0) % 360.0 - 180.0
-    return np.abs(off) <= config.heading_within_deg + 1e-9
+    allowed = np.abs(off) <= config.heading_within_deg + 1e-9
+    allowed[int(np.abs(off).argmin())] = True  # a window narrower than a bin still holds the bin nearest the prior
+    return allowed
 
 
 def _within(s: np.ndarray, allowed: np.ndarray | None) -> np.ndarray:

@@ -2,8 +2,7 @@
 
 :mod:`~localization.region.search` draws the region in overlapping blocks with the builder's
 rasteriser and searches each with the profile method against the region's class frequencies;
-:mod:`~localization.region.cache` draws the blocks from one pass over each OSM file and keeps
-them; :mod:`~localization.region.files` reads the query, splits the search into ``--shard K/N``
+:mod:`~localization.region.cache` keeps the drawn blocks; :mod:`~localization.region.files` reads the query, splits the search into ``--shard K/N``
 parts, merges them and writes the GeoJSON, the picture and :mod:`~localization.region.webmap`'s
 ``region.html`` (folium).
 

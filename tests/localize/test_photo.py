@@ -158,6 +158,10 @@ def test_a_photo_that_cannot_be_taken_as_it_is_says_what_to_give(towns: tuple[Pa
     Image.fromarray(np.zeros((100, 300), np.uint8)).save(tmp_path / "wide.png")
     located, _ = photo_of_town(here, tmp_path / "gps", (10.0, -25.0), 0.0, f35=18, lonlat_=lonlat(0, 0))
     cases.append((region_args(located, labels, here, tmp_path / "o4"), "give --radius-km KM to search around it"))
+    cases.append((region_args(bare, labels, here, tmp_path / "o6", *box, "--fov", "90", "--heading-within", "20"),
+                  "give it with --heading DEGREES"))
+    cases.append((region_args(bare, labels, here, tmp_path / "o7", *box, "--fov", "90", "--heading", "unknown",
+                              "--heading-within", "20"), "needs a heading to search near"))
     for args, message in cases:
         result = CliRunner().invoke(cli, args)
         assert result.exit_code == 2 and message in result.output, (args, result.output)

@@ -49,12 +49,13 @@ def torchscript_model(path: Path) -> Path:
     return path
 
 
-def onnx_model(path: Path, channels: tuple[str, ...] = CHANNELS, table: ClassTable = TABLE) -> Path:
+def onnx_model(path: Path, channels: tuple[str, ...] = CHANNELS, table: ClassTable = TABLE,
+               rows: int | str = "h", cols: int | str = "w") -> Path:
     w, b = weights(channels, table)
     graph = helper.make_graph(
         [helper.make_node("Conv", ["x", "w", "b"], ["y"])], "colours",
-        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3, "h", "w"])],
-        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, len(channels), "h", "w"])],
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3, rows, cols])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, len(channels), rows, cols])],
         [numpy_helper.from_array(w, "w"), numpy_helper.from_array(b, "b")])
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
     model.ir_version = 8
@@ -107,6 +108,8 @@ def test_a_mapping_or_model_that_cannot_be_read_says_what_to_fix(tmp_path: Path)
         (lambda: load_foreign_model(ts, None), "needs --ground-model-classes FILE.toml"),
         (lambda: load_foreign_model(tmp_path / "state.pt", mapping(tmp_path / "d.toml"), with_sky), "not a TorchScript model"),
         (lambda: load_foreign_model(tmp_path / "m.h5", mapping(tmp_path / "e.toml"), with_sky), "TorchScript (.pt, .ts) or ONNX"),
+        (lambda: load_foreign_model(onnx_model(tmp_path / "fixed.onnx", rows=32, cols=32), mapping(tmp_path / "f.toml"),
+                                    with_sky).segment(photo()[1]), "failed on a 1x3x60x90 image"),
     ]
     torch.save(torch.nn.Conv2d(3, 5, 1).state_dict(), tmp_path / "state.pt")  # weights, not a TorchScript model
     (tmp_path / "m.h5").write_bytes(b"\x89HDF")

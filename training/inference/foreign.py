@@ -100,6 +100,16 @@ def read_class_mapping(path: Path | str, extend: Callable[[ClassTable], ClassTab
                         _triple(doc, "mean", IMAGENET_MEAN, where), _triple(doc, "std", IMAGENET_STD, where))
 
 
+def _need(package: str) -> Any:
+    """Import ``package`` (the runtime of a model kind), or say in one line how to install it."""
+    import importlib
+
+    try:
+        return importlib.import_module(package)
+    except ImportError:
+        raise ConfigError(f"--ground-model needs {package}: pip install 'osmseg[train]'") from None
+
+
 class ForeignModel:
     """A TorchScript or ONNX segmentation model with its :class:`ClassMapping`: :meth:`segment` an RGB photo."""
 
@@ -107,7 +117,7 @@ class ForeignModel:
         self.path, self.mapping = Path(path), mapping
         suffix = self.path.suffix.lower()
         if suffix == ".onnx":
-            import onnxruntime
+            onnxruntime = _need("onnxruntime")
 
             try:
                 self._session = onnxruntime.InferenceSession(str(self.path), providers=["CPUExecutionProvider"])
@@ -116,12 +126,12 @@ class ForeignModel:
             self._input = self._session.get_inputs()[0].name
             self._run = self._onnx
         elif suffix in TORCHSCRIPT_SUFFIXES:
-            import torch
+            torch = _need("torch")
 
             try:
                 with warnings.catch_warnings():  # torch 2.14 calls TorchScript deprecated; the user's model is one
                     warnings.simplefilter("ignore", FutureWarning)
-                    self._module = torch.jit.load(str(self.path), map_location="cpu").eval()  # type: ignore[no-untyped-call]
+                    self._module = torch.jit.load(str(self.path), map_location="cpu").eval()
             except (RuntimeError, ValueError) as exc:
                 raise ConfigError(f"--ground-model {self.path}: not a TorchScript model ({str(exc).splitlines()[0]}); "
                                   "an osmseg checkpoint goes to --ground-checkpoint") from None
@@ -149,7 +159,14 @@ class ForeignModel:
         if m.size is not None:
             image = image.resize((m.size[1], m.size[0]), Image.Resampling.BILINEAR)
         x = (np.asarray(image, np.float32) / 255.0 - np.array(m.mean, np.float32)) / np.array(m.std, np.float32)
-        scores = self._run(np.ascontiguousarray(x.transpose(2, 0, 1)[None], np.float32))
+        batch = np.ascontiguousarray(x.transpose(2, 0, 1)[None], np.float32)
+        try:
+            scores = self._run(batch)
+        except Exception as exc:  # the model's own error (onnxruntime's and torch's types differ)
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+            raise ConfigError(f"--ground-model {self.path.name} failed on a {'x'.join(map(str, batch.shape))} image "
+                              f"({first}); if it takes one input size, give it as size = [rows, columns] in "
+                              f"{m.path.name}") from None
         if scores.ndim != 4 or scores.shape[0] != 1:
             raise ConfigError(f"--ground-model {self.path.name}: gave scores of shape {scores.shape}, not (1, classes, "
                               "rows, columns)")
