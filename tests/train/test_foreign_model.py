@@ -24,6 +24,8 @@ from training.inference.foreign import load_foreign_model, read_class_mapping
 BASE = load_class_table("classes13.toml")
 SKY = ClassDef(id=14, name="sky", color=(135, 206, 235))
 TABLE = ClassTable(name="osm13+sky", classes=(*BASE.classes, SKY), unlabeled=BASE.unlabeled)  # what a ground view shows
+#: torch 2.14 calls TorchScript deprecated; the models made here are TorchScript on purpose (users still have them)
+pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.:FutureWarning")
 #: the foreign model's channels, in its own order: osmseg class names
 CHANNELS = ("sky", "building", "unlabeled", "highway", "tree")
 
