@@ -114,12 +114,11 @@ class ViewOptions:
         """The profile method's configuration: heading, heights to try and tilt, and what is reported."""
         heights = parse_camera_height(self.camera_height_text)[1]
         heading = parse_heading(self.heading_text)
-        if heading is not None and self.heading_within_deg is not None:  # a compass: searched near it
-            return ProfileConfig(heading_deg=None, heading_prior_deg=heading, heading_within_deg=self.heading_within_deg,
-                                 camera_heights=heights, tilt_deg=self.tilt_deg, top_k=top_k,
-                                 min_confidence=min_confidence, min_kappa=min_kappa)
-        return ProfileConfig(heading_deg=heading, camera_heights=heights,
-                             tilt_deg=self.tilt_deg, top_k=top_k, min_confidence=min_confidence, min_kappa=min_kappa)
+        near = heading is not None and self.heading_within_deg is not None  # a compass: the heading searched near it
+        return ProfileConfig(heading_deg=None if near else heading, heading_prior_deg=heading if near else None,
+                             heading_within_deg=self.heading_within_deg if near and self.heading_within_deg else 180.0,
+                             camera_heights=heights, tilt_deg=self.tilt_deg, top_k=top_k,
+                             min_confidence=min_confidence, min_kappa=min_kappa)
 
 
 def apply_photo(params: MutableMapping[str, Any], typed: Mapping[str, str]) -> PhotoFacts | None:
@@ -129,18 +128,17 @@ def apply_photo(params: MutableMapping[str, Any], typed: Mapping[str, str]) -> P
     Returns what the EXIF said (None without ``--photo``); UsageError for a query that is missing
     or does not match the photo."""
     photo = params.get("photo_path")
-    if "heading_within_deg" in typed and "heading_text" not in typed and (photo is None or
-                                                                         photo_facts(photo).heading_deg is None):
+    facts = photo_facts(photo) if photo is not None else None
+    if "heading_within_deg" in typed and "heading_text" not in typed and (facts is None or facts.heading_deg is None):
         raise click.UsageError("--heading-within is how far a heading may be off: give it with --heading DEGREES (or a "
                                "--photo whose EXIF has a compass heading)")
     if "heading_within_deg" in typed and parse_heading(str(params.get("heading_text"))) is None:
         raise click.UsageError("--heading-within needs a heading to search near: --heading DEGREES, not unknown")
-    if photo is None:
+    if photo is None or facts is None:
         if params.get("ground_path") is None:
             raise click.UsageError("give the ground view: --ground FILE (or --photo FILE.jpg with --ground-checkpoint "
                                    "or --ground-model)")
         return None
-    facts = photo_facts(photo)
     if params.get("ground_path") is None:
         if params.get("ground_checkpoint") is None and params.get("ground_model") is None:
             raise click.UsageError(f"--photo {photo.name}: give its class-id mask as --ground FILE, or segment the "

@@ -204,15 +204,15 @@ def _drawable(pixels: np.ndarray) -> np.ndarray | None:
     return None
 
 
-def _photo(path: Path, pixels: np.ndarray) -> np.ndarray | None:
+def _photo(path: Path, pixels: np.ndarray, resolution: float | None) -> np.ndarray | None:
     """The RGB photo a model sees (to segment it, or for landmark features): a GeoTIFF as every
     osmseg imagery reader takes it (:func:`osmseg.images.read_rgb`: 16-bit values scaled by their
     declared depth, a colour table looked up, as ``osmseg build`` and ``predict`` do), else ``pixels``
-    as drawn (None if they are no image)."""
+    as drawn (None if they are no image). ``resolution``: the image's m/px, None for a photo."""
     if not is_tiff(path):
         return _drawable(pixels)
     rgb = read_rgb(path)
-    if rgb is not None and read_raster(path).resolution_m is None:  # a TIFF photo, not a map: upright, as a person sees it
+    if rgb is not None and resolution is None:  # a TIFF photo, not a map: upright, as a person sees it
         from localization.common.photo import upright_pixels
 
         rgb = upright_pixels(rgb, path)
@@ -223,7 +223,7 @@ def _segmented_side(path: Path, pixels: np.ndarray, resolution: float | None, op
                     dictionary: Any) -> Side:
     """Segment an RGB image with ``opts.checkpoint`` (an osmseg checkpoint, needs PyTorch) or
     ``opts.model`` (TorchScript or ONNX, with its class mapping), then read its mask."""
-    rgb = _photo(path, pixels)
+    rgb = _photo(path, pixels, resolution)
     if rgb is None:
         raise ConfigError(f"{path}: {opts.segments} needs an RGB image, got {pixels.shape}")
     if opts.model is not None:
@@ -295,7 +295,7 @@ def with_photo(side: Side, path: Path | None, name: str) -> Side:
     """``side`` with the RGB photo of ``--NAME-image`` (for landmark features; drawn under the pictures)."""
     if path is None:
         return side
-    rgb, lm = _photo(path, _read_image(path)[0]), side.landmarks
+    rgb, lm = _photo(path, *_read_image(path)), side.landmarks
     if rgb is None or rgb.shape[:2] != (lm.height, lm.width):
         got = "not an RGB image" if rgb is None else f"{rgb.shape[1]}x{rgb.shape[0]}"
         raise ConfigError(f"--{name}-image {path.name} is {got}; the {name} landmarks need the {lm.width}x{lm.height} "

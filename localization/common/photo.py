@@ -10,8 +10,8 @@ accuracy and the compass direction the camera faced. :func:`photo_facts` reads t
   ``FocalLength`` and the sensor width ``FocalPlaneXResolution`` gives
   (``ExifImageWidth / FocalPlaneXResolution`` in its unit). Neither: None (the user gives ``--fov``).
 * **Orientation**: ``Orientation`` 5-8 mean the camera was held on its side: the picture a person
-  sees is the stored one turned, its width and height swapped (:func:`upright` turns it so, as
-  ``ImageOps.exif_transpose`` does).
+  sees is the stored one turned, its width and height swapped (:func:`upright_pixels` turns it
+  so, as ``ImageOps.exif_transpose`` does).
 * **Heading**: ``GPSImgDirection`` (degrees) with ``GPSImgDirectionRef`` T (true north) or M
   (magnetic north: not corrected here for the declination, a few degrees in most places).
 * **Position**: ``GPSLatitude``/``GPSLongitude`` with their N/S, E/W references, and
@@ -31,11 +31,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image, ImageOps
+from PIL import Image
 
 from osmseg.errors import ConfigError
 
-__all__ = ["COMPASS_WITHIN_DEG", "PhotoFacts", "fov_from_35mm", "photo_facts", "upright", "upright_pixels"]
+__all__ = ["COMPASS_WITHIN_DEG", "PhotoFacts", "fov_from_35mm", "photo_facts", "upright_pixels"]
 
 #: How far a photo's compass heading is taken to be off, by default (degrees either way).
 COMPASS_WITHIN_DEG = 25.0
@@ -148,12 +148,6 @@ def photo_facts(path: Path | str) -> PhotoFacts:
     error = _number(gps.get(GPS_ERROR))
     return PhotoFacts(width, height, hfov, fov_from, None if heading is None else heading % 360.0,
                       ref if heading is not None else "", lonlat, error if lonlat is not None else None)
-
-
-def upright(path: Path | str) -> np.ndarray:
-    """The photo's pixels (RGB) as a person sees it: turned by its EXIF orientation."""
-    with Image.open(path) as im:
-        return np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
 
 
 #: EXIF orientation -> the numpy turn that shows the stored pixels upright (as ``ImageOps.exif_transpose``)
