@@ -62,6 +62,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rows = []
     with tempfile.TemporaryDirectory() as cache:
         masks = BlockMasks([args.osm], TABLE, [g for g, _ in blocks], Path(cache))
+        masks.prepare(range(len(blocks)))  # the region's OSM cut once for every block
         points = street_points(masks, blocks, args.queries, rng, (bbox[0], bbox[1], bbox[2], bbox[3]))
         street_points(masks, blocks, args.queries, rng, (bbox[0], bbox[1], bbox[2], bbox[3]))  # bench_region's guesses
         for v in draw_views(args.osm, points, rng, args.seed, eye, args.tilt, args.fov):

@@ -95,6 +95,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             config = RegionConfig(bbox=t.bbox)
             blocks = region_blocks(config)
             masks = BlockMasks([t.osm], TABLE, [g for g, _ in blocks], Path(cache))
+            masks.prepare(range(len(blocks)))  # the region's OSM cut once for every block
             rng = np.random.default_rng(args.seed)
             points = street_points(masks, blocks, args.queries, rng, t.bbox)
             views[t.name] = list(draw_views(t.osm, points, rng, args.seed, (1.5, 2.5), 1.0, args.fov))

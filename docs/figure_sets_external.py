@@ -523,6 +523,19 @@ def null90(ws: Workspace) -> dict[str, Figure]:
     }
 
 
+@figure_set("draw", "expensive", needs="shared data")
+def draw(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_region_draw.py: a region's blocks drawn from the whole OSM file each, or from one pass over it"""
+    rows = benchmark(ws, "bench_region_draw.py")["rows"]
+    cells = [[r["case"], count(r["blocks"]), seconds(r["per_block"]["cpu_s"]), seconds(r["one_pass"]["cpu_s"]),
+              factor(r["ratio"]), f"{count(r['per_block']['peak_mb'])} / {count(r['one_pass']['peak_mb'])}",
+              f"{count(r['differing_px'])} of {count(r['pixels'])}"] for r in rows]
+    return {"draw.table": F(table(["region, --osm files", "blocks", "per block: CPU", "one pass: CPU",
+                                   "one pass / per block", "peak MB (per block / one pass)",
+                                   "pixels whose class differs"], cells),
+                          r"\| [\d.,]+ s \| [\d.,]+ s \| [\d.]+ \| [\d,]+ / [\d,]+ \|")}
+
+
 @figure_set("memory", "expensive", needs="shared data")
 def memory(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/localize_memory.py: the resident memory of one `osmseg localize` command on Kotka masks of 1280² and 6400²"""

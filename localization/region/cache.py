@@ -1,12 +1,25 @@
 """The region's blocks as drawn from OpenStreetMap, kept deflated in memory and (optionally) on disk.
 
-Drawing a block (reading its OSM features, rasterising them) is most of a region search's
-first pass, and it depends only on the OSM files, the class table, the zoom and the block, not
-on the query. So every drawn block is kept deflated (a few kB: memory stays small whatever the
-region's size), and with a cache folder written there too, under a key of everything it
-depends on: the OSM files (resolved path, size, modification time: a new extract is a new
-key), the class table's classes and rules, and the block's tiles. A second query of the same
-region reads the blocks instead of drawing them again, and answers the same.
+Drawing a block (reading its OSM features, rasterising them) depends only on the OSM files,
+the class table, the zoom and the block, not on the query. So every drawn block is kept
+deflated (a few kB: memory stays small whatever the region's size), and with a cache folder
+written there too, under a key of everything it depends on: the OSM files (resolved path,
+size, modification time: a new extract is a new key), the class table's classes and rules,
+and the block's tiles. A second query of the same region reads the blocks instead of drawing
+them again, and answers the same.
+
+**One pass over each OSM file per region, not one per block.** Reading a block's features
+from the whole ``--osm`` file costs what the file holds, so a region of a few hundred blocks
+in a city or country extract read that file a few hundred times. :meth:`BlockMasks.prepare`
+instead hands the blocks a search will draw to the dataset builder's cutter
+(:meth:`osmseg.osm.localfile.LocalFileSource.prepare` and ``.cut``: one set of passes over the
+input for the region, one collecting pass and one write pass per 256 blocks over the small
+region file), and each block is then read from its own small extract, padded as a build pads
+a sample's (:data:`OSM_PADDING_M`). Unlike a build's, these extracts also hold the areas a
+block lies inside and the coastline near it (``enclosing=True``, :mod:`osmseg.osm.enclosing`):
+a block in the middle of a forest larger than it is forest, as it is drawn from the whole file.
+The extracts live in ``CACHE/osm`` beside the region's other files (a temporary folder
+without a cache) and are named by the input file and the box, so a rerun cuts nothing again.
 
 Cache files are written to a temporary name and renamed, so a search killed mid-write leaves
 no half file, and two searches drawing the same block write the same bytes.
@@ -18,22 +31,29 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
+import tempfile
+import weakref
 import zlib
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from osmseg.classes import ClassTable
-from osmseg.grid import SampleGrid
+from osmseg.grid import SampleGrid, pad_bbox
 from osmseg.osm.features import read_features
+from osmseg.osm.localfile import LocalFileSource
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.rasterize import rasterize
 
-__all__ = ["BlockMasks", "osm_key"]
+__all__ = ["BlockMasks", "OSM_PADDING_M", "osm_key"]
 
 #: bumped when the drawing of a block changes, so old cache entries are not read
-CACHE_VERSION = 1
+#: (3: each block drawn from its own padded extract with the areas holding it; 2 lost those)
+CACHE_VERSION = 3
+#: metres of OSM read around each block, as ``osmseg build`` reads around a sample (its ``osm_padding_m``)
+OSM_PADDING_M = 60.0
 
 
 def osm_key(osm: Sequence[Path | str], table: ClassTable, size: int) -> str:
@@ -50,18 +70,23 @@ def osm_key(osm: Sequence[Path | str], table: ClassTable, size: int) -> str:
 class BlockMasks:
     """Each block's class mask, drawn once: ``mask(b)`` for block ``b`` of ``grids``.
 
-    ``cache_dir``: a folder for drawn blocks shared between runs (None: memory only). ``drawn``
-    and ``read`` count the blocks drawn from OSM and read from the cache.
+    ``cache_dir``: a folder for drawn blocks and the blocks' OSM extracts, shared between runs
+    (None: memory and a temporary folder only). Call :meth:`prepare` with the blocks a search
+    will draw before drawing them, so the OSM files are read once for all of them. ``drawn``
+    and ``read`` count the blocks drawn from OSM and read from the cache; ``cuts`` the calls
+    that cut blocks out of the OSM files.
     """
 
     def __init__(self, osm: Sequence[Path | str], table: ClassTable, grids: Sequence[SampleGrid],
                  cache_dir: Path | None = None) -> None:
         self.osm, self.table, self.grids = [Path(p) for p in osm], table, list(grids)
-        self.folder = None
+        self.folder = self.workdir = None
         if cache_dir is not None:
             self.folder = Path(cache_dir) / "region-blocks" / osm_key(self.osm, table, self.grids[0].size)
+            self.workdir = Path(cache_dir) / "osm"
         self._packed: dict[int, bytes] = {}
-        self.drawn = self.read = 0
+        self._extracts: dict[int, list[Path]] = {}
+        self.drawn = self.read = self.cuts = 0
 
     def _file(self, b: int) -> Path | None:
         if self.folder is None:
@@ -69,23 +94,53 @@ class BlockMasks:
         first = self.grids[b].tiles[0]
         return self.folder / f"{first.z}-{first.x}-{first.y}.bin"
 
+    def _work(self) -> Path:
+        """Where the blocks' extracts go: ``CACHE/osm``, or a folder removed with this object."""
+        if self.workdir is None:
+            self.workdir = Path(tempfile.mkdtemp(prefix="osmseg-region-osm-"))
+            weakref.finalize(self, shutil.rmtree, str(self.workdir), True)
+        return self.workdir
+
+    def _cached(self, b: int) -> bytes | None:
+        """Block ``b`` as deflated in memory or in the cache folder (None: not drawn yet)."""
+        packed = self._packed.get(b)
+        path = self._file(b)
+        if packed is None and path is not None and path.is_file():
+            grid = self.grids[b]
+            packed = path.read_bytes()
+            if len(zlib.decompress(packed)) != grid.height * grid.width:  # not ours: draw it again
+                return None
+            self._packed[b] = packed
+            self.read += 1
+        return packed
+
+    def prepare(self, blocks: Iterable[int]) -> None:
+        """Cut the OSM of those ``blocks`` not drawn yet out of each OSM file, in one pass over it."""
+        todo = [b for b in dict.fromkeys(blocks) if b not in self._extracts and self._cached(b) is None]
+        if not todo:
+            return
+        boxes = [pad_bbox(self.grids[b].bbox, OSM_PADDING_M) for b in todo]
+        for b in todo:
+            self._extracts[b] = []
+        for path in self.osm:
+            source = LocalFileSource(path, self._work(), enclosing=True)
+            if len(boxes) > 1:
+                source.prepare(boxes)  # the region out of a big file: one set of passes over it
+            for b, extract in zip(todo, source.cut(boxes)):
+                self._extracts[b] += extract.paths
+        self.cuts += 1
+
     def mask(self, b: int) -> np.ndarray:
         """Block ``b``'s mask (class ids, uint8)."""
         grid = self.grids[b]
-        packed = self._packed.get(b)
+        packed = self._cached(b)
         if packed is None:
+            self.prepare([b])  # a block nobody prepared: cut on its own
+            mask = rasterize(read_features(self._extracts.pop(b), grid, self.table), grid, self.table)
+            packed = zlib.compress(np.ascontiguousarray(mask, np.uint8).tobytes(), 1)
+            self.drawn += 1
             path = self._file(b)
-            if path is not None and path.is_file():
-                packed = path.read_bytes()
-                if len(zlib.decompress(packed)) != grid.height * grid.width:  # not ours: draw it again
-                    packed = None
-                else:
-                    self.read += 1
-            if packed is None:
-                mask = rasterize(read_features(list(self.osm), grid, self.table), grid, self.table)
-                packed = zlib.compress(np.ascontiguousarray(mask, np.uint8).tobytes(), 1)
-                self.drawn += 1
-                if path is not None:
-                    atomic_write_bytes(path, packed, durable=False)
+            if path is not None:
+                atomic_write_bytes(path, packed, durable=False)
             self._packed[b] = packed
         return np.frombuffer(zlib.decompress(packed), np.uint8).reshape(grid.height, grid.width)

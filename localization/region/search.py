@@ -283,12 +283,13 @@ def search_part(query: SemanticMap, camera: Camera, masks: BlockMasks, table: Cl
     # as the query is: with the height that fits it best), on a grid twice as sparse as the coarse one
     nulls = [scrambled(q, seed) for seed in range(NULL_SCRAMBLES)]
     sample = prior_blocks(len(blocks))
+    mine = [b for b in range(len(blocks)) if shard.owns(b)]
+    masks.prepare([*sample, *mine])  # one pass over the OSM for every block this shard draws
     priors = []
     for b in track(sample, progress, "region's class frequencies", unit="block"):
         index = _index(masks.mask(b), blocks[b][0], table, classes, coarse)
         priors.append(class_prior(index, q, grid_positions(index.shape, index.grid_m / index.resolution_m)))
     prior = np.mean(priors, axis=0)
-    mine = [b for b in range(len(blocks)) if shard.owns(b)]
     found: list[tuple[Answer, int]] = []
     patches, null = {}, {}
     for b in track(mine, progress, "searching blocks", unit="block"):

@@ -17,7 +17,9 @@ would write (same objects, same order, same header: byte-identical) with two rea
    :func:`~osmseg.osm.localfile.segment_hits_box`) whose two ends lie in the box grown by
    ``reach``; the multipolygons with one of those ways as member, their member ways and
    member nodes; the nodes of all ways kept.  Grid indexes over nodes and segments make this
-   cost per box what the box holds, not what the file holds;
+   cost per box what the box holds, not what the file holds. With ``enclosing=True`` the
+   closed ways and multipolygons whose bounding box holds the box, and the coastline near it,
+   join them (:mod:`osmseg.osm.enclosing`: bounding boxes from one ``reduceat`` per file);
 3. one streaming write pass per batch hands each object to the writer of every box of the
    batch that keeps it.  All writers of a batch are open at once (each an open file and an
    osmium writer thread), so boxes go in batches of ``batch`` (256; fewer when the process
@@ -55,6 +57,7 @@ import osmium
 
 from osmseg.errors import OSMDataError, first_line
 from osmseg.grid import LngLatBBox, pad_bbox
+from osmseg.osm.enclosing import Enclosing, enclosing_index, enclosing_keep
 from osmseg.output.atomic import atomic_path
 
 logger = logging.getLogger(__name__)
@@ -205,6 +208,7 @@ class _Index:
     rel_node_offsets: Ints  # multipolygon -> member node positions
     rel_nodes: Ints
     rel_position: Ints  # multipolygon -> its position among the file's relations
+    enclosing: Enclosing | None = None  # areas holding a box and coastline near it (enclosing=True)
 
 
 def _collect(src: str) -> tuple[array[int], ...]:
@@ -212,7 +216,7 @@ def _collect(src: str) -> tuple[array[int], ...]:
     ids, their sizes and node refs; relation ids; and of the multipolygons, their position among
     the relations, member ways and their counts, member nodes and their counts."""
     node_ids, xs, ys = array("q"), array("i"), array("i")
-    way_ids, way_sizes, refs = array("q"), array("q"), array("q")
+    way_ids, way_sizes, refs, coast = array("q"), array("q"), array("q"), array("q")
     rel_ids, mp_position = array("q"), array("q")
     mp_ways, mp_way_sizes, mp_nodes, mp_node_sizes = array("q"), array("q"), array("q"), array("q")
     for obj in osmium.FileProcessor(src, osmium.osm.NODE | osmium.osm.WAY | osmium.osm.RELATION):
@@ -226,6 +230,8 @@ def _collect(src: str) -> tuple[array[int], ...]:
             before = len(refs)
             refs.extend([nd.ref for nd in obj.nodes])
             way_sizes.append(len(refs) - before)
+            if obj.tags.get("natural") == "coastline":
+                coast.append(len(way_ids) - 1)
         elif isinstance(obj, osmium.osm.Relation):
             if obj.tags.get("type") == "multipolygon":
                 mp_position.append(len(rel_ids))
@@ -238,13 +244,14 @@ def _collect(src: str) -> tuple[array[int], ...]:
                 mp_node_sizes.append(len(nodes))
             rel_ids.append(obj.id)
     return (node_ids, xs, ys, way_ids, way_sizes, refs, rel_ids, mp_position, mp_ways, mp_way_sizes, mp_nodes,
-            mp_node_sizes)
+            mp_node_sizes, coast)
 
 
-def _read(src: str, boxes: Sequence[LngLatBBox], reach: float) -> _Index:
-    """The one collecting pass over ``src`` and the indexes for ``boxes``."""
+def _read(src: str, boxes: Sequence[LngLatBBox], reach: float, enclosing: bool = False) -> _Index:
+    """The one collecting pass over ``src`` and the indexes for ``boxes`` (``enclosing``: and for
+    the areas holding a box and the coast near it, :mod:`osmseg.osm.enclosing`)."""
     (node_ids, xs, ys, way_ids, way_sizes, refs, rel_ids, mp_position, mp_ways, mp_way_sizes, mp_nodes,
-     mp_node_sizes) = _collect(src)
+     mp_node_sizes, coast) = _collect(src)
     ids = np.frombuffer(node_ids, dtype=np.int64) if node_ids else np.zeros(0, np.int64)
     x = np.frombuffer(xs, dtype=np.int32) if xs else np.zeros(0, np.int32)
     y = np.frombuffer(ys, dtype=np.int32) if ys else np.zeros(0, np.int32)
@@ -266,6 +273,7 @@ def _read(src: str, boxes: Sequence[LngLatBBox], reach: float) -> _Index:
     way_offsets = np.zeros(n_ways + 1, dtype=np.int64)
     np.cumsum(sizes, out=way_offsets[1:])
     way_nodes = _lookup(node_sorted, node_order, _ints(refs))
+    closed = _closed(_ints(refs), way_offsets) if enclosing else None
     del refs
     way_of_ref = np.repeat(np.arange(n_ways, dtype=pos), sizes)
     known = way_nodes >= 0
@@ -297,13 +305,24 @@ def _read(src: str, boxes: Sequence[LngLatBBox], reach: float) -> _Index:
     rel_of_member = np.repeat(np.arange(n_mps, dtype=pos), _ints(mp_way_sizes))
     member = mp_way_pos >= 0
     way_rel_offsets, way_rels = _csr(mp_way_pos[member], rel_of_member[member], n_ways)
+    areas = None if closed is None else enclosing_index(x, y, located, way_offsets, way_nodes, closed, _ints(coast),
+                                                         rel_way_offsets, mp_way_pos, boxes)
     return _Index(
         counts=(n_nodes, n_ways, len(rel_ids)), x=x, y=y, located=located, node_grid=node_grid,
         way_offsets=way_offsets, way_nodes=way_nodes, node_way_offsets=node_way_offsets, node_ways=node_ways,
         seg_a=a, seg_b=b, seg_way=seg_way, seg_grid=seg_grid, long_segments=np.flatnonzero(~is_short).astype(pos),
         cell=(max(cell_w, _MIN_CELL), max(cell_h, _MIN_CELL)), way_rel_offsets=way_rel_offsets, way_rels=way_rels,
         rel_way_offsets=rel_way_offsets, rel_ways=mp_way_pos,
-        rel_node_offsets=rel_node_offsets, rel_nodes=mp_node_pos, rel_position=_ints(mp_position))
+        rel_node_offsets=rel_node_offsets, rel_nodes=mp_node_pos, rel_position=_ints(mp_position), enclosing=areas)
+
+
+def _closed(refs: Ints, offsets: Ints) -> Bools:
+    """Per way: closed (:func:`osmseg.osm.enclosing.is_closed`: four refs or more, the first the last)."""
+    sizes = np.diff(offsets)
+    closed = sizes >= 4
+    rows = np.flatnonzero(closed)
+    closed[rows] = refs[offsets[rows]] == refs[offsets[rows + 1] - 1]
+    return closed
 
 
 def _ints(values: array[int]) -> Ints:
@@ -336,11 +355,16 @@ def keep_sets(index: _Index, box: LngLatBBox, reach: float) -> tuple[Ints, Ints,
     ends_a, ends_b = index.seg_a[seg], index.seg_b[seg]
     hits = segments_hit_box(_lon(index.x, ends_a), _lon(index.y, ends_a), _lon(index.x, ends_b), _lon(index.y, ends_b),
                             box)
-    found = np.unique(np.concatenate([ways, index.seg_way[seg[hits]]]))
+    found = [ways, index.seg_way[seg[hits]]]
+    held: Ints = np.zeros(0, np.int64)
+    if index.enclosing is not None:
+        around, held = enclosing_keep(index.enclosing, box)
+        found.append(around)
+    kept = np.unique(np.concatenate(found))
 
-    rels = np.unique(_gather(index.way_rel_offsets, index.way_rels, found))
+    rels = np.union1d(_gather(index.way_rel_offsets, index.way_rels, kept), held)
     members = _gather(index.rel_way_offsets, index.rel_ways, rels)
-    ways = np.union1d(found, members[members >= 0])
+    ways = np.union1d(kept, members[members >= 0])
     nodes = np.concatenate([inside, _gather(index.rel_node_offsets, index.rel_nodes, rels),
                             _gather(index.way_offsets, index.way_nodes, ways)])
     nodes = np.unique(nodes[nodes >= 0])
@@ -361,8 +385,9 @@ def batch_size(wanted: int = DEFAULT_BATCH) -> int:
 
 def write_extracts(src: Path, jobs: Sequence[tuple[LngLatBBox, Path]], reach: float,
                    header: Callable[[LngLatBBox], osmium.io.Header], done: Callable[[int, dict[str, int]], object],
-                   one_by_one: Callable[[LngLatBBox, Path], dict[str, int]], batch: int = DEFAULT_BATCH) -> None:
-    """Write for every (box, out) of ``jobs`` the file ``write_extract(src, [box], out, reach)`` writes.
+                   one_by_one: Callable[[LngLatBBox, Path], dict[str, int]], batch: int = DEFAULT_BATCH,
+                   enclosing: bool = False) -> None:
+    """Write for every (box, out) of ``jobs`` the file ``write_extract(src, [box], out, reach, enclosing)`` writes.
 
     ``header(box)`` gives each file's header; ``done(i, counts)`` is called for job ``i`` (with
     its numbers of nodes, ways, relations written) once its file is in place, batch by batch,
@@ -375,7 +400,7 @@ def write_extracts(src: Path, jobs: Sequence[tuple[LngLatBBox, Path]], reach: fl
     src_name = str(src)
     try:
         try:
-            index = _read(src_name, [box for box, _ in jobs], reach)
+            index = _read(src_name, [box for box, _ in jobs], reach, enclosing)
         except NotCuttable as exc:
             logger.info("%s: %s; cutting %d boxes one by one", src, exc, len(jobs))
             for i, (box, out) in enumerate(jobs):

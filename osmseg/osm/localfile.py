@@ -42,7 +42,10 @@ modification time, recorded as such in ``info["timestamp_from"]``.
 
 What no box-based source can see (API, Overpass or this): an area whose outline lies
 entirely outside the padded box while the box lies inside it (a sample in the middle of a
-huge forest or lake).  Callers pad boxes (``osmseg.grid.pad_bbox``) to make that rare.
+huge forest or lake).  The builder pads boxes (``osmseg.grid.pad_bbox``) to make that rare;
+``enclosing=True`` keeps those areas and the coastline near the box too
+(:mod:`osmseg.osm.enclosing`), for a region search whose blocks must draw what the whole
+file draws.
 
 File names, done-markers and the input's timestamp come from :mod:`osmseg.osm.store`, which
 every source shares.
@@ -64,6 +67,7 @@ from osmseg.errors import ConfigError, OSMDataError, first_line
 from osmseg.grid import LngLatBBox, pad_bbox
 from osmseg.osm.base import OsmExtract
 from osmseg.osm.cut import DEFAULT_BATCH, ensure_room, write_extracts
+from osmseg.osm.enclosing import EnclosingRule, is_closed
 from osmseg.osm.josm import count_deleted, has_deletions, without_deleted
 from osmseg.osm.store import (
     NODE_EXTENT,
@@ -134,11 +138,16 @@ class BoxGrid:
         return False
 
 
-def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: float = DEFAULT_REACH) -> dict[str, int]:
+def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: float = DEFAULT_REACH,
+                  enclosing: bool = False, region: bool = False) -> dict[str, int]:
     """Write to ``out`` (``.osm.pbf``, atomically) the contract's content for the union of ``boxes``.
 
     Besides ways with a node in a box, ways with a *segment* crossing a box keep too when
     both ends of the segment lie within ``reach`` metres of it (see the module doc).
+    ``enclosing``: also the areas holding a box and the coastline near one
+    (:mod:`osmseg.osm.enclosing`; one more pass, over the relations, and node locations held
+    by osmium's location index during the way pass); ``region``: ``out`` is a region later cut
+    into boxes inside ``boxes`` (:class:`~osmseg.osm.enclosing.EnclosingRule`).
     Streams ``src`` five times whatever the number of boxes; memory holds ids, and the
     locations of the nodes within ``reach`` around the boxes.  The output keeps ``src``'s
     replication timestamp and object order.  Returns the numbers of nodes, ways and
@@ -151,20 +160,17 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
     grid = BoxGrid(boxes)
     try:
         keep_nodes, around = _nodes_near(src_name, boxes, reach)
-        keep_ways: set[int] = set()
-        for way in osmium.FileProcessor(src_name, osmium.osm.WAY):
-            if not isinstance(way, osmium.osm.Way):  # never: the processor reads ways only
-                continue
-            refs = [nd.ref for nd in way.nodes]
-            if not keep_nodes.isdisjoint(refs) or (not around.keys().isdisjoint(refs) and _crosses(refs, around, grid)):
-                keep_ways.add(way.id)
+        rule = EnclosingRule(boxes, region) if enclosing else None
+        keep_ways, member_bounds = _ways_kept(src_name, keep_nodes, around, grid, rule)
         keep_relations: set[int] = set()
         member_ways: set[int] = set()
         for rel in osmium.FileProcessor(src_name, osmium.osm.RELATION):
             if not isinstance(rel, osmium.osm.Relation) or rel.tags.get("type") != "multipolygon":
                 continue
             members = [(m.type, m.ref) for m in rel.members]
-            if any(t == "w" and ref in keep_ways for t, ref in members):
+            if any(t == "w" and ref in keep_ways for t, ref in members) or (
+                    rule is not None
+                    and rule.encloses(rule.union(member_bounds.get(ref) for t, ref in members if t == "w"))):
                 keep_relations.add(rel.id)
                 member_ways.update(ref for t, ref in members if t == "w")
                 keep_nodes.update(ref for t, ref in members if t == "n")
@@ -187,6 +193,38 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
         raise OSMDataError(f"--osm {src}: cannot read it as OSM data ({first_line(exc)}); "
                            "give a valid .osm/.osm.pbf/.osm.bz2 file") from None
     return counts
+
+
+def _ways_kept(src: str, keep_nodes: set[int], around: dict[int, tuple[float, float]], grid: BoxGrid,
+               rule: EnclosingRule | None) -> tuple[set[int], dict[int, tuple[float, float, float, float] | None]]:
+    """Ids of the ways with a node in a box or a segment crossing one, and with a ``rule``: of the
+    closed ways holding a box and the coastline near one, and the bounds of multipolygon members."""
+    kept: set[int] = set()
+    members: set[int] = set()
+    ways = osmium.FileProcessor(src, osmium.osm.WAY)
+    if rule is not None:
+        for rel in osmium.FileProcessor(src, osmium.osm.RELATION):
+            if isinstance(rel, osmium.osm.Relation) and rel.tags.get("type") == "multipolygon":
+                members.update(m.ref for m in rel.members if m.type == "w")
+        ways = (osmium.FileProcessor(src, osmium.osm.NODE | osmium.osm.WAY).with_locations()
+                .with_filter(osmium.filter.EntityFilter(osmium.osm.WAY)))
+    bounds: dict[int, tuple[float, float, float, float] | None] = {}
+    for way in ways:
+        if not isinstance(way, osmium.osm.Way):  # never: the processor hands ways only
+            continue
+        refs = [nd.ref for nd in way.nodes]
+        if not keep_nodes.isdisjoint(refs) or (not around.keys().isdisjoint(refs) and _crosses(refs, around, grid)):
+            kept.add(way.id)
+        if rule is None:
+            continue
+        closed, coast, member = is_closed(refs), way.tags.get("natural") == "coastline", way.id in members
+        if closed or coast or member:
+            box = rule.bounds((nd.lon, nd.lat) for nd in way.nodes if nd.location.valid())
+            if (closed and rule.encloses(box)) or (coast and rule.near_coast(box)):
+                kept.add(way.id)
+            if member:
+                bounds[way.id] = box
+    return kept, bounds
 
 
 def _nodes_near(src: str, boxes: Sequence[LngLatBBox], reach: float) -> tuple[set[int], dict[int, tuple[float, float]]]:
@@ -285,19 +323,23 @@ class LocalFileSource:
             file's path, size and modification time, so a rerun reuses them and a changed
             input file is cut again.
         reach: metres around a box within which a way segment crossing it is found.
+        enclosing: also keep the areas a box lies inside and the coastline near it
+            (:mod:`osmseg.osm.enclosing`); its extracts get names of their own.
     """
 
     name = "file"
     attribution = OSM_ATTRIBUTION
 
-    def __init__(self, path: Path, workdir: Path, reach: float = DEFAULT_REACH) -> None:
+    def __init__(self, path: Path, workdir: Path, reach: float = DEFAULT_REACH, enclosing: bool = False) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise ConfigError(f"--osm {self.path}: file not found; give an .osm/.osm.pbf path, 'api' or 'overpass'")
         self.workdir = Path(workdir)
         stat = self.path.stat()
         self.reach = float(reach)
-        self._identity = (str(self.path.resolve()), str(stat.st_size), str(stat.st_mtime_ns), f"reach={self.reach:g}")
+        self.enclosing = enclosing
+        self._identity = (str(self.path.resolve()), str(stat.st_size), str(stat.st_mtime_ns), f"reach={self.reach:g}",
+                          *(("enclosing",) if enclosing else ()))
         self._timestamp: tuple[str | None, str] | None = None
         self._regions: list[tuple[tuple[LngLatBBox, ...], Path]] = []
         self._readable: Path | None = None
@@ -392,7 +434,7 @@ class LocalFileSource:
         region = self.workdir / f"region_{len(boxes)}boxes_{digest}.osm.pbf"
         if not region.exists():
             self.workdir.mkdir(parents=True, exist_ok=True)
-            counts = write_extract(self.readable(), boxes, region, self.reach)
+            counts = write_extract(self.readable(), boxes, region, self.reach, self.enclosing, region=True)
             logger.info("cut %s from %s for %d boxes: %s", region.name, self.path, len(boxes), counts)
         if all(r != region for _, r in self._regions):
             self._regions.append((boxes, region))
@@ -406,7 +448,7 @@ class LocalFileSource:
         if done is not None:
             return done
         self.workdir.mkdir(parents=True, exist_ok=True)
-        counts = write_extract(self._source_for(bbox), [bbox], out, self.reach)
+        counts = write_extract(self._source_for(bbox), [bbox], out, self.reach, self.enclosing)
         return self._record(bbox, marker, out, counts)
 
     def cut(self, bboxes: Iterable[LngLatBBox], batch: int = DEFAULT_BATCH) -> list[OsmExtract]:
@@ -438,7 +480,8 @@ class LocalFileSource:
         fields = _header_fields(str(source))
         write_extracts(source, jobs, self.reach, lambda box: _box_header(fields, box),
                        lambda i, counts: self._record(jobs[i][0], markers[i], jobs[i][1], counts),
-                       lambda box, out: write_extract(source, [box], out, self.reach), batch)
+                       lambda box, out: write_extract(source, [box], out, self.reach, self.enclosing), batch,
+                       self.enclosing)
         logger.info("cut %d boxes from %s", len(jobs), source)
 
     def _names(self, bbox: LngLatBBox) -> tuple[Path, Path]:

@@ -25,15 +25,18 @@ BOX = LngLatBBox(0.0, 0.0, 0.004, 0.002)
 
 
 def osm_xml(path: Path, nodes: dict[int, tuple[float, float]], ways: dict[int, list[int]],
-            relations: dict[int, list[tuple[str, int]]] | None = None, version: dict[int, int] | None = None) -> Path:
-    """An OSM XML file: ``nodes`` id -> (lon, lat), ``ways`` id -> node ids, multipolygons id -> members."""
-    relations, version = relations or {}, version or {}
+            relations: dict[int, list[tuple[str, int]]] | None = None, version: dict[int, int] | None = None,
+            tags: dict[int, str] | None = None) -> Path:
+    """An OSM XML file: ``nodes`` id -> (lon, lat), ``ways`` id -> node ids (tagged ``highway=road``
+    or ``tags[id]``, e.g. ``natural=coastline``), multipolygons id -> members."""
+    relations, version, tags = relations or {}, version or {}, tags or {}
     lines = ['<?xml version="1.0"?>', '<osm version="0.6" generator="test">']
     lines += [f'<node id="{i}" version="{version.get(i, 1)}" timestamp="2024-01-0{version.get(i, 1)}T00:00:00Z" '
               f'lat="{lat}" lon="{lon}"/>' for i, (lon, lat) in nodes.items()]
     for i, refs in ways.items():
         lines.append(f'<way id="{i}" version="1" timestamp="2024-01-01T00:00:00Z">'
-                     + "".join(f'<nd ref="{r}"/>' for r in refs) + '<tag k="highway" v="road"/></way>')
+                     + "".join(f'<nd ref="{r}"/>' for r in refs)
+                     + '<tag k="{}" v="{}"/></way>'.format(*tags.get(i, "highway=road").split("=")))
     for i, members in relations.items():
         lines.append(f'<relation id="{i}" version="1" timestamp="2024-01-01T00:00:00Z">'
                      + "".join(f'<member type="{"way" if t == "w" else "node"}" ref="{r}" role="outer"/>'
@@ -44,16 +47,17 @@ def osm_xml(path: Path, nodes: dict[int, tuple[float, float]], ways: dict[int, l
 
 
 def assert_same_as_fetch(path: Path, boxes: list[LngLatBBox], tmp_path: Path, prepare: tuple[LngLatBBox, ...] = (),
-                         **kwargs) -> list:
+                         enclosing: bool = False, **kwargs) -> list:
     """``cut(boxes)`` in one work folder, ``fetch`` box by box in another: same bytes, file and marker."""
-    cutter, fetcher = LocalFileSource(path, tmp_path / "cut"), LocalFileSource(path, tmp_path / "fetch")
+    cutter = LocalFileSource(path, tmp_path / "cut", enclosing=enclosing)
+    fetcher = LocalFileSource(path, tmp_path / "fetch", enclosing=enclosing)
     if prepare:
         cutter.prepare(list(prepare))
         fetcher.prepare(list(prepare))
     got = cutter.cut(boxes, **kwargs)
     for box, extract in zip(boxes, got):
         want = fetcher.fetch(box)
-        assert extract == LocalFileSource(path, tmp_path / "cut").fetch(box)  # the marker is what fetch reads
+        assert extract == LocalFileSource(path, tmp_path / "cut", enclosing=enclosing).fetch(box)  # what fetch reads
         assert extract.paths[0].read_bytes() == want.paths[0].read_bytes()
         marker = extract.paths[0].parent / extract.paths[0].name.replace(".osm.pbf", ".json")
         assert marker.read_bytes() == (want.paths[0].parent / marker.name).read_bytes()
@@ -105,6 +109,40 @@ def test_a_multipolygon_pulled_in_by_one_member_way(tmp_path):
     assert ids(got[0]) == {"n": {1, 2, 3, 4, 5, 7}, "w": {20, 21}, "r": {30}}
     # ways 21 and 22 have nodes in this box: each brings its relation with all of its members
     assert ids(got[1]) == {"n": {3, 4, 5, 6, 7, 1, 2}, "w": {20, 21, 22}, "r": {30, 31}}
+
+
+def enclosed_box_file(path: Path) -> Path:
+    """BOX inside a 11 km closed way, a multipolygon of three open ways and a U-shaped closed way,
+    with coastlines 3 and 9 km north and a small closed way 3 km away: no node within 3 km of BOX."""
+    corners = {1: (-0.05, -0.05), 2: (0.05, -0.05), 3: (0.05, 0.05), 4: (-0.05, 0.05),       # way 10
+               5: (-0.04, -0.04), 6: (0.04, -0.04), 7: (0.04, 0.04), 8: (-0.04, 0.04),       # relation 40
+               20: (-0.03, -0.03), 21: (0.03, -0.03), 22: (0.03, 0.03), 23: (0.028, 0.03),   # way 14, a U
+               24: (0.028, -0.028), 25: (-0.028, -0.028), 26: (-0.028, 0.03), 27: (-0.03, 0.03),
+               30: (-0.1, 0.03), 31: (0.1, 0.03), 32: (-0.1, 0.08), 33: (0.1, 0.08),         # coastlines
+               40: (0.03, -0.02), 41: (0.031, -0.02), 42: (0.031, -0.019)}                   # way 17
+    ways = {10: [1, 2, 3, 4, 1], 11: [5, 6], 12: [6, 7], 13: [7, 8, 5], 14: [20, 21, 22, 23, 24, 25, 26, 27, 20],
+            15: [31, 30], 16: [33, 32], 17: [40, 41, 42, 40]}
+    return osm_xml(path, corners, ways, {40: [("w", 11), ("w", 12), ("w", 13)]},
+                   tags={10: "landuse=forest", 14: "landuse=forest", 15: "natural=coastline", 16: "natural=coastline",
+                         17: "building=yes"})
+
+
+def test_enclosing_keeps_the_areas_a_box_lies_inside_and_the_coast_near_it(tmp_path):
+    osm = enclosed_box_file(tmp_path / "enclosed.osm")
+    plain = assert_same_as_fetch(osm, [BOX], tmp_path / "plain")
+    assert plain[0].info["counts"] == {"n": 0, "w": 0, "r": 0}  # a build's cut: nothing near the box
+    got = assert_same_as_fetch(osm, [BOX, LngLatBBox(0.06, 0.0, 0.064, 0.002)], tmp_path / "enclosing",
+                               enclosing=True)
+    # the forest, the U (its box holds BOX: kept though it does not cover it), the relation with its
+    # three ways, the coast 3 km north; not the coast 9 km north, nor the small way
+    assert ids(got[0]) == {"n": {1, 2, 3, 4, 5, 6, 7, 8, *range(20, 28), 30, 31}, "w": {10, 11, 12, 13, 14, 15},
+                           "r": {40}}
+    # a box outside every area but with both coastlines within 5 km: the coast only
+    assert ids(got[1]) == {"n": {30, 31}, "w": {15}, "r": set()}
+    # cut from the region prepared for both boxes: the same (the region holds all the rule keeps)
+    area = LngLatBBox(0.0, 0.0, 0.064, 0.002)
+    again = assert_same_as_fetch(osm, [BOX], tmp_path / "prepared", prepare=(area,), enclosing=True)
+    assert ids(again[0]) == ids(got[0])
 
 
 def test_a_file_with_repeated_ids_is_cut_box_by_box(tmp_path, caplog):
@@ -185,7 +223,8 @@ def test_an_interrupted_cut_leaves_no_half_file(tmp_path, monkeypatch):
 
 
 @pytest.mark.shared_data
-def test_cut_of_real_helsinki_boxes_is_fetch_byte_for_byte(tmp_path):
+@pytest.mark.parametrize("enclosing", [False, True])
+def test_cut_of_real_helsinki_boxes_is_fetch_byte_for_byte(tmp_path, enclosing):
     helsinki = shared_path("helsinki-osm", "helsinki.osm.pbf")
     rng = random.Random(3)
     centres = [(24.944 + rng.uniform(-0.004, 0.004), 60.1715 + rng.uniform(-0.002, 0.002)) for _ in range(5)]
@@ -193,7 +232,17 @@ def test_cut_of_real_helsinki_boxes_is_fetch_byte_for_byte(tmp_path):
     boxes = [pad_bbox(sample_grid(lon, lat, 18).bbox, 60) for lon, lat in centres]
     boxes.append(pad_bbox(sample_grid(24.944, 60.1715, 19).bbox, 60))  # a smaller one, inside another
     area = pad_bbox(LngLatBBox(24.939, 60.169, 24.949, 60.174), 300)
-    got = assert_same_as_fetch(helsinki, boxes, tmp_path, prepare=(area,), batch=4)
+    got = assert_same_as_fetch(helsinki, boxes, tmp_path, prepare=(area,), batch=4, enclosing=enclosing)
     counts = [sum(e.info["counts"].values()) for e in got]
-    assert counts[-2] == 0 and min(counts[:5]) > 1000
+    assert min(counts[:5]) > 1000
     assert any(r["r"] for r in (e.info["counts"] for e in got))
+    if not enclosing:
+        assert counts[-2] == 0
+        return
+    # the same boxes cut as a build cuts them: a subset; the box with no data gets the coast only
+    plain = LocalFileSource(helsinki, tmp_path / "plain").cut(boxes, batch=4)
+    for mine, theirs in zip(got, plain):
+        assert all(ids(theirs)[k] <= ids(mine)[k] for k in "nwr")
+    assert counts[-2] > 0 and not ids(plain[-2])["w"]
+    coast = {w.id for w in osmium.FileProcessor(str(helsinki), osmium.osm.WAY) if w.tags.get("natural") == "coastline"}
+    assert ids(got[-2])["w"] <= coast
