@@ -50,10 +50,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from localization.bench.compare import roc_auc  # noqa: E402
+from localization.bench.compare import photo_columns, roc_auc  # noqa: E402
 from localization.bench.georender import Camera as GeoCamera, render  # noqa: E402
 from localization.bench.georender_osm import scene_from_osm  # noqa: E402
-from localization.bench.render import panorama_table  # noqa: E402
+from localization.bench.render import RenderConfig, panorama_table, render_panorama  # noqa: E402
 from localization.common.landmarks import load_landmark_classes  # noqa: E402
 from localization.common.views import Camera, semantic_map  # noqa: E402
 from localization.profile.profiles import MASK_MIN_CONFIDENCE  # noqa: E402
@@ -68,6 +68,7 @@ from localization.region.search import (  # noqa: E402
     search_region,
 )
 from osmseg.classes import load_class_table  # noqa: E402
+from osmseg.grid import ground_resolution  # noqa: E402
 
 KOTKA = ROOT.parent / "shared" / "data" / "helsinki-osm" / "kotka.osm.pbf"
 KOTKA_BBOX = (26.93, 60.52, 26.97, 60.54)
@@ -106,11 +107,47 @@ def draw_views(osm: Path, points: list[tuple[float, float]], rng: np.random.Gene
         yield View(lon, lat, heading, h, pitch, roll, pixels)
 
 
+def mask_views(masks: BlockMasks, blocks: list[Any], spots: list[StreetSpot], rng: np.random.Generator,
+               eye: tuple[float, ...], fov: float) -> Iterator[View]:
+    """The view at each of ``spots`` as osmseg's own renderer draws it (:mod:`localization.bench.render`:
+    the method's model of a street, every class at its height, over the block's drawn mask, level):
+    a seeded compass heading and an eye height in ``eye``, drawn from ``rng`` in that order; a
+    ``fov``-degree image 224 rows high. The renderer sees the block only (the spot is at least 256
+    px, about 75 m, inside it); beyond, the ground is unlabeled."""
+    width = int(round(1232 * fov / 360))
+    for spot in spots:
+        heading = float(rng.uniform(0, 360))
+        h = float(rng.uniform(eye[0], eye[1]))
+        grid = blocks[spot.block][0]
+        pano = render_panorama(masks.mask(spot.block), TABLE, ground_resolution(grid.lat, grid.zoom),
+                               (spot.x, spot.y), RenderConfig(camera_height_m=h, heading_deg=heading))
+        cols = photo_columns(pano.labels.shape[1], fov)
+        assert cols.stop - cols.start == width  # the photo faces the panorama's heading
+        yield View(spot.lon, spot.lat, heading, h, 0.0, 0.0, np.ascontiguousarray(pano.labels[:, cols]))
+
+
+@dataclass(frozen=True)
+class StreetSpot:
+    """A street point: degrees, and the block and pixel of the block's mask it was drawn from."""
+
+    lon: float
+    lat: float
+    block: int
+    x: int
+    y: int
+
+
 def street_points(masks: BlockMasks, blocks: list[Any], n: int, rng: np.random.Generator,
                   bbox: tuple[float, float, float, float]) -> list[tuple[float, float]]:
     """``n`` seeded street points (lon, lat): a highway pixel in the core of a seeded block."""
+    return [(s.lon, s.lat) for s in street_spots(masks, blocks, n, rng, bbox)]
+
+
+def street_spots(masks: BlockMasks, blocks: list[Any], n: int, rng: np.random.Generator,
+                 bbox: tuple[float, float, float, float]) -> list[StreetSpot]:
+    """:func:`street_points` with the block and pixel each was drawn from."""
     road = TABLE.by_name["highway"].id
-    out: list[tuple[float, float]] = []
+    out: list[StreetSpot] = []
     while len(out) < n:
         b = int(rng.integers(len(blocks)))
         grid = blocks[b][0]
@@ -124,7 +161,7 @@ def street_points(masks: BlockMasks, blocks: list[Any], n: int, rng: np.random.G
         bb = grid.xy_bounds
         lon, lat = pixel_lonlat((bb.left, bb.bottom, bb.right, bb.top), mask.shape, (float(xs[i]), float(ys[i])))
         if bbox[0] <= lon <= bbox[2] and bbox[1] <= lat <= bbox[3]:
-            out.append((lon, lat))
+            out.append(StreetSpot(lon, lat, b, int(xs[i]), int(ys[i])))
     return out
 
 

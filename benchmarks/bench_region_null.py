@@ -3,17 +3,22 @@
 Run: ``.venv/bin/python benchmarks/bench_region_null.py [--queries 8] [--heading known|unknown] [--fov 360]
 [--json PATH]``. The towns are the real extracts of ``../shared/data``: Kotka (a 1 km box of
 ``helsinki-osm/kotka.osm.pbf``), Helsinki centre (``helsinki-osm/helsinki.osm.pbf``) and West
-Oakland (``oakland-osm/west-oakland.osm``). Views are ray-cast by the independent renderer
-(:mod:`localization.bench.georender`, heights it draws, camera 1.5-2.5 m, tilt ±1°) at seeded
-street points of each town, and each view is searched for in every town: in its own town it
-has a right answer (within 10 m), in the others none.
+Oakland (``oakland-osm/west-oakland.osm``). At seeded street points of each town, views are
+drawn by two renderers (``--renderer both``, the default, or one of them): the **geometry**
+renderer (:mod:`localization.bench.georender`, independent of the method: 3-D ray casting over
+the OSM geometry, heights it draws, camera 1.5-2.5 m, tilt ±1°) and osmseg's own **mask**
+renderer (:mod:`localization.bench.render`, the method's model of a street: class heights over
+the drawn mask, a level camera 1.5-2.5 m up). Each view is searched for in every town: in its
+own town it has a right answer (within 10 m), in the others none.
 
 For each search it records what the region search says (:func:`localization.region.search.search_region`):
 the best score, kappa, confidence, and the **verdict** (``here`` / ``not sure`` / ``not found here``),
 and prints, per kind of search (own town, other town), how often a view is accepted (its verdict
 ``here``, at this osmseg's thresholds: ``--summarise JSON`` counts an earlier run's searches again)
-and how often an accepted answer is wrong. Baseline: the confidence threshold alone (``not sure`` below 0.04),
-the only gate before the verdict existed.
+and how often an accepted answer is wrong; in its own town also the error (median, within 10
+and 25 m) and how well the confidence ranks right answers above wrong ones (ROC AUC). The last
+table puts the renderers side by side. Baseline: the confidence threshold alone (``not sure``
+below 0.04), the only gate before the verdict existed.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import statistics
 import sys
 import tempfile
@@ -35,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_region import CLASSES, PANO, TABLE, draw_views, street_points  # noqa: E402
+from bench_region import CLASSES, PANO, TABLE, draw_views, mask_views, street_spots  # noqa: E402
 
 from localization.bench.compare import roc_auc  # noqa: E402
 from localization.common.views import Camera, semantic_map  # noqa: E402
@@ -73,13 +79,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--heading", choices=["known", "unknown"], default="known")
     ap.add_argument("--fov", type=float, default=360.0, help="the views' field of view in degrees (360: panoramas)")
+    ap.add_argument("--renderer", choices=["geometry", "mask", "both"], default="both",
+                    help="which renderer draws the views (both: side by side, the same street points)")
     ap.add_argument("--json", type=Path, help="also write every search here")
     ap.add_argument("--summarise", type=Path, metavar="JSON",
                     help="print the summary of an earlier run's --json at this osmseg's thresholds (no search)")
     args = ap.parse_args(argv)
     if args.summarise:
         doc = json.loads(args.summarise.read_text())
-        doc["summary"] = summarise(doc["searches"])
+        doc["summary"] = summarise_all(doc["searches"])
         print(json.dumps(doc["summary"], indent=2))
         if args.json:
             args.json.write_text(json.dumps(doc, indent=2) + "\n")
@@ -90,6 +98,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         return {}
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as cache:
+        renderers = RENDERERS if args.renderer == "both" else (args.renderer,)
         views = {}
         for t in TOWNS:
             config = RegionConfig(bbox=t.bbox)
@@ -97,13 +106,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             masks = BlockMasks([t.osm], TABLE, [g for g, _ in blocks], Path(cache))
             masks.prepare(range(len(blocks)))  # the region's OSM cut once for every block
             rng = np.random.default_rng(args.seed)
-            points = street_points(masks, blocks, args.queries, rng, t.bbox)
-            views[t.name] = list(draw_views(t.osm, points, rng, args.seed, (1.5, 2.5), 1.0, args.fov))
-            print(f"{t.name}: {len(blocks)} blocks, {len(points)} views", flush=True)
-        for origin in TOWNS:
+            spots = street_spots(masks, blocks, args.queries, rng, t.bbox)
+            if "geometry" in renderers:
+                views["geometry", t.name] = list(draw_views(t.osm, [(p.lon, p.lat) for p in spots], rng, args.seed,
+                                                            (1.5, 2.5), 1.0, args.fov))
+            if "mask" in renderers:
+                views["mask", t.name] = list(mask_views(masks, blocks, spots, np.random.default_rng([args.seed, 1]),
+                                                        (1.5, 2.5), args.fov))
+            print(f"{t.name}: {len(blocks)} blocks, {len(spots)} street points", flush=True)
+        for renderer, origin in ((r, o) for r in renderers for o in TOWNS):
             for place in TOWNS:
                 config = RegionConfig(bbox=place.bbox)
-                for i, v in enumerate(views[origin.name]):
+                for i, v in enumerate(views[renderer, origin.name]):
                     query = semantic_map(v.pixels, PANO, CLASSES)
                     camera = Camera(v.pixels.shape[1], 224, hfov_deg=args.fov, camera_height_m=2.0)
                     profile = ProfileConfig(heading_deg=v.heading if args.heading == "known" else None,
@@ -113,7 +127,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                            cache_dir=Path(cache))
                     best = result.best
                     error = distance_m(best, (v.lon, v.lat)) if best and origin is place else None
-                    rows.append({"from": origin.name, "in": place.name, "view": i, "error_m": error,
+                    rows.append({"renderer": renderer, "from": origin.name, "in": place.name, "view": i,
+                                 "error_m": error,
                                  "score": best.score if best else None, "chance": best.chance if best else None,
                                  "kappa": best.kappa if best else None,
                                  "confidence": best.confidence if best else None,
@@ -121,16 +136,40 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                  "coarse": result.coarse_score, "lift": result.lift,
                                  "seconds": round(time.perf_counter() - t0, 1)})
                     r = rows[-1]
-                    print(f"{origin.name:>12} in {place.name:<12} #{i} error {error if error is None else round(error, 1)}"
+                    print(f"{renderer:>8} {origin.name:>12} in {place.name:<12} #{i} error {error if error is None else round(error, 1)}"
                           f" score {r['score'] or 0:.3f} null {r['null'] or 0:.3f} lift {r['lift'] or 0:.3f} "
                           f"kappa {r['kappa'] or 0:.3f} "
                           f"conf {r['confidence'] or 0:.3f} {r['verdict']} {r['seconds']} s", flush=True)
-    summary = summarise(rows)
+    summary = summarise_all(rows)
     print(json.dumps(summary, indent=2))
+    print(side_by_side(summary))
     if args.json:
         args.json.write_text(json.dumps({"summary": summary, "fov": args.fov, "heading": args.heading, "searches": rows},
                                         indent=2) + "\n")
     return summary
+
+
+RENDERERS = ("geometry", "mask")
+
+
+def summarise_all(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """:func:`summarise` for each renderer's searches (an older run's rows, without one: geometry)."""
+    names = dict.fromkeys(r.get("renderer", "geometry") for r in rows)
+    return {name: summarise([r for r in rows if r.get("renderer", "geometry") == name]) for name in names}
+
+
+def side_by_side(summary: dict[str, Any]) -> str:
+    """The renderers' figures as one plain table, a line per renderer."""
+    head = (f"{'renderer':9} {'n':>3} {'median m':>9} {'@10 m':>6} {'@25 m':>6} {'AUC':>6} "
+            f"{'accepted/wrong':>15} {'other town accepted/wrong':>26}")
+    lines = [head]
+    for name, s in summary.items():
+        own, other, verdict = s["own_town"], s["verdict_here"]["other town"], s["verdict_here"]["own town"]
+        auc = "-" if own["auc_right_vs_wrong"] is None else f"{own['auc_right_vs_wrong']:.3f}"
+        lines.append(f"{name:9} {own['n']:>3} {own['median_error_m']:>9.1f} {own['within_10m']:>6.3f} "
+                     f"{own['within_25m']:>6.3f} {auc:>6} {verdict['accepted']:>8}/{verdict['accepted_wrong']:<6} "
+                     f"{other['accepted']:>12}/{other['accepted_wrong']} of {other['n']}")
+    return "\n".join(lines)
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -151,7 +190,14 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         wrong = [r for r in taken if r["error_m"] is None or r["error_m"] > 50]
         return {"n": len(group), "accepted": len(taken), "accepted_wrong": len(wrong)}
 
+    errors = [r["error_m"] if r["error_m"] is not None else math.inf for r in own]
+    wrong = [r for r in own if r["error_m"] is None or r["error_m"] > 50]
     return {
+        "own_town": {"n": len(own), "median_error_m": statistics.median(errors) if errors else None,
+                     "within_10m": sum(e <= 10 for e in errors) / max(1, len(errors)),
+                     "within_25m": sum(e <= 25 for e in errors) / max(1, len(errors)),
+                     "auc_right_vs_wrong": roc_auc([r["confidence"] or 0 for r in right],
+                                                   [r["confidence"] or 0 for r in wrong]) if right and wrong else None},
         "verdict_here": {"own town": rates(own, here), "own town, right answers": rates(right, here),
                          "other town": rates(other, here)},
         "threshold": {"lift": NULL_MIN_LIFT, "confidence": MASK_MIN_CONFIDENCE},

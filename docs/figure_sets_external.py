@@ -493,9 +493,9 @@ def null(ws: Workspace) -> dict[str, Figure]:
     rows = []
     found, searches = {}, {}
     for seed, role in ((0, "chosen on"), (1, "held out")):
-        run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", str(seed),
+        run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", str(seed), "--renderer", "geometry",
                         name=f"bench_region_null-{seed}")
-        s = found[seed] = run["summary"]
+        s = found[seed] = run["summary"]["geometry"]
         searches[seed] = run["searches"]
         rows += null_rows(s, f"seed {seed} ({role})")
     auc = found[1]["auc_right_vs_other_town"]
@@ -509,12 +509,31 @@ def null(ws: Workspace) -> dict[str, Figure]:
     }
 
 
+@figure_set("sidebyside", "expensive", needs="shared data")
+def sidebyside(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_region_null.py --renderer both, heading known and unknown: both renderers' views of three towns, each searched in every town"""
+    rows = []
+    for heading in ("known", "unknown"):
+        run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", "1", "--renderer", "both",
+                        "--heading", heading, name=f"bench_region_both-{heading}")
+        for renderer, s in run["summary"].items():
+            own, mine, other = s["own_town"], s["verdict_here"]["own town"], s["verdict_here"]["other town"]
+            auc = own["auc_right_vs_wrong"]
+            rows.append([f"panoramas, heading {heading}" if renderer == "geometry" else "", renderer, count(own["n"]),
+                         metres(own["median_error_m"]), ratio(own["within_10m"]), ratio(own["within_25m"]),
+                         "-" if auc is None else ratio(auc), f"{mine['accepted']} / {mine['accepted_wrong']}",
+                         f"{other['accepted']} of {other['n']}"])
+    return {"sidebyside.table": F(table(["views", "renderer", "n", "median", "within 10 m", "within 25 m",
+                                         "right/wrong AUC", "own town: accepted / wrong",
+                                         "other towns: accepted"], rows))}
+
+
 @figure_set("null90", "expensive", needs="shared data")
 def null90(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_region_null.py --fov 90 --heading unknown: 90° photos of the three towns, each searched in every town"""
     run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", "0", "--fov", "90", "--heading",
-                    "unknown", name="bench_region_null90-0")
-    s = run["summary"]
+                    "unknown", "--renderer", "geometry", name="bench_region_null90-0")
+    s = run["summary"]["geometry"]
     auc = s["auc_right_vs_other_town"]
     return {
         "null90.table": F(table(NULL_COLUMNS, null_rows(s, "90° photos, heading unknown"))),

@@ -46,14 +46,17 @@ Imports: numpy, osmseg core, localization.profile.profiles.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
+import sys
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar, cast, runtime_checkable
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from localization.profile.profiles import QueryProfile
 from osmseg.errors import ConfigError
@@ -401,12 +404,31 @@ R = TypeVar("R")
 
 def _map(fn: Callable[[T], R], items: list[T], threads: int) -> list[R]:
     """``[fn(x) for x in items]`` on ``threads`` threads (numpy's gathers, reductions and FFTs let go of
-    the GIL), in order: the result does not depend on the thread count."""
+    the GIL), in order: the result does not depend on the thread count.
+
+    While these threads run, the BLAS under numpy's matrix products runs on one thread in each
+    (as scikit-learn limits it under its own threads): the products here are small, and BLAS
+    threads of its own beside ours, waiting for work, took the cores they ran on. On 2 cores a
+    region query over Kotka (``benchmarks/bench_region.py``) took twice the CPU and 1.9x the
+    wall time without the limit, for the same answers.
+    """
     n = min(_threads(threads), len(items))
     if n <= 1:
         return [fn(x) for x in items]
-    with ThreadPoolExecutor(n) as pool:
+    with _blas_one_thread(), ThreadPoolExecutor(n) as pool:
         return list(pool.map(fn, items))
+
+
+@functools.lru_cache(maxsize=1)
+def _blas(modules: int) -> ThreadpoolController:
+    """The BLAS libraries loaded, looked up again only when ``modules`` (how many modules are
+    imported) changed: threadpoolctl inspects the process's libraries, a millisecond a time."""
+    return ThreadpoolController()
+
+
+def _blas_one_thread() -> Any:
+    """A context in which every BLAS library loaded (numpy's, and torch's or scipy's when they are) runs on one thread."""
+    return _blas(len(sys.modules)).limit(limits=1, user_api="blas")
 
 
 def _parabola(s: np.ndarray, k: np.ndarray) -> np.ndarray:

@@ -55,3 +55,30 @@ def test_a_short_run_finds_clean_views_in_a_region(tmp_path) -> None:
                                  "--json", str(tmp_path / "r.json")])
     assert summary["queries"] == 2 and summary["blocks"] == 16
     assert summary["within_10m"] >= 0.5 and summary["baseline_random_street_median_m"] > 50
+
+
+def test_the_mask_renderer_stands_on_the_street_it_was_asked_for(tmp_path) -> None:
+    import bench_region
+
+    from localization.region.cache import BlockMasks
+    from localization.region.search import RegionConfig, region_blocks
+
+    osm = shared_path("helsinki-osm", "kotka.osm.pbf")
+    bbox = (26.940, 60.530, 26.955, 60.537)
+    blocks = region_blocks(RegionConfig(bbox=bbox))
+    masks = BlockMasks([osm], bench_region.TABLE, [g for g, _ in blocks], tmp_path)
+    spots = bench_region.street_spots(masks, blocks, 6, np.random.default_rng(5), bbox)
+    assert [(s.lon, s.lat) for s in spots] == bench_region.street_points(masks, blocks, 6, np.random.default_rng(5),
+                                                                         bbox)
+    road, sky = bench_region.PANO.by_name["highway"].id, bench_region.PANO.by_name["sky"].id
+    for fov in (360.0, 90.0):
+        views = list(bench_region.mask_views(masks, blocks, spots, np.random.default_rng(1), (1.5, 2.5), fov))
+        assert [v.pixels.shape for v in views] == [(224, round(1232 * fov / 360))] * len(spots)
+        for v in views:
+            assert (v.pixels[:20] == sky).mean() > 0.5  # the sky above
+            assert 0 <= v.heading < 360 and 1.5 <= v.eye_m <= 2.5
+    # the rows under the camera, a few metres around it all ways: the street it stands on (half of
+    # them at least: a point on a road's edge sees the verge on one side)
+    for v in bench_region.mask_views(masks, blocks, spots, np.random.default_rng(1), (1.5, 2.5), 360.0):
+        ground = v.pixels[-10:]
+        assert (ground == road).mean() > 0.3, (v.lon, v.lat, np.unique(ground, return_counts=True))

@@ -368,3 +368,19 @@ def test_landmark_points_behind_a_building_are_not_predicted() -> None:
     # from the west of the building's façade the northern tree is in the open again
     P, _ = index.profiles(np.array([[20.0, 10.0]]), radii, 72)
     assert P[0, tree, slot, east] > 0.5
+
+
+def test_numpys_blas_runs_on_one_thread_under_the_searchs_threads_and_is_given_back() -> None:
+    from threadpoolctl import threadpool_info
+
+    from localization.profile.search import _map
+
+    def blas_threads() -> list[int]:
+        return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+    before = blas_threads()
+    assert before, "numpy's BLAS is not found"
+    inside = _map(lambda _: blas_threads(), [0, 1, 2, 3], 2)
+    assert inside == [[1] * len(before)] * 4
+    assert blas_threads() == before
+    assert _map(lambda _: blas_threads(), [0], 1) == [before]  # one thread of ours: BLAS keeps its own
