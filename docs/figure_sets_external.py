@@ -528,6 +528,33 @@ def sidebyside(ws: Workspace) -> dict[str, Figure]:
                                          "other towns: accepted"], rows))}
 
 
+@figure_set("regionceiling", "expensive", needs="shared data")
+def regionceiling(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_region_ceiling.py --heading unknown: where the region search's wrong answers are lost"""
+    run = benchmark(ws, "bench_region_ceiling.py", "--queries", "10", "--heading", "unknown",
+                    name="bench_region_ceiling-unknown")
+    s = run["summary"]
+    gaps = sorted(r["answer_score"] - r["truth_score"] for r in run["rows"] if r["kind"] == "look-alike")
+    import osmium
+
+    buildings = levels = heights = 0
+    for obj in osmium.FileProcessor(str(ws.shared.joinpath(*KOTKA)), osmium.osm.WAY | osmium.osm.RELATION):
+        if "building" in obj.tags:
+            buildings += 1
+            levels += "building:levels" in obj.tags
+            heights += "height" in obj.tags
+    return {
+        "regionceiling.heights": F(f"{levels} of Kotka's {buildings} carry `building:levels`, "
+                                   f"{heights or 'none'} `height`"),
+        "regionceiling.table": F(table(["views", "n", "right (within 10 m)", "lost at the coarse stage",
+                                        "lost at the fine stage", "a look-alike fits better", "recall", "ceiling"],
+                                       [["panoramas, heading unknown", count(s["queries"]), count(s["right"]),
+                                         count(s["lost at the coarse stage"]), count(s["lost at the fine stage"]),
+                                         count(s["look-alike"]), ratio(s["recall"]), ratio(s["ceiling"])]])),
+        "regionceiling.gaps": F(f"{gaps[0]:.4f} to {gaps[-1]:.4f}" if gaps else "none"),
+    }
+
+
 @figure_set("null90", "expensive", needs="shared data")
 def null90(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_region_null.py --fov 90 --heading unknown: 90° photos of the three towns, each searched in every town"""
