@@ -198,6 +198,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as cache:
         masks = BlockMasks([args.osm], TABLE, [g for g, _ in blocks], Path(cache))
+        masks.prepare(range(len(blocks)))  # the region's OSM cut once for every block
         points = street_points(masks, blocks, args.queries, rng, bbox)   # draws the blocks it picks, once
         guesses = street_points(masks, blocks, args.queries, rng, bbox)  # the baseline: a random street point
         print(f"{len(blocks)} blocks; {args.queries} views at street points, fov {args.fov:g}°, heading "

@@ -1,9 +1,10 @@
 """Where a region search loses its wrong answers: the search's stages, or a look-alike the view cannot tell apart.
 
 Run: ``.venv/bin/python benchmarks/bench_region_ceiling.py [--queries 10] [--heading unknown]
-[--fov 360] [--bbox W,S,E,N] [--json PATH]``. The views are :mod:`bench_region`'s (the geometry
-renderer at seeded street points of the Kotka extract, camera 1.5-2.5 m, tilt ±1°, the method
-told both are unknown), the same seed giving the same views.
+[--fov 360] [--bbox W,S,E,N] [--json PATH]``. The views are those of ``bench_region.py --eye
+1.5,2.5 --tilt 1 --search-pose`` (the geometry renderer at seeded street points of the Kotka
+extract, camera 1.5-2.5 m, tilt ±1°, the method told both are unknown), the same seed giving
+the same views.
 
 For each view the region search runs as ``osmseg localize-region`` runs it
 (:func:`localization.region.search.search_part` and ``merge_parts``), and the view is then
@@ -101,6 +102,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     config = RegionConfig(bbox=(bbox[0], bbox[1], bbox[2], bbox[3]))
     blocks = region_blocks(config)
     masks = BlockMasks([args.osm], TABLE, [g for g, _ in blocks])
+    masks.prepare(range(len(blocks)))  # the region's OSM cut once for every block
     rng = np.random.default_rng(args.seed)
     points = street_points(masks, blocks, args.queries, rng, config.bbox)   # as bench_region draws them
     street_points(masks, blocks, args.queries, rng, config.bbox)            # bench_region's baseline guesses

@@ -166,7 +166,8 @@ def side_by_side(summary: dict[str, Any]) -> str:
     for name, s in summary.items():
         own, other, verdict = s["own_town"], s["verdict_here"]["other town"], s["verdict_here"]["own town"]
         auc = "-" if own["auc_right_vs_wrong"] is None else f"{own['auc_right_vs_wrong']:.3f}"
-        lines.append(f"{name:9} {own['n']:>3} {own['median_error_m']:>9.1f} {own['within_10m']:>6.3f} "
+        median = "-" if own["median_error_m"] is None else f"{own['median_error_m']:.1f}"
+        lines.append(f"{name:9} {own['n']:>3} {median:>9} {own['within_10m']:>6.3f} "
                      f"{own['within_25m']:>6.3f} {auc:>6} {verdict['accepted']:>8}/{verdict['accepted_wrong']:<6} "
                      f"{other['accepted']:>12}/{other['accepted_wrong']} of {other['n']}")
     return "\n".join(lines)

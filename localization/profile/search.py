@@ -46,10 +46,12 @@ Imports: numpy, osmseg core, localization.profile.profiles.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import os
 import sys
+import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -427,7 +429,12 @@ def _blas(modules: int) -> ThreadpoolController:
 
 
 def _blas_one_thread() -> Any:
-    """A context in which every BLAS library loaded (numpy's, and torch's or scipy's when they are) runs on one thread."""
+    """A context in which every BLAS library loaded (numpy's, and torch's or scipy's when they are)
+    runs on one thread: on the main thread only. The limit is the process's, and threadpoolctl
+    lets one thread at a time set it; searches run on a caller's own threads leave BLAS alone,
+    so that two of them at once cannot leave the process limited when they are done."""
+    if threading.current_thread() is not threading.main_thread():
+        return contextlib.nullcontext()
     return _blas(len(sys.modules)).limit(limits=1, user_api="blas")
 
 

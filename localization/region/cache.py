@@ -15,9 +15,13 @@ instead hands the blocks a search will draw to the dataset builder's cutter
 (:meth:`osmseg.osm.localfile.LocalFileSource.prepare` and ``.cut``: one set of passes over the
 input for the region, one collecting pass and one write pass per 256 blocks over the small
 region file), and each block is then read from its own small extract, padded as a build pads
-a sample's (:data:`OSM_PADDING_M`). Unlike a build's, these extracts also hold the areas a
-block lies inside and the coastline near it (``enclosing=True``, :mod:`osmseg.osm.enclosing`):
-a block in the middle of a forest larger than it is forest, as it is drawn from the whole file.
+a sample's (:data:`OSM_PADDING_M`). Unlike a build's, these extracts also hold every way whose
+bounding box meets the block, the multipolygons around it and the coastline near it
+(``enclosing=True``, :mod:`osmseg.osm.enclosing`): a block in the middle of a forest larger than
+it is forest, a road of one long straight segment crosses it, as they are drawn from the whole
+file. What a per-box cut still cannot see is listed there (a block at sea more than 5 km from
+any coast, ``type=boundary`` areas, a way whose nodes are in another ``--osm`` file, negative
+ids).
 The extracts live in ``CACHE/osm`` beside the region's other files (a temporary folder
 without a cache) and are named by the input file and the box, so a rerun cuts nothing again.
 
@@ -41,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from osmseg.classes import ClassTable
-from osmseg.grid import SampleGrid, pad_bbox
+from osmseg.grid import LngLatBBox, SampleGrid, pad_bbox
 from osmseg.osm.features import read_features
 from osmseg.osm.localfile import LocalFileSource
 from osmseg.output.atomic import atomic_write_bytes
@@ -119,7 +123,7 @@ class BlockMasks:
         todo = [b for b in dict.fromkeys(blocks) if b not in self._extracts and self._cached(b) is None]
         if not todo:
             return
-        boxes = [pad_bbox(self.grids[b].bbox, OSM_PADDING_M) for b in todo]
+        boxes = [_within_the_world(pad_bbox(self.grids[b].bbox, OSM_PADDING_M)) for b in todo]
         for b in todo:
             self._extracts[b] = []
         for path in self.osm:
@@ -144,3 +148,12 @@ class BlockMasks:
                 atomic_write_bytes(path, packed, durable=False)
             self._packed[b] = packed
         return np.frombuffer(zlib.decompress(packed), np.uint8).reshape(grid.height, grid.width)
+
+
+def _within_the_world(box: LngLatBBox) -> LngLatBBox:
+    """``box`` with its longitudes kept within ±180° (a block padded past the antimeridian).
+
+    >>> _within_the_world(LngLatBBox(179.9, -16.8, 180.001, -16.7))
+    LngLatBBox(west=179.9, south=-16.8, east=180.0, north=-16.7)
+    """
+    return box._replace(west=max(box.west, -180.0), east=min(box.east, 180.0))

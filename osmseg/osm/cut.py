@@ -18,8 +18,8 @@ would write (same objects, same order, same header: byte-identical) with two rea
    ``reach``; the multipolygons with one of those ways as member, their member ways and
    member nodes; the nodes of all ways kept.  Grid indexes over nodes and segments make this
    cost per box what the box holds, not what the file holds. With ``enclosing=True`` the
-   closed ways and multipolygons whose bounding box holds the box, and the coastline near it,
-   join them (:mod:`osmseg.osm.enclosing`: bounding boxes from one ``reduceat`` per file);
+   ways whose bounding box meets the box, the multipolygons whose bounding box holds it and
+   the coastline near it join them (:mod:`osmseg.osm.enclosing`: bounding boxes from one ``reduceat`` per file);
 3. one streaming write pass per batch hands each object to the writer of every box of the
    batch that keeps it.  All writers of a batch are open at once (each an open file and an
    osmium writer thread), so boxes go in batches of ``batch`` (256; fewer when the process
@@ -273,7 +273,6 @@ def _read(src: str, boxes: Sequence[LngLatBBox], reach: float, enclosing: bool =
     way_offsets = np.zeros(n_ways + 1, dtype=np.int64)
     np.cumsum(sizes, out=way_offsets[1:])
     way_nodes = _lookup(node_sorted, node_order, _ints(refs))
-    closed = _closed(_ints(refs), way_offsets) if enclosing else None
     del refs
     way_of_ref = np.repeat(np.arange(n_ways, dtype=pos), sizes)
     known = way_nodes >= 0
@@ -305,8 +304,8 @@ def _read(src: str, boxes: Sequence[LngLatBBox], reach: float, enclosing: bool =
     rel_of_member = np.repeat(np.arange(n_mps, dtype=pos), _ints(mp_way_sizes))
     member = mp_way_pos >= 0
     way_rel_offsets, way_rels = _csr(mp_way_pos[member], rel_of_member[member], n_ways)
-    areas = None if closed is None else enclosing_index(x, y, located, way_offsets, way_nodes, closed, _ints(coast),
-                                                         rel_way_offsets, mp_way_pos, boxes)
+    areas = None if not enclosing else enclosing_index(x, y, located, way_offsets, way_nodes, _ints(coast),
+                                                        rel_way_offsets, mp_way_pos, boxes)
     return _Index(
         counts=(n_nodes, n_ways, len(rel_ids)), x=x, y=y, located=located, node_grid=node_grid,
         way_offsets=way_offsets, way_nodes=way_nodes, node_way_offsets=node_way_offsets, node_ways=node_ways,
@@ -315,14 +314,6 @@ def _read(src: str, boxes: Sequence[LngLatBBox], reach: float, enclosing: bool =
         rel_way_offsets=rel_way_offsets, rel_ways=mp_way_pos,
         rel_node_offsets=rel_node_offsets, rel_nodes=mp_node_pos, rel_position=_ints(mp_position), enclosing=areas)
 
-
-def _closed(refs: Ints, offsets: Ints) -> Bools:
-    """Per way: closed (:func:`osmseg.osm.enclosing.is_closed`: four refs or more, the first the last)."""
-    sizes = np.diff(offsets)
-    closed = sizes >= 4
-    rows = np.flatnonzero(closed)
-    closed[rows] = refs[offsets[rows]] == refs[offsets[rows + 1] - 1]
-    return closed
 
 
 def _ints(values: array[int]) -> Ints:

@@ -1,26 +1,31 @@
-"""What shapes a box's drawing without coming near it: areas the box lies inside, and the coast.
+"""What shapes a box's drawing without a node near it: areas around the box, long segments, the coast.
 
 A cut (:func:`osmseg.osm.localfile.write_extract`, :mod:`osmseg.osm.cut`) keeps the nodes in a
-box and the ways that have one there or cross it. Two kinds of OSM data change what is drawn
-over a box while none of their nodes or segments comes near it:
+box and the ways that have one there or cross it between two nodes within its reach (1 km).
+Some OSM data changes what is drawn over a box while none of its nodes comes that near:
 
-1. **an area the box lies wholly inside**: a forest, a lake, an industrial estate larger than
-   the box. Its outline is elsewhere, so a box-based cut drops it and the box draws
-   unlabeled. With ``enclosing=True`` a cut also keeps every closed way and every
-   ``type=multipolygon`` relation whose bounding box (of its located nodes; of its member
-   ways' for a relation) holds the box;
+1. **an area the box lies in**: a forest, a lake, an industrial estate larger than the box,
+   whose outline is elsewhere; or an area or line crossing the box along a segment whose ends
+   are farther than the reach (a 12 km straight forest edge, an 8 km straight road), or
+   through a node the file lacks (an area cut at the extract's edge, which osmium draws
+   through the nodes it has). With ``enclosing=True`` a cut also keeps every way whose
+   bounding box (of its located nodes) meets the box, and every ``type=multipolygon``
+   relation whose bounding box (of its member ways') holds it;
 2. **the nearest coastline**: a box no coastline crosses is wholly land or wholly sea, and the
    side of the nearest coastline decides (:mod:`osmseg.osm.coastline`). With
    ``enclosing=True`` a cut also keeps the ``natural=coastline`` ways whose bounding box comes
    within :data:`COAST_REACH_M` of the box, so a box at sea within that distance of a coast
    draws sea, as it does from the whole file (farther out at sea it draws land).
 
-The bounding-box tests are necessary, not sufficient: an L-shaped forest whose box holds the
-cut's box may not cover it and then draws nothing there. So an extract holds a little more than
-the box needs, never less, and draws what the whole file draws over the box. The same rule has
-two forms that give the same ids: :class:`EnclosingRule` for the streaming cut (any number of
-boxes, their union) and :func:`enclosing_index` / :func:`enclosing_keep` for the numpy cut of
-one box at a time.
+The bounding-box tests are necessary, not sufficient: an L-shaped forest whose box meets the
+cut's box may not reach it and then draws nothing there. So an extract holds more than the box
+needs, never less, and draws what the whole file draws over the box, but for what a per-box
+cut cannot see: ``type=boundary`` relations (osmium assembles them as areas too; only
+multipolygons are cut), a way whose nodes are in another ``--osm`` file than the way, and
+nodes with negative ids (JOSM's new objects, which osmium's location index does not hold).
+The same rule has two forms that give the same ids: :class:`EnclosingRule` for the streaming
+cut (any number of boxes, their union) and :func:`enclosing_index` / :func:`enclosing_keep` for
+the numpy cut of one box at a time.
 
 The dataset builder does not use it (its extracts stay those the API and Overpass give); a
 region search does (``localization.region.cache``).
@@ -37,7 +42,7 @@ import numpy.typing as npt
 
 from osmseg.grid import LngLatBBox, pad_bbox
 
-__all__ = ["COAST_REACH_M", "Enclosing", "EnclosingRule", "enclosing_index", "enclosing_keep", "is_closed"]
+__all__ = ["COAST_REACH_M", "Enclosing", "EnclosingRule", "enclosing_index", "enclosing_keep"]
 
 #: Metres around a box within which coastline ways are kept (their side decides a box at sea).
 COAST_REACH_M = 5000.0
@@ -49,15 +54,6 @@ Box = tuple[float, float, float, float]
 
 #: Fixed-point sentinel beyond any location (osmium's fixed point: 1e-7 degrees).
 _FAR = np.int64(1) << 40
-
-
-def is_closed(refs: Sequence[int]) -> bool:
-    """A closed way: at least four node refs, the first and the last the same node.
-
-    >>> is_closed([1, 2, 3, 1]), is_closed([1, 2, 1]), is_closed([1, 2, 3, 4])
-    (True, False, False)
-    """
-    return len(refs) >= 4 and refs[0] == refs[-1]
 
 
 def _holds(outer: Box, box: LngLatBBox) -> bool:
@@ -77,8 +73,8 @@ class EnclosingRule:
     """The rule for the union of ``boxes`` (a streaming cut): which ways and relations it keeps.
 
     ``region``: the file is a region that smaller boxes inside ``boxes`` will be cut from, so
-    keep the areas whose bounding box *meets* a box (each might hold one of those smaller
-    boxes): the region then holds everything the rule keeps for any box inside it.
+    keep the multipolygons whose bounding box *meets* a box (each might hold one of those
+    smaller boxes): the region then holds everything the rule keeps for any box inside it.
     """
 
     def __init__(self, boxes: Sequence[LngLatBBox], region: bool = False) -> None:
@@ -98,8 +94,12 @@ class EnclosingRule:
             lats.append(lat)
         return (min(lons), min(lats), max(lons), max(lats)) if lons else None
 
+    def meets(self, bounds: Box | None) -> bool:
+        """Whether a way of these bounds meets one of the boxes."""
+        return bounds is not None and _meets(bounds, self._envelope) and any(_meets(bounds, b) for b in self.boxes)
+
     def encloses(self, outer: Box | None) -> bool:
-        """Whether ``outer`` (an area's bounding box) holds one of the boxes (meets one, for a region)."""
+        """Whether ``outer`` (a multipolygon's bounding box) holds one of the boxes (meets one, for a region)."""
         if outer is None or not _meets(outer, self._envelope):
             return False
         test = _meets if self.region else _holds
@@ -124,7 +124,7 @@ class EnclosingRule:
 class Enclosing:
     """The numpy form: candidate ways and multipolygons with their bounding boxes in degrees."""
 
-    ways: Ints  # positions of closed ways big enough to hold a box
+    ways: Ints  # positions of the ways with a located node
     way_box: tuple[Floats, Floats, Floats, Floats]
     coast: Ints  # positions of coastline ways
     coast_box: tuple[Floats, Floats, Floats, Floats]
@@ -157,13 +157,13 @@ def _degrees(fixed: tuple[Ints, Ints, Ints, Ints], rows: Ints) -> tuple[Floats, 
     return west, south, east, north
 
 
-def enclosing_index(x: Ints, y: Ints, located: Bools, way_offsets: Ints, way_nodes: Ints, closed: Bools,
+def enclosing_index(x: Ints, y: Ints, located: Bools, way_offsets: Ints, way_nodes: Ints,
                     coast: Ints, rel_way_offsets: Ints, rel_ways: Ints, boxes: Sequence[LngLatBBox]) -> Enclosing:
-    """Bounding boxes of the closed ways, coastline ways and multipolygons of a file, for :func:`enclosing_keep`.
+    """Bounding boxes of the ways, coastline ways and multipolygons of a file, for :func:`enclosing_keep`.
 
-    ``way_nodes``: node positions of each way's refs (-1: not in the file); ``closed``: per way;
-    ``coast``: coastline way positions; ``rel_ways``: member way positions of each multipolygon.
-    Ways and relations too small to hold the smallest of ``boxes`` are left out.
+    ``way_nodes``: node positions of each way's refs (-1: not in the file); ``coast``: coastline
+    way positions; ``rel_ways``: member way positions of each multipolygon. Multipolygons too
+    small to hold the smallest of ``boxes`` are left out.
     """
     known = way_nodes >= 0
     known[known] = located[way_nodes[known]]
@@ -174,8 +174,7 @@ def enclosing_index(x: Ints, y: Ints, located: Bools, way_offsets: Ints, way_nod
     # smallest box in fixed point, halved: a margin for rounding, only a speed-up
     min_w = min(b.east - b.west for b in boxes) * 5_000_000
     min_h = min(b.north - b.south for b in boxes) * 5_000_000
-    big = (fixed[2] - fixed[0] >= min_w) & (fixed[3] - fixed[1] >= min_h)
-    ways = np.flatnonzero(closed & big)
+    ways = np.flatnonzero(fixed[0] != _FAR)
     member = rel_ways >= 0
     at = np.where(member, rel_ways, 0)
     member_fixed = tuple(np.where(member, f[at], fill) for f, fill in zip(fixed, (_FAR, _FAR, -_FAR, -_FAR)))
@@ -189,13 +188,13 @@ def enclosing_index(x: Ints, y: Ints, located: Bools, way_offsets: Ints, way_nod
 
 
 def enclosing_keep(index: Enclosing, box: LngLatBBox) -> tuple[Ints, Ints]:
-    """Positions of the ways (closed ways holding ``box``, coastline near it) and indexes of the
-    multipolygons (holding it) that :class:`EnclosingRule` keeps for the one box ``box``."""
+    """Positions of the ways (meeting ``box``, coastline near it) and indexes of the multipolygons
+    (holding it) that :class:`EnclosingRule` keeps for the one box ``box``."""
     west, south, east, north = index.way_box
-    holds = (west <= box.west) & (south <= box.south) & (east >= box.east) & (north >= box.north)
+    meets = (west <= box.east) & (east >= box.west) & (south <= box.north) & (north >= box.south)
     coast = pad_bbox(box, COAST_REACH_M)
     c_west, c_south, c_east, c_north = index.coast_box
     near = (c_west <= coast.east) & (c_east >= coast.west) & (c_south <= coast.north) & (c_north >= coast.south)
     r_west, r_south, r_east, r_north = index.rel_box
     rel_holds = (r_west <= box.west) & (r_south <= box.south) & (r_east >= box.east) & (r_north >= box.north)
-    return np.concatenate([index.ways[holds], index.coast[near]]), index.rels[rel_holds]
+    return np.concatenate([index.ways[meets], index.coast[near]]), index.rels[rel_holds]

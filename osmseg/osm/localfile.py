@@ -67,7 +67,7 @@ from osmseg.errors import ConfigError, OSMDataError, first_line
 from osmseg.grid import LngLatBBox, pad_bbox
 from osmseg.osm.base import OsmExtract
 from osmseg.osm.cut import DEFAULT_BATCH, ensure_room, write_extracts
-from osmseg.osm.enclosing import EnclosingRule, is_closed
+from osmseg.osm.enclosing import EnclosingRule
 from osmseg.osm.josm import count_deleted, has_deletions, without_deleted
 from osmseg.osm.store import (
     NODE_EXTENT,
@@ -198,7 +198,7 @@ def write_extract(src: Path, boxes: Sequence[LngLatBBox], out: Path, reach: floa
 def _ways_kept(src: str, keep_nodes: set[int], around: dict[int, tuple[float, float]], grid: BoxGrid,
                rule: EnclosingRule | None) -> tuple[set[int], dict[int, tuple[float, float, float, float] | None]]:
     """Ids of the ways with a node in a box or a segment crossing one, and with a ``rule``: of the
-    closed ways holding a box and the coastline near one, and the bounds of multipolygon members."""
+    ways meeting a box and the coastline near one, and the bounds of multipolygon members."""
     kept: set[int] = set()
     members: set[int] = set()
     ways = osmium.FileProcessor(src, osmium.osm.WAY)
@@ -217,13 +217,11 @@ def _ways_kept(src: str, keep_nodes: set[int], around: dict[int, tuple[float, fl
             kept.add(way.id)
         if rule is None:
             continue
-        closed, coast, member = is_closed(refs), way.tags.get("natural") == "coastline", way.id in members
-        if closed or coast or member:
-            box = rule.bounds((nd.lon, nd.lat) for nd in way.nodes if nd.location.valid())
-            if (closed and rule.encloses(box)) or (coast and rule.near_coast(box)):
-                kept.add(way.id)
-            if member:
-                bounds[way.id] = box
+        box = rule.bounds((nd.lon, nd.lat) for nd in way.nodes if nd.location.valid())
+        if rule.meets(box) or (way.tags.get("natural") == "coastline" and rule.near_coast(box)):
+            kept.add(way.id)
+        if way.id in members:
+            bounds[way.id] = box
     return kept, bounds
 
 

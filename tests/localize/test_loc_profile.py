@@ -384,3 +384,35 @@ def test_numpys_blas_runs_on_one_thread_under_the_searchs_threads_and_is_given_b
     assert inside == [[1] * len(before)] * 4
     assert blas_threads() == before
     assert _map(lambda _: blas_threads(), [0], 1) == [before]  # one thread of ours: BLAS keeps its own
+
+
+def test_searches_on_a_callers_threads_leave_the_blas_limit_as_it_was() -> None:
+    import threading
+    import time
+
+    from threadpoolctl import threadpool_info
+
+    from localization.profile.search import _map
+
+    def blas_threads() -> list[int]:
+        return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+    before = blas_threads()
+    seen = {}
+
+    def search(name: str, seconds: float) -> None:
+        _map(lambda _: time.sleep(seconds), [0, 1], 2)
+
+    first = threading.Thread(target=search, args=("first", 0.3))
+    second = threading.Thread(target=search, args=("second", 0.8))
+    first.start()
+    time.sleep(0.1)
+    second.start()
+    time.sleep(0.05)
+    seen["both running"] = blas_threads()
+    first.join()
+    seen["first done, second running"] = blas_threads()
+    second.join()
+    # the limit is the process's and one thread at a time may set it: on a caller's threads it is left alone
+    assert seen == {"both running": before, "first done, second running": before}
+    assert blas_threads() == before
