@@ -24,6 +24,7 @@ below 0.04), the only gate before the verdict existed.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -79,6 +80,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--heading", choices=["known", "unknown"], default="known")
     ap.add_argument("--fov", type=float, default=360.0, help="the views' field of view in degrees (360: panoramas)")
+    ap.add_argument("--compass", type=float, metavar="DEG",
+                    help="heading unknown, but a compass says it to within ±DEG: the search keeps within DEG of a "
+                         "reading drawn uniformly within ±DEG/2 of the truth (--heading-within DEG)")
     ap.add_argument("--renderer", choices=["geometry", "mask", "both"], default="both",
                     help="which renderer draws the views (both: side by side, the same street points)")
     ap.add_argument("--json", type=Path, help="also write every search here")
@@ -120,8 +124,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 for i, v in enumerate(views[renderer, origin.name]):
                     query = semantic_map(v.pixels, PANO, CLASSES)
                     camera = Camera(v.pixels.shape[1], 224, hfov_deg=args.fov, camera_height_m=2.0)
-                    profile = ProfileConfig(heading_deg=v.heading if args.heading == "known" else None,
-                                            camera_heights=UNKNOWN_HEIGHTS, tilt_deg=1.0)
+                    profile = compass(ProfileConfig(heading_deg=v.heading if args.heading == "known" else None,
+                                                    camera_heights=UNKNOWN_HEIGHTS, tilt_deg=1.0),
+                                      args.compass, v.heading, args.seed, i)
                     t0 = time.perf_counter()
                     result = search_region(query, camera, [place.osm], TABLE, CLASSES, config, profile,
                                            cache_dir=Path(cache))
@@ -144,12 +149,22 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print(json.dumps(summary, indent=2))
     print(side_by_side(summary))
     if args.json:
-        args.json.write_text(json.dumps({"summary": summary, "fov": args.fov, "heading": args.heading, "searches": rows},
+        args.json.write_text(json.dumps({"summary": summary, "fov": args.fov, "heading": args.heading,
+                                         "compass": args.compass, "searches": rows},
                                         indent=2) + "\n")
     return summary
 
 
 RENDERERS = ("geometry", "mask")
+
+
+def compass(profile: ProfileConfig, within: float | None, heading: float, seed: int, view: int) -> ProfileConfig:
+    """``profile`` told by a compass good to ``within`` degrees: a reading off the true ``heading``
+    by a seeded draw within ±within/2 (the same for a view in every town)."""
+    if within is None:
+        return profile
+    error = float(np.random.default_rng([seed, view, 7]).uniform(-within / 2, within / 2))
+    return dataclasses.replace(profile, heading_prior_deg=(heading + error) % 360.0, heading_within_deg=within)
 
 
 def summarise_all(rows: list[dict[str, Any]]) -> dict[str, Any]:

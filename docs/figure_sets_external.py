@@ -555,6 +555,22 @@ def regionceiling(ws: Workspace) -> dict[str, Figure]:
     }
 
 
+@figure_set("null90compass", "expensive", needs="shared data")
+def null90compass(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_region_null.py --fov 90 --heading unknown --compass 25: the 90° photos with a compass good to ±25°"""
+    run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", "0", "--fov", "90", "--heading",
+                    "unknown", "--compass", "25", "--renderer", "geometry", name="bench_region_null90-compass-0")
+    s = run["summary"]["geometry"]
+    auc = s["auc_right_vs_other_town"]
+    own = s["own_town"]
+    return {
+        "null90compass.table": F(table(NULL_COLUMNS, null_rows(s, "90° photos, compass ±25°"))),
+        "null90compass.recall": F(f"{ratio(own['within_10m'])} within 10 m and {ratio(own['within_25m'])} within 25 m"),
+        "null90compass.auc": F(f"{ratio(auc['lift over the null'])} (kappa {ratio(auc['kappa'])}, confidence "
+                               f"{ratio(auc['confidence'])})"),
+    }
+
+
 @figure_set("null90", "expensive", needs="shared data")
 def null90(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_region_null.py --fov 90 --heading unknown: 90° photos of the three towns, each searched in every town"""
