@@ -142,14 +142,17 @@ def _reduce(offsets: Ints, values: Ints, fill: np.int64, op: Any) -> Ints:
     return out
 
 
-def _boxes(offsets: Ints, xs: Ints, ys: Ints) -> tuple[Ints, Ints, Ints, Ints]:
-    """Fixed-point bounds of each run; runs of unknown points only (``_FAR``/``-_FAR``) stay empty."""
-    lo_x = np.where(xs == _FAR, _FAR, xs)
-    hi_x = np.where(xs == _FAR, -_FAR, xs)
-    lo_y = np.where(ys == _FAR, _FAR, ys)
-    hi_y = np.where(ys == _FAR, -_FAR, ys)
+def _bounds(offsets: Ints, lo_x: Ints, lo_y: Ints, hi_x: Ints, hi_y: Ints) -> tuple[Ints, Ints, Ints, Ints]:
+    """Fixed-point (west, south, east, north) of each [offsets[i], offsets[i+1]) run; ``_FAR`` and
+    ``-_FAR`` (no known point) for runs without one."""
     return (_reduce(offsets, lo_x, _FAR, np.minimum), _reduce(offsets, lo_y, _FAR, np.minimum),
             _reduce(offsets, hi_x, -_FAR, np.maximum), _reduce(offsets, hi_y, -_FAR, np.maximum))
+
+
+def _meeting(bounds: tuple[Floats, Floats, Floats, Floats], box: LngLatBBox) -> Bools:
+    """Which of the ``bounds`` (degrees) meet ``box``."""
+    west, south, east, north = bounds
+    return (west <= box.east) & (east >= box.west) & (south <= box.north) & (north >= box.south)
 
 
 def _degrees(fixed: tuple[Ints, Ints, Ints, Ints], rows: Ints) -> tuple[Floats, Floats, Floats, Floats]:
@@ -168,20 +171,17 @@ def enclosing_index(x: Ints, y: Ints, located: Bools, way_offsets: Ints, way_nod
     known = way_nodes >= 0
     known[known] = located[way_nodes[known]]
     at = np.where(known, way_nodes, 0)
-    xs = np.where(known, x[at].astype(np.int64), _FAR)
+    xs = np.where(known, x[at].astype(np.int64), _FAR)  # unknown points: _FAR for the minima, -_FAR for the maxima
     ys = np.where(known, y[at].astype(np.int64), _FAR)
-    fixed = _boxes(way_offsets, xs, ys)
+    fixed = _bounds(way_offsets, xs, ys, np.where(known, xs, -_FAR), np.where(known, ys, -_FAR))
     # smallest box in fixed point, halved: a margin for rounding, only a speed-up
     min_w = min(b.east - b.west for b in boxes) * 5_000_000
     min_h = min(b.north - b.south for b in boxes) * 5_000_000
     ways = np.flatnonzero(fixed[0] != _FAR)
     member = rel_ways >= 0
     at = np.where(member, rel_ways, 0)
-    member_fixed = tuple(np.where(member, f[at], fill) for f, fill in zip(fixed, (_FAR, _FAR, -_FAR, -_FAR)))
-    rel_fixed = (_reduce(rel_way_offsets, member_fixed[0], _FAR, np.minimum),
-                 _reduce(rel_way_offsets, member_fixed[1], _FAR, np.minimum),
-                 _reduce(rel_way_offsets, member_fixed[2], -_FAR, np.maximum),
-                 _reduce(rel_way_offsets, member_fixed[3], -_FAR, np.maximum))
+    rel_fixed = _bounds(rel_way_offsets, *(np.where(member, f[at], fill)
+                                           for f, fill in zip(fixed, (_FAR, _FAR, -_FAR, -_FAR))))
     rels = np.flatnonzero((rel_fixed[2] - rel_fixed[0] >= min_w) & (rel_fixed[3] - rel_fixed[1] >= min_h))
     return Enclosing(ways=ways, way_box=_degrees(fixed, ways), coast=coast, coast_box=_degrees(fixed, coast),
                      rels=rels, rel_box=_degrees(rel_fixed, rels))
@@ -190,11 +190,7 @@ def enclosing_index(x: Ints, y: Ints, located: Bools, way_offsets: Ints, way_nod
 def enclosing_keep(index: Enclosing, box: LngLatBBox) -> tuple[Ints, Ints]:
     """Positions of the ways (meeting ``box``, coastline near it) and indexes of the multipolygons
     (holding it) that :class:`EnclosingRule` keeps for the one box ``box``."""
-    west, south, east, north = index.way_box
-    meets = (west <= box.east) & (east >= box.west) & (south <= box.north) & (north >= box.south)
-    coast = pad_bbox(box, COAST_REACH_M)
-    c_west, c_south, c_east, c_north = index.coast_box
-    near = (c_west <= coast.east) & (c_east >= coast.west) & (c_south <= coast.north) & (c_north >= coast.south)
+    near = _meeting(index.coast_box, pad_bbox(box, COAST_REACH_M))
     r_west, r_south, r_east, r_north = index.rel_box
-    rel_holds = (r_west <= box.west) & (r_south <= box.south) & (r_east >= box.east) & (r_north >= box.north)
-    return np.concatenate([index.ways[meets], index.coast[near]]), index.rels[rel_holds]
+    holds = (r_west <= box.west) & (r_south <= box.south) & (r_east >= box.east) & (r_north >= box.north)
+    return np.concatenate([index.ways[_meeting(index.way_box, box)], index.coast[near]]), index.rels[holds]

@@ -19,19 +19,31 @@ from conftest import REPO_ROOT, shared_path
 sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
 
 
-def test_street_points_lie_on_highway_pixels_inside_the_region(tmp_path) -> None:
+#: a part of the Kotka extract (16 blocks)
+BBOX = (26.940, 60.530, 26.955, 60.537)
+
+
+def kotka_part(tmp_path) -> tuple:
+    """The real Kotka OSM, the blocks of :data:`BBOX` and their masks (drawn into ``tmp_path``)."""
     import bench_region
 
     from localization.region.cache import BlockMasks
     from localization.region.search import RegionConfig, region_blocks
+
+    osm = shared_path("helsinki-osm", "kotka.osm.pbf")
+    blocks = region_blocks(RegionConfig(bbox=BBOX))
+    return osm, blocks, BlockMasks([osm], bench_region.TABLE, [g for g, _ in blocks], tmp_path)
+
+
+def test_street_points_lie_on_highway_pixels_inside_the_region(tmp_path) -> None:
+    import bench_region
+
     from osmseg.grid import sample_grid
     from osmseg.osm.features import read_features
     from osmseg.rasterize import rasterize
 
-    osm = shared_path("helsinki-osm", "kotka.osm.pbf")
-    bbox = (26.940, 60.530, 26.955, 60.537)
-    blocks = region_blocks(RegionConfig(bbox=bbox))
-    masks = BlockMasks([osm], bench_region.TABLE, [g for g, _ in blocks], tmp_path)
+    osm, blocks, masks = kotka_part(tmp_path)
+    bbox = BBOX
     points = bench_region.street_points(masks, blocks, 12, np.random.default_rng(5), bbox)
     road = bench_region.TABLE.by_name["highway"].id
     for lon, lat in points:
@@ -60,13 +72,8 @@ def test_a_short_run_finds_clean_views_in_a_region(tmp_path) -> None:
 def test_the_mask_renderer_stands_on_the_street_it_was_asked_for(tmp_path) -> None:
     import bench_region
 
-    from localization.region.cache import BlockMasks
-    from localization.region.search import RegionConfig, region_blocks
-
-    osm = shared_path("helsinki-osm", "kotka.osm.pbf")
-    bbox = (26.940, 60.530, 26.955, 60.537)
-    blocks = region_blocks(RegionConfig(bbox=bbox))
-    masks = BlockMasks([osm], bench_region.TABLE, [g for g, _ in blocks], tmp_path)
+    _, blocks, masks = kotka_part(tmp_path)
+    bbox = BBOX
     spots = bench_region.street_spots(masks, blocks, 6, np.random.default_rng(5), bbox)
     assert [(s.lon, s.lat) for s in spots] == bench_region.street_points(masks, blocks, 6, np.random.default_rng(5),
                                                                          bbox)
