@@ -50,6 +50,7 @@ from osmseg.osm.features import read_features
 from osmseg.osm.localfile import LocalFileSource
 from osmseg.output.atomic import atomic_write_bytes
 from osmseg.rasterize import rasterize
+from osmseg.runtime.progress import Progress, track
 
 __all__ = ["BlockMasks", "OSM_PADDING_M", "osm_key"]
 
@@ -118,15 +119,16 @@ class BlockMasks:
             self.read += 1
         return packed
 
-    def prepare(self, blocks: Iterable[int]) -> None:
-        """Cut the OSM of those ``blocks`` not drawn yet out of each OSM file, in one pass over it."""
+    def prepare(self, blocks: Iterable[int], progress: Progress | None = None) -> None:
+        """Cut the OSM of those ``blocks`` not drawn yet out of each OSM file, in one pass over it
+        (a country file takes minutes: ``progress`` hears of each file)."""
         todo = [b for b in dict.fromkeys(blocks) if b not in self._extracts and self._cached(b) is None]
         if not todo:
             return
         boxes = [_within_the_world(pad_bbox(self.grids[b].bbox, OSM_PADDING_M)) for b in todo]
         for b in todo:
             self._extracts[b] = []
-        for path in self.osm:
+        for path in track(self.osm, progress, f"cutting {len(todo)} blocks out of the OSM", unit="file"):
             source = LocalFileSource(path, self._work(), enclosing=True)
             if len(boxes) > 1:
                 source.prepare(boxes)  # the region out of a big file: one set of passes over it

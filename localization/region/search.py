@@ -284,7 +284,7 @@ def search_part(query: SemanticMap, camera: Camera, masks: BlockMasks, table: Cl
     nulls = [scrambled(q, seed) for seed in range(NULL_SCRAMBLES)]
     sample = prior_blocks(len(blocks))
     mine = [b for b in range(len(blocks)) if shard.owns(b)]
-    masks.prepare([*sample, *mine])  # one pass over the OSM for every block this shard draws
+    masks.prepare([*sample, *mine], progress)  # one pass over the OSM for every block this shard draws
     priors = []
     for b in track(sample, progress, "region's class frequencies", unit="block"):
         index = _index(masks.mask(b), blocks[b][0], table, classes, coarse)
