@@ -183,6 +183,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--search-pose", action="store_true",
                     help="tell the method the camera height and tilt are unknown (osmseg localize-region --camera-height "
                          "unknown --tilt TILT): it reads the tilt from the horizon and tries 1.5 to 2.5 m")
+    ap.add_argument("--vista-weight", type=float, default=ProfileConfig.vista_weight,
+                    help="the open horizon's weight (osmseg localize-region --vista-weight; 0: none)")
     ap.add_argument("--json", type=Path, help="also write every figure here")
     args = ap.parse_args(argv)
     if not args.osm.is_file():
@@ -210,7 +212,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             camera = Camera(width, 224, hfov_deg=args.fov, camera_height_m=2.0)
             profile = ProfileConfig(heading_deg=heading if args.heading == "known" else None,
                                     camera_heights=UNKNOWN_HEIGHTS if args.search_pose else (),
-                                    tilt_deg=args.tilt if args.search_pose else 0.0)
+                                    tilt_deg=args.tilt if args.search_pose else 0.0, vista_weight=args.vista_weight)
             t0, c0 = time.perf_counter(), time.process_time()
             result = search_region(query, camera, [args.osm], TABLE, CLASSES, config, profile, cache_dir=Path(cache))
             seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -229,7 +231,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     baseline = statistics.median(distance_m(p, g) for p, g in zip(points, guesses))
     summary = {
         "queries": len(rows), "fov": args.fov, "heading": args.heading, "eye_m": list(eye), "tilt_deg": args.tilt,
-        "search_pose": args.search_pose,
+        "search_pose": args.search_pose, "vista_weight": args.vista_weight,
         "blocks": len(blocks),
         "median_error_m": round(statistics.median(r["error_m"] for r in rows), 2),
         "within_10m": round(len(right) / len(rows), 3),

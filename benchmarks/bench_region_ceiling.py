@@ -79,6 +79,37 @@ def truth_score(lon: float, lat: float, q: Any, masks: BlockMasks, blocks: list[
     return float(score.max()), b
 
 
+def classify(query: Any, camera: Camera, v: Any, masks: BlockMasks, blocks: list[Any], config: RegionConfig,
+             profile: ProfileConfig, classes: LandmarkClasses, right_m: float) -> dict[str, Any]:
+    """Search one view as ``osmseg localize-region`` does, score it where it was taken, and class the answer."""
+    part = search_part(query, camera, masks, TABLE, classes, config, profile, Shard(1, 1))
+    result = merge_parts([part], config)
+    fine = dataclasses.replace(profile, top_k=config.per_block, min_confidence=-1.0, min_kappa=-1.0)
+    q = profile_query(query, camera, fine)
+    priors = []
+    for b in prior_blocks(len(blocks)):
+        grid = blocks[b][0]
+        index = profile_index(semantic_map(masks.mask(b), TABLE, classes), ground_resolution(grid.lat, grid.zoom), fine)
+        priors.append(class_prior(index, q, grid_positions(index.shape, index.grid_m / index.resolution_m)))
+    best = result.best
+    error = distance_m(best, (v.lon, v.lat)) if best else float("inf")
+    truth, b = truth_score(v.lon, v.lat, q, masks, blocks, fine, np.mean(priors, axis=0), right_m, classes)
+    answer = best.score if best else -1.0
+    kind = ("right" if error <= right_m else "look-alike" if answer >= truth
+            else "lost at the fine stage" if b in part.refined else "lost at the coarse stage")
+    return {"error_m": error, "answer_score": answer, "truth_score": truth, "refined": b in part.refined, "kind": kind}
+
+
+def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Counts of each kind of answer, the recall and the ceiling (right plus lost by the search)."""
+    kinds = ["right", "lost at the coarse stage", "lost at the fine stage", "look-alike"]
+    n = max(1, len(rows))
+    counts = {k: sum(r["kind"] == k for r in rows) for k in kinds}
+    return {"queries": len(rows), **counts, "recall": round(counts["right"] / n, 3),
+            "ceiling": round((counts["right"] + counts["lost at the coarse stage"]
+                              + counts["lost at the fine stage"]) / n, 3)}
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--osm", type=Path, default=KOTKA)
@@ -92,6 +123,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                     help="the landmark dictionary (the classes the method matches): a name or a TOML file")
     ap.add_argument("--max-range", type=float, default=ProfileConfig.max_range_m,
                     help="metres of ground the method reads around the camera (its max_range_m)")
+    ap.add_argument("--vista-weight", type=float, nargs="+", default=[ProfileConfig.vista_weight],
+                    help="the vista cell's mass (0: none); several: each view searched with each, side by side")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     if not args.osm.is_file():
@@ -106,41 +139,25 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rng = np.random.default_rng(args.seed)
     points = street_points(masks, blocks, args.queries, rng, config.bbox)   # as bench_region draws them
     street_points(masks, blocks, args.queries, rng, config.bbox)            # bench_region's baseline guesses
-    rows = []
-    print(f"{'#':>3} {'error m':>9} {'answer':>7} {'truth':>7} {'refined':>7}  kind", flush=True)
+    rows: list[dict[str, Any]] = []
+    print(f"{'#':>3} {'vista':>5} {'error m':>9} {'answer':>7} {'truth':>7} {'refined':>7}  kind", flush=True)
     for i, v in enumerate(draw_views(args.osm, points, rng, args.seed, (1.5, 2.5), 1.0, args.fov)):
         query = semantic_map(v.pixels, PANO, classes)
         camera = Camera(v.pixels.shape[1], 224, hfov_deg=args.fov, camera_height_m=2.0)
-        profile = ProfileConfig(heading_deg=v.heading if args.heading == "known" else None,
-                                camera_heights=UNKNOWN_HEIGHTS, tilt_deg=1.0, max_range_m=args.max_range)
-        part = search_part(query, camera, masks, TABLE, classes, config, profile, Shard(1, 1))
-        result = merge_parts([part], config)
-        fine = dataclasses.replace(profile, top_k=config.per_block, min_confidence=-1.0, min_kappa=-1.0)
-        q = profile_query(query, camera, fine)
-        priors = []
-        for b in prior_blocks(len(blocks)):
-            grid = blocks[b][0]
-            index = profile_index(semantic_map(masks.mask(b), TABLE, classes), ground_resolution(grid.lat, grid.zoom),
-                                  fine)
-            priors.append(class_prior(index, q, grid_positions(index.shape, index.grid_m / index.resolution_m)))
-        best = result.best
-        error = distance_m(best, (v.lon, v.lat)) if best else float("inf")
-        truth, b = truth_score(v.lon, v.lat, q, masks, blocks, fine, np.mean(priors, axis=0), args.right, classes)
-        answer = best.score if best else -1.0
-        kind = ("right" if error <= args.right else "look-alike" if answer >= truth
-                else "lost at the fine stage" if b in part.refined else "lost at the coarse stage")
-        rows.append({"error_m": error, "answer_score": answer, "truth_score": truth, "refined": b in part.refined,
-                     "kind": kind})
-        print(f"{i:>3} {error:>9.1f} {answer:>7.4f} {truth:>7.4f} {str(b in part.refined):>7}  {kind}", flush=True)
-    kinds = ["right", "lost at the coarse stage", "lost at the fine stage", "look-alike"]
-    n = max(1, len(rows))
-    counts = {k: sum(r["kind"] == k for r in rows) for k in kinds}
-    summary: dict[str, Any] = {"queries": len(rows), **counts, "recall": round(counts["right"] / n, 3),
-                               "ceiling": round((counts["right"] + counts["lost at the coarse stage"]
-                                                 + counts["lost at the fine stage"]) / n, 3)}
-    print(json.dumps(summary, indent=2))
+        for weight in args.vista_weight:
+            profile = ProfileConfig(heading_deg=v.heading if args.heading == "known" else None,
+                                    camera_heights=UNKNOWN_HEIGHTS, tilt_deg=1.0, max_range_m=args.max_range,
+                                    vista_weight=weight)
+            row = classify(query, camera, v, masks, blocks, config, profile, classes, args.right)
+            rows.append({"view": i, "vista_weight": weight, **row})
+            print(f"{i:>3} {weight:>5g} {row['error_m']:>9.1f} {row['answer_score']:>7.4f} {row['truth_score']:>7.4f} "
+                  f"{str(row['refined']):>7}  {row['kind']}", flush=True)
+    by_weight = {f"{w:g}": summarise([r for r in rows if r["vista_weight"] == w]) for w in args.vista_weight}
+    summary = by_weight[f"{args.vista_weight[0]:g}"]
+    print(json.dumps(by_weight, indent=2))
     if args.json:
-        args.json.write_text(json.dumps({"summary": summary, "rows": rows}, indent=2) + "\n")
+        args.json.write_text(json.dumps({"summary": summary, "by_vista_weight": by_weight, "rows": rows}, indent=2)
+                             + "\n")
     return summary
 
 

@@ -85,6 +85,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                          "reading drawn uniformly within ±DEG/2 of the truth (--heading-within DEG)")
     ap.add_argument("--renderer", choices=["geometry", "mask", "both"], default="both",
                     help="which renderer draws the views (both: side by side, the same street points)")
+    ap.add_argument("--vista-weight", type=float, default=ProfileConfig.vista_weight,
+                    help="the open horizon's weight (osmseg localize-region --vista-weight; 0: none)")
     ap.add_argument("--json", type=Path, help="also write every search here")
     ap.add_argument("--summarise", type=Path, metavar="JSON",
                     help="print the summary of an earlier run's --json at this osmseg's thresholds (no search)")
@@ -125,7 +127,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                     query = semantic_map(v.pixels, PANO, CLASSES)
                     camera = Camera(v.pixels.shape[1], 224, hfov_deg=args.fov, camera_height_m=2.0)
                     profile = compass(ProfileConfig(heading_deg=v.heading if args.heading == "known" else None,
-                                                    camera_heights=UNKNOWN_HEIGHTS, tilt_deg=1.0),
+                                                    camera_heights=UNKNOWN_HEIGHTS, tilt_deg=1.0,
+                                                    vista_weight=args.vista_weight),
                                       args.compass, v.heading, args.seed, i)
                     t0 = time.perf_counter()
                     result = search_region(query, camera, [place.osm], TABLE, CLASSES, config, profile,
@@ -150,7 +153,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print(side_by_side(summary))
     if args.json:
         args.json.write_text(json.dumps({"summary": summary, "fov": args.fov, "heading": args.heading,
-                                         "compass": args.compass, "searches": rows},
+                                         "compass": args.compass, "vista_weight": args.vista_weight,
+                                         "searches": rows},
                                         indent=2) + "\n")
     return summary
 

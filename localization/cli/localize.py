@@ -72,6 +72,7 @@ from localization.cli.query import (
     PHOTO,
     TILT,
     TRUTH,
+    VISTA,
     GroundQuery,
     LandmarkOptions,
     ViewOptions,
@@ -195,6 +196,7 @@ region_moved = moved_each(("--osm", "--bbox", "--lat", "--lon", "--radius-km", "
 @FOV(default=360.0, show_default=True)
 @CAMERA_HEIGHT(default="2", show_default=True)
 @TILT(default=0.0, show_default="level")
+@VISTA(default=0.0, show_default="0, none")
 @MIN_CONFIDENCE(show_default="0.04 for an aerial mask, none for aerial landmark points")
 @MIN_KAPPA(show_default="0.6 for an aerial mask, 0.3 for aerial landmark points")
 @region_moved

@@ -25,7 +25,7 @@ from osmseg.cli.common import parse_size
 from osmseg.cli.options import declare
 
 __all__ = ["GroundQuery", "LandmarkOptions", "ViewOptions", "GROUND", "GROUND_TABLE", "AERIAL_TABLE",
-           "GROUND_CHECKPOINT", "GROUND_MODEL", "GROUND_MODEL_CLASSES", "TRUTH", "JSON", "TILT", "PHOTO", "HEADING_WITHIN", "apply_photo", "say_photo"]
+           "GROUND_CHECKPOINT", "GROUND_MODEL", "GROUND_MODEL_CLASSES", "TRUTH", "JSON", "TILT", "VISTA", "PHOTO", "HEADING_WITHIN", "apply_photo", "say_photo"]
 
 GROUND = declare("--ground", dest="ground_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                  help="Ground view: label mask (PNG/TIFF of class ids), landmark file (x y Class, .csv, .npy), or RGB "
@@ -56,6 +56,11 @@ TILT = declare("--tilt", dest="tilt_deg", type=click.FloatRange(0, 10),
                help="Profile method: the camera may be tilted up to this many degrees in pitch and roll; the tilt is "
                     "read from the ground mask's horizon, where its sky ends and its ground begins (give the sky as "
                     "a class: the ground table's 'sky', id 14 for classes13).")
+
+VISTA = declare("--vista-weight", type=click.FloatRange(min=0),
+                help="Profile method: how much an open horizon counts, in ground distances (4 tells more look-alikes "
+                     "apart: docs/localization.md). Where the ground view's sky comes down to the horizon, nothing "
+                     "stands within 75 m: a place with a building there fits worse. Needs the sky as a class.")
 
 
 @dataclass(frozen=True)
@@ -95,7 +100,8 @@ class GroundQuery:
 @dataclass(frozen=True)
 class ViewOptions:
     """How the ground view was taken, as the profile method reads it: ``--heading`` (``--heading-within``),
-    ``--fov``, ``--camera-height`` and ``--tilt``, and the ``--photo`` whose EXIF gave those not typed."""
+    ``--fov``, ``--camera-height``, ``--tilt`` and ``--vista-weight``, and the ``--photo`` whose EXIF gave those
+    not typed."""
 
     heading_text: str
     fov_deg: float
@@ -103,6 +109,7 @@ class ViewOptions:
     tilt_deg: float
     heading_within_deg: float | None = None
     photo_path: Path | None = None  # the photo whose EXIF filled what was not given (apply_photo)
+    vista_weight: float = ProfileConfig.vista_weight
 
     @property
     def camera_height(self) -> float:
@@ -117,7 +124,8 @@ class ViewOptions:
         near = heading is not None and self.heading_within_deg is not None  # a compass: the heading searched near it
         return ProfileConfig(heading_deg=None if near else heading, heading_prior_deg=heading if near else None,
                              heading_within_deg=self.heading_within_deg if near and self.heading_within_deg else 180.0,
-                             camera_heights=heights, tilt_deg=self.tilt_deg, top_k=top_k,
+                             camera_heights=heights, tilt_deg=self.tilt_deg, vista_weight=self.vista_weight,
+                             top_k=top_k,
                              min_confidence=min_confidence, min_kappa=min_kappa)
 
 

@@ -47,6 +47,7 @@ from localization.cli.query import (
     PHOTO,
     TILT,
     TRUTH,
+    VISTA,
     GroundQuery,
     LandmarkOptions,
     ViewOptions,
@@ -143,6 +144,7 @@ aerial_moved = moved_each(("--aerial", "--aerial-resolution", "--aerial-size", "
 @FOV(default=360.0, show_default=True)
 @CAMERA_HEIGHT(default="2", show_default=True)
 @TILT(default=0.0, show_default="level")
+@VISTA(default=0.0, show_default="0, none")
 @aerial_moved
 @moved("--method", "--method is osmseg localize's: a region search uses the profile method; leave --method out")
 @click.pass_context

@@ -19,10 +19,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from localization.common.result import Localization, unanswered
-from localization.profile.profiles import QueryProfile
+from localization.profile.profiles import QueryProfile, without_vista
 from localization.profile.search import (
     AerialIndex,
     ProfileConfig,
+    RayIndex,
     class_prior,
     grid_positions,
     score_poses,
@@ -89,6 +90,10 @@ class Scoring:
            prior: np.ndarray | None = None) -> Scoring:
         """The settings' or else the aerial side's grid, refinements and weighting; the class
         frequencies ``prior``, or else this image's over the coarse grid (:func:`class_prior`)."""
+        if query.vista and not isinstance(index, RayIndex):  # points cannot say that nothing stands
+            if prior is not None and prior.shape[1] == query.q.shape[1]:
+                prior = np.delete(prior, len(query.radii_m) - 1, axis=1)
+            query = without_vista(query)
         coarse_m = config.coarse_m if config.coarse_m is not None else index.grid_m
         weighted = config.weighted if config.weighted is not None else index.weighted
         mean = (class_prior(index, query, grid_positions(index.shape, coarse_m / index.resolution_m))
@@ -187,7 +192,7 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     if query.mass <= 0:
         return unanswered("the query shows no landmark class on the ground rows or at any azimuth", method="profile")
     s = Scoring.of(index, query, config, prior)
-    coarse_m, mean = s.coarse_m, s.mean
+    query, coarse_m, mean = s.query, s.coarse_m, s.mean
     spacing = coarse_m / index.resolution_m
     xy = grid_positions(index.shape, spacing)
     score, shift, poses = s.score(xy, keep=config.keep)

@@ -25,6 +25,7 @@ from localization.profile.profiles import (
     AerialLandmarkIndex,
     AerialMaskIndex,
     QueryProfile,
+    Vista,
     query_from_landmarks,
     query_from_mask,
     query_poses,
@@ -58,12 +59,27 @@ def profile_query(query: SemanticMap | Landmarks, camera: Camera, config: Profil
         if config.tilt_deg > 0:  # the horizon read from the view: where its sky ends and its ground begins
             tilt = estimate_tilt(query, camera, config.tilt_deg)
             camera = replace(camera, pitch_deg=tilt.pitch_deg, roll_deg=tilt.roll_deg)
+        vista = _vista(query, config, radii[0])
         if config.camera_heights:
             return query_poses(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg,
-                               heights=config.camera_heights)
-        return query_from_mask(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg)
+                               heights=config.camera_heights, vista=vista)
+        return query_from_mask(query, camera, bins=config.bins or 72, radii=radii, heading_deg=config.heading_deg,
+                               vista=vista)
     bins = config.bins or max(8, int(round(360.0 / (config.sigma_deg / 2))))
     return query_from_landmarks(query, camera, bins=bins, radii=radii, heading_deg=config.heading_deg)
+
+
+def _vista(query: SemanticMap, config: ProfileConfig, radii_m: np.ndarray) -> Vista | None:
+    """The vista asked for, or None (said once in the log when it was asked for and cannot be read)."""
+    if config.vista_weight <= 0:
+        return None
+    why = ("the ground view has no sky class (the ground table's 'sky')" if query.sky is None
+           else f"its {config.vista_m:g} m lie within the farthest ground distance read ({float(radii_m.max()):.0f} m)"
+           if config.vista_m <= float(radii_m.max()) else None)
+    if why is not None:
+        logger.warning("the open horizon (vista) is left out: %s", why)
+        return None
+    return Vista(config.vista_m, config.vista_deg, config.vista_weight)
 
 
 def run_profile(config: ProfileConfig, aerial: AerialIndex, query: SemanticMap | Landmarks | QueryProfile,

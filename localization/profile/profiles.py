@@ -10,6 +10,18 @@ same kind of array, a **profile** ``(C, R + 1, A)``:
   in this direction at some distance" (a landmark whose distance the query does not tell);
 * ``C`` landmark classes (the class dictionary's: building, road, vegetation, footway).
 
+**The vista** (:class:`Vista`): a query mask with a sky adds one more radius, ``vista.distance_m``,
+after the others. Where a column's sky comes down to within ``vista.max_deg`` of the horizon,
+nothing a few metres tall stands in that direction for a long way: a building or tree 4 m
+tall 75 m from a camera 2.5 m up rises 1.1 degrees above the horizon. The claim needs no
+height: it says only that *nothing* stands there. Its cell holds the mass ``vista.weight``
+(in radii) times the share of the bin's columns that are open, on class ``other``; the aerial
+side's vista cell reads ``other`` where no standing pixel lies within the distance (every
+ground class merged: the query cannot tell a road 75 m away from grass), else the class that
+stands first. A look-alike that fits the near radii but has a building where the view sees
+open sky loses that mass; rows of far ground alone weigh too little to say it (each far radius
+is one of 16, and its ground class is rarely the same as the map's).
+
 **The query** (:func:`query_from_mask`, :func:`query_from_landmarks`). A ground camera
 ``h`` metres above flat ground sees the ground at distance ``d`` at the depression angle
 ``atan(h / d)`` below the horizon, so each panorama row under the horizon is one ground
@@ -41,7 +53,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import cast
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -49,8 +61,8 @@ from localization.common.landmarks import Landmarks
 from localization.common.views import OTHER, Camera, SemanticMap
 from osmseg.errors import ConfigError
 
-__all__ = ["MASK_MIN_CONFIDENCE", "STANDING_LANDMARKS", "QueryProfile", "query_from_mask", "query_poses",
-           "query_from_landmarks", "AerialMaskIndex", "AerialLandmarkIndex", "ray_radii", "OPAQUE_LANDMARKS",
+__all__ = ["MASK_MIN_CONFIDENCE", "Vista", "open_columns", "without_vista", "STANDING_LANDMARKS", "QueryProfile",
+           "query_from_mask", "query_poses", "query_from_landmarks", "AerialMaskIndex", "AerialLandmarkIndex", "ray_radii", "OPAQUE_LANDMARKS",
            "HALF_WIDTHS_M", "first_hits", "seen_fraction"]
 
 #: Landmark classes whose points mark something standing (their row says nothing about distance).
@@ -62,6 +74,41 @@ HALF_WIDTHS_M = (4.0, 6.0, 8.0)
 #: The "not sure" threshold of an aerial mask: the confidence (localization.profile.search) below which an
 #: answer is not given. Chosen on rendered views in Kotka (docs/localization.md): few wrong answers pass it.
 MASK_MIN_CONFIDENCE = 0.04
+
+
+class Vista(NamedTuple):
+    """The vista cell of a query mask with a sky (see the module docstring): how far an open horizon
+    says nothing stands, how close to the horizon its sky must come down, and its mass in radii."""
+
+    distance_m: float = 75.0
+    max_deg: float = 1.0
+    weight: float = 4.0
+
+
+def open_columns(sem: SemanticMap, camera: Camera, max_deg: float) -> np.ndarray:
+    """Which columns of a view see sky down to within ``max_deg`` of the (tilted) horizon, and nothing
+    standing above that line (sky seen under a tree's crown says nothing): nothing stands there.
+    None of them without a sky class.
+
+    >>> cam = Camera(5, 90, row_step_deg=1.0)                # the horizon between rows 44 and 45
+    >>> sky = np.zeros((90, 5), bool); sky[:45, 0] = sky[:30, 1] = sky[:44, 2] = sky[:45, 4] = True
+    >>> labels, standing = np.where(sky, -1, 0).astype(np.int8), np.zeros_like(sky)
+    >>> sky[10:40, 4], standing[10:40, 4] = False, True       # column 4: a crown with sky under it
+    >>> open_columns(SemanticMap(labels, standing, ("road", "other"), sky), cam, 1.0).tolist()
+    [True, False, True, False, False]
+    >>> up = Camera(5, 90, row_step_deg=1.0, hfov_deg=5, pitch_deg=2.0)  # pitched up: the horizon 2 rows lower,
+    >>> open_columns(SemanticMap(labels, standing, ("road", "other"), sky), up, 1.0).tolist()  # the sky ends 2° above
+    [False, False, False, False, False]
+    """
+    if sem.sky is None:
+        return np.zeros(sem.shape[1], dtype=bool)
+    cols = np.arange(sem.shape[1])
+    sky = sem.sky
+    lowest = np.where(sky.any(axis=0), sem.shape[0] - 1 - np.argmax(sky[::-1], axis=0), -1)
+    horizon = camera.horizon + camera.tilt_rows(cols)
+    elevation = (horizon - (lowest + 0.5)) * camera.step      # the lower edge of the lowest sky pixel
+    above = np.arange(sem.shape[0])[:, None] + 0.5 < (horizon - max_deg / camera.step)[None, :]
+    return cast("np.ndarray", (lowest >= 0) & (elevation <= max_deg + 1e-9) & ~(sem.standing & above).any(axis=0))
 
 
 def ray_radii(camera: Camera, n: int, min_m: float, max_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -96,6 +143,7 @@ class QueryProfile:
     hfov_deg: float
     pose: tuple[float, float, float] | None = None  # (camera height m, pitch, roll degrees) it was read with
     variants: tuple[QueryProfile, ...] = ()  # the same query read at other camera heights; q is their mean
+    vista: bool = False  # the last of radii_m is the vista cell (see the module docstring)
 
     @property
     def bins(self) -> int:
@@ -111,10 +159,11 @@ def _bins_of(azimuth_deg: np.ndarray, bins: int) -> np.ndarray:
 
 
 def query_from_mask(sem: SemanticMap, camera: Camera, *, bins: int, radii: tuple[np.ndarray, np.ndarray],
-                    heading_deg: float | None = 0.0) -> QueryProfile:
+                    heading_deg: float | None = 0.0, vista: Vista | None = None) -> QueryProfile:
     """The profile of a query mask: class fractions of each azimuth bin at each ground row.
 
-    ``heading_deg`` None builds it in the query's own frame, for a heading search.
+    ``heading_deg`` None builds it in the query's own frame, for a heading search. ``vista`` adds
+    the vista cell when the view has a sky (see the module docstring).
     """
     if sem.shape != (camera.height, camera.width):
         raise ConfigError(f"query mask is {sem.shape[1]}x{sem.shape[0]} but the camera says "
@@ -141,12 +190,32 @@ def query_from_mask(sem: SemanticMap, camera: Camera, *, bins: int, radii: tuple
             np.add.at(q[:, k, :], (lab[ok], b[ok]), 1.0)
 
     q[:, :n_r] /= np.maximum(per_bin, 1.0)[None, None, :]
-    return QueryProfile(q=q, radii_m=radii_m, classes=sem.classes, heading_deg=heading_deg, hfov_deg=camera.hfov_deg,
-                        pose=(camera.camera_height_m, camera.pitch_deg, camera.roll_deg))
+    pose = (camera.camera_height_m, camera.pitch_deg, camera.roll_deg)
+    if vista is None or vista.weight <= 0 or sem.sky is None or OTHER not in sem.classes:
+        return QueryProfile(q=q, radii_m=radii_m, classes=sem.classes, heading_deg=heading_deg,
+                            hfov_deg=camera.hfov_deg, pose=pose)
+    if vista.distance_m <= float(radii_m.max()):
+        raise ConfigError(f"the vista ({vista.distance_m:g} m) must lie beyond the farthest radius "
+                          f"({float(radii_m.max()):g} m)")
+    opened = np.bincount(b, weights=open_columns(sem, camera, vista.max_deg).astype(np.float64), minlength=bins)
+    far = np.zeros((len(sem.classes), 1, bins))
+    far[sem.classes.index(OTHER), 0] = vista.weight * opened / np.maximum(per_bin, 1.0)
+    return QueryProfile(q=np.concatenate([q[:, :n_r], far, q[:, n_r:]], axis=1),
+                        radii_m=np.append(radii_m, vista.distance_m), classes=sem.classes, heading_deg=heading_deg,
+                        hfov_deg=camera.hfov_deg, pose=pose, vista=True)
+
+
+def without_vista(query: QueryProfile) -> QueryProfile:
+    """``query`` without its vista cell (for an aerial side that cannot predict one), each variant alike."""
+    if not query.vista:
+        return query
+    keep = [*range(len(query.radii_m) - 1), len(query.radii_m)]      # every radius but the vista, and slot R
+    variants = tuple(without_vista(v) for v in query.variants)
+    return dataclasses.replace(query, q=query.q[:, keep], radii_m=query.radii_m[:-1], vista=False, variants=variants)
 
 
 def query_poses(sem: SemanticMap, camera: Camera, *, bins: int, radii: tuple[np.ndarray, np.ndarray],
-                heading_deg: float | None, heights: Sequence[float]) -> QueryProfile:
+                heading_deg: float | None, heights: Sequence[float], vista: Vista | None = None) -> QueryProfile:
     """The query read once per camera height (each of ``heights`` m, the tilt ``camera``'s), for a
     camera whose height is not known: distances read from its rows scale with it.
 
@@ -156,10 +225,10 @@ def query_poses(sem: SemanticMap, camera: Camera, *, bins: int, radii: tuple[np.
     (:func:`localization.profile.locate.localize_profile`).
     """
     variants = tuple(query_from_mask(sem, dataclasses.replace(camera, camera_height_m=h), bins=bins, radii=radii,
-                                     heading_deg=heading_deg) for h in heights)
+                                     heading_deg=heading_deg, vista=vista) for h in heights)
     first = variants[0]
     return QueryProfile(q=np.mean([v.q for v in variants], axis=0), radii_m=first.radii_m, classes=first.classes,
-                        heading_deg=heading_deg, hfov_deg=first.hfov_deg, variants=variants)
+                        heading_deg=heading_deg, hfov_deg=first.hfov_deg, variants=variants, vista=first.vista)
 
 
 def query_from_landmarks(lm: Landmarks, camera: Camera, *, bins: int, radii: tuple[np.ndarray, np.ndarray],
@@ -229,14 +298,20 @@ class AerialMaskIndex:
             padded = self._padded = (pad, np.pad(self._code, pad, constant_values=128))
         return padded
 
-    def labels(self, xy: np.ndarray, radii_m: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
+    def labels(self, xy: np.ndarray, radii_m: np.ndarray, bins: int, *,
+               vista: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """``(lab, valid)``: the class seen first at each radius and azimuth ``(N, R, A)`` int8 (-1 none), and
         whether the image predicts it (False where the ray left the image before anything stood up).
 
-        Positions are taken at their nearest pixel, so every ray is the same flat offsets from it.
+        ``vista``: the last radius is the vista cell (the module docstring): the class that stands
+        first within it, else ``other`` (every ground class merged). Positions are taken at their
+        nearest pixel, so every ray is the same flat offsets from it.
         """
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-        fine = np.geomspace(0.6, float(radii_m.max()), self.samples)
+        near = radii_m[:-1] if vista and len(radii_m) > 1 else radii_m
+        fine = np.geomspace(0.6, float(near.max()), self.samples)
+        if vista:  # on to the vista every 2 m: a wall seen end-on is a few metres wide
+            fine = np.concatenate([fine, np.arange(float(near.max()) + 2.0, float(radii_m[-1]), 2.0)])
         s = np.unique(np.concatenate([fine, radii_m]))
         at = np.searchsorted(s, radii_m)                               # radius k is sample at[k]
         dx, dy = _directions(bins)
@@ -253,16 +328,19 @@ class AerialMaskIndex:
         first[~np.take_along_axis(stands, first[..., None], axis=2)[..., 0]] = len(s)      # nothing stands
         # the byte seen at each radius: the first standing thing's before it, else the ground's there
         seen = np.where(first[:, :, None] <= at[None, None, :], hit[:, :, None], code[:, :, at])
+        if vista:  # nothing stood up before it: "other", if the ray is still inside the image there
+            seen[:, :, -1] = np.where(first <= at[-1], hit,
+                                      np.where(code[:, :, at[-1]] < 128, self.classes.index(OTHER) + 1, 128))
         seen = np.ascontiguousarray(np.transpose(seen, (0, 2, 1)))                          # (N, R, A)
         return _LABEL_OF_BYTE[seen], seen < 128
 
     def profiles(self, xy: np.ndarray, radii_m: np.ndarray, bins: int,
-                 need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 need: np.ndarray | None = None, *, vista: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """``(P, V)``: one-hot profiles ``(N, C, R + 1, A)`` float32 and valid cells ``(N, R + 1, A)``.
 
         ``need`` is accepted for the interface's sake: one-hot profiles cost the same for all cells.
         """
-        lab, valid = self.labels(xy, radii_m, bins)
+        lab, valid = self.labels(xy, radii_m, bins, vista=vista)
         n, n_r = lab.shape[0], len(radii_m)
         P = np.zeros((n, len(self.classes), n_r + 1, bins), dtype=np.float32)
         for c in range(len(self.classes)):
@@ -368,8 +446,12 @@ class AerialLandmarkIndex:
         return (self.lm.height, self.lm.width)
 
     def profiles(self, xy: np.ndarray, radii_m: np.ndarray, bins: int,
-                 need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """``(P, V)`` as :meth:`AerialMaskIndex.profiles`; only the ``need`` (C, R + 1) cells are computed."""
+                 need: np.ndarray | None = None, *, vista: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """``(P, V)`` as :meth:`AerialMaskIndex.profiles`; only the ``need`` (C, R + 1) cells are computed.
+        Points cannot say that nothing stands in a direction: a ``vista`` query is refused (the search
+        drops its vista cell first, :class:`~localization.profile.locate.Scoring`)."""
+        if vista:
+            raise ConfigError("aerial landmark points cannot predict a vista cell: build the query without it")
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         n_r, n_c = len(radii_m), len(self.lm.classes)
         P = np.zeros((len(xy), n_c + 1, n_r + 1, bins), dtype=np.float32)

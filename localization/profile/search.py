@@ -105,6 +105,11 @@ class ProfileConfig:
     camera_heights: tuple[float, ...] = ()  # camera heights (m) to try when it is not known [the camera's own]
     tilt_deg: float = 0.0          # the camera may be tilted this much in pitch and roll: its tilt is read from
                                    # where the query's sky ends and its ground begins (localization.profile.horizon) [0: level]
+    vista_weight: float = 0.0      # a query mask with a sky: the mass (in radii) of its vista cell, where the sky
+                                   # comes down to the horizon and nothing stands (localization.profile.profiles)
+                                   # [0: none; docs/localization.md measures 4]
+    vista_m: float = 75.0          # how far an open horizon says nothing stands (beyond max_range_m, or no vista)
+    vista_deg: float = 1.0         # how close to the horizon the sky must come down for that
 
     def __post_init__(self) -> None:
         if ((self.bins is not None and self.bins < 8) or self.radii < 1 or self.keep < 1 or (self.levels is not None and self.levels < 0)
@@ -120,6 +125,8 @@ class ProfileConfig:
             raise ConfigError(f"the heading's uncertainty must be 0-180 degrees, got {self.heading_within_deg:g}")
         if not 0 <= self.tilt_deg <= 10:
             raise ConfigError(f"camera tilt must be 0-10 degrees, got {self.tilt_deg:g}")
+        if not (self.vista_weight >= 0 and self.vista_m > 0 and 0 < self.vista_deg <= 10):
+            raise ConfigError("profile method: vista weight >= 0, vista distance > 0 m, vista angle 0-10 degrees")
         if any(not (0 < h < 100) for h in self.camera_heights):
             raise ConfigError(f"camera heights must be positive metres, got {self.camera_heights}")
 
@@ -139,7 +146,7 @@ class AerialIndex(Protocol):
     def shape(self) -> tuple[int, int]: ...
 
     def profiles(self, xy: np.ndarray, radii_m: np.ndarray, bins: int,
-                 need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]: ...
+                 need: np.ndarray | None = None, *, vista: bool = False) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 @runtime_checkable
@@ -147,7 +154,8 @@ class RayIndex(AerialIndex, Protocol):
     """An aerial side whose rays name the class seen in each cell (a mask's, :class:`AerialMaskIndex`):
     the search then looks each predicted class up in the query instead of building one-hot profiles."""
 
-    def labels(self, xy: np.ndarray, radii_m: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]: ...
+    def labels(self, xy: np.ndarray, radii_m: np.ndarray, bins: int, *,
+               vista: bool = False) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 def grid_positions(shape: tuple[int, int], spacing_px: float) -> np.ndarray:
@@ -200,11 +208,11 @@ def score_positions(index: AerialIndex, query: QueryProfile, xy: np.ndarray, con
 
     def one(part: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         if gather:
-            lab, valid = index.labels(part, query.radii_m, query.bins)  # type: ignore[attr-defined]
+            lab, valid = index.labels(part, query.radii_m, query.bins, vista=query.vista)  # type: ignore[attr-defined]
             lab = np.where(lab < 0, len(table) - 1, lab).astype(np.int64)
             num = table.reshape(len(table), -1)[lab.reshape(len(part), -1), cells.ravel()[None, :]].sum(axis=1)
             return (num + float(u.sum()) - (valid * u_seen[None]).sum(axis=(1, 2)) - float(u[n_r:].sum())) / total, None
-        P, V = index.profiles(part, query.radii_m, query.bins, need)
+        P, V = index.profiles(part, query.radii_m, query.bins, need, vista=query.vista)
         if known:
             return (np.einsum("ncra,cra->n", P, q) + float(u.sum()) - np.einsum("nra,ra->n", V, u)) / total, None
         return _rotations(P, V, qf, uf, u, total, query.bins, allowed_shifts(config, query.bins))
@@ -242,7 +250,7 @@ def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config:
     base = u.sum(axis=(1, 2))
 
     def looked_up(part: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        lab, valid = index.labels(part, query.radii_m, bins)  # type: ignore[attr-defined]
+        lab, valid = index.labels(part, query.radii_m, bins, vista=query.vista)  # type: ignore[attr-defined]
         if known:
             seen_as = lab.reshape(len(part), -1)
             num = np.zeros((len(part), len(qs)), np.float32)                                # (N, H)
@@ -262,7 +270,7 @@ def score_poses(index: AerialIndex, query: QueryProfile, xy: np.ndarray, config:
     def one(part: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if lookup:
             return looked_up(part)
-        P, V = index.profiles(part, query.radii_m, query.bins, need)
+        P, V = index.profiles(part, query.radii_m, query.bins, need, vista=query.vista)
         if known:
             s = (np.einsum("ncra,hcra->nh", P, qs) + u.sum(axis=(1, 2))[None]
                  - np.einsum("nra,hra->nh", V, u)) / totals[None]
@@ -348,7 +356,7 @@ def _pruned(index: Any, query: QueryProfile, xy: np.ndarray, config: ProfileConf
     starts = range(0, n, config.chunk)
 
     def bounds_of(part: np.ndarray) -> np.ndarray:
-        lab, valid = index.labels(part, query.radii_m, query.bins)
+        lab, valid = index.labels(part, query.radii_m, query.bins, vista=query.vista)
         return _bounds(lab, valid, q, u, total)
 
     bound = np.concatenate(_map(bounds_of, [xy[i:i + config.chunk] for i in starts], config.threads))
@@ -363,7 +371,7 @@ def _pruned(index: Any, query: QueryProfile, xy: np.ndarray, config: ProfileConf
     allowed = allowed_shifts(config, query.bins)  # the bounds hold over every shift, so over these too
 
     def rotations_of(part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        lab, valid = index.labels(xy[part], query.radii_m, query.bins)
+        lab, valid = index.labels(xy[part], query.radii_m, query.bins, vista=query.vista)
         onehot = (lab[:, rows_r, :] == rows_c[None, :, None].astype(lab.dtype)).astype(np.float32)
         agree = np.einsum("nkf,kf->nf", np.fft.rfft(onehot, axis=-1), q_rows)
         seen = np.einsum("nrf,rf->nf", np.fft.rfft(valid[:, u_rows, :].astype(np.float32), axis=-1), uf[u_rows])
@@ -391,7 +399,7 @@ def _pruned(index: Any, query: QueryProfile, xy: np.ndarray, config: ProfileConf
 def class_prior(index: AerialIndex, query: QueryProfile, xy: np.ndarray, n: int = 512) -> np.ndarray:
     """How often each class is predicted at each radius (C, R + 1), over ``n`` evenly picked positions of ``xy``."""
     pick = xy[np.linspace(0, len(xy) - 1, min(n, len(xy))).astype(np.int64)]
-    P, V = index.profiles(pick, query.radii_m, query.bins)
+    P, V = index.profiles(pick, query.radii_m, query.bins, vista=query.vista)
     return cast("np.ndarray", P.sum(axis=(0, 3)) / np.maximum(V.sum(axis=(0, 2)), 1.0)[None, :])
 
 

@@ -11,7 +11,9 @@ candidates are ranked across blocks in degrees:
   the candidates in its **core** (all but its outer ring of tiles), where every position sees
   at least one tile of map around it (about 75 m at zoom 18 at 60° N, more than the profile
   method's 60 m range): each place is answered by exactly one block, with its whole
-  surroundings drawn.
+  surroundings drawn. (The open horizon's 75 m, ``--vista-weight``, can reach past a block's
+  edge from the rim of its core, farther north; such a ray is credited with chance, as a ray
+  leaving an aerial image is.)
 * Every block is scored against the same class frequencies, those of up to 16 blocks spread
   over the region (:func:`prior_blocks`), so scores compare across blocks.
 * The answers are the candidates best first (the profile score: the share of the query's

@@ -124,7 +124,8 @@ def test_localize_and_localize_region_each_take_only_their_own_options() -> None
     image, region = taken("localize"), taken("localize-region")
     assert {"--aerial", "--aerial-resolution", "--window", "--method", "--min-kappa"} <= image - region
     assert {"--osm", "--bbox", "--lat", "--zoom", "--shard", "--cache-dir"} <= region - image
-    assert {"--ground", "--ground-table", "--heading", "--fov", "--camera-height", "--tilt", "--truth"} <= image & region
+    assert {"--ground", "--ground-table", "--heading", "--fov", "--camera-height", "--tilt", "--vista-weight",
+            "--truth"} <= image & region
 
 
 def test_a_request_is_built_from_a_command_s_flat_parameters_and_refuses_a_stray_one() -> None:
