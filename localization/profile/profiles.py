@@ -44,7 +44,7 @@ façade some metres wide on either side (:func:`first_hits`); every other cell
 a log-normal distance kernel and a distance weight ``g(d) = 1 / (1 + d / d0)``.
 
 Imports: numpy, osmseg core, localization.common (the query's :class:`~localization.common.views.Camera`
-and :class:`~localization.common.views.SemanticMap`).
+and :class:`~localization.common.views.SemanticMap`), localization.profile.horizon (where a view's sky ends).
 """
 
 from __future__ import annotations
@@ -59,6 +59,7 @@ import numpy as np
 
 from localization.common.landmarks import Landmarks
 from localization.common.views import OTHER, Camera, SemanticMap
+from localization.profile.horizon import horizon_bounds
 from osmseg.errors import ConfigError
 
 __all__ = ["MASK_MIN_CONFIDENCE", "Vista", "open_columns", "without_vista", "STANDING_LANDMARKS", "QueryProfile",
@@ -103,8 +104,7 @@ def open_columns(sem: SemanticMap, camera: Camera, max_deg: float) -> np.ndarray
     if sem.sky is None:
         return np.zeros(sem.shape[1], dtype=bool)
     cols = np.arange(sem.shape[1])
-    sky = sem.sky
-    lowest = np.where(sky.any(axis=0), sem.shape[0] - 1 - np.argmax(sky[::-1], axis=0), -1)
+    lowest = horizon_bounds(sem)[0]                           # the lowest sky row of each column, -1 none
     horizon = camera.horizon + camera.tilt_rows(cols)
     elevation = (horizon - (lowest + 0.5)) * camera.step      # the lower edge of the lowest sky pixel
     above = np.arange(sem.shape[0])[:, None] + 0.5 < (horizon - max_deg / camera.step)[None, :]
