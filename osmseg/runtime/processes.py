@@ -127,12 +127,24 @@ def start_fork_server() -> bool:
     # the resource tracker first: starting it lifts a SIGINT block of the caller's (it blocks and
     # unblocks SIGINT around its own start), and the server's start would start it
     multiprocessing.resource_tracker.ensure_running()
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
+    with _blocked({signal.SIGINT}):
         multiprocessing.forkserver.ensure_running()
-    finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     return True
+
+
+@contextmanager
+def _blocked(signals: set[signal.Signals]) -> Iterator[None]:
+    """Block ``signals`` for this thread until the block ends, then restore the mask as it was.
+
+    The mask is read before anything changes, so a handler that runs between the two calls (a
+    signal that arrived earlier) leaves it as it was instead of blocked for the rest of the run.
+    """
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, [])  # reads the mask, changes nothing
+    try:
+        signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def owner() -> str:
@@ -392,11 +404,8 @@ def signals_held() -> Iterator[None]:
     if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
         yield
         return
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    try:
+    with _blocked({signal.SIGINT, signal.SIGTERM}):
         yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def terminate_by_exception() -> None:
@@ -409,6 +418,10 @@ def terminate_by_exception() -> None:
     epoch and exited 0. A stop dropped that way is delivered again, to the next line of ordinary code.
     """
     signal.signal(signal.SIGTERM, _on_sigterm)
+    if hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread():
+        # a stop the parent held blocked across exec (a process that started this one from inside its
+        # own blocked section) would never arrive: the command line decides, as the resource tracker does
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     if sys.unraisablehook is not _redeliver_stops:
         _hook["previous"] = sys.unraisablehook
         sys.unraisablehook = _redeliver_stops

@@ -293,9 +293,26 @@ def test_ctrl_c_or_sigterm_at_any_moment_of_the_start_says_one_line(tmp_path: Pa
             time.sleep(0.001)
         time.sleep(delay)
         assert proc.poll() is None, "the build ended before it could be stopped"
+        seen = signal_state(proc.pid)  # what the executable did with the signal the moment it was sent
         os.killpg(proc.pid, stop) if stop == signal.SIGINT else proc.send_signal(stop)  # as a terminal / kill does
         _, stderr = proc.communicate(timeout=60)
-        assert (proc.returncode, after_progress(stderr.decode())) == (status, line + "\n"), (delay, stop.name)
+        said = stderr.decode()
+        assert proc.returncode == status, (delay, stop.name, proc.returncode, seen, said[-1500:])
+        assert after_progress(said) == line + "\n", (delay, stop.name, seen)
+
+
+def signal_state(pid: int) -> str:
+    """The signal masks of process ``pid`` and its threads (``/proc``): which signals its threads block,
+    which the process ignores and catches, for the message of a stop that went unheard."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+        threads = [(task.name, (task / "comm").read_text().strip(),
+                    next(x.split()[1] for x in (task / "status").read_text().splitlines() if x.startswith("SigBlk:")))
+                   for task in Path(f"/proc/{pid}/task").iterdir()]
+    except (OSError, StopIteration):
+        return "gone"
+    fields = [x for x in status.splitlines() if x.startswith(("SigPnd", "ShdPnd", "SigIgn", "SigCgt"))]
+    return "; ".join(fields) + f"; threads (id, name, SigBlk): {threads}"
 
 
 def test_a_run_sweeps_the_temporary_folders_of_ended_runs_only(tmp_path: Path) -> None:
@@ -458,3 +475,22 @@ def test_a_worker_whose_build_is_killed_takes_its_half_written_file_with_it(tmp_
         for proc in (build, worker):
             proc.kill()
             proc.wait()
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_build_started_with_stops_blocked_still_hears_them(tmp_path: Path, imagery_tif: Path, workers: str) -> None:
+    """A process that starts ``osmseg`` from inside its own blocked section passes the blocked mask on
+    across ``exec``: the command line unblocks Ctrl-C and SIGTERM, or the build would go on to its
+    end whatever the user pressed (one worker: nothing else unblocks them)."""
+    for stop, status, line in ((signal.SIGINT, 130, INTERRUPTED), (signal.SIGTERM, 143, TERMINATED)):
+        out = tmp_path / f"ds-{stop.name}"
+        proc = subprocess.Popen([sys.executable, "-m", "osmseg",
+                                 *build_args(out, imagery_tif, "--workers", workers, samples=200)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                                preexec_fn=lambda: (signal.signal(signal.SIGINT, signal.SIG_DFL),
+                                                    signal.pthread_sigmask(signal.SIG_BLOCK,
+                                                                           {signal.SIGINT, signal.SIGTERM})))
+        wait_for(lambda: slots_done(out) >= 2, proc)  # building samples
+        os.killpg(proc.pid, stop) if stop == signal.SIGINT else proc.send_signal(stop)
+        _, stderr = proc.communicate(timeout=120)
+        assert (proc.returncode, after_progress(stderr.decode())) == (status, line + "\n"), stop.name
