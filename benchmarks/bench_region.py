@@ -26,7 +26,11 @@ known|unknown] [--eye 1.5,2.5] [--tilt 2] [--json PATH]``. Defaults: the Kotka e
 * **Baseline**: a random street point of the region (what a guess gives), its median error.
 
 Peak memory is the process's maximum resident set (``ru_maxrss``), which includes Python and
-the libraries.
+the libraries, and also the views' renderer (the whole town's geometry). **What a user's command
+costs** (``--command N``): the first N views, saved as class-id PNGs, are searched again by
+``osmseg localize-region`` as a user runs it, each in its own process reading the blocks the
+first search cached: its maximum resident set and CPU seconds from the kernel (``os.wait4``,
+that process alone, imports included), and whether it gives the same answer.
 """
 
 from __future__ import annotations
@@ -35,8 +39,10 @@ import argparse
 import json
 import logging
 import math
+import os
 import resource
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -185,6 +191,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                          "unknown --tilt TILT): it reads the tilt from the horizon and tries 1.5 to 2.5 m")
     ap.add_argument("--vista-weight", type=float, default=ProfileConfig.vista_weight,
                     help="the open horizon's weight (osmseg localize-region --vista-weight; 0: none)")
+    ap.add_argument("--command", type=int, default=0, metavar="N",
+                    help="search the first N views again with `osmseg localize-region`, each in its own process: "
+                         "its peak memory and CPU as a user's command")
     ap.add_argument("--json", type=Path, help="also write every figure here")
     args = ap.parse_args(argv)
     if not args.osm.is_file():
@@ -222,8 +231,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                          "error_m": error, "confidence": best.confidence if best else None,
                          "kappa": best.kappa if best else None, "seconds": seconds, "cpu_s": cpu,
                          "verdict": result.verdict, "lift": result.lift})
+            if i < args.command:  # the same search as a user's command, in its own process
+                rows[-1]["command"] = as_command(v.pixels, heading, args, Path(cache), best)
             print(f"{i:>3} {error:>9.2f} {rows[-1]['confidence'] or 0:>6.3f} {rows[-1]['kappa'] or 0:>6.3f} "
-                  f"{seconds:>6.1f} {result.verdict}", flush=True)
+                  f"{seconds:>6.1f} {result.verdict}"
+                  + (" | command: {cpu_s:.1f} CPU s, {peak_mb:.0f} MB, same answer: {same}".format(**rows[-1]["command"])
+                     if "command" in rows[-1] else ""), flush=True)
     right = [r for r in rows if r["error_m"] <= 10]
     wrong = [r for r in rows if r["error_m"] > 50]
     accepted = [r for r in rows if (r["confidence"] or 0) >= MASK_MIN_CONFIDENCE]
@@ -249,12 +262,54 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "first_query_cpu_s": round(rows[0]["cpu_s"], 1),
         "median_query_cpu_s": round(statistics.median(r["cpu_s"] for r in rows[1:] or rows), 1),
         "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 0),
+        **command_summary([r["command"] for r in rows if "command" in r]),
         "baseline_random_street_median_m": round(baseline, 1),
     }
     print(json.dumps(summary, indent=2))
     if args.json:
         args.json.write_text(json.dumps({"summary": summary, "queries": rows}, indent=2) + "\n")
     return summary
+
+
+def as_command(pixels: np.ndarray, heading: float, args: argparse.Namespace, cache: Path, best: Any) -> dict[str, Any]:
+    """Search ``pixels`` (PANO ids, the view's compass ``heading``) again with ``osmseg localize-region`` in a process of its own, as
+    ``args`` asked, reading the blocks cached in ``cache``: ``{"cpu_s", "peak_mb", "same"}`` from the
+    kernel's account of that process (``os.wait4``), and whether its answer is ``best``'s."""
+    from PIL import Image
+
+    with tempfile.TemporaryDirectory() as work:
+        view = Path(work) / "view.png"
+        Image.fromarray(pixels.astype(np.uint8)).save(view)
+        cmd = [sys.executable, "-m", "osmseg", "localize-region", "--ground", str(view),
+               "--ground-landmarks", "aerial13", "--ground-table", "classes13.toml", "--osm", str(args.osm),
+               "--bbox", args.bbox, "--fov", f"{args.fov:g}", "--vista-weight", f"{args.vista_weight:g}",
+               "--cache-dir", str(cache), "--out", str(Path(work) / "out"), "--json", "--no-progress"]
+        cmd += ["--heading", "unknown" if args.heading == "unknown" else f"{heading!r}"]
+        if args.search_pose:
+            cmd += ["--camera-height", "unknown", "--tilt", f"{args.tilt:g}"]
+        with open(Path(work) / "stderr.txt", "w+b") as said:  # a file: warnings must not fill a pipe
+            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=said, cwd=ROOT)
+            out = proc.stdout.read() if proc.stdout else b""  # before waiting: a full pipe would block it
+            _, status, usage = os.wait4(proc.pid, 0)
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            said.seek(0)
+            err = said.read()
+    if proc.returncode != 0:
+        raise SystemExit(f"osmseg localize-region failed ({proc.returncode}): {err.decode()[-800:]}")
+    features = json.loads(out)["features"]
+    answer = next((f["geometry"]["coordinates"] for f in features if f["properties"].get("rank") == 1), None)
+    apart = distance_m(best, (answer[0], answer[1])) if best is not None and answer is not None else math.inf
+    return {"cpu_s": usage.ru_utime + usage.ru_stime, "peak_mb": usage.ru_maxrss / 1024, "same": apart < 0.01,
+            "apart_m": apart}
+
+
+def command_summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The commands' figures (:func:`as_command`): the highest peak, the median CPU, how many agreed."""
+    if not runs:
+        return {}
+    return {"command_runs": len(runs), "command_peak_rss_mb": round(max(r["peak_mb"] for r in runs), 0),
+            "command_median_cpu_s": round(statistics.median(r["cpu_s"] for r in runs), 1),
+            "command_same_answer": sum(bool(r["same"]) for r in runs)}
 
 
 if __name__ == "__main__":

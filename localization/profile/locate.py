@@ -176,7 +176,8 @@ def _gated(result: Localization, kappa: float, confidence: float, config: Profil
 
 
 def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileConfig,
-                     prior: np.ndarray | None = None) -> Localization:
+                     prior: np.ndarray | None = None,
+                     within: tuple[float, float, float, float] | None = None) -> Localization:
     """Where ``query`` was taken in the aerial ``index``: the ``profile`` method's answer.
 
     The result is a :class:`~localization.common.result.Localization` whose candidates are the
@@ -185,6 +186,8 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     heading and ``confidence`` the kappa of the best match. ``prior``: the class frequencies
     (:func:`class_prior`) to weigh and to compare with, when they should be another area's than
     this image's (a region searched in blocks scores every block against the region's).
+    ``within`` (pixels ``x0, y0, x1, y1``): only the coarse positions inside this box are searched; the
+    rays still read the whole image (a region's block is searched in its core alone).
     """
     if tuple(index.classes) != tuple(query.classes):
         raise ConfigError(f"aerial classes {index.classes} and query classes {query.classes} differ: use landmark "
@@ -195,6 +198,11 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     query, coarse_m, mean = s.query, s.coarse_m, s.mean
     spacing = coarse_m / index.resolution_m
     xy = grid_positions(index.shape, spacing)
+    if within is not None:
+        x0, y0, x1, y1 = within
+        xy = xy[(xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)]
+        if not len(xy):
+            return unanswered(f"no position of the {coarse_m:g} m grid lies within {within}", method="profile")
     score, shift, poses = s.score(xy, keep=config.keep)
     coarse = (xy, score, shift, poses)
     xy, score, shift, poses = s.refine(xy, score, shift, poses, config.keep, spacing)

@@ -83,13 +83,15 @@ def _vista(query: SemanticMap, config: ProfileConfig, radii_m: np.ndarray) -> Vi
 
 
 def run_profile(config: ProfileConfig, aerial: AerialIndex, query: SemanticMap | Landmarks | QueryProfile,
-                camera: Camera | None = None, prior: np.ndarray | None = None) -> Localization:
-    """Localize ``query`` (its mask or landmarks seen by ``camera``, or a ready profile) with the profile method."""
+                camera: Camera | None = None, prior: np.ndarray | None = None,
+                within: tuple[float, float, float, float] | None = None) -> Localization:
+    """Localize ``query`` (its mask or landmarks seen by ``camera``, or a ready profile) with the profile method;
+    ``within``: the pixel box searched (:func:`~localization.profile.locate.localize_profile`)."""
     if not isinstance(query, QueryProfile):
         if camera is None:
             raise ConfigError("the profile method needs the query camera (image size and field of view)")
         query = profile_query(query, camera, config)
-    result = localize_profile(aerial, query, config, prior)
+    result = localize_profile(aerial, query, config, prior, within)
     logger.debug("localize (profile): heading %s, confidence %s, %d positions at the finest level",
                  result.heading_deg, result.confidence, len(result.candidates))
     return result

@@ -11,7 +11,8 @@ candidates are ranked across blocks in degrees:
   the candidates in its **core** (all but its outer ring of tiles), where every position sees
   at least one tile of map around it (about 75 m at zoom 18 at 60° N, more than the profile
   method's 60 m range): each place is answered by exactly one block, with its whole
-  surroundings drawn. (The open horizon's 75 m, ``--vista-weight``, can reach past a block's
+  surroundings drawn. So only the core (and one coarse cell around it) is searched: its rays read
+  the whole block, and the outer ring's positions, a neighbour's core, are that neighbour's. (The open horizon's 75 m, ``--vista-weight``, can reach past a block's
   edge from the rim of its core, farther north; such a ray is credited with chance, as a ray
   leaving an aerial image is.)
 * Every block is scored against the same class frequencies, those of up to 16 blocks spread
@@ -299,18 +300,21 @@ def search_part(query: SemanticMap, camera: Camera, masks: BlockMasks, table: Cl
         mask = masks.mask(b)
         patches[b] = _core_patch(grid, core, mask)
         index = _index(mask, grid, table, classes, coarse)
-        found += [(a, b) for a in _in_core(run_profile(coarse, index, q, prior=prior), grid, core, config.zoom)]
+        box = _core_box(grid, (coarse.coarse_m or index.grid_m) / index.resolution_m)
+        found += [(a, b) for a in _in_core(run_profile(coarse, index, q, prior=prior, within=box), grid, core,
+                                           config.zoom)]
         sparse = dataclasses.replace(coarse, coarse_m=NULL_GRID * (coarse.coarse_m or index.grid_m))
-        scores = [a.score for n in nulls for a in _in_core(run_profile(sparse, index, n, prior=prior), grid, core,
-                                                              config.zoom)]
+        scores = [a.score for n in nulls for a in _in_core(run_profile(sparse, index, n, prior=prior, within=box),
+                                                              grid, core, config.zoom)]
         if scores:
             null[b] = max(scores)
     found.sort(key=_rank)
     refined: dict[int, list[Answer]] = {}
     for b in dict.fromkeys(b for _, b in found[:config.top_k]):  # the blocks of the best places, best first
         grid, core = blocks[b]
-        refined[b] = _in_core(run_profile(fine, _index(masks.mask(b), grid, table, classes, coarse), q, prior=prior),
-                              grid, core, config.zoom)
+        index = _index(masks.mask(b), grid, table, classes, coarse)
+        box = _core_box(grid, (coarse.coarse_m or index.grid_m) / index.resolution_m)
+        refined[b] = _in_core(run_profile(fine, index, q, prior=prior, within=box), grid, core, config.zoom)
     return RegionPart(shard, len(blocks), found, refined, patches, null)
 
 
@@ -415,6 +419,18 @@ def _index(mask: np.ndarray, grid: SampleGrid, table: ClassTable, classes: Landm
            config: ProfileConfig) -> Any:
     """The profile method's aerial side of one block's mask."""
     return profile_index(semantic_map(mask, table, classes), ground_resolution(grid.lat, grid.zoom), config)
+
+
+def _core_box(grid: SampleGrid, margin_px: float) -> tuple[float, float, float, float]:
+    """The pixel box (x0, y0, x1, y1) of a block's core (all but its outer ring of tiles) and ``margin_px``
+    around it: where the block is searched. Only its core's candidates are kept (:func:`_in_core`); the
+    margin lets a position just outside refine into the core. The rays still read the whole block.
+
+    >>> _core_box(SampleGrid(lon=0.0, lat=0.0, zoom=18, tiles=(), size=5), 10.0)
+    (245.5, 245.5, 1033.5, 1033.5)
+    """
+    lo, hi = 256 - 0.5 - margin_px, 256 * (grid.size - 1) - 0.5 + margin_px
+    return lo, lo, hi, hi
 
 
 def _in_core(loc: Any, grid: SampleGrid, core: frozenset[tuple[int, int]], zoom: int) -> list[Answer]:
