@@ -187,7 +187,9 @@ def localize_profile(index: AerialIndex, query: QueryProfile, config: ProfileCon
     (:func:`class_prior`) to weigh and to compare with, when they should be another area's than
     this image's (a region searched in blocks scores every block against the region's).
     ``within`` (pixels ``x0, y0, x1, y1``): only the coarse positions inside this box are searched; the
-    rays still read the whole image (a region's block is searched in its core alone).
+    rays still read the whole image (a region's block is searched in its core alone). The best
+    distinct alternative, and so the confidence, are then the box's: a look-alike outside it is
+    another search's to find (the region ranks every block's candidates together).
     """
     if tuple(index.classes) != tuple(query.classes):
         raise ConfigError(f"aerial classes {index.classes} and query classes {query.classes} differ: use landmark "

@@ -25,7 +25,7 @@ import numpy as np
 
 from localization.profile.profiles import QueryProfile
 
-__all__ = ["NULL_SECTORS", "NULL_SCRAMBLES", "sector_order", "scrambled"]
+__all__ = ["NULL_SECTORS", "NULL_SCRAMBLES", "null_queries", "sector_order", "scrambled"]
 
 #: sectors the azimuth ring is cut into (45 degrees each)
 NULL_SECTORS = 8
@@ -68,3 +68,25 @@ def scrambled(query: QueryProfile, seed: int, sectors: int = NULL_SECTORS) -> Qu
     order = sector_order(sectors, seed)
     variants = tuple(dataclasses.replace(v, q=_rearranged(v.q, order)) for v in query.variants)
     return dataclasses.replace(query, q=_rearranged(query.q, order), variants=variants)
+
+
+def null_queries(query: QueryProfile, scrambles: int = NULL_SCRAMBLES) -> list[QueryProfile]:
+    """The scrambled copies of ``query`` to search for the null (seeds 0 to ``scrambles - 1``).
+
+    A query read at several camera heights (its ``variants``) gives one query whose variants are
+    every copy's: a search scores each position once for all of them (the rays read once) and
+    keeps the best, so its best score is the best of the copies searched one by one. Otherwise
+    the copies themselves (a search of one variant may skip positions that cannot win).
+
+    >>> q = QueryProfile(np.arange(16.0).reshape(1, 1, 16), np.array([5.0]), ("building",), None, 360.0)
+    >>> [len(n.variants) for n in null_queries(q)]
+    [0, 0]
+    >>> both = null_queries(dataclasses.replace(q, variants=(q, dataclasses.replace(q, q=q.q * 2))))
+    >>> len(both), len(both[0].variants), both[0].variants[2].q.tolist() == scrambled(q, 1).q.tolist()
+    (1, 4, True)
+    """
+    copies = [scrambled(query, seed) for seed in range(max(1, scrambles))]
+    if not query.variants:
+        return copies
+    variants = tuple(v for copy in copies for v in copy.variants)
+    return [dataclasses.replace(copies[0], q=np.mean([v.q for v in variants], axis=0), variants=variants)]

@@ -54,8 +54,9 @@ from osmseg.runtime.shard import Shard
 __all__ = ["RegionRequest", "RegionRun", "localize_region", "part_to_json", "part_from_json"]
 
 PART_FORMAT = "osmseg-region-part"
-#: 2: each block's best score of the scrambled query (the null) rides along
-PART_VERSION = 2
+#: 2: each block's best score of the scrambled query (the null) rides along; 3: each block searched in its
+#: core alone (its candidates and null differ from a version 2 part's)
+PART_VERSION = 3
 
 
 @dataclass(frozen=True)

@@ -55,14 +55,14 @@ import numpy as np
 from localization.common.landmarks import LandmarkClasses
 from localization.common.views import Camera, SemanticMap, semantic_map
 from localization.profile.method import profile_index, profile_query, run_profile
-from localization.profile.null import NULL_SCRAMBLES, scrambled
+from localization.profile.null import null_queries
 from localization.profile.profiles import MASK_MIN_CONFIDENCE
 from localization.profile.search import ProfileConfig, class_prior, grid_positions
 from localization.region.cache import BlockMasks
 from osmseg import units
 from osmseg.classes import ClassTable
 from osmseg.errors import ConfigError
-from osmseg.grid import SampleGrid, ground_resolution, pixel_lonlat
+from osmseg.grid import TILE_SIZE, SampleGrid, ground_resolution, pixel_lonlat
 from osmseg.runtime.progress import Progress, track
 from osmseg.runtime.shard import Shard
 
@@ -269,9 +269,10 @@ def search_part(query: SemanticMap, camera: Camera, masks: BlockMasks, table: Cl
                 progress: Progress | None = None) -> RegionPart:
     """Search the blocks ``shard`` owns (block ``b`` with ``b % N == K - 1``) for ``query``.
 
-    Two passes. The first scores every block on the profile method's coarse grid alone (no
-    refinement), which leaves candidates spread over the whole block, so that places far
-    apart all compete: this is where the best distinct alternative comes from. The second
+    Two passes, each over a block's core and one coarse cell around it (:func:`_core_box`). The
+    first scores every block on the profile method's coarse grid alone (no refinement), which
+    leaves candidates spread over the whole core, so that places far apart all compete: this is
+    where the best distinct alternative comes from. The second
     searches again, coarse to fine, the blocks that hold this shard's best ``top_k`` coarse
     places. Every block is scored against the same class frequencies (those of
     :func:`prior_blocks`), so scores compare across blocks and shards, and a block's candidates
@@ -283,8 +284,9 @@ def search_part(query: SemanticMap, camera: Camera, masks: BlockMasks, table: Cl
     fine = dataclasses.replace(profile, top_k=config.per_block, min_confidence=-1.0, min_kappa=-1.0)
     q = profile_query(query, camera, fine)
     # the null: scrambled copies of the query (each camera height's alike, so each position is scored
-    # as the query is: with the height that fits it best), on a grid twice as sparse as the coarse one
-    nulls = [scrambled(q, seed) for seed in range(NULL_SCRAMBLES)]
+    # as the query is: with the height that fits it best; the copies' heights searched as one query's),
+    # on a grid twice as sparse as the coarse one
+    nulls = null_queries(q)
     sample = prior_blocks(len(blocks))
     mine = [b for b in range(len(blocks)) if shard.owns(b)]
     masks.prepare([*sample, *mine], progress)  # one pass over the OSM for every block this shard draws
@@ -429,7 +431,7 @@ def _core_box(grid: SampleGrid, margin_px: float) -> tuple[float, float, float, 
     >>> _core_box(SampleGrid(lon=0.0, lat=0.0, zoom=18, tiles=(), size=5), 10.0)
     (245.5, 245.5, 1033.5, 1033.5)
     """
-    lo, hi = 256 - 0.5 - margin_px, 256 * (grid.size - 1) - 0.5 + margin_px
+    lo, hi = TILE_SIZE - 0.5 - margin_px, TILE_SIZE * (grid.size - 1) - 0.5 + margin_px
     return lo, lo, hi, hi
 
 

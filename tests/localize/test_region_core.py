@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+import mercantile
 import numpy as np
 from test_loc_render import CLASSES, RES, TABLE
 from test_profile_vista import CENTRE, TILE, district, view
@@ -20,6 +21,7 @@ from localization.common.views import semantic_map
 from localization.profile.method import profile_index, run_profile
 from localization.profile.search import ProfileConfig
 from localization.region.search import RegionConfig, _core_box, region_blocks
+from osmseg.grid import pixel_lonlat
 
 
 def test_a_search_within_a_box_finds_the_copy_in_it_and_nothing_outside() -> None:
@@ -44,8 +46,14 @@ def test_a_search_within_a_box_finds_the_copy_in_it_and_nothing_outside() -> Non
 
 
 def test_a_blocks_box_is_its_core_and_a_cell_around_it() -> None:
-    """Kotka's blocks (5 x 5 tiles): the core is the middle 3 x 3 tiles, pixels 256 to 1023."""
+    """Kotka's blocks (5 x 5 tiles): the box without its margin holds exactly the pixels whose tile is
+    a core tile, as the block's candidates are kept (``_in_core``'s test: the tile of the pixel's place)."""
     grid, core = region_blocks(RegionConfig((26.94, 60.53, 26.95, 60.535), zoom=18))[0]
     assert len(core) == 9 and grid.size == 5
-    x0, y0, x1, y1 = _core_box(grid, 14.0)
-    assert (x0, y0, x1, y1) == (256 - 0.5 - 14, 256 - 0.5 - 14, 1024 - 0.5 + 14, 1024 - 0.5 + 14)
+    x0, y0, x1, y1 = _core_box(grid, 0.0)
+    b = grid.xy_bounds
+    for px in (255.0, 255.4, 256.0, 600.0, 1023.0, 1023.4, 1024.0):
+        lon, lat = pixel_lonlat((b.left, b.bottom, b.right, b.top), (grid.height, grid.width), (px, 600.0))
+        tile = mercantile.tile(lon, lat, grid.zoom)
+        assert ((tile.x, tile.y) in core) == (x0 <= px <= x1), px
+    assert _core_box(grid, 14.0) == (x0 - 14.0, y0 - 14.0, x1 + 14.0, y1 + 14.0)

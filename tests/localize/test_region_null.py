@@ -162,3 +162,28 @@ def test_a_helsinki_view_is_not_found_in_west_oakland_and_a_west_oakland_one_is(
             assert result.verdict == HERE and distance_m(result.best, where) < 10.0, (result.lift, result.best)
         else:
             assert result.verdict == NOT_HERE, (result.lift, result.best)
+
+
+def test_the_scrambles_searched_as_one_query_score_what_each_copy_scores_alone() -> None:
+    """A query read at several camera heights: its scrambled copies searched as one query (every copy's
+    heights as its variants, the rays read once) give each position the best of the copies' scores."""
+    from test_loc_render import CLASSES, RES, TABLE
+    from test_profile_vista import CENTRE, district, view
+
+    from localization.common.views import semantic_map
+    from localization.profile.method import profile_index, profile_query
+    from localization.profile.null import null_queries
+    from localization.profile.search import ProfileConfig, class_prior, grid_positions, score_poses
+
+    mask = district()
+    index = profile_index(semantic_map(mask, TABLE, CLASSES), RES)
+    sem, camera = view(mask, CENTRE)
+    xy = grid_positions(index.shape, 14.0)
+    for heading in (0.0, None):
+        config = ProfileConfig(heading_deg=heading, camera_heights=(1.5, 2.0, 2.5))
+        q = profile_query(sem, camera, config)
+        prior = class_prior(index, q, xy)
+        [both] = null_queries(q)
+        alone = np.max([score_poses(index, scrambled(q, seed), xy, config, prior)[0] for seed in (0, 1)], axis=0)
+        assert len(both.variants) == 2 * len(q.variants) == 6
+        assert np.allclose(score_poses(index, both, xy, config, prior)[0], alone, rtol=0, atol=1e-6), heading
