@@ -433,12 +433,14 @@ def ceiling(ws: Workspace) -> dict[str, Figure]:
 
 
 #: the rows of docs/localization.md's region table: (label, bench_region.py options)
+#: the region table's last kind (heading unknown) also runs its first views through `osmseg localize-region`
+REGION_COMMANDS = 3
 REGION_KINDS = (
     ("panoramas, camera 2 m and level, heading known", ()),
     ("camera height 1.5-2.5 m, tilt ±2°, the method assumes 2 m and level", ("--eye", "1.5,2.5", "--tilt", "2")),
     ("the same, `--camera-height unknown --tilt 2`", ("--eye", "1.5,2.5", "--tilt", "2", "--search-pose")),
     ("the same, and `--heading unknown`", ("--eye", "1.5,2.5", "--tilt", "2", "--search-pose", "--heading",
-                                           "unknown")),
+                                           "unknown", "--command", str(REGION_COMMANDS))),
 )
 
 
@@ -459,6 +461,10 @@ def region(ws: Workspace) -> dict[str, Figure]:
         "region.table": F(table(["views", "median", "within 10 m", "25 m", "AUC confidence", "AUC kappa",
                                  "answered at 0.04", "of them wrong", "s/query", "peak MB"], rows),
                           r"(?m)\| [\d.,]+ s \| [\d,]+ \|$"),
+        "region.command": F(f"{seconds(s['command_median_cpu_s'])} of CPU per query (median) and at most "
+                            f"{count(round(s['command_peak_rss_mb']))} MB resident, giving the same answer as the "
+                            f"table's search for {count(s['command_same_answer'])} of its first "
+                            f"{count(s['command_runs'])} views"),
         "region.blocks": F(count(first["blocks"])),
         "region.baseline": F(metres(first["baseline_random_street_median_m"])),
     }
@@ -637,6 +643,22 @@ def null90(ws: Workspace) -> dict[str, Figure]:
         "null90.table": F(table(NULL_COLUMNS, null_rows(s, "90° photos, heading unknown"))),
         "null90.auc": F(f"{ratio(auc['lift over the null'])} (kappa {ratio(auc['kappa'])}, confidence "
                         f"{ratio(auc['confidence'])})"),
+    }
+
+
+@figure_set("null90vista", "expensive", needs="shared data")
+def null90vista(ws: Workspace) -> dict[str, Figure]:
+    """benchmarks/bench_region_null.py --fov 90 --heading unknown --vista-weight 4: the null90 photos with the open horizon"""
+    run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", "0", "--fov", "90", "--heading",
+                    "unknown", "--vista-weight", "4", "--renderer", "geometry", name="bench_region_null90-vista4")
+    s = run["summary"]["geometry"]
+    auc = s["auc_right_vs_other_town"]
+    own = s["own_town"]
+    return {
+        "null90vista.table": F(table(NULL_COLUMNS, null_rows(s, "90° photos, heading unknown, `--vista-weight 4`"))),
+        "null90vista.recall": F(f"{ratio(own['within_10m'])} within 10 m and {ratio(own['within_25m'])} within 25 m"),
+        "null90vista.auc": F(f"{ratio(auc['lift over the null'])} (kappa {ratio(auc['kappa'])}, confidence "
+                             f"{ratio(auc['confidence'])})"),
     }
 
 
