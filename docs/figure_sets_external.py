@@ -616,20 +616,26 @@ def regionceiling(ws: Workspace) -> dict[str, Figure]:
     }
 
 
+def _null90_photos(ws: Workspace, key: str, label: str, extra: tuple[str, ...], name: str) -> dict[str, Figure]:
+    """The 90° photos of the three towns (seed 0, heading unknown) searched with ``extra`` options:
+    ``KEY.table``, ``KEY.recall`` (own town) and ``KEY.auc`` (right answers against other towns)."""
+    run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", "0", "--fov", "90", "--heading",
+                    "unknown", *extra, "--renderer", "geometry", name=name)
+    s = run["summary"]["geometry"]
+    auc, own = s["auc_right_vs_other_town"], s["own_town"]
+    return {
+        f"{key}.table": F(table(NULL_COLUMNS, null_rows(s, label))),
+        f"{key}.recall": F(f"{ratio(own['within_10m'])} within 10 m and {ratio(own['within_25m'])} within 25 m"),
+        f"{key}.auc": F(f"{ratio(auc['lift over the null'])} (kappa {ratio(auc['kappa'])}, confidence "
+                        f"{ratio(auc['confidence'])})"),
+    }
+
+
 @figure_set("null90compass", "expensive", needs="shared data")
 def null90compass(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_region_null.py --fov 90 --heading unknown --compass 25: the 90° photos with a compass good to ±25°"""
-    run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", "0", "--fov", "90", "--heading",
-                    "unknown", "--compass", "25", "--renderer", "geometry", name="bench_region_null90-compass-0")
-    s = run["summary"]["geometry"]
-    auc = s["auc_right_vs_other_town"]
-    own = s["own_town"]
-    return {
-        "null90compass.table": F(table(NULL_COLUMNS, null_rows(s, "90° photos, compass ±25°"))),
-        "null90compass.recall": F(f"{ratio(own['within_10m'])} within 10 m and {ratio(own['within_25m'])} within 25 m"),
-        "null90compass.auc": F(f"{ratio(auc['lift over the null'])} (kappa {ratio(auc['kappa'])}, confidence "
-                               f"{ratio(auc['confidence'])})"),
-    }
+    return _null90_photos(ws, "null90compass", "90° photos, compass ±25°", ("--compass", "25"),
+                          "bench_region_null90-compass-0")
 
 
 @figure_set("null90", "expensive", needs="shared data")
@@ -649,17 +655,8 @@ def null90(ws: Workspace) -> dict[str, Figure]:
 @figure_set("null90vista", "expensive", needs="shared data")
 def null90vista(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_region_null.py --fov 90 --heading unknown --vista-weight 4: the null90 photos with the open horizon"""
-    run = benchmark(ws, "bench_region_null.py", "--queries", "6", "--seed", "0", "--fov", "90", "--heading",
-                    "unknown", "--vista-weight", "4", "--renderer", "geometry", name="bench_region_null90-vista4")
-    s = run["summary"]["geometry"]
-    auc = s["auc_right_vs_other_town"]
-    own = s["own_town"]
-    return {
-        "null90vista.table": F(table(NULL_COLUMNS, null_rows(s, "90° photos, heading unknown, `--vista-weight 4`"))),
-        "null90vista.recall": F(f"{ratio(own['within_10m'])} within 10 m and {ratio(own['within_25m'])} within 25 m"),
-        "null90vista.auc": F(f"{ratio(auc['lift over the null'])} (kappa {ratio(auc['kappa'])}, confidence "
-                             f"{ratio(auc['confidence'])})"),
-    }
+    return _null90_photos(ws, "null90vista", "90° photos, heading unknown, `--vista-weight 4`", ("--vista-weight", "4"),
+                          "bench_region_null90-vista4")
 
 
 @figure_set("draw", "expensive", needs="shared data")
