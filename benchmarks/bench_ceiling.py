@@ -16,7 +16,9 @@ each view is one of:
   grid dropped it): a better search would find it;
 * **a tie**: a place near the truth scores the same as the answer: the view cannot tell them apart;
 * **a look-alike fits better**: the answer, far away, scores higher than any place near the
-  truth: the view (drawn by a renderer the method does not share) fits another place better.
+  truth: the view (drawn by a renderer the method does not share) fits another place better;
+* **nothing to read**: the method gives no answer at all (the view shows none of its landmark
+  classes on the ground, e.g. a wall filling a narrow photo): no search could place it.
 
 The **ceiling** is the share right plus lost by the search: the recall a perfect search would
 reach with these scores. Below a target, only more information in the query (or a different
@@ -50,7 +52,7 @@ from localization.profile.search import ProfileConfig  # noqa: E402
 from osmseg.classes import load_class_table  # noqa: E402
 from osmseg.images import read_label  # noqa: E402
 
-KINDS = ("right", "lost by the search", "a tie", "a look-alike fits better")
+KINDS = ("right", "lost by the search", "a tie", "a look-alike fits better", "nothing to read")
 
 
 def profile_config(settings: dict[str, Any]) -> ProfileConfig:
@@ -110,6 +112,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         cfg = replace(base, heading_deg=query.heading_deg if known else None)
         profile = profile_query(query.semantic, query.camera, cfg)
         loc = localize_profile(index, profile, cfg)
+        if not len(loc.order):   # no landmark class to score: unanswerable, whatever the search
+            kinds.append(KINDS[4])
+            rows.append({"index": v["index"], "error_m": None, "answer_score": None, "best_near_truth": None,
+                         "kind": KINDS[4], "reason": loc.reason})
+            continue
         scoring = Scoring.of(index, profile, cfg)   # positions scored as the search scores them
         spacing = scoring.finest_px
         truth = np.asarray(v["truth"], dtype=np.float64)

@@ -1,7 +1,9 @@
 """The figure sets of ``docs/figures.py``: what runs behind each marker of README.md and docs/*.md.
 
 The sets on osmseg's own code and the demo's masks are here, with the helpers; those that need
-the authors' pairs, ``../shared/data`` or minutes of benchmarks are in :mod:`figure_sets_external`.
+the authors' pairs, ``../shared/data`` or minutes of benchmarks are in :mod:`figure_sets_external`,
+the region search's in :mod:`figure_sets_region`, the 90° photos over seeds in
+:mod:`figure_sets_photos` and training on real held-out imagery in :mod:`figure_sets_heldout`.
 Each function measures the figures of one set (keys ``SET.*``) in a :class:`figures.Workspace`
 and returns them as text at :mod:`osmseg.units`' precision. Commands run as the docs print them
 (the transcript blocks show exactly these); analyses the commands do not print read their
@@ -266,6 +268,8 @@ def visible(ws: Workspace) -> dict[str, Figure]:
 
 import figure_sets_external  # noqa: E402,F401  (registers the pairs, benchmark and shared-data sets)
 import figure_sets_heldout  # noqa: E402,F401  (registers the held-out training sets)
+import figure_sets_photos  # noqa: E402,F401  (registers the 90° photos over seeds)
+import figure_sets_region  # noqa: E402,F401  (registers the region search's sets)
 
 
 @figure_set("recipes", "cheap", needs="torch")

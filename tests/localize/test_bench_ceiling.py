@@ -50,6 +50,18 @@ def test_every_view_is_sorted_by_its_own_scores_and_bad_folders_are_refused(tmp_
     run_bench([scene], default, tmp_path / "found", plots=False)
     found = bench_ceiling.main([str(tmp_path / "found"), str(mask), "--resolution", str(RES), "--right", "5"])
     assert found["shares"]["right"] > out["shares"]["right"] and found["ceiling"] == out["ceiling"]
+    # a view that shows none of the landmark classes (here nothing at all) has no answer: it is counted
+    # apart, in no other kind and not in the ceiling (it once stopped the whole run)
+    blank = tmp_path / "found" / "panoramas" / "0000_town.png"
+    Image.fromarray(np.zeros_like(np.asarray(Image.open(blank)))).save(blank)
+    unread = bench_ceiling.main([str(tmp_path / "found"), str(mask), "--resolution", str(RES), "--right", "5"])
+    kinds = {row["index"]: row["kind"] for row in unread["rows"]}
+    before = {row["index"]: row["kind"] for row in found["rows"]}
+    assert kinds[0] == "nothing to read" and unread["shares"]["nothing to read"] == pytest.approx(1 / 6, abs=1e-3)
+    assert sum(unread["shares"].values()) == pytest.approx(1.0, abs=5e-3)   # each share rounded
+    counted = before[0] in ("right", "lost by the search")
+    assert unread["ceiling"] == pytest.approx(found["ceiling"] - counted / 6, abs=1e-3)
+    assert all(kinds[i] == before[i] for i in kinds if i != 0)
     (tmp_path / "bench" / "panoramas" / "0005_town.png").unlink()
     with pytest.raises(SystemExit) as exit_:
         bench_ceiling.main([str(tmp_path / "bench"), str(mask), "--resolution", str(RES)])
