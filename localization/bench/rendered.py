@@ -91,6 +91,7 @@ from localization.profile.search import AerialIndex, ProfileConfig
 from osmseg import __version__
 from osmseg.classes import ClassTable, load_class_table
 from osmseg.errors import ConfigError, DatasetError
+from osmseg.grid import pixel_lonlat
 from osmseg.output.manifest import dataset_class_table, manifest_path, read_manifest, refuse_busy
 from osmseg.runtime.progress import Progress, track
 from osmseg.units import plural
@@ -435,6 +436,9 @@ class _Bench:
         return {
             "index": index, "scene": scene.name, "truth": [truth[0], truth[1]],
             "camera": [round(view.panorama.camera[0], 3), round(view.panorama.camera[1], 3)],
+            # where the camera stood in degrees, for a georeferenced mask (a region search's --truth)
+            "camera_lonlat": None if scene.bounds_3857 is None else
+            [round(v, 7) for v in pixel_lonlat(scene.bounds_3857, scene.mask.shape, view.panorama.camera)],
             "heading_deg": round(heading, 3), "resolution_m": scene.resolution_m,
             "query_landmarks": int(len(view.landmarks.xy)),
             "classes_seen": sorted({view.landmarks.classes[c] for c in np.unique(view.landmarks.cls)}),

@@ -279,7 +279,7 @@ def _say(query: RegionQuery, run: RegionRun, verbosity: int) -> None:
     if verbosity < 0 or query.as_json or result.best is None:
         return
     from localization.profile.profiles import MASK_MIN_CONFIDENCE
-    from localization.region.search import NOT_HERE, NULL_MIN_LIFT, distance_m
+    from localization.region.search import NOT_HERE, NOT_SURE, NULL_MIN_LIFT, distance_m
 
     config = query.config()
     alt = result.alternative
@@ -291,9 +291,14 @@ def _say(query: RegionQuery, run: RegionRun, verbosity: int) -> None:
         click.echo(f"not found here: the view fits this region no better than a scrambled copy of itself does (lift "
                    f"{ratio(result.lift)}, below {NULL_MIN_LIFT:g}): it was most likely taken somewhere else "
                    "(docs/localization.md)", err=True)
-    elif result.best.confidence is not None and result.best.confidence < MASK_MIN_CONFIDENCE:
-        click.echo(f"not sure: the answer's confidence {ratio(result.best.confidence)} is below "
+    elif result.verdict == NOT_SURE:
+        click.echo(f"not sure: the answer's confidence {ratio(result.best.confidence or 0.0)} is below "
                    f"{MASK_MIN_CONFIDENCE:g}: the alternative fits almost as well (docs/localization.md)", err=True)
+    else:
+        why = [f"from the other places of the region (confidence {ratio(result.best.confidence)})"
+               if result.best.confidence is not None else "",
+               f"from scrambled copies of the view (lift {ratio(result.lift)})" if result.lift is not None else ""]
+        click.echo(f"here: the answer stands out {' and '.join(w for w in why if w) or 'alone'}", err=True)
     if result.best.heading_deg is not None and query.view.profile().heading_deg is None:
         click.echo(f"heading of the answer: {degrees(result.best.heading_deg)}", err=True)
     if (truth := parse_lonlat(query.truth_text)) is not None:

@@ -299,6 +299,15 @@ def test_localize_bench_draws_its_views_from_the_osm_geometry_with_the_heights_o
         assert results["settings"]["osm"] == (["town.osm"] if extra else [])
         tops[renderer] = building_top_rows(next((out / "panoramas").glob("0000_*.png")))
         assert results["methods"]["profile"]["answered"] == 2
+        # where each camera stood, in degrees (what a region search takes as --truth), as rasterio reads the mask
+        import rasterio
+        from rasterio.warp import transform
+
+        with rasterio.open(mask) as ds:
+            for v in results["viewpoints"]:
+                x, y = ds.xy(v["camera"][1], v["camera"][0])   # row, col of the pixel's centre
+                lon, lat = transform(ds.crs, "EPSG:4326", [x], [y])
+                assert v["camera_lonlat"] == pytest.approx([lon[0], lat[0]], abs=2e-7)
     assert tops["geometry"] < tops["mask"] - 5  # the tower's own 30 m, not the class's 10 m
     bad = runner.invoke(cli, ["localize-bench", *map(str, common), "--out", str(tmp_path / "bad"),
                               "--renderer", "geometry"])

@@ -110,6 +110,15 @@ def test_not_found_here_is_said_in_the_geojson_and_on_the_terminal(towns: tuple[
     assert doc["properties"]["null_score"] > 0 and (tmp_path / "out" / "region.png").is_file()
     as_json = CliRunner().invoke(cli, [*args, "--json"])
     assert json.loads(as_json.stdout)["properties"]["verdict"] == NOT_HERE
+    # a view of the town itself: its "here" is said too, with what it rests on
+    Image.fromarray(view(here, (10.0, -25.0)).astype(np.uint8)).save(tmp_path / "query.png")
+    found = CliRunner().invoke(cli, [*args[:-4], "--out", str(tmp_path / "found"), *args[-2:]])
+    assert found.exit_code == 0, found.output
+    said = [line for line in found.stderr.splitlines() if line.startswith("here: ")]
+    assert len(said) == 1 and "confidence" in said[0] and "lift" in said[0], found.stderr
+    assert "not found here" not in found.stderr and "not sure" not in found.stderr
+    doc = json.loads((tmp_path / "found" / "region.geojson").read_text())
+    assert doc["properties"]["verdict"] == HERE and f"lift {doc['properties']['lift']:.3f}" in said[0]
 
 
 def test_a_scrambled_query_keeps_what_the_view_holds_but_not_where() -> None:

@@ -124,6 +124,22 @@ def test_a_docs_example_on_real_data_runs_as_written(doc: str, commands: list[st
             manifest = json.loads((out / "manifest.json").read_text())
             images = [out / next(f for f in s["files"] if f.startswith("images/")) for s in manifest["samples"]]
             assert images and len({md5(p) for p in images}) == len(images), f"{doc}: {command}: repeated samples"
+        if args[:2] == ["osmseg", "localize-region"]:
+            assert_found_where_drawn(tmp_path, args, doc)
+
+
+def assert_found_where_drawn(folder: Path, args: list[str], doc: str) -> None:
+    """A region search of a view that ``localize-bench --save-panoramas`` drew: its best answer in
+    ``region.geojson`` lies within 5 m of where the bench says the camera stood (pyproj's geodesic)."""
+    import pyproj
+
+    ground = folder / args[args.index("--ground") + 1]
+    results = json.loads((ground.parents[1] / "results.json").read_text())
+    view = next(v for v in results["viewpoints"] if f"{v['index']:04d}_{v['scene']}.png" == ground.name)
+    answers = json.loads((folder / args[args.index("--out") + 1] / "region.geojson").read_text())["features"]
+    lon, lat = next(f["geometry"]["coordinates"] for f in answers if f["properties"].get("rank") == 1)
+    _, _, metres = pyproj.Geod(ellps="WGS84").inv(lon, lat, *view["camera_lonlat"])
+    assert metres < 5.0, f"{doc}: the answer is {metres:.1f} m from where the view was drawn"
 
 
 def md5(path: Path) -> str:
