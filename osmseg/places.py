@@ -109,7 +109,10 @@ def parse_bbox(text: str) -> LngLatBBox:
     except ValueError:
         raise ConfigError(f"--bbox {text!r}: expected four numbers W,S,E,N in degrees") from None
     if not (-180 <= w < e <= 180 and -85.06 <= s < n <= 85.06):
-        raise ConfigError(f"--bbox {text!r}: need W<E within ±180 and S<N within ±85.06 (Web Mercator)")
+        swapped = (f"; did you mean --bbox {e:g},{s:g},{w:g},{n:g} (west first)?" if w > e and s < n else
+                   f"; did you mean --bbox {w:g},{n:g},{e:g},{s:g} (south second)?" if s > n and w < e else
+                   f"; did you mean --bbox {s:g},{w:g},{n:g},{e:g} (longitude first)?" if abs(s) > 90 >= abs(w) else "")
+        raise ConfigError(f"--bbox {text!r}: need W<E within ±180 and S<N within ±85.06 (Web Mercator){swapped}")
     return LngLatBBox(w, s, e, n)
 
 

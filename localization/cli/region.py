@@ -97,7 +97,10 @@ class RegionArea:
         if not disc:
             return parse_bbox(self.bbox_text)
         if self.lat is None or self.lon is None or self.radius_km is None:
-            raise ConfigError("--lat, --lon and --radius-km go together: the centre of the region and its radius")
+            missing = " and ".join(f for f, v in (("--lat", self.lat), ("--lon", self.lon),
+                                                  ("--radius-km", self.radius_km)) if v is None)
+            raise ConfigError(f"--lat, --lon and --radius-km go together (the centre of the region and its radius): "
+                              f"add {missing}")
         return disc_bbox(self.lon, self.lat, self.radius_km)
 
 

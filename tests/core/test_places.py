@@ -73,6 +73,16 @@ def test_bad_bbox_is_a_one_line_config_error(bad: str) -> None:
     assert "\n" not in str(err.value) and "--bbox" in str(err.value)
 
 
+@pytest.mark.parametrize("bad,meant", [("13.5,52.4,13.3,52.6", "13.3,52.4,13.5,52.6"),    # east first
+                                       ("13.3,52.6,13.5,52.4", "13.3,52.4,13.5,52.6"),    # north second
+                                       ("-33.9,151.2,-33.8,151.3", "151.2,-33.9,151.3,-33.8")])  # lat, lon
+def test_a_bbox_given_in_the_wrong_order_is_answered_with_the_right_one(bad: str, meant: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        parse_bbox(bad)
+    assert f"did you mean --bbox {meant}" in str(err.value)
+    parse_bbox(meant)   # and what it suggests is a box
+
+
 def test_grid_is_5x5_tiles_around_the_centre_and_georeferenced() -> None:
     g = sample_grid(13.405, 52.52, 18)
     centre = mercantile.tile(13.405, 52.52, 18)

@@ -432,7 +432,7 @@ def test_localize_finds_a_view_in_a_region_of_osm_alone_and_writes_geojson(tmp_p
     both = CliRunner().invoke(cli, [*args, "--lat", str(centre[1]), "--lon", str(centre[0]), "--radius-km", "1"])
     assert both.exit_code == 2 and "give the region once" in both.output
     half = CliRunner().invoke(cli, [*disc, "--lat", str(centre[1]), "--radius-km", "1"])
-    assert half.exit_code == 2 and "go together" in half.output
+    assert half.exit_code == 2 and "go together" in half.output and "add --lon" in half.output
 
 
 def test_a_region_split_into_shards_answers_as_one_process(tmp_path) -> None:
