@@ -22,8 +22,11 @@ it is forest, a road of one long straight segment crosses it, as they are drawn 
 file. What a per-box cut still cannot see is listed there (a block at sea more than 5 km from
 any coast, ``type=boundary`` areas, a way whose nodes are in another ``--osm`` file, negative
 ids).
-The extracts live in ``CACHE/osm`` beside the region's other files (a temporary folder
-without a cache) and are named by the input file and the box, so a rerun cuts nothing again.
+The region's cut of each input (the one pass over a city or country file) is kept in
+``CACHE/osm`` with the input's extent and timestamp, so a rerun (a search killed while drawing,
+another query of the region) does not read the big file again. Each block's own extract is cut
+from it into a temporary folder and deleted once the block is drawn: the drawing is what is
+kept, and a region of a thousand blocks no longer leaves a thousand extracts in the cache.
 
 Cache files are written to a temporary name and renamed, so a search killed mid-write leaves
 no half file, and two searches drawing the same block write the same bytes.
@@ -75,8 +78,8 @@ def osm_key(osm: Sequence[Path | str], table: ClassTable, size: int) -> str:
 class BlockMasks:
     """Each block's class mask, drawn once: ``mask(b)`` for block ``b`` of ``grids``.
 
-    ``cache_dir``: a folder for drawn blocks and the blocks' OSM extracts, shared between runs
-    (None: memory and a temporary folder only). Call :meth:`prepare` with the blocks a search
+    ``cache_dir``: a folder for drawn blocks and the region's cut of each OSM file, shared between
+    runs (None: memory and a temporary folder only). Call :meth:`prepare` with the blocks a search
     will draw before drawing them, so the OSM files are read once for all of them. ``drawn``
     and ``read`` count the blocks drawn from OSM and read from the cache; ``cuts`` the calls
     that cut blocks out of the OSM files.
@@ -91,6 +94,7 @@ class BlockMasks:
             self.workdir = Path(cache_dir) / "osm"
         self._packed: dict[int, bytes] = {}
         self._extracts: dict[int, list[Path]] = {}
+        self._passing: Path | None = None
         self.drawn = self.read = self.cuts = 0
 
     def _file(self, b: int) -> Path | None:
@@ -99,12 +103,16 @@ class BlockMasks:
         first = self.grids[b].tiles[0]
         return self.folder / f"{first.z}-{first.x}-{first.y}.bin"
 
+    def _blocks_dir(self) -> Path:
+        """Where the blocks' own extracts go: a temporary folder removed with this object."""
+        if self._passing is None:
+            self._passing = Path(tempfile.mkdtemp(prefix="osmseg-region-osm-"))
+            weakref.finalize(self, shutil.rmtree, str(self._passing), True)
+        return self._passing
+
     def _work(self) -> Path:
-        """Where the blocks' extracts go: ``CACHE/osm``, or a folder removed with this object."""
-        if self.workdir is None:
-            self.workdir = Path(tempfile.mkdtemp(prefix="osmseg-region-osm-"))
-            weakref.finalize(self, shutil.rmtree, str(self.workdir), True)
-        return self.workdir
+        """Where the region's cut of each OSM file goes: ``CACHE/osm``, else the temporary folder."""
+        return self.workdir if self.workdir is not None else self._blocks_dir()
 
     def _cached(self, b: int) -> bytes | None:
         """Block ``b`` as deflated in memory or in the cache folder (None: not drawn yet)."""
@@ -129,7 +137,7 @@ class BlockMasks:
         for b in todo:
             self._extracts[b] = []
         for path in track(self.osm, progress, f"cutting {len(todo)} blocks out of the OSM", unit="file"):
-            source = LocalFileSource(path, self._work(), enclosing=True)
+            source = LocalFileSource(path, self._work(), enclosing=True, extracts=self._blocks_dir())
             if len(boxes) > 1:
                 source.prepare(boxes)  # the region out of a big file: one set of passes over it
             for b, extract in zip(todo, source.cut(boxes)):
@@ -142,7 +150,10 @@ class BlockMasks:
         packed = self._cached(b)
         if packed is None:
             self.prepare([b])  # a block nobody prepared: cut on its own
-            mask = rasterize(read_features(self._extracts.pop(b), grid, self.table), grid, self.table)
+            extracts = self._extracts.pop(b)
+            mask = rasterize(read_features(extracts, grid, self.table), grid, self.table)
+            for cut in extracts:  # drawn: its drawing is kept, not its extract
+                cut.unlink(missing_ok=True)
             packed = zlib.compress(np.ascontiguousarray(mask, np.uint8).tobytes(), 1)
             self.drawn += 1
             path = self._file(b)

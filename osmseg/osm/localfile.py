@@ -323,16 +323,22 @@ class LocalFileSource:
         reach: metres around a box within which a way segment crossing it is found.
         enclosing: also keep the areas a box lies inside and the coastline near it
             (:mod:`osmseg.osm.enclosing`); its extracts get names of their own.
+        extracts: folder for each box's own extract and its done-marker [``workdir``]: a caller
+            that keeps what it makes of them elsewhere (a region search its drawn blocks) cuts
+            them into a passing folder; the prepared region files, the input's extent and
+            timestamp stay in ``workdir``, where a rerun finds them.
     """
 
     name = "file"
     attribution = OSM_ATTRIBUTION
 
-    def __init__(self, path: Path, workdir: Path, reach: float = DEFAULT_REACH, enclosing: bool = False) -> None:
+    def __init__(self, path: Path, workdir: Path, reach: float = DEFAULT_REACH, enclosing: bool = False,
+                 extracts: Path | None = None) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise ConfigError(f"--osm {self.path}: file not found; give an .osm/.osm.pbf path, 'api' or 'overpass'")
         self.workdir = Path(workdir)
+        self.extracts = Path(extracts) if extracts is not None else self.workdir
         stat = self.path.stat()
         self.reach = float(reach)
         self.enclosing = enclosing
@@ -445,7 +451,7 @@ class LocalFileSource:
         done = read_done(marker)
         if done is not None:
             return done
-        self.workdir.mkdir(parents=True, exist_ok=True)
+        self.extracts.mkdir(parents=True, exist_ok=True)
         counts = write_extract(self._source_for(bbox), [bbox], out, self.reach, self.enclosing)
         return self._record(bbox, marker, out, counts)
 
@@ -467,7 +473,7 @@ class LocalFileSource:
             if read_done(marker) is None:
                 todo.setdefault(self._source_for(bbox), {})[marker] = (bbox, out)
         if todo:
-            self.workdir.mkdir(parents=True, exist_ok=True)
+            self.extracts.mkdir(parents=True, exist_ok=True)
             self.timestamp()
         for source, wanted in todo.items():
             self._cut_from(source, list(wanted), list(wanted.values()), batch)
@@ -483,9 +489,9 @@ class LocalFileSource:
         logger.info("cut %d boxes from %s", len(jobs), source)
 
     def _names(self, bbox: LngLatBBox) -> tuple[Path, Path]:
-        """The done-marker and the extract file of ``bbox`` in the work folder."""
+        """The done-marker and the extract file of ``bbox`` in the extracts' folder."""
         stem = cache_name("file", bbox, *self._identity)
-        return self.workdir / f"{stem}.json", self.workdir / f"{stem}.osm.pbf"
+        return self.extracts / f"{stem}.json", self.extracts / f"{stem}.osm.pbf"
 
     def _source_for(self, bbox: LngLatBBox) -> Path:
         """The file to cut ``bbox`` from: the first prepared region holding it, else the input."""

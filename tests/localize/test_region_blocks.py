@@ -48,12 +48,30 @@ def test_blocks_cut_in_one_pass_draw_what_the_whole_file_draws_and_a_rerun_cuts_
         assert len(np.unique(mine)) >= 2  # streets and buildings, not an empty block
     assert (masks.cuts, masks.drawn, masks.read) == (1, len(grids), 0)
     extracts = sorted((tmp_path / "cache" / "osm").glob("*.osm.pbf"))
-    regions = [p for p in extracts if p.name.startswith("region_")]
-    assert len(regions) == 1 and len(extracts) == len(grids) + 1  # the region once, then one extract per block
+    # the cache keeps the region's cut of the file (a rerun reads no big file again), not one extract
+    # per block: each was cut into a passing folder and deleted once its block was drawn
+    assert [p.name[:7] for p in extracts] == ["region_"]
+    passing = masks._blocks_dir()
+    assert not list(passing.glob("*.osm.pbf"))
+    del masks
+    assert not passing.exists()   # and the folder went with the object
+    masks = BlockMasks(osm, TABLE, grids, tmp_path / "cache")
     again = BlockMasks(osm, TABLE, grids, tmp_path / "cache")
     again.prepare(range(len(grids)))
     assert np.array_equal(again.mask(0), masks.mask(0))
     assert (again.cuts, again.drawn, again.read) == (0, 0, len(grids))  # read from the cache: no OSM read at all
+    # a search killed after the cut, before its blocks were drawn: the rerun cuts its blocks from the
+    # region's cut kept in the cache, not from the input again
+    half = tmp_path / "half"
+    first = BlockMasks(osm, TABLE, grids, half)
+    first.prepare(range(len(grids)))
+    region = next((half / "osm").glob("region_*.osm.pbf"))
+    stamp = region.stat().st_mtime_ns
+    del first
+    rerun = BlockMasks(osm, TABLE, grids, half)
+    rerun.prepare(range(len(grids)))
+    assert np.array_equal(rerun.mask(1), again.mask(1)) and region.stat().st_mtime_ns == stamp
+    assert [p.name[:7] for p in (half / "osm").glob("*.osm.pbf")] == ["region_"]
     # a block nobody prepared is cut on its own, and drawn alike
     alone = BlockMasks(osm, TABLE, grids)
     assert np.array_equal(alone.mask(len(grids) - 1), masks.mask(len(grids) - 1)) and alone.cuts == 1
