@@ -108,12 +108,40 @@ def parse_bbox(text: str) -> LngLatBBox:
         w, s, e, n = (float(v) for v in text.split(","))
     except ValueError:
         raise ConfigError(f"--bbox {text!r}: expected four numbers W,S,E,N in degrees") from None
-    if not (-180 <= w < e <= 180 and -85.06 <= s < n <= 85.06):
-        swapped = (f"; did you mean --bbox {e:g},{s:g},{w:g},{n:g} (west first)?" if w > e and s < n else
-                   f"; did you mean --bbox {w:g},{n:g},{e:g},{s:g} (south second)?" if s > n and w < e else
-                   f"; did you mean --bbox {s:g},{w:g},{n:g},{e:g} (longitude first)?" if abs(s) > 90 >= abs(w) else "")
-        raise ConfigError(f"--bbox {text!r}: need W<E within ±180 and S<N within ±85.06 (Web Mercator){swapped}")
+    if not _inside(w, s, e, n):
+        raise ConfigError(f"--bbox {text!r}: need W<E within ±180 and S<N within ±85.06 (Web Mercator)"
+                          f"{_meant(text, w, e)}")
     return LngLatBBox(w, s, e, n)
+
+
+def _inside(w: float, s: float, e: float, n: float) -> bool:
+    return -180 <= w < e <= 180 and -85.06 <= s < n <= 85.06
+
+
+def _meant(text: str, w: float, e: float) -> str:
+    """What a ``--bbox`` given in another order most likely meant, as the user wrote its numbers
+    ("" when no reordering is a box; latitude and longitude are taken as swapped only when a
+    "latitude" lies beyond ±90°, and a box across the antimeridian is refused, not turned around).
+
+    >>> _meant("13.5,52.4,13.3,52.6", 13.5, 13.3)
+    '; did you mean --bbox 13.3,52.4,13.5,52.6 (west first, south second)?'
+    >>> _meant("-33.9,151.2,-33.8,151.3", -33.9, -33.8)
+    '; did you mean --bbox 151.2,-33.9,151.3,-33.8 (longitude first)?'
+    >>> _meant("179.5,-17,-179.5,-16", 179.5, -179.5)
+    '; a box cannot cross the antimeridian: search each side of it on its own'
+    """
+    words = [v.strip() for v in text.split(",")]
+    if w > 90 and e < -90:
+        return "; a box cannot cross the antimeridian: search each side of it on its own"
+    orders = ((0, 1, 2, 3), (2, 1, 0, 3), (0, 3, 2, 1), (2, 3, 0, 1), (1, 0, 3, 2), (3, 0, 1, 2), (1, 2, 3, 0),
+              (3, 2, 1, 0))
+    lat_out = max(abs(float(words[1])), abs(float(words[3]))) > 90   # latitudes that cannot be: lon, lat given
+    for order in orders[1:]:   # the first is what was given
+        values = [float(words[i]) for i in order]
+        if _inside(*values) and (order[0] in (1, 3)) == lat_out:
+            what = "longitude first" if order[0] in (1, 3) else "west first, south second"
+            return f"; did you mean --bbox {','.join(words[i] for i in order)} ({what})?"
+    return ""
 
 
 def check_centre(lat: float, lon: float) -> None:

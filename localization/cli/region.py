@@ -298,10 +298,13 @@ def _say(query: RegionQuery, run: RegionRun, verbosity: int) -> None:
         click.echo(f"not sure: the answer's confidence {ratio(result.best.confidence or 0.0)} is below "
                    f"{MASK_MIN_CONFIDENCE:g}: the alternative fits almost as well (docs/localization.md)", err=True)
     else:
-        why = [f"from the other places of the region (confidence {ratio(result.best.confidence)})"
-               if result.best.confidence is not None else "",
-               f"from scrambled copies of the view (lift {ratio(result.lift)})" if result.lift is not None else ""]
-        click.echo(f"here: the answer stands out {' and '.join(w for w in why if w) or 'alone'}", err=True)
+        why = [f"from the other places of the region (confidence {ratio(result.best.confidence)}, at least "
+               f"{MASK_MIN_CONFIDENCE:g})" if result.best.confidence is not None else "",
+               f"from scrambled copies of the view (lift {ratio(result.lift)}, at least {NULL_MIN_LIFT:g})"
+               if result.lift is not None else ""]
+        said = " and ".join(w for w in why if w)
+        click.echo(f"here: the answer stands out {said}" if said else
+                   "here: the only answer (neither its confidence nor its lift could be measured)", err=True)
     if result.best.heading_deg is not None and query.view.profile().heading_deg is None:
         click.echo(f"heading of the answer: {degrees(result.best.heading_deg)}", err=True)
     if (truth := parse_lonlat(query.truth_text)) is not None:

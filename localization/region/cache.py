@@ -24,9 +24,11 @@ any coast, ``type=boundary`` areas, a way whose nodes are in another ``--osm`` f
 ids).
 The region's cut of each input (the one pass over a city or country file) is kept in
 ``CACHE/osm`` with the input's extent and timestamp, so a rerun (a search killed while drawing,
-another query of the region) does not read the big file again. Each block's own extract is cut
-from it into a temporary folder and deleted once the block is drawn: the drawing is what is
-kept, and a region of a thousand blocks no longer leaves a thousand extracts in the cache.
+another query of the region) does not read the big file again: it is named by every block the
+search asked for, which a rerun asks for again. Each block's own extract is cut from it into a
+folder of this search's own (``CACHE/osm/blocks-*``) and deleted once the block is drawn: the
+drawing is what is kept, and a region of a thousand blocks no longer leaves a thousand extracts
+in the cache. A folder a killed search left is removed by a later one after a day untouched.
 
 Cache files are written to a temporary name and renamed, so a search killed mid-write leaves
 no half file, and two searches drawing the same block write the same bytes.
@@ -40,6 +42,7 @@ import hashlib
 import json
 import shutil
 import tempfile
+import time
 import weakref
 import zlib
 from collections.abc import Iterable, Sequence
@@ -62,6 +65,10 @@ __all__ = ["BlockMasks", "OSM_PADDING_M", "osm_key"]
 CACHE_VERSION = 3
 #: metres of OSM read around each block, as ``osmseg build`` reads around a sample (its ``osm_padding_m``)
 OSM_PADDING_M = 60.0
+#: the name of a search's folder of block extracts in ``CACHE/osm``, and how long one must lie
+#: untouched before another search removes it as left by a killed one
+PASSING = "blocks-"
+STALE_PASSING_S = 86400.0
 
 
 def osm_key(osm: Sequence[Path | str], table: ClassTable, size: int) -> str:
@@ -104,9 +111,15 @@ class BlockMasks:
         return self.folder / f"{first.z}-{first.x}-{first.y}.bin"
 
     def _blocks_dir(self) -> Path:
-        """Where the blocks' own extracts go: a temporary folder removed with this object."""
+        """Where the blocks' own extracts go: a folder removed with this object, in ``CACHE/osm``
+        (the disk the cache was given, not a small or in-memory ``/tmp``) or the temporary folder."""
         if self._passing is None:
-            self._passing = Path(tempfile.mkdtemp(prefix="osmseg-region-osm-"))
+            where = None
+            if self.workdir is not None:
+                self.workdir.mkdir(parents=True, exist_ok=True)
+                _sweep(self.workdir)
+                where = str(self.workdir)
+            self._passing = Path(tempfile.mkdtemp(prefix=PASSING, dir=where))
             weakref.finalize(self, shutil.rmtree, str(self._passing), True)
         return self._passing
 
@@ -130,7 +143,8 @@ class BlockMasks:
     def prepare(self, blocks: Iterable[int], progress: Progress | None = None) -> None:
         """Cut the OSM of those ``blocks`` not drawn yet out of each OSM file, in one pass over it
         (a country file takes minutes: ``progress`` hears of each file)."""
-        todo = [b for b in dict.fromkeys(blocks) if b not in self._extracts and self._cached(b) is None]
+        wanted = list(dict.fromkeys(blocks))
+        todo = [b for b in wanted if b not in self._extracts and self._cached(b) is None]
         if not todo:
             return
         boxes = [_within_the_world(pad_bbox(self.grids[b].bbox, OSM_PADDING_M)) for b in todo]
@@ -138,8 +152,9 @@ class BlockMasks:
             self._extracts[b] = []
         for path in track(self.osm, progress, f"cutting {len(todo)} blocks out of the OSM", unit="file"):
             source = LocalFileSource(path, self._work(), enclosing=True, extracts=self._blocks_dir())
-            if len(boxes) > 1:
-                source.prepare(boxes)  # the region out of a big file: one set of passes over it
+            if len(wanted) > 1:  # the region out of a big file: one set of passes over it, named by every
+                # block asked for (not only those left to draw), so a rerun after a kill finds it again
+                source.prepare([_within_the_world(pad_bbox(self.grids[b].bbox, OSM_PADDING_M)) for b in wanted])
             for b, extract in zip(todo, source.cut(boxes)):
                 self._extracts[b] += extract.paths
         self.cuts += 1
@@ -161,6 +176,19 @@ class BlockMasks:
                 atomic_write_bytes(path, packed, durable=False)
             self._packed[b] = packed
         return np.frombuffer(zlib.decompress(packed), np.uint8).reshape(grid.height, grid.width)
+
+
+def _sweep(folder: Path, age_s: float = STALE_PASSING_S) -> None:
+    """Remove the blocks' folders that searches killed outright (``kill -9``, a power cut) left in
+    ``folder``: those untouched for ``age_s`` (a search drawing its blocks touches its folder with
+    every block)."""
+    now = time.time()
+    for old in folder.glob(f"{PASSING}*"):
+        try:
+            if old.is_dir() and now - old.stat().st_mtime > age_s:
+                shutil.rmtree(old, ignore_errors=True)
+        except OSError:  # another search removed it first
+            continue
 
 
 def _within_the_world(box: LngLatBBox) -> LngLatBBox:

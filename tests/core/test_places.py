@@ -75,12 +75,22 @@ def test_bad_bbox_is_a_one_line_config_error(bad: str) -> None:
 
 @pytest.mark.parametrize("bad,meant", [("13.5,52.4,13.3,52.6", "13.3,52.4,13.5,52.6"),    # east first
                                        ("13.3,52.6,13.5,52.4", "13.3,52.4,13.5,52.6"),    # north second
-                                       ("-33.9,151.2,-33.8,151.3", "151.2,-33.9,151.3,-33.8")])  # lat, lon
+                                       ("-33.9,151.2,-33.8,151.3", "151.2,-33.9,151.3,-33.8"),  # lat, lon
+                                       ("-33.8,151.3,-33.9,151.2", "151.2,-33.9,151.3,-33.8"),  # and backwards
+                                       ("151.20935,-33.87,151.20912,-33.86",                     # digits kept
+                                        "151.20912,-33.87,151.20935,-33.86")])
 def test_a_bbox_given_in_the_wrong_order_is_answered_with_the_right_one(bad: str, meant: str) -> None:
     with pytest.raises(ConfigError) as err:
         parse_bbox(bad)
     assert f"did you mean --bbox {meant}" in str(err.value)
     parse_bbox(meant)   # and what it suggests is a box
+
+
+@pytest.mark.parametrize("bad", ["13.5,52.4,13.3,89", "0,-89,1,-88", "179.5,-17,-179.5,-16"])
+def test_a_bbox_no_reordering_mends_gets_no_guess(bad: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        parse_bbox(bad)
+    assert "did you mean" not in str(err.value) and "\n" not in str(err.value)
 
 
 def test_grid_is_5x5_tiles_around_the_centre_and_georeferenced() -> None:

@@ -7,8 +7,10 @@ file for each block draws (localization/region/cache.py).
 * A block in the middle of a forest, or of a lake drawn as a multipolygon, larger than it: the
   outline never comes near the block, and the block is forest or water (a build's cut would
   leave it out and draw the block unlabeled). A block at sea 2 km from the coast is sea.
-* The OSM files are cut once for the region: the cache folder holds one region file per input
-  and one extract per block; a second search of the region cuts and draws nothing.
+* The OSM files are cut once for the region: the cache folder keeps one region file per input
+  (named by the blocks asked for, so a rerun after a kill, some blocks drawn, finds it again),
+  not the blocks' extracts (deleted once drawn); a second search of the region cuts and draws
+  nothing; a blocks' folder a killed search left is swept after a day.
 * Several ``--osm`` files (a split download) give the blocks of their union.
 """
 
@@ -60,18 +62,34 @@ def test_blocks_cut_in_one_pass_draw_what_the_whole_file_draws_and_a_rerun_cuts_
     again.prepare(range(len(grids)))
     assert np.array_equal(again.mask(0), masks.mask(0))
     assert (again.cuts, again.drawn, again.read) == (0, 0, len(grids))  # read from the cache: no OSM read at all
-    # a search killed after the cut, before its blocks were drawn: the rerun cuts its blocks from the
+    # a search killed after the cut, with one block drawn: the rerun cuts the others from the
     # region's cut kept in the cache, not from the input again
     half = tmp_path / "half"
     first = BlockMasks(osm, TABLE, grids, half)
     first.prepare(range(len(grids)))
+    first.mask(0)
     region = next((half / "osm").glob("region_*.osm.pbf"))
     stamp = region.stat().st_mtime_ns
     del first
     rerun = BlockMasks(osm, TABLE, grids, half)
     rerun.prepare(range(len(grids)))
     assert np.array_equal(rerun.mask(1), again.mask(1)) and region.stat().st_mtime_ns == stamp
-    assert [p.name[:7] for p in (half / "osm").glob("*.osm.pbf")] == ["region_"]
+    assert [p.name for p in (half / "osm").glob("*.osm.pbf")] == [region.name] and rerun.read == 1
+    # the blocks' folders: in the cache (its disk, not /tmp); one a killed search left a day ago is swept
+    import os
+    import time
+
+    from localization.region.cache import PASSING, STALE_PASSING_S
+
+    assert rerun._blocks_dir().parent == half / "osm"
+    stale, fresh = half / "osm" / f"{PASSING}killed", half / "osm" / f"{PASSING}running"
+    for folder in (stale, fresh):
+        folder.mkdir()
+        (folder / "x.osm.pbf").write_bytes(b"")
+    os.utime(stale, (time.time() - STALE_PASSING_S - 60,) * 2)
+    swept = BlockMasks(osm, TABLE, grids, half)
+    swept.prepare([0, 2])
+    assert not stale.exists() and fresh.exists()
     # a block nobody prepared is cut on its own, and drawn alike
     alone = BlockMasks(osm, TABLE, grids)
     assert np.array_equal(alone.mask(len(grids) - 1), masks.mask(len(grids) - 1)) and alone.cuts == 1
