@@ -365,12 +365,19 @@ QUERY_KINDS = (
 )
 
 
-@figure_set("renderers", "expensive", needs="shared data")
-def renderers(ws: Workspace) -> dict[str, Figure]:
-    """localize-bench on a 1280² Kotka OSM mask, 40 views per kind of query, drawn by the mask renderer and by the geometry renderer"""
+def kotka_mask(ws: Workspace) -> tuple[str, str]:
+    """The 1280² Kotka mask the localize-bench tables run on (``kotka.tif`` in the workspace, made
+    once): the OSM file it was drawn from, and its resolution as ``osm_mask.py`` printed it."""
     osm = str(ws.shared.joinpath(*KOTKA))
     res, _ = ws.run(str(REPO_ROOT / "benchmarks" / "osm_mask.py"), osm, "kotka.tif", "--lon", "26.9475", "--lat",
                     "60.5337", python=True)
+    return osm, res
+
+
+@figure_set("renderers", "expensive", needs="shared data")
+def renderers(ws: Workspace) -> dict[str, Figure]:
+    """localize-bench on a 1280² Kotka OSM mask, 40 views per kind of query, drawn by the mask renderer and by the geometry renderer"""
+    osm, res = kotka_mask(ws)
     rows, pooled = [], {"mask": [], "geometry": []}
     for i, (label, extra) in enumerate(QUERY_KINDS):
         for renderer in ("mask", "geometry"):
@@ -408,9 +415,7 @@ CEILING_KINDS = ((2, 25.0), (4, 10.0))
 @figure_set("ceiling", "expensive", needs="shared data")
 def ceiling(ws: Workspace) -> dict[str, Figure]:
     """benchmarks/bench_ceiling.py on the renderers table's 90° and noise rows: what a perfect search would reach"""
-    osm = str(ws.shared.joinpath(*KOTKA))
-    res, _ = ws.run(str(REPO_ROOT / "benchmarks" / "osm_mask.py"), osm, "kotka.tif", "--lon", "26.9475", "--lat",
-                    "60.5337", python=True)
+    osm, res = kotka_mask(ws)
     rows, found = [], {}
     for i, right in CEILING_KINDS:
         label, extra = QUERY_KINDS[i]

@@ -15,8 +15,8 @@ from collections.abc import Callable
 from typing import Any
 
 from figure_sets import F, of, table
-from figure_sets_external import KOTKA, QUERY_KINDS, benchmark
-from figures import REPO_ROOT, Figure, Workspace, figure_set
+from figure_sets_external import QUERY_KINDS, benchmark, kotka_mask
+from figures import Figure, Workspace, figure_set
 
 from localization.profile.profiles import MASK_MIN_CONFIDENCE
 from osmseg.units import metres, ratio
@@ -61,9 +61,7 @@ def bench_results(ws: Workspace, out: str, *args: str) -> dict[str, Any]:
 @figure_set("photoseeds", "expensive", needs="shared data")
 def photoseeds(ws: Workspace) -> dict[str, Figure]:
     """localize-bench --fov 90 --view-heading unknown on the 1280² Kotka mask, seeds 0-4, both renderers, each run's ceiling (bench_ceiling.py) beside it"""
-    osm = str(ws.shared.joinpath(*KOTKA))
-    res, _ = ws.run(str(REPO_ROOT / "benchmarks" / "osm_mask.py"), osm, "kotka.tif", "--lon", "26.9475", "--lat",
-                    "60.5337", python=True)
+    osm, res = kotka_mask(ws)
     rows, found = [], {}
     for renderer in ("mask", "geometry"):
         more = ("--renderer", "geometry", "--osm", osm) if renderer == "geometry" else ()
